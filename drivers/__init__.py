@@ -1,0 +1,1 @@
+"""Live adapters: CAN (python-can + cantools) and serial (pyserial), each a sample Source."""

@@ -1,0 +1,54 @@
+"""Command-line interface: ``online-backlash <subcommand> ...``.
+
+One module per subcommand in this package (cantools style). Each module defines
+``add_subparser(subparsers)`` which registers its parser and sets ``func`` to a function
+``func(args) -> int``. The CLI does no math: it parses options, calls the library, prints.
+Errors print as one line ``error: <message>`` with a non-zero exit; ``--debug`` shows the trace.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import pkgutil
+import sys
+from typing import Sequence
+
+from ..errors import BacklashError
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The top-level parser with every subcommand module of this package registered."""
+    parser = argparse.ArgumentParser(
+        prog="online-backlash",
+        description="Identify gearbox backlash from motor and load encoders, online or from logs.",
+        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+    )
+    parser.add_argument("--debug", action="store_true", help="show the full traceback on errors")
+    subparsers = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
+    for info in sorted(pkgutil.iter_modules(__path__), key=lambda m: m.name):
+        if info.name.startswith("_"):
+            continue
+        module = importlib.import_module(f"{__name__}.{info.name}")
+        module.add_subparser(subparsers)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point of the ``online-backlash`` console script; returns the exit code."""
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        return int(args.func(args) or 0)
+    except KeyboardInterrupt:
+        print("error: interrupted", file=sys.stderr)
+        return 130
+    except (BacklashError, OSError) as exc:
+        if args.debug:
+            raise
+        print(f"error: {exc}", file=sys.stderr)
+        return 1
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

@@ -1,0 +1,62 @@
+"""Options and output helpers shared by several subcommands (no math here)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+from typing import Any
+
+
+def add_log_options(parser: argparse.ArgumentParser) -> None:
+    """Options that say how to read a recorded log: columns, units, counts per revolution."""
+    group = parser.add_argument_group("log format")
+    group.add_argument(
+        "--columns",
+        metavar="MAP",
+        help="map the log's column names, e.g. time=time_s,motor=motor_counts,load=spindle_counts[,torque=T]",
+    )
+    group.add_argument("--units", choices=("deg", "rad", "counts"), default="deg", help="unit of the motor and load columns")
+    group.add_argument("--motor-cpr", type=float, help="motor encoder counts per motor revolution (with --units counts)")
+    group.add_argument("--load-cpr", type=float, help="load encoder counts per load revolution (with --units counts)")
+    group.add_argument("--skip-bad-rows", action="store_true", help="count and skip malformed rows instead of stopping")
+
+
+def add_ratio_option(parser: argparse.ArgumentParser, required: bool = True) -> None:
+    """``--ratio R``: motor:load gear ratio; negative for a stage that reverses direction."""
+    parser.add_argument(
+        "--ratio",
+        type=float,
+        required=required,
+        help="gear ratio motor:load (motor angle is divided by it; negative for a reversing stage)",
+    )
+
+
+def parse_column_map(text: str | None) -> dict[str, str] | None:
+    """``"time=time_s,motor=m"`` -> ``{"time": "time_s", "motor": "m"}``."""
+    if not text:
+        return None
+    mapping = {}
+    for item in text.split(","):
+        key, sep, value = item.partition("=")
+        if not sep or not key.strip() or not value.strip():
+            raise argparse.ArgumentTypeError(f"--columns expects name=column pairs, got {item!r}")
+        mapping[key.strip()] = value.strip()
+    return mapping
+
+
+def print_json(obj: dict[str, Any]) -> None:
+    """Print one JSON object on stdout (NaN and infinities become null)."""
+
+    def clean(value: Any) -> Any:
+        if isinstance(value, float) and not math.isfinite(value):
+            return None
+        if isinstance(value, dict):
+            return {k: clean(v) for k, v in value.items()}
+        if isinstance(value, (list, tuple)):
+            return [clean(v) for v in value]
+        return value
+
+    json.dump(clean(obj), sys.stdout, indent=2, sort_keys=False)
+    sys.stdout.write("\n")

@@ -1,0 +1,71 @@
+"""Input and parameter checks shared by the estimators (scikit-learn style: validate at fit)."""
+
+from __future__ import annotations
+
+import numbers
+
+import numpy as np
+
+from ..errors import InvalidParameterError, NotExcitedError, NotFittedError
+
+
+def check_pair(u: np.ndarray, y: np.ndarray, *, min_samples: int = 8) -> tuple[np.ndarray, np.ndarray]:
+    """Return ``u`` and ``y`` as finite 1-D float arrays of equal length, or raise InvalidParameterError."""
+    u = np.ascontiguousarray(u, dtype=float)
+    y = np.ascontiguousarray(y, dtype=float)
+    if u.ndim != 1 or y.ndim != 1:
+        raise InvalidParameterError(f"u and y must be 1-D, got shapes {u.shape} and {y.shape}")
+    if u.shape != y.shape:
+        raise InvalidParameterError(f"u and y must have equal length, got {u.size} and {y.size}")
+    if u.size < min_samples:
+        raise InvalidParameterError(f"need at least {min_samples} samples, got {u.size}")
+    for name, arr in (("u", u), ("y", y)):
+        bad = np.flatnonzero(~np.isfinite(arr))
+        if bad.size:
+            raise InvalidParameterError(f"{name} has {bad.size} non-finite values, first at index {bad[0]}")
+    return u, y
+
+
+def check_reverses(u: np.ndarray) -> None:
+    """Raise NotExcitedError unless ``u`` moves in both directions (both flanks of the dead band are seen)."""
+    du = np.diff(u)
+    if not (np.any(du > 0) and np.any(du < 0)):
+        raise NotExcitedError(
+            "the input never reverses: both flanks of the dead band must be engaged to identify "
+            "backlash (eq. 5-6); record a motion that changes direction"
+        )
+
+
+def check_int(name: str, value: object, low: int, high: int | None = None) -> int:
+    """Validate an integer parameter in ``[low, high]``."""
+    if isinstance(value, bool) or not isinstance(value, numbers.Integral):
+        raise InvalidParameterError(f"{name} must be an int, got {type(value).__name__} {value!r}")
+    if value < low or (high is not None and value > high):
+        rng = f">= {low}" if high is None else f"in [{low}, {high}]"
+        raise InvalidParameterError(f"{name} must be {rng}, got {value}")
+    return int(value)
+
+
+def check_real(name: str, value: object, low: float, *, low_open: bool = True) -> float:
+    """Validate a real parameter greater than (or equal to) ``low``."""
+    if isinstance(value, bool) or not isinstance(value, numbers.Real) or not np.isfinite(value):
+        raise InvalidParameterError(f"{name} must be a finite real number, got {value!r}")
+    if value < low or (low_open and value == low):
+        op = ">" if low_open else ">="
+        raise InvalidParameterError(f"{name} must be {op} {low}, got {value}")
+    return float(value)
+
+
+def check_option(name: str, value: object, options: tuple[str, ...]) -> str:
+    """Validate a string option."""
+    if value not in options:
+        raise InvalidParameterError(f"{name} must be one of {options}, got {value!r}")
+    return str(value)
+
+
+def check_is_fitted(estimator: object, attribute: str = "n_iter_") -> None:
+    """Raise NotFittedError if ``estimator`` has no fitted ``attribute``."""
+    if not hasattr(estimator, attribute):
+        raise NotFittedError(
+            f"this {type(estimator).__name__} is not fitted yet; call fit (or learn_one) first"
+        )

@@ -1,0 +1,1 @@
+"""Wear history: a store of estimates per gearbox, resume after restarts, trend and forecast."""

@@ -1,0 +1,40 @@
+"""Recorded logs replayed as the same sample stream as the live adapters.
+
+:func:`open_log` picks a reader by the file's suffix from :data:`LOG_READERS` (a ``.gz``
+suffix is looked through); a new format is one class plus one entry here.
+"""
+
+from __future__ import annotations
+
+import os
+from typing import Any, Callable
+
+from online_backlash.errors import LogFormatError
+
+from .csv import CsvLog, read_csv_arrays
+
+#: suffix -> reader class; each reader takes ``(path, **options)`` and is a Source.
+LOG_READERS: dict[str, Callable[..., Any]] = {
+    ".csv": CsvLog,
+}
+
+
+def log_suffix(path: str | os.PathLike[str]) -> str:
+    """The suffix that selects the reader: ``.csv`` for ``run.csv`` and ``run.csv.gz``."""
+    name = os.fspath(path).lower()
+    if name.endswith(".gz"):
+        name = name[:-3]
+    return os.path.splitext(name)[1]
+
+
+def open_log(path: str | os.PathLike[str], **options: Any):
+    """Open a recorded log as a Source, choosing the reader by suffix."""
+    suffix = log_suffix(path)
+    try:
+        reader = LOG_READERS[suffix]
+    except KeyError:
+        raise LogFormatError(path, None, f"unknown log format {suffix!r}; known: {sorted(LOG_READERS)}") from None
+    return reader(path, **options)
+
+
+__all__ = ["CsvLog", "LOG_READERS", "log_suffix", "open_log", "read_csv_arrays"]
