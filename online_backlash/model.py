@@ -129,6 +129,36 @@ def _switching_loop(u, mL, cL, mR, cR, x0):  # pragma: no cover - compiled
     return x, f1, f2
 
 
+@njit(cache=True)
+def _backlash_varying_loop(u, mL, cL, mR, cR, x0):  # pragma: no cover - compiled
+    n = u.shape[0]
+    x = np.empty(n)
+    prev = x0
+    for t in range(n):
+        if u[t] <= prev / mL - cL[t]:  # eq. (2) with cL(t)
+            prev = mL * u[t] + mL * cL[t]
+        elif u[t] >= prev / mR + cR[t]:  # eq. (3) with cR(t)
+            prev = mR * u[t] - mR * cR[t]
+        x[t] = prev
+    return x
+
+
+def simulate_backlash_varying(
+    u: np.ndarray, m_left: float, c_left: np.ndarray, m_right: float, c_right: np.ndarray, x0: float = 0.0
+) -> np.ndarray:
+    """Eq. (1)-(3) with time-varying dead-band widths ``c_left[t]``, ``c_right[t]`` (wear).
+
+    Slopes are constant; ``c_left`` and ``c_right`` are arrays as long as ``u`` (input units).
+    """
+    u = _as_input(u)
+    cL = np.ascontiguousarray(c_left, dtype=float)
+    cR = np.ascontiguousarray(c_right, dtype=float)
+    if cL.shape != u.shape or cR.shape != u.shape:
+        raise InvalidParameterError("c_left and c_right must be arrays as long as u")
+    BacklashParams(m_left, 0.0, m_right, 0.0)  # validates the slopes
+    return _backlash_varying_loop(u, float(m_left), cL, float(m_right), cR, float(x0))
+
+
 def _as_input(u: np.ndarray) -> np.ndarray:
     arr = np.ascontiguousarray(u, dtype=float)
     if arr.ndim != 1:
