@@ -12,12 +12,14 @@ degrees per second, encoder resolution in bits per revolution.
 from __future__ import annotations
 
 import csv
+import gzip
 import os
 from dataclasses import dataclass
 from typing import Callable
 
 import numpy as np
 
+from .errors import InvalidParameterError
 from .model import simulate_backlash_varying
 from .stream import SampleChunk
 
@@ -54,13 +56,32 @@ class RigRecording:
         n = self.time_s.size
         return SampleChunk(self.time_s, self.motor_deg, self.load_deg, np.full(n, np.nan), np.zeros(n, dtype=bool))
 
-    def write_csv(self, path: str | os.PathLike[str]) -> None:
-        """Write ``time,motor,load`` (seconds, degrees, degrees) with enough digits to keep every count."""
-        with open(path, "w", newline="") as f:
+    motor_bits: int = 14
+    load_bits: int = 17
+
+    def motor_counts(self) -> np.ndarray:
+        """Motor angle in motor-encoder counts (``2**motor_bits`` per motor revolution), multi-turn."""
+        return np.rint(self.motor_deg / 360.0 * 2**self.motor_bits).astype(np.int64)
+
+    def load_counts(self) -> np.ndarray:
+        """Load angle in load-encoder counts (``2**load_bits`` per load revolution), multi-turn."""
+        return np.rint(self.load_deg / 360.0 * 2**self.load_bits).astype(np.int64)
+
+    def write_csv(self, path: str | os.PathLike[str], units: str = "deg") -> None:
+        """Write ``time,motor,load``: seconds and degrees (``units="deg"``, enough digits to keep
+        every count) or seconds and encoder counts (``units="counts"``; read back with
+        ``motor_cpr=2**motor_bits, load_cpr=2**load_bits``). A ``.gz`` suffix compresses."""
+        opener = gzip.open if os.fspath(path).endswith(".gz") else open
+        if units == "deg":
+            motor, load = (f"{v:.9f}" for v in self.motor_deg), (f"{v:.9f}" for v in self.load_deg)
+        elif units == "counts":
+            motor, load = self.motor_counts(), self.load_counts()
+        else:
+            raise InvalidParameterError(f"units must be 'deg' or 'counts', got {units!r}")
+        with opener(path, "wt", newline="") as f:
             w = csv.writer(f)
             w.writerow(["time", "motor", "load"])
-            for row in zip(self.time_s, self.motor_deg, self.load_deg):
-                w.writerow([f"{row[0]:.6f}", f"{row[1]:.9f}", f"{row[2]:.9f}"])
+            w.writerows(zip((f"{t:.6f}" for t in self.time_s), motor, load))
 
 
 def rig_motion(
@@ -142,4 +163,4 @@ def simulate_rig(
     load_step = 360.0 / 2**load_bits
     load = quantise(x + load_offset_deg + rng.normal(0.0, noise_counts * load_step, t.size), load_bits)
     motor = quantise(u * ratio + motor_offset_deg, motor_bits)
-    return RigRecording(t, motor, load, u, play, c_left, c_right, float(ratio))
+    return RigRecording(t, motor, load, u, play, c_left, c_right, float(ratio), motor_bits, load_bits)
