@@ -151,6 +151,12 @@ class CsvLog:
         """Yield validated blocks of samples (degrees, seconds, N m); the fast path for ``learn_many``."""
         self.close()
         self._file = f = self._open()
+        try:
+            yield from self._read_blocks(f)
+        finally:
+            self.close()
+
+    def _read_blocks(self, f: io.TextIOBase) -> Iterator[SampleChunk]:
         self.counters = StreamCounters()
         try:
             usecols, has_torque = self._header(f)
@@ -170,7 +176,6 @@ class CsvLog:
             chunk, last_time = self._validate(values, line_numbers, has_torque, last_time)
             if len(chunk):
                 yield chunk
-        self.close()
 
     def _parse_block(self, lines: list[str], first: int, usecols: list[int]) -> tuple[np.ndarray, np.ndarray]:
         """Parse rows to a float array; returns it with each row's 1-based line number."""

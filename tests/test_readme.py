@@ -1,0 +1,33 @@
+"""The README opens with exactly two set-up commands, and CI runs the second one verbatim."""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def setup_commands() -> list[str]:
+    text = (ROOT / "README.md").read_text()
+    first_block = re.search(r"```(?:bash|sh|console)?\n(.*?)```", text, re.S)
+    assert first_block, "README has no code block"
+    return [ln.strip() for ln in first_block.group(1).splitlines() if ln.strip() and not ln.lstrip().startswith("#")]
+
+
+def test_readme_starts_with_two_commands():
+    text = (ROOT / "README.md").read_text()
+    assert text.index("```") < text.index("\n## "), "the set-up commands come before any section"
+    commands = setup_commands()
+    assert len(commands) == 2
+    assert "online-backlash demo" in commands[0] and "pip install" in commands[0]
+    assert "pytest" in commands[1] and ".[test]" in commands[1]
+
+
+def test_ci_runs_the_readme_test_command():
+    if not (ROOT / ".ci" / "run").exists():
+        pytest.fail(".ci/run is missing")
+    ci = (ROOT / ".ci" / "run").read_text().splitlines()
+    assert setup_commands()[1] in [ln.strip() for ln in ci]
