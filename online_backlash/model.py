@@ -205,6 +205,52 @@ def simulate_switching(
     return _switching_loop(_as_input(u), params.m_left, params.c_left, params.m_right, params.c_right, float(x0))
 
 
+@njit(cache=True)
+def _sensitivity_loop(u, mL, cL, mR, cR, x0):  # pragma: no cover - compiled
+    n = u.shape[0]
+    x = np.empty(n)
+    dx = np.zeros((n, 4))
+    prev = x0
+    d0 = d1 = d2 = d3 = 0.0  # d x(t-1) / d [mL, cL, mR, cR]; x(-1) = x0 is given
+    for t in range(n):
+        if u[t] <= prev / mL - cL:  # eq. (1)-(2), left line: x = mL (u + cL)
+            prev = mL * u[t] + mL * cL
+            d0, d1, d2, d3 = u[t] + cL, mL, 0.0, 0.0
+        elif u[t] >= prev / mR + cR:  # eq. (1), (3), right line: x = mR (u - cR)
+            prev = mR * u[t] - mR * cR
+            d0, d1, d2, d3 = 0.0, 0.0, u[t] - cR, -mR
+        # inside the band x(t) = x(t-1): the derivatives carry over
+        x[t] = prev
+        dx[t, 0] = d0
+        dx[t, 1] = d1
+        dx[t, 2] = d2
+        dx[t, 3] = d3
+    return x, dx
+
+
+def backlash_sensitivity(
+    u: np.ndarray, params: BacklashParams, x0: float = 0.0
+) -> tuple[np.ndarray, np.ndarray]:
+    """Backlash output, eq. (1)-(3), and its derivatives with respect to ``[mL, cL, mR, cR]``.
+
+    The derivatives hold the switching pattern (which line, if any, is active at each sample)
+    fixed: on the left line ``dx/d[mL, cL] = [u + cL, mL]``, on the right line
+    ``dx/d[mR, cR] = [u - cR, -mR]``, and inside the dead band ``x(t) = x(t-1)`` carries the
+    derivatives of the previous sample. The output is continuous in the parameters and piecewise
+    smooth, so these are its derivatives wherever no sample sits exactly on a switching boundary:
+    the Jacobian of a Gauss-Newton fit of the simulation (output) error.
+
+    Returns
+    -------
+    x : array, shape (n,)
+        Equal to :func:`simulate_backlash`.
+    dx : array, shape (n, 4)
+        ``d x(t) / d [m_left, c_left, m_right, c_right]``.
+    """
+    _check_band(params)
+    return _sensitivity_loop(_as_input(u), params.m_left, params.c_left, params.m_right, params.c_right, float(x0))
+
+
 def linear_filter(x: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """The linear block of eq. (15)-(17): ``y(t) = x(t-1) + sum_{i>=2} a_i x(t-i) - sum_j b_j y(t-j)``.
 
@@ -227,3 +273,64 @@ def simulate_cascade(
     """
     x = simulate_backlash(u, params, x0)
     return linear_filter(x, a, b), x
+
+
+@dataclass(frozen=True)
+class PaperExample:
+    """One of the five examples of the paper's section 5 (see ``PAPER.md``).
+
+    Attributes
+    ----------
+    number : int
+        1-5, as in the paper.
+    params : BacklashParams
+        True backlash parameters.
+    a, b : tuple of float
+        The linear block of eq. (15)-(17), ``a = (a2, ...)`` with ``a1 = 1`` and ``b = (b1, ...)``;
+        empty for backlash alone (examples 1, 2).
+    samples : int
+        Number of samples.
+    snr : float
+        Signal-to-noise ratio ``sqrt(var(output) / var(noise))``.
+    paper_iterations : int
+        Iterations the paper reports for its algorithm to converge.
+    """
+
+    number: int
+    params: BacklashParams
+    a: tuple[float, ...]
+    b: tuple[float, ...]
+    samples: int
+    snr: float
+    paper_iterations: int
+
+    @property
+    def cascade(self) -> bool:
+        """True for examples 3-5 (backlash followed by a linear system)."""
+        return bool(self.a or self.b)
+
+    def generate(self, seed: int) -> tuple[np.ndarray, np.ndarray]:
+        """Input and noisy output ``(u, y)`` of the example for one random ``seed``.
+
+        The input is uniform on ``(-1, 1)``; the output (``x`` for backlash alone, ``y`` of
+        eq. 15 for a cascade) gets zero-mean Gaussian noise of standard deviation
+        ``std(output) / snr``. The backlash starts at rest at ``x(-1) = 0``.
+        """
+        rng = np.random.default_rng(seed)
+        u = rng.uniform(-1.0, 1.0, self.samples)
+        out = simulate_backlash(u, self.params)
+        if self.cascade:
+            out = linear_filter(out, np.asarray(self.a), np.asarray(self.b))
+        return u, out + rng.normal(0.0, np.std(out) / self.snr, self.samples)
+
+
+_PAPER_LINEAR = ((0.5,), (-0.2, 0.35))  # y(t) = x(t-1) + 0.5 x(t-2) + 0.2 y(t-1) - 0.35 y(t-2)
+
+#: The paper's five examples, by number.
+PAPER_EXAMPLES: dict[int, PaperExample] = {
+    1: PaperExample(1, BacklashParams(1.3, 0.5, 2.5, 0.7), (), (), 800, 10.0, 7),
+    2: PaperExample(2, BacklashParams(1.7, 0.1, 1.4, 0.15), (), (), 800, 10.0, 5),
+    3: PaperExample(3, BacklashParams(1.3, 0.6, 2.0, 0.7), *_PAPER_LINEAR, 1500, 25.0, 9),
+    4: PaperExample(4, BacklashParams(0.24, 0.035, 0.26, 0.07), *_PAPER_LINEAR, 1500, 25.0, 4),
+    5: PaperExample(5, BacklashParams(-1.3, 0.2, -1.3, 0.2), *_PAPER_LINEAR, 1500, 25.0, 5),
+}
