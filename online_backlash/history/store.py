@@ -1,0 +1,553 @@
+"""The wear-history store: gearboxes, runs and estimates in SQLite or PostgreSQL (SQLAlchemy 2).
+
+``db`` is either a file path (SQLite, the embedded default, in WAL mode so a reader never
+blocks the writer) or a URL: ``postgresql://user@host/dbname`` for many rigs writing to one
+server (driver psycopg 3; ``postgresql+psycopg://`` is used internally) or ``sqlite:///path``.
+Both speak the same schema, defined once below with SQLAlchemy Core.
+
+Tables
+------
+``meta``
+    ``key``/``value`` pairs: ``application`` (``online-backlash``) and ``schema_version``.
+``gearboxes``
+    One row per gearbox: ``id`` (the user's name for it), ``ratio`` (motor:load), the nominal
+    backlash limit ``limit_arcmin`` (may be NULL), ``created_unix_s``, and the tracker's
+    ``checkpoint`` (JSON: estimator state and usage counters after the last committed sample)
+    with its ``revision`` (incremented by every commit; a commit that finds another revision
+    than the one it started from is refused, so two writers cannot interleave one gearbox).
+``runs``
+    One row per source fed into a gearbox: ``source`` (log path or live description),
+    ``log_sha256`` (unique per gearbox: the same log imported twice adds nothing),
+    ``status`` (``running`` or ``complete``), the calendar time of the first and last sample
+    (``started_unix_s``, ``ended_unix_s``), ``imported_unix_s``, ``samples_done`` (the resume
+    point: samples of this source already in the checkpoint) and the source's counters
+    (``frames``, ``samples``, ``corrupt``, ``skipped``, ``gaps``).
+``estimates``
+    One row per estimate: ``time_unix_s``, ``backlash_deg`` and ``backlash_std_deg``, both
+    sides ``c_left_deg``/``c_right_deg``, slopes ``m_left``/``m_right``, ``residual_rms_deg``,
+    ``n_samples`` (samples seen by the estimator since the gearbox was new), and the usage since
+    new: ``operating_hours``, ``load_revolutions``, ``reversals``. ``(run_id, sample_index)``
+    is unique, so a row can never be written twice.
+
+Times are UNIX seconds (UTC), angles degrees on the load side.
+
+Schema version and migrations
+-----------------------------
+A new store is created from the current table definitions and stamped with
+:data:`SCHEMA_VERSION`. A store stamped with an older version ``k`` is upgraded on open by
+running ``MIGRATIONS[k]``, ``MIGRATIONS[k + 1]``, ... (each takes the schema from version ``i``
+to ``i + 1``), all in one transaction with the new stamp, so an upgrade that fails leaves the
+store as it was (DDL is transactional in both SQLite and PostgreSQL). A store stamped with a
+newer version than this code knows is refused rather than guessed at. To change the schema:
+edit the tables, append a migration from the current version, and increment
+:data:`SCHEMA_VERSION`. Version 1 is the first schema, so there are no migrations yet.
+
+Every write that belongs together (estimate rows, the run's resume point and the gearbox's
+checkpoint) is one transaction: a process killed at any instant leaves either all or none of it.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Callable, Iterable
+
+from sqlalchemy import (
+    BigInteger,
+    Column,
+    Connection,
+    Double,
+    ForeignKey,
+    Integer,
+    MetaData,
+    String,
+    Table,
+    Text,
+    UniqueConstraint,
+    create_engine,
+    event,
+    inspect,
+    select,
+    update,
+)
+from sqlalchemy.engine import URL, Engine, make_url
+from sqlalchemy.exc import ArgumentError, DBAPIError, SQLAlchemyError
+
+from ..errors import HistoryError
+
+APPLICATION = "online-backlash"
+
+#: Version of the schema defined in this module.
+SCHEMA_VERSION = 1
+
+#: ``MIGRATIONS[i]`` upgrades a store from schema version ``i`` to ``i + 1``, given a connection
+#: inside the upgrade transaction. Empty while version 1 is the only schema.
+MIGRATIONS: dict[int, Callable[[Connection], None]] = {}
+
+_SQLITE_MAGIC = b"SQLite format 3\x00"
+
+metadata = MetaData()
+
+meta_table = Table(
+    "meta",
+    metadata,
+    Column("key", String(64), primary_key=True),
+    Column("value", String(256), nullable=False),
+)
+
+gearboxes_table = Table(
+    "gearboxes",
+    metadata,
+    Column("id", String(200), primary_key=True),
+    Column("ratio", Double, nullable=False),
+    Column("limit_arcmin", Double),
+    Column("created_unix_s", Double, nullable=False),
+    Column("checkpoint", Text),
+    Column("revision", Integer, nullable=False, default=0),
+)
+
+runs_table = Table(
+    "runs",
+    metadata,
+    Column("id", Integer, primary_key=True, autoincrement=True),
+    Column("gearbox_id", String(200), ForeignKey("gearboxes.id"), nullable=False),
+    Column("source", String(1000), nullable=False),
+    Column("log_sha256", String(64)),
+    Column("status", String(16), nullable=False),
+    Column("started_unix_s", Double),
+    Column("ended_unix_s", Double),
+    Column("imported_unix_s", Double, nullable=False),
+    Column("samples_done", BigInteger, nullable=False, default=0),
+    Column("frames", BigInteger, nullable=False, default=0),
+    Column("samples", BigInteger, nullable=False, default=0),
+    Column("corrupt", BigInteger, nullable=False, default=0),
+    Column("skipped", BigInteger, nullable=False, default=0),
+    Column("gaps", BigInteger, nullable=False, default=0),
+    UniqueConstraint("gearbox_id", "log_sha256", name="uq_runs_gearbox_log"),
+)
+
+estimates_table = Table(
+    "estimates",
+    metadata,
+    Column("id", Integer, primary_key=True, autoincrement=True),
+    Column("gearbox_id", String(200), ForeignKey("gearboxes.id"), nullable=False, index=True),
+    Column("run_id", Integer, ForeignKey("runs.id"), nullable=False),
+    Column("sample_index", BigInteger, nullable=False),
+    Column("time_unix_s", Double, nullable=False),
+    Column("backlash_deg", Double, nullable=False),
+    Column("backlash_std_deg", Double),
+    Column("c_left_deg", Double),
+    Column("c_right_deg", Double),
+    Column("m_left", Double),
+    Column("m_right", Double),
+    Column("residual_rms_deg", Double),
+    Column("n_samples", BigInteger, nullable=False),
+    Column("operating_hours", Double, nullable=False),
+    Column("load_revolutions", Double, nullable=False),
+    Column("reversals", BigInteger, nullable=False),
+    UniqueConstraint("run_id", "sample_index", name="uq_estimates_run_sample"),
+)
+
+#: Columns of an estimate row, in table order (without the surrogate key).
+ESTIMATE_FIELDS = tuple(c.name for c in estimates_table.columns if c.name != "id")
+
+
+@dataclass(frozen=True)
+class Gearbox:
+    """A stored gearbox; ``checkpoint`` is the tracker state (a dict) or None before the first commit."""
+
+    id: str
+    ratio: float
+    limit_arcmin: float | None
+    created_unix_s: float
+    checkpoint: dict | None
+    revision: int
+
+
+@dataclass(frozen=True)
+class Run:
+    """A stored run (one log or live session fed into one gearbox)."""
+
+    id: int
+    gearbox_id: str
+    source: str
+    log_sha256: str | None
+    status: str
+    started_unix_s: float | None
+    ended_unix_s: float | None
+    imported_unix_s: float
+    samples_done: int
+    frames: int
+    samples: int
+    corrupt: int
+    skipped: int
+    gaps: int
+
+    @property
+    def complete(self) -> bool:
+        return self.status == "complete"
+
+
+@dataclass(frozen=True)
+class Estimate:
+    """One stored estimate; times UNIX seconds, angles degrees (load side)."""
+
+    gearbox_id: str
+    run_id: int
+    sample_index: int
+    time_unix_s: float
+    backlash_deg: float
+    backlash_std_deg: float | None
+    c_left_deg: float | None
+    c_right_deg: float | None
+    m_left: float | None
+    m_right: float | None
+    residual_rms_deg: float | None
+    n_samples: int
+    operating_hours: float
+    load_revolutions: float
+    reversals: int
+
+
+def resolve_url(db: str | os.PathLike[str]) -> URL:
+    """The SQLAlchemy URL of ``db``: a path means SQLite; ``postgresql://`` selects psycopg 3."""
+    text = os.fspath(db)
+    if "://" not in text:
+        return URL.create("sqlite", database=str(Path(text).expanduser().resolve()))
+    try:
+        url = make_url(text)
+    except ArgumentError as exc:
+        raise HistoryError(f"cannot parse database URL {text!r}: {exc}") from exc
+    backend = url.get_backend_name()
+    if backend in ("postgresql", "postgres"):
+        return url.set(drivername="postgresql+psycopg")
+    if backend == "sqlite":
+        return url
+    raise HistoryError(f"unsupported database {url.drivername!r}: use a file path (SQLite) or postgresql://...")
+
+
+def _describe(url: URL) -> str:
+    return url.database if url.get_backend_name() == "sqlite" else url.render_as_string(hide_password=True)
+
+
+def _sqlite_file(url: URL) -> Path | None:
+    """The file behind a SQLite URL (None for an in-memory database)."""
+    if url.get_backend_name() != "sqlite" or url.database in (None, "", ":memory:"):
+        return None
+    return Path(url.database)
+
+
+class HistoryStore:
+    """Open (and, with ``create=True``, create) a wear-history store.
+
+    Parameters
+    ----------
+    db : str or os.PathLike
+        A file path (SQLite) or a URL (``postgresql://...``, ``sqlite:///...``).
+    create : bool
+        Create the store if ``db`` holds none yet (a missing file or an empty database). With
+        False such a ``db`` raises :class:`~online_backlash.errors.HistoryError`.
+
+    Raises
+    ------
+    HistoryError
+        ``db`` is not an online-backlash store (another file, another database), its schema is
+        newer than this code, or the server cannot be reached. Nothing is written in these cases.
+
+    Examples
+    --------
+    >>> import tempfile, os
+    >>> path = os.path.join(tempfile.mkdtemp(), "wear.db")
+    >>> with HistoryStore(path, create=True) as store:
+    ...     store.schema_version
+    1
+    """
+
+    def __init__(self, db: str | os.PathLike[str], create: bool = False) -> None:
+        self.url = resolve_url(db)
+        self.name = _describe(self.url)
+        self._sqlite = self.url.get_backend_name() == "sqlite"
+        path = _sqlite_file(self.url)
+        if path is not None:
+            self._check_sqlite_file(path, create)
+        self.engine = self._make_engine()
+        try:
+            self.schema_version = self._open_schema(create)
+        except BaseException:
+            self.engine.dispose()
+            raise
+
+    # -- opening ---------------------------------------------------------------------------
+    def _check_sqlite_file(self, path: Path, create: bool) -> None:
+        if not path.exists():
+            if not create:
+                raise HistoryError(f"no history store at {path}")
+            if not path.parent.is_dir():
+                raise HistoryError(f"cannot create {path}: folder {path.parent} does not exist")
+            return
+        if path.is_dir():
+            raise HistoryError(f"{path} is a folder, not a history store")
+        with open(path, "rb") as f:
+            head = f.read(len(_SQLITE_MAGIC))
+        if head and head != _SQLITE_MAGIC:
+            raise HistoryError(f"{path} is not an online-backlash history store (not an SQLite database)")
+
+    def _make_engine(self) -> Engine:
+        engine = create_engine(self.url)
+        if self._sqlite:
+            # pysqlite opens transactions lazily and not before DDL; take over BEGIN so that every
+            # transaction (migrations included) is atomic, and take the write lock up front
+            # (BEGIN IMMEDIATE) so that two writers wait for each other instead of deadlocking.
+            @event.listens_for(engine, "connect")
+            def _on_connect(dbapi_connection: Any, _record: Any) -> None:
+                dbapi_connection.isolation_level = None
+                dbapi_connection.execute("PRAGMA foreign_keys=ON")
+                dbapi_connection.execute("PRAGMA busy_timeout=30000")
+
+            @event.listens_for(engine, "begin")
+            def _on_begin(conn: Connection) -> None:
+                conn.exec_driver_sql("BEGIN IMMEDIATE" if conn.info.get("write") else "BEGIN")
+
+        return engine
+
+    def _connect(self, write: bool = False) -> Connection:
+        try:
+            conn = self.engine.connect()
+        except DBAPIError as exc:
+            raise HistoryError(f"cannot open history store {self.name}: {exc.orig}") from exc
+        conn.info["write"] = write
+        return conn
+
+    def _open_schema(self, create: bool) -> int:
+        try:
+            with self._connect() as conn:
+                tables = set(inspect(conn).get_table_names())
+                stamp = dict(conn.execute(select(meta_table.c.key, meta_table.c.value)).all()) if "meta" in tables else None
+        except DBAPIError as exc:
+            raise HistoryError(f"{self.name} is not an online-backlash history store ({exc.orig})") from exc
+        if stamp is None:
+            if tables:
+                raise HistoryError(
+                    f"{self.name} is not an online-backlash history store (it holds other tables: {sorted(tables)[:5]})"
+                )
+            if not create:
+                raise HistoryError(f"no history store in {self.name} (the database is empty)")
+            self._create()
+            return SCHEMA_VERSION
+        if stamp.get("application") != APPLICATION or not str(stamp.get("schema_version", "")).isdigit():
+            raise HistoryError(f"{self.name} is not an online-backlash history store (its meta table is foreign)")
+        version = int(stamp["schema_version"])
+        if version > SCHEMA_VERSION:
+            raise HistoryError(
+                f"{self.name} has schema version {version}, newer than this online-backlash understands "
+                f"({SCHEMA_VERSION}); upgrade online-backlash to read it"
+            )
+        if version < SCHEMA_VERSION:
+            self._migrate(version)
+        return SCHEMA_VERSION
+
+    def _create(self) -> None:
+        if self._sqlite:
+            with self._connect() as conn:
+                # a persistent property of the file; must run outside a transaction
+                conn.connection.dbapi_connection.execute("PRAGMA journal_mode=WAL")
+        with self._connect(write=True) as conn, conn.begin():
+            metadata.create_all(conn)
+            conn.execute(
+                meta_table.insert(),
+                [{"key": "application", "value": APPLICATION}, {"key": "schema_version", "value": str(SCHEMA_VERSION)}],
+            )
+
+    def _migrate(self, version: int) -> None:
+        missing = [v for v in range(version, SCHEMA_VERSION) if v not in MIGRATIONS]
+        if missing:
+            raise HistoryError(f"{self.name} has schema version {version} and no migration from version {missing[0]} exists")
+        try:
+            with self._connect(write=True) as conn, conn.begin():
+                for v in range(version, SCHEMA_VERSION):
+                    MIGRATIONS[v](conn)
+                conn.execute(
+                    update(meta_table).where(meta_table.c.key == "schema_version").values(value=str(SCHEMA_VERSION))
+                )
+        except SQLAlchemyError as exc:
+            raise HistoryError(f"migrating {self.name} from schema version {version} failed: {exc}") from exc
+
+    # -- lifetime --------------------------------------------------------------------------
+    def close(self) -> None:
+        """Release the connections."""
+        self.engine.dispose()
+
+    def __enter__(self) -> "HistoryStore":
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    # -- reading ---------------------------------------------------------------------------
+    def gearbox_ids(self) -> list[str]:
+        """The ids of every stored gearbox, sorted."""
+        with self._connect() as conn:
+            return list(conn.execute(select(gearboxes_table.c.id).order_by(gearboxes_table.c.id)).scalars())
+
+    def gearbox(self, gearbox_id: str) -> Gearbox:
+        """The stored gearbox ``gearbox_id``; HistoryError if the store does not hold it."""
+        with self._connect() as conn:
+            found = _get_gearbox(conn, gearbox_id)
+        if found is None:
+            raise HistoryError(self._unknown(gearbox_id))
+        return found
+
+    def runs(self, gearbox_id: str) -> list[Run]:
+        """The runs of a gearbox in the order they were started."""
+        with self._connect() as conn:
+            rows = conn.execute(select(runs_table).where(runs_table.c.gearbox_id == gearbox_id).order_by(runs_table.c.id))
+            return [Run(**row._mapping) for row in rows]
+
+    def estimates(self, gearbox_id: str) -> list[Estimate]:
+        """Every estimate of a gearbox in the order of its use (operating hours, then time)."""
+        t = estimates_table
+        with self._connect() as conn:
+            if _get_gearbox(conn, gearbox_id) is None:
+                raise HistoryError(self._unknown(gearbox_id))
+            rows = conn.execute(
+                select(*(t.c[name] for name in ESTIMATE_FIELDS))
+                .where(t.c.gearbox_id == gearbox_id)
+                .order_by(t.c.n_samples, t.c.time_unix_s, t.c.id)
+            )
+            return [Estimate(**row._mapping) for row in rows]
+
+    def _unknown(self, gearbox_id: str) -> str:
+        known = self.gearbox_ids()
+        hint = f"; it holds {', '.join(known[:10])}" if known else "; it holds no gearbox yet"
+        return f"{self.name} holds no gearbox {gearbox_id!r}{hint}"
+
+    # -- writing ---------------------------------------------------------------------------
+    def begin_run(
+        self,
+        gearbox_id: str,
+        ratio: float,
+        source: str,
+        log_sha256: str | None,
+        started_unix_s: float | None,
+        limit_arcmin: float | None = None,
+    ) -> tuple[Gearbox, Run]:
+        """Register the gearbox if new, then find or start the run of this source, in one transaction.
+
+        A gearbox the store has not seen is registered with ``ratio`` (and ``limit_arcmin``); a
+        known one must have the same ratio (else HistoryError, nothing written); a given
+        ``limit_arcmin`` replaces the stored limit. With a ``log_sha256`` already stored for this
+        gearbox the existing run is returned (complete: nothing to do; running: resume it).
+        """
+        if not isinstance(ratio, (int, float)) or not math.isfinite(ratio) or ratio == 0:
+            raise HistoryError(f"ratio must be a finite non-zero number, got {ratio!r}")
+        now = time.time()
+        with self._connect(write=True) as conn, conn.begin():
+            gearbox = _get_gearbox(conn, gearbox_id)
+            if gearbox is None:
+                conn.execute(
+                    gearboxes_table.insert().values(
+                        id=gearbox_id, ratio=float(ratio), limit_arcmin=limit_arcmin, created_unix_s=now, revision=0
+                    )
+                )
+            elif not math.isclose(gearbox.ratio, ratio, rel_tol=1e-9):
+                raise HistoryError(
+                    f"gearbox {gearbox_id!r} is stored with ratio {gearbox.ratio:g}; --ratio {ratio:g} contradicts it "
+                    "(use another gearbox id for another gearbox)"
+                )
+            elif limit_arcmin is not None and limit_arcmin != gearbox.limit_arcmin:
+                conn.execute(
+                    update(gearboxes_table).where(gearboxes_table.c.id == gearbox_id).values(limit_arcmin=limit_arcmin)
+                )
+            run_row = None
+            if log_sha256 is not None:
+                run_row = conn.execute(
+                    select(runs_table).where(runs_table.c.gearbox_id == gearbox_id, runs_table.c.log_sha256 == log_sha256)
+                ).first()
+            if run_row is None:
+                run_id = conn.execute(
+                    runs_table.insert().values(
+                        gearbox_id=gearbox_id,
+                        source=source[:1000],
+                        log_sha256=log_sha256,
+                        status="running",
+                        started_unix_s=started_unix_s,
+                        imported_unix_s=now,
+                        samples_done=0,
+                        frames=0,
+                        samples=0,
+                        corrupt=0,
+                        skipped=0,
+                        gaps=0,
+                    )
+                ).inserted_primary_key[0]
+                run_row = conn.execute(select(runs_table).where(runs_table.c.id == run_id)).one()
+            gearbox = _get_gearbox(conn, gearbox_id)
+        return gearbox, Run(**run_row._mapping)
+
+    def commit(
+        self,
+        gearbox: Gearbox,
+        run: Run,
+        samples_done: int,
+        checkpoint: dict,
+        estimates: Iterable[dict[str, Any]] = (),
+        counters: dict[str, int] | None = None,
+        ended_unix_s: float | None = None,
+    ) -> tuple[Gearbox, Run]:
+        """Append estimates and move the checkpoint and the run's resume point, in one transaction.
+
+        ``gearbox`` and ``run`` are the versions the caller started from: if another process
+        committed to the same gearbox or run meanwhile, HistoryError is raised and nothing is
+        written. With ``counters`` the run is marked complete. Returns the updated records.
+        """
+        rows = [{k: _finite_or_none(v) for k, v in dict(e, gearbox_id=gearbox.id, run_id=run.id).items()} for e in estimates]
+        run_values: dict[str, Any] = {"samples_done": samples_done}
+        if ended_unix_s is not None:
+            run_values["ended_unix_s"] = ended_unix_s
+        if counters is not None:
+            run_values.update(status="complete", **{k: int(counters[k]) for k in ("frames", "samples", "corrupt", "skipped", "gaps")})
+        state = json.dumps(checkpoint, allow_nan=True)
+        try:
+            return self._commit(gearbox, run, rows, run_values, state)
+        except SQLAlchemyError as exc:
+            raise HistoryError(f"writing to {self.name} failed, nothing was written: {exc}") from exc
+
+    def _commit(self, gearbox: Gearbox, run: Run, rows: list, run_values: dict, state: str) -> tuple[Gearbox, Run]:
+        with self._connect(write=True) as conn, conn.begin():
+            moved = conn.execute(
+                update(gearboxes_table)
+                .where(gearboxes_table.c.id == gearbox.id, gearboxes_table.c.revision == gearbox.revision)
+                .values(checkpoint=state, revision=gearbox.revision + 1)
+            ).rowcount
+            advanced = conn.execute(
+                update(runs_table)
+                .where(runs_table.c.id == run.id, runs_table.c.samples_done == run.samples_done, runs_table.c.status == "running")
+                .values(**run_values)
+            ).rowcount
+            if moved != 1 or advanced != 1:
+                raise HistoryError(
+                    f"gearbox {gearbox.id!r} was updated by another process meanwhile; track one source per gearbox at a time"
+                )
+            if rows:
+                conn.execute(estimates_table.insert(), rows)
+            new_gearbox = _get_gearbox(conn, gearbox.id)
+            new_run = Run(**conn.execute(select(runs_table).where(runs_table.c.id == run.id)).one()._mapping)
+        return new_gearbox, new_run
+
+
+def _finite_or_none(value: Any) -> Any:
+    """NaN and infinities are stored as NULL (SQLite does so anyway; PostgreSQL would keep NaN)."""
+    return None if isinstance(value, float) and not math.isfinite(value) else value
+
+
+def _get_gearbox(conn: Connection, gearbox_id: str) -> Gearbox | None:
+    row = conn.execute(select(gearboxes_table).where(gearboxes_table.c.id == gearbox_id)).first()
+    if row is None:
+        return None
+    values = dict(row._mapping)
+    values["checkpoint"] = None if values["checkpoint"] is None else json.loads(values["checkpoint"])
+    return Gearbox(**values)
