@@ -85,13 +85,14 @@ def switching_functions(
 ) -> tuple[np.ndarray, np.ndarray]:
     """Eq. (5)-(6) evaluated element-wise: ``f1`` (left line active) and ``f2`` (right line active).
 
-    ``x_prev`` holds ``x(t-1)`` for every ``u(t)``. Written with the divisions by the slopes,
-    so both hold for negative slopes too.
+    ``x_prev`` holds ``x(t-1)`` for every ``u(t)``. Computed in the first form of (5)-(6),
+    ``f1 = h(u - zL)`` and ``f2 = h(zR - u)`` with ``zL``, ``zR`` of eq. (2)-(3): it holds for
+    negative slopes too, and it takes bit-for-bit the decisions of eq. (1) (the second form,
+    the same quantity divided by the slope, rounds differently on the boundary).
     """
-    mL, cL, mR, cR = params.m_left, params.c_left, params.m_right, params.c_right
-    f1 = heaviside_le0((mL * u + mL * cL - x_prev) / mL)
-    f2 = heaviside_le0((x_prev - mR * u + mR * cR) / mR)
-    return f1, f2
+    z_left = x_prev / params.m_left - params.c_left  # eq. (2)
+    z_right = x_prev / params.m_right + params.c_right  # eq. (3)
+    return heaviside_le0(u - z_left), heaviside_le0(z_right - u)
 
 
 @njit(cache=True)
@@ -119,9 +120,9 @@ def _switching_loop(u, mL, cL, mR, cR, x0):  # pragma: no cover - compiled
     f2 = np.empty(n)
     prev = x0
     for t in range(n):
-        a = 1.0 if (mL * u[t] + mL * cL - prev) / mL <= 0 else 0.0  # eq. (5)
-        b = 1.0 if (prev - mR * u[t] + mR * cR) / mR <= 0 else 0.0  # eq. (6)
-        # eq. (7); when the dead band is empty (cL + cR < 0 is excluded) both can't be 1
+        a = 1.0 if u[t] - (prev / mL - cL) <= 0 else 0.0  # eq. (5), f1 = h(u - zL)
+        b = 1.0 if (prev / mR + cR) - u[t] <= 0 else 0.0  # eq. (6), f2 = h(zR - u)
+        # eq. (7); a and b are never both 1 while the band is open (zL < zR, see simulate_switching)
         prev = mL * u[t] * a + mL * cL * a + mR * u[t] * b - mR * cR * b + prev * (1 - a) * (1 - b)
         x[t] = prev
         f1[t] = a
@@ -199,7 +200,11 @@ def simulate_switching(
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Backlash output by the switching-function form, eq. (4)-(7).
 
-    Returns ``(x, f1, f2)``; ``x`` equals :func:`simulate_backlash` exactly.
+    Returns ``(x, f1, f2)``; ``x`` equals :func:`simulate_backlash` exactly while the band is
+    open, ``zL < zR`` in eq. (2)-(3): ``cL + cR > 0`` (the paper's ``cL, cR > 0``) and, with
+    unequal slopes, ``|x|`` below the crossing of the two lines,
+    ``|x| < (cL + cR) / |1/mL - 1/mR|``. Where ``zL >= zR`` both switching functions can fire
+    and eq. (7) adds both lines (``tests/test_model.py`` shows a case with ``cL = cR = 0``).
     """
     _check_band(params)
     return _switching_loop(_as_input(u), params.m_left, params.c_left, params.m_right, params.c_right, float(x0))
