@@ -9,6 +9,8 @@ from __future__ import annotations
 import os
 from typing import Any, Callable
 
+from can.io.player import MESSAGE_READERS as _CAN_MESSAGE_READERS
+
 from online_backlash.errors import LogFormatError
 
 from .csv import CsvLog, read_csv_arrays
@@ -17,6 +19,25 @@ from .csv import CsvLog, read_csv_arrays
 LOG_READERS: dict[str, Callable[..., Any]] = {
     ".csv": CsvLog,
 }
+
+
+def _can_log(path: str | os.PathLike[str], **options: Any):
+    """A CAN log in a python-can format, decoded with a DBC (:class:`~online_backlash.replay.canlog.CanLog`)."""
+    from .canlog import CanLog  # imported on use: cantools loads only for CAN logs
+
+    return CanLog(path, **options)
+
+
+def _serial_capture(path: str | os.PathLike[str], **options: Any):
+    """A raw serial capture (:class:`~online_backlash.replay.serialcapture.SerialCapture`)."""
+    from .serialcapture import SerialCapture
+
+    return SerialCapture(path, **options)
+
+
+# every format python-can's LogReader reads (.asc .blf .log .trc .db .mf4), except .csv which is ours
+LOG_READERS.update({suffix: _can_log for suffix in _CAN_MESSAGE_READERS if suffix not in LOG_READERS})
+LOG_READERS[".serial"] = _serial_capture
 
 
 def log_suffix(path: str | os.PathLike[str]) -> str:

@@ -1,0 +1,175 @@
+r"""Live CAN: a python-can Bus, a Notifier, the raw writer first, then the decoder.
+
+::
+
+    Bus --Notifier--> RawCanLog (python-can writer, --raw-log DIR)     first: nothing lost
+                  \-> _SampleListener (DbcDecoder + FramePipeline) -> queue -> iter(CanSource)
+
+The notifier thread receives and decodes; the consumer iterates Samples in its own thread.
+The same :class:`~online_backlash.drivers.pairing.FramePipeline` decodes replayed logs
+(:class:`online_backlash.replay.canlog.CanLog`), so the same frames give the same samples.
+"""
+
+from __future__ import annotations
+
+import os
+import queue
+import time
+from typing import Any, Iterator
+
+import can
+from cantools.database.can import Database
+
+from online_backlash.errors import SourceError, SourceTimeoutError
+from online_backlash.stream import Sample
+
+from .dbc import DbcDecoder
+from .pairing import FramePipeline
+from .rawlog import RawCanLog
+
+_POLL_S = 0.05
+
+
+def open_bus(interface: str, channel: Any, bitrate: int | None = None, **config: Any) -> can.BusABC:
+    """A python-can Bus (any interface python-can supports); errors become SourceError."""
+    if bitrate is not None:
+        config["bitrate"] = bitrate
+    try:
+        return can.Bus(interface=interface, channel=channel, **config)
+    except (can.CanError, ValueError, ImportError, OSError) as exc:
+        raise SourceError(f"cannot open CAN interface {interface!r} channel {channel!r}: {exc}") from exc
+
+
+class _SampleListener(can.Listener):
+    """Decode in the notifier thread; hand Samples (or the error that stopped it) to the consumer."""
+
+    def __init__(self, pipeline: FramePipeline, out: queue.SimpleQueue) -> None:
+        self.pipeline = pipeline
+        self.out = out
+
+    def on_message_received(self, msg: can.Message) -> None:
+        sample = self.pipeline.feed(msg)
+        if sample is not None:
+            self.out.put(sample)
+
+    def on_error(self, exc: Exception) -> None:
+        self.out.put(exc)
+
+
+class CanSource:
+    """Samples from a live CAN bus, decoded with a DBC; a Source.
+
+    Parameters
+    ----------
+    bus : can.BusABC
+        An open bus (see :func:`open_bus`); shut down by :meth:`close` if ``own_bus``.
+    dbc, motor_signal, load_signal, motor_cpr, load_cpr, counter_signal, checksum_signal
+        See :class:`~online_backlash.drivers.dbc.DbcDecoder`.
+    raw_log_dir : path, optional
+        Write every frame received here first (:class:`~online_backlash.drivers.rawlog.RawCanLog`).
+    raw_format : {"blf", "asc", "log"}
+    period_s, max_skew_s, strict
+        See :class:`~online_backlash.drivers.pairing.FramePipeline`.
+    duration_s : float, optional
+        Stop iterating after this many seconds.
+    timeout_s : float, optional
+        Raise :class:`~online_backlash.errors.SourceTimeoutError` when no sample arrives for this long.
+    own_bus : bool
+        Shut the bus down on close.
+
+    Attributes
+    ----------
+    counters : CanCounters
+        ``frames`` counts every frame the bus delivered; they reconcile after close.
+    pipeline : FramePipeline
+        Pairing skew (``skew_mean_s``, ``skew_max_s``) and frames per sample.
+    raw_log : RawCanLog or None
+    """
+
+    def __init__(
+        self,
+        bus: can.BusABC,
+        dbc: str | os.PathLike[str] | Database,
+        motor_signal: str,
+        load_signal: str,
+        *,
+        motor_cpr: int | None = None,
+        load_cpr: int | None = None,
+        counter_signal: str | None = "Counter",
+        checksum_signal: str | None = "Checksum",
+        raw_log_dir: str | os.PathLike[str] | None = None,
+        raw_format: str = "blf",
+        period_s: float | None = None,
+        max_skew_s: float = 1e-3,
+        strict: bool = False,
+        duration_s: float | None = None,
+        timeout_s: float | None = None,
+        own_bus: bool = True,
+    ) -> None:
+        decoder = DbcDecoder(dbc, motor_signal, load_signal, motor_cpr, load_cpr, counter_signal, checksum_signal)
+        self.pipeline = FramePipeline(decoder, period_s, max_skew_s, strict)
+        self.counters = self.pipeline.counters
+        self.bus = bus
+        self.own_bus = own_bus
+        self.duration_s = duration_s
+        self.timeout_s = timeout_s
+        self.raw_log = RawCanLog(raw_log_dir, raw_format) if raw_log_dir is not None else None
+        self._queue: queue.SimpleQueue = queue.SimpleQueue()
+        listeners: list[can.Listener] = [self.raw_log] if self.raw_log is not None else []
+        listeners.append(_SampleListener(self.pipeline, self._queue))
+        self._notifier = can.Notifier(bus, listeners, timeout=_POLL_S)
+        self._stopped = False
+        self._closed = False
+
+    def __enter__(self) -> "CanSource":
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def __iter__(self) -> Iterator[Sample]:
+        """Samples as they arrive; after :meth:`stop` (or ``duration_s``), those still queued, then the end."""
+        deadline = None if self.duration_s is None else time.monotonic() + self.duration_s
+        last = time.monotonic()
+        while not self._stopped:
+            if deadline is not None and time.monotonic() >= deadline:
+                self.stop()
+                break
+            try:
+                item = self._queue.get(timeout=_POLL_S)
+            except queue.Empty:
+                if self.timeout_s is not None and time.monotonic() - last > self.timeout_s:
+                    raise SourceTimeoutError(f"no CAN sample for {self.timeout_s} s on {self.bus.channel_info}") from None
+                continue
+            last = time.monotonic()
+            yield _checked(item)
+        while True:
+            try:
+                item = self._queue.get_nowait()
+            except queue.Empty:
+                return
+            yield _checked(item)
+
+    def stop(self) -> None:
+        """Stop receiving: stop the notifier, close the raw log, count frames left unpaired."""
+        if self._stopped:
+            return
+        self._stopped = True
+        self._notifier.stop()
+        if self.raw_log is not None:
+            self.raw_log.stop()
+        self.pipeline.flush()
+
+    def close(self) -> None:
+        """:meth:`stop`, then shut the bus down (if owned); the counters then reconcile."""
+        self.stop()
+        if self.own_bus and not self._closed:
+            self.bus.shutdown()
+        self._closed = True
+
+
+def _checked(item: Sample | Exception) -> Sample:
+    """A queued Sample, or the error the notifier thread hit, re-raised here."""
+    if isinstance(item, Exception):
+        raise item
+    return item

@@ -1,0 +1,132 @@
+"""CAN frames to Samples: check, pair motor and load frames, unwrap, detect gaps.
+
+One :class:`FramePipeline` is fed every frame seen (live from a Notifier, or from a log
+reader), so the same frames give the same samples live and replayed.
+
+Pairing (when motor and load come in two messages): by rolling counter when the messages have
+one (a frame pairs with the pending frame of the other message with the same counter), else by
+time (a frame pairs with the pending frame of the other message at most ``max_skew_s`` older).
+A pending frame that is replaced before it finds its partner, or that is still waiting when a
+newer pair completes, is counted ``unpaired`` (frames arrive in order, so it is an orphan). The time
+of a sample is the earlier frame's; the skew (load frame time minus motor frame time) is
+summarised in ``skew_mean_s`` and ``skew_max_s``.
+
+Every frame ends in exactly one counter, so at the end (after :meth:`FramePipeline.flush`)::
+
+    frames == skipped + corrupt + unpaired + frames_per_sample * samples
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import can
+
+from online_backlash.errors import FrameError, InvalidParameterError
+from online_backlash.stream import Sample, StreamCounters
+
+from .dbc import BOTH, MOTOR, DbcDecoder, DecodedFrame
+from .assemble import SampleAssembler
+from .unwrap import Unwrapper
+
+
+@dataclass
+class CanCounters(StreamCounters):
+    """:class:`~online_backlash.stream.StreamCounters` plus ``unpaired``: valid frames whose partner never came."""
+
+    unpaired: int = 0
+
+    def as_dict(self) -> dict[str, int]:
+        out = StreamCounters.as_dict(self)
+        out["unpaired"] = self.unpaired
+        return out
+
+
+class FramePipeline:
+    """Feed CAN messages, get Samples (degrees, multi-turn; seconds of the frame timestamps).
+
+    Parameters
+    ----------
+    decoder : DbcDecoder
+    period_s : float, optional
+        Nominal sample period (learnt from the first steps if None), for gap detection.
+    max_skew_s : float
+        Largest time between the two frames of a pair when pairing by time (no counters).
+    strict : bool
+        Raise :class:`~online_backlash.errors.FrameError` on a corrupt frame instead of counting it.
+
+    Attributes
+    ----------
+    counters : CanCounters
+    frames_per_sample : int
+        1 (one message carries both angles) or 2.
+    skew_mean_s, skew_max_s : float
+        Mean and largest absolute time between the frames of a pair (0 for one message).
+    """
+
+    def __init__(self, decoder: DbcDecoder, period_s: float | None = None, max_skew_s: float = 1e-3, strict: bool = False) -> None:
+        if not max_skew_s >= 0:
+            raise InvalidParameterError(f"max_skew_s must be >= 0, got {max_skew_s!r}")
+        self.decoder = decoder
+        self.max_skew_s = max_skew_s
+        self.strict = strict
+        self.counters = CanCounters()
+        self.frames_per_sample = 2 if decoder.paired else 1
+        self.skew_mean_s = 0.0
+        self.skew_max_s = 0.0
+        self._n_pairs = 0
+        self._pending: list[DecodedFrame | None] = [None, None]  # [motor, load]
+        self._assemble = SampleAssembler(self.counters, decoder.counter_modulus, period_s, strict).make
+        self._motor_turns = Unwrapper(decoder.motor.counts_per_rev)
+        self._load_turns = Unwrapper(decoder.load.counts_per_rev)
+        self._motor_scale = decoder.motor.deg_per_count
+        self._load_scale = decoder.load.deg_per_count
+
+    def feed(self, msg: can.Message) -> Sample | None:
+        """Account for one frame; return the Sample it completes, if any."""
+        self.counters.frames += 1
+        try:
+            frame = self.decoder.decode(msg)
+        except FrameError:
+            if self.strict:
+                raise
+            self.counters.corrupt += 1
+            return None
+        if frame is None:
+            self.counters.skipped += 1
+            return None
+        if frame.role == BOTH:
+            return self._complete(frame.time_s, frame.counter, frame.motor_count, frame.load_count, 0.0)
+        mine, other = (0, 1) if frame.role == MOTOR else (1, 0)
+        partner = self._pending[other]
+        if partner is not None and (
+            frame.counter == partner.counter if frame.counter is not None else abs(frame.time_s - partner.time_s) <= self.max_skew_s
+        ):
+            self._pending[other] = None
+            if self._pending[mine] is not None:  # an older frame whose partner never came
+                self.counters.unpaired += 1
+                self._pending[mine] = None
+            motor, load = (frame, partner) if mine == 0 else (partner, frame)
+            return self._complete(min(motor.time_s, load.time_s), frame.counter, motor.motor_count, load.load_count, load.time_s - motor.time_s)
+        if self._pending[mine] is not None:
+            self.counters.unpaired += 1
+        self._pending[mine] = frame
+        return None
+
+    def flush(self) -> None:
+        """End of stream: count the frames still waiting for a partner as unpaired."""
+        self.counters.unpaired += sum(p is not None for p in self._pending)
+        self._pending = [None, None]
+
+    def _complete(self, time_s: float, counter: int | None, motor_count: int, load_count: int, skew_s: float) -> Sample | None:
+        if self.frames_per_sample == 2:
+            self._n_pairs += 1
+            self.skew_mean_s += (abs(skew_s) - self.skew_mean_s) / self._n_pairs
+            self.skew_max_s = max(self.skew_max_s, abs(skew_s))
+        return self._assemble(
+            time_s,
+            self._motor_turns(motor_count) * self._motor_scale,
+            self._load_turns(load_count) * self._load_scale,
+            counter,
+            self.frames_per_sample,
+        )

@@ -1,0 +1,122 @@
+"""Live serial: a pyserial port (``serial_for_url``: real ports, ``loop://``, ``socket://``, ...).
+
+Bytes are appended verbatim to the raw capture (``raw_log_dir``) *before* they are parsed, and
+the parser (:mod:`~online_backlash.drivers.serialframes`) resynchronises after garbage. Replaying
+the capture with :class:`online_backlash.replay.serialcapture.SerialCapture` feeds the same
+bytes to the same parser, so it gives the same samples.
+"""
+
+from __future__ import annotations
+
+import os
+import time
+from typing import Iterator
+
+import serial
+
+from online_backlash.errors import SourceError, SourceTimeoutError
+from online_backlash.stream import Sample
+
+from .rawlog import RawByteLog
+from .serialframes import make_parser
+
+_POLL_S = 0.05
+
+
+def open_port(url: str, baudrate: int = 115200) -> serial.SerialBase:
+    """Open ``url`` with :func:`serial.serial_for_url`; errors become SourceError."""
+    try:
+        return serial.serial_for_url(url, baudrate=baudrate, timeout=_POLL_S)
+    except (serial.SerialException, ValueError) as exc:
+        raise SourceError(f"cannot open serial port {url!r}: {exc}") from exc
+
+
+class SerialSource:
+    """Samples from a serial port; a Source.
+
+    Parameters
+    ----------
+    port : str or serial port
+        A URL for :func:`serial.serial_for_url` (``/dev/ttyUSB0``, ``loop://``), or an open port.
+    baudrate : int
+    serial_format : {"ascii", "binary"}
+        See :mod:`~online_backlash.drivers.serialframes`.
+    motor_cpr, load_cpr : float, optional
+        Counts per revolution (``binary`` only).
+    raw_log_dir : path, optional
+        Capture every byte received here first (:class:`~online_backlash.drivers.rawlog.RawByteLog`).
+    period_s, strict
+        See :class:`~online_backlash.drivers.serialframes.FrameParser`.
+    duration_s : float, optional
+        Stop after this many seconds.
+    timeout_s : float, optional
+        Raise SourceTimeoutError when no byte arrives for this long.
+
+    Attributes
+    ----------
+    counters : StreamCounters
+        ``frames == samples + corrupt`` after :meth:`close` (a partial last frame counts as corrupt).
+    """
+
+    def __init__(
+        self,
+        port: str | serial.SerialBase,
+        baudrate: int = 115200,
+        serial_format: str = "ascii",
+        *,
+        motor_cpr: float | None = None,
+        load_cpr: float | None = None,
+        raw_log_dir: str | os.PathLike[str] | None = None,
+        period_s: float | None = None,
+        strict: bool = False,
+        duration_s: float | None = None,
+        timeout_s: float | None = None,
+    ) -> None:
+        self.parser = make_parser(serial_format, motor_cpr, load_cpr, period_s, strict)
+        self.counters = self.parser.counters
+        self.port = open_port(port, baudrate) if isinstance(port, str) else port
+        self.duration_s = duration_s
+        self.timeout_s = timeout_s
+        self.raw_log = RawByteLog(raw_log_dir) if raw_log_dir is not None else None
+        self._stopped = False
+
+    def __enter__(self) -> "SerialSource":
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def __iter__(self) -> Iterator[Sample]:
+        deadline = None if self.duration_s is None else time.monotonic() + self.duration_s
+        last = time.monotonic()
+        while not self._stopped:
+            if deadline is not None and time.monotonic() >= deadline:
+                return
+            try:
+                data = self.port.read(max(1, self.port.in_waiting))
+            except (serial.SerialException, OSError) as exc:
+                raise SourceError(f"serial port {self.port.name!r} failed: {exc}") from exc
+            if not data:
+                if self.timeout_s is not None and time.monotonic() - last > self.timeout_s:
+                    raise SourceTimeoutError(f"no byte for {self.timeout_s} s on {self.port.name!r}")
+                continue
+            last = time.monotonic()
+            if self.raw_log is not None:
+                self.raw_log.write(data)
+            yield from self.parser.feed(data)
+
+    def stop(self) -> None:
+        """Stop reading; a partial last frame is counted as one corrupt frame."""
+        if self._stopped:
+            return
+        self._stopped = True
+        if self.parser.finish():
+            self.counters.frames += 1
+            self.counters.corrupt += 1
+
+    def close(self) -> None:
+        """:meth:`stop`, close the capture and the port."""
+        self.stop()
+        if self.raw_log is not None:
+            self.raw_log.close()
+        self.port.close()

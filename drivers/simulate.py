@@ -1,0 +1,42 @@
+"""A simulated rig (:func:`online_backlash.rig.simulate_rig`) as CAN frames or serial bytes.
+
+For tests, benchmarks and demos of the adapters without hardware: the frames and bytes are
+exactly what :class:`~online_backlash.drivers.dbc.DbcDecoder` and the serial parsers read.
+"""
+
+from __future__ import annotations
+
+from typing import Iterator
+
+import can
+import numpy as np
+
+from online_backlash.rig import RigRecording
+
+from .dbc import DbcDecoder, FrameEncoder, counts_of
+from .serialframes import encode_ascii, encode_binary
+
+
+def rig_can_frames(rec: RigRecording, decoder: DbcDecoder, start_s: float = 0.0, skew_s: float = 0.0) -> Iterator[can.Message]:
+    """The frames of every sample, timestamped ``start_s + time_s`` (the load frame ``skew_s`` later when separate)."""
+    encoder = FrameEncoder(decoder)
+    motor = counts_of(rec.motor_deg, decoder.motor).tolist()
+    load = counts_of(rec.load_deg, decoder.load).tolist()
+    for i, t in enumerate((rec.time_s + start_s).tolist()):
+        frames = encoder.frames(t, motor[i], load[i], i)
+        if len(frames) == 2:
+            frames[1].timestamp += skew_s
+        yield from frames
+
+
+def rig_serial_records(rec: RigRecording, serial_format: str, motor_cpr: float | None = None, load_cpr: float | None = None) -> Iterator[bytes]:
+    """One ``ascii`` line or ``binary`` frame per sample (counts per revolution for ``binary``)."""
+    if serial_format == "ascii":
+        for t, m, l in zip(rec.time_s.tolist(), rec.motor_deg.tolist(), rec.load_deg.tolist()):
+            yield encode_ascii(t, m, l)
+        return
+    time_us = np.rint(rec.time_s * 1e6).astype(np.int64).tolist()
+    motor = np.rint(rec.motor_deg / (360.0 / motor_cpr)).astype(np.int64).tolist()
+    load = np.rint(rec.load_deg / (360.0 / load_cpr)).astype(np.int64).tolist()
+    for i in range(len(time_us)):
+        yield encode_binary(i, time_us[i], motor[i], load[i])

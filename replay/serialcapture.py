@@ -1,0 +1,116 @@
+"""Serial captures (the raw bytes a live :class:`~online_backlash.drivers.serial.SerialSource`
+appended to ``--raw-log DIR``) replayed through the same parser.
+
+A capture holds every byte received, garbage included, so corrupt frames inside it are counted
+exactly as they were live. Only a capture that ends inside a frame is malformed: that raises
+:class:`LogFormatError` naming the file and the frame index, unless ``skip_bad=True`` (then it
+is one more corrupt frame).
+"""
+
+from __future__ import annotations
+
+import os
+import time
+from pathlib import Path
+from typing import Iterator
+
+from online_backlash.drivers.rawlog import SERIAL_SUFFIX, raw_log_files
+from online_backlash.drivers.serialframes import FrameParser, make_parser
+from online_backlash.errors import InvalidParameterError, LogFormatError
+from online_backlash.stream import Sample, StreamCounters
+
+
+class SerialCapture:
+    """A serial capture file (or a ``--raw-log`` directory of them, concatenated in name order).
+
+    Parameters
+    ----------
+    path : path
+        A ``.serial`` file or a directory of them.
+    serial_format : {"ascii", "binary"}
+        How the bytes are framed (required: a capture is bytes only).
+    motor_cpr, load_cpr, period_s, strict
+        See :func:`~online_backlash.drivers.serialframes.make_parser`.
+    skip_bad : bool
+        Count a truncated last frame as corrupt instead of raising.
+    realtime : bool
+        Pace to the samples' timestamps.
+    block_bytes : int
+        Bytes read at once.
+    """
+
+    def __init__(
+        self,
+        path: str | os.PathLike[str],
+        serial_format: str | None = None,
+        *,
+        motor_cpr: float | None = None,
+        load_cpr: float | None = None,
+        period_s: float | None = None,
+        strict: bool = False,
+        skip_bad: bool = False,
+        realtime: bool = False,
+        block_bytes: int = 1 << 16,
+    ) -> None:
+        if serial_format is None:
+            raise InvalidParameterError("a serial capture needs serial_format 'ascii' or 'binary' (--serial-format)")
+        self.path = os.fspath(path)
+        self._parser_args = (serial_format, motor_cpr, load_cpr, period_s, strict)
+        self.parser: FrameParser = make_parser(*self._parser_args)
+        self.counters: StreamCounters = self.parser.counters
+        self.skip_bad = skip_bad
+        self.realtime = realtime
+        self.block_bytes = int(block_bytes)
+
+    def __enter__(self) -> "SerialCapture":
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def close(self) -> None:
+        """Nothing stays open between iterations."""
+
+    def files(self) -> list[Path]:
+        """The files read, in order."""
+        if os.path.isdir(self.path):
+            return raw_log_files(self.path, [SERIAL_SUFFIX])
+        return [Path(self.path)]
+
+    def __iter__(self) -> Iterator[Sample]:
+        self.parser = parser = make_parser(*self._parser_args)
+        self.counters = parser.counters
+        pace = _Pacer() if self.realtime else None
+        files = self.files()
+        for path in files:
+            try:
+                f = open(path, "rb")
+            except OSError as exc:
+                raise LogFormatError(path, None, f"cannot open: {exc.strerror or exc}") from exc
+            with f:
+                while block := f.read(self.block_bytes):
+                    for sample in parser.feed(block):
+                        if pace is not None:
+                            pace(sample.time_s)
+                        yield sample
+        if parser.finish():
+            if not self.skip_bad:
+                raise LogFormatError(files[-1], self.counters.frames, "capture ends inside a frame (truncated)")
+            self.counters.frames += 1
+            self.counters.corrupt += 1
+
+
+class _Pacer:
+    """Sleep so that samples come out at their recorded spacing."""
+
+    def __init__(self) -> None:
+        self._offset: float | None = None
+
+    def __call__(self, time_s: float) -> None:
+        now = time.perf_counter()
+        if self._offset is None:
+            self._offset = now - time_s
+            return
+        delay = time_s + self._offset - now
+        if delay > 0:
+            time.sleep(delay)
