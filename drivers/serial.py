@@ -56,6 +56,8 @@ class SerialSource:
     ----------
     counters : StreamCounters
         ``frames == samples + corrupt`` after :meth:`close` (a partial last frame counts as corrupt).
+    bytes_read : int
+        Bytes received (and captured) so far.
     """
 
     def __init__(
@@ -78,6 +80,7 @@ class SerialSource:
         self.duration_s = duration_s
         self.timeout_s = timeout_s
         self.raw_log = RawByteLog(raw_log_dir) if raw_log_dir is not None else None
+        self.bytes_read = 0
         self._stopped = False
 
     def __enter__(self) -> "SerialSource":
@@ -87,23 +90,35 @@ class SerialSource:
         self.close()
 
     def __iter__(self) -> Iterator[Sample]:
+        """Samples as they arrive, until :meth:`stop`, ``duration_s`` or ``timeout_s``."""
         deadline = None if self.duration_s is None else time.monotonic() + self.duration_s
         last = time.monotonic()
         while not self._stopped:
             if deadline is not None and time.monotonic() >= deadline:
                 return
-            try:
-                data = self.port.read(max(1, self.port.in_waiting))
-            except (serial.SerialException, OSError) as exc:
-                raise SourceError(f"serial port {self.port.name!r} failed: {exc}") from exc
-            if not data:
+            got = self.poll()
+            if got is None:
                 if self.timeout_s is not None and time.monotonic() - last > self.timeout_s:
                     raise SourceTimeoutError(f"no byte for {self.timeout_s} s on {self.port.name!r}")
                 continue
             last = time.monotonic()
-            if self.raw_log is not None:
-                self.raw_log.write(data)
-            yield from self.parser.feed(data)
+            yield from got
+
+    def poll(self) -> list[Sample] | None:
+        """Read what has arrived (waiting at most the port timeout), capture it, parse it.
+
+        Returns the samples completed (possibly none), or None if no byte arrived.
+        """
+        try:
+            data = self.port.read(max(1, self.port.in_waiting))
+        except (serial.SerialException, OSError) as exc:
+            raise SourceError(f"serial port {self.port.name!r} failed: {exc}") from exc
+        if not data:
+            return None
+        if self.raw_log is not None:
+            self.raw_log.write(data)
+        self.bytes_read += len(data)
+        return self.parser.feed(data)
 
     def stop(self) -> None:
         """Stop reading; a partial last frame is counted as one corrupt frame."""
