@@ -12,6 +12,7 @@ counted as one corrupt frame and that file ends there (python-can's readers cann
 
 from __future__ import annotations
 
+import gzip
 import os
 from pathlib import Path
 from typing import Iterator
@@ -23,6 +24,7 @@ from online_backlash.drivers.dbc import DbcDecoder
 from online_backlash.drivers.pairing import CanCounters, FramePipeline
 from online_backlash.drivers.rawlog import raw_log_files
 from online_backlash.errors import InvalidParameterError, LogFormatError
+from online_backlash.replay import log_suffix
 from online_backlash.stream import Sample
 
 #: Suffixes python-can reads (``.csv`` is ours: see :mod:`online_backlash.replay.csv`).
@@ -130,19 +132,30 @@ class CanLog:
         """An iterator over the frames of ``path``; None if it cannot be read and ``skip_bad``.
 
         python-can's readers raise many types on a damaged file (struct.error, zlib.error,
-        BLFParseError, ValueError, IndexError, UnicodeDecodeError, ...): all of them mean the
-        file cannot be read on from there, and become LogFormatError with the frame index.
+        BLFParseError, ValueError, IndexError, EOFError, UnicodeDecodeError, ...): all of them
+        mean the file cannot be read on from there, and become LogFormatError with the frame index.
         """
         try:
-            # ASC stores times relative to its header date: ask for absolute ones, as live
-            options = {"relative_timestamp": False} if path.suffix.lower() == ".asc" else {}
-            self._reader = can.LogReader(path, **options)
+            self._reader = _log_reader(path)
         except OSError as exc:
-            raise LogFormatError(path, None, f"cannot open: {exc.strerror or exc}") from exc
+            if not path.exists():
+                raise LogFormatError(path, None, f"cannot open: {exc.strerror or exc}") from exc
+            self._bad(path, 0, exc)
+            return None
         except Exception as exc:  # noqa: BLE001
             self._bad(path, 0, exc)
             return None
-        return iter(can.MessageSync(self._reader) if self.realtime else self._reader)
+        messages = iter(can.MessageSync(self._reader) if self.realtime else self._reader)
+        if isinstance(self._reader, can.BLFReader) and path.suffix.lower() == ".blf":
+            return self._whole_blf(path, self._reader.file_size, messages)
+        return messages
+
+    def _whole_blf(self, path: Path, header_size: int, messages: Iterator[can.Message]) -> Iterator[can.Message]:
+        """python-can's BLF reader stops quietly at a cut; the header's file size tells."""
+        yield from messages
+        actual = path.stat().st_size
+        if header_size and actual < header_size:
+            raise _Truncated(f"truncated: {actual} of the {header_size} bytes its header announces")
 
     def _bad(self, path: Path, index: int, exc: BaseException) -> None:
         reason = f"unreadable frame ({type(exc).__name__}: {exc})"
@@ -150,3 +163,22 @@ class CanLog:
             raise LogFormatError(path, index, reason) from exc
         self.counters.frames += 1
         self.counters.corrupt += 1
+
+
+class _Truncated(Exception):
+    """Raised inside the frame iterator when a file turns out to be cut short."""
+
+
+def _log_reader(path: Path) -> can.io.generic.MessageReader:
+    """python-can's reader for ``path`` (by suffix, ``.gz`` looked through), times absolute.
+
+    ASC stores times relative to its header date; ask for absolute ones, as live. (``can.LogReader``
+    does not pass options to the reader of a ``.gz`` file, hence the gzip branch here.)
+    """
+    suffix = log_suffix(path)
+    reader = can.io.player.MESSAGE_READERS[suffix]
+    options = {"relative_timestamp": False} if suffix == ".asc" else {}
+    if path.name.lower().endswith(".gz"):
+        text = issubclass(reader, can.io.generic.TextIOMessageReader)
+        return reader(gzip.open(path, "rt" if text else "rb"), **options)
+    return reader(path, **options)
