@@ -314,6 +314,14 @@ class PaperExample:
         """True for examples 3-5 (backlash followed by a linear system)."""
         return bool(self.a or self.b)
 
+    def parameters(self) -> dict[str, float]:
+        """True values by name: ``m_left, c_left, m_right, c_right`` and ``a2.., b1..`` of a cascade."""
+        p = self.params
+        out = {"m_left": p.m_left, "c_left": p.c_left, "m_right": p.m_right, "c_right": p.c_right}
+        out.update({f"a{i}": v for i, v in enumerate(self.a, start=2)})
+        out.update({f"b{j}": v for j, v in enumerate(self.b, start=1)})
+        return out
+
     def generate(self, seed: int) -> tuple[np.ndarray, np.ndarray]:
         """Input and noisy output ``(u, y)`` of the example for one random ``seed``.
 
