@@ -1,0 +1,343 @@
+"""BacklashRLS / CascadeRLS: learn_one == learn_many, no windup when idle, saved state, accuracy."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+
+from online_backlash import BacklashRLS, CascadeRLS, VorosBacklash, VorosCascade
+from online_backlash.errors import InvalidParameterError, NotExcitedError, NotFittedError
+from online_backlash.model import BacklashParams, simulate_backlash_varying, simulate_cascade
+from online_backlash.rig import quantise, rig_motion, simulate_rig
+
+LOAD_COUNT_DEG = 360.0 / 2**17  # one count of the 17-bit load encoder
+
+
+@pytest.fixture(scope="module")
+def rig60():
+    rec = simulate_rig(duration_s=60.0, play_deg=0.5, seed=4)
+    return rec, rec.motor_deg / rec.ratio, rec.load_deg
+
+
+def _snapshot(est) -> np.ndarray:
+    return np.concatenate((est.theta_, est.P_.ravel(), [est.backlash_, est.backlash_std_, est.noise_var_, est.n_reversals_]))
+
+
+def _chunks(n: int, seed: int) -> list[tuple[int, int]]:
+    cuts = np.sort(np.random.default_rng(seed).choice(np.arange(1, n), 12, replace=False))
+    edges = [0, *cuts.tolist(), n]
+    return list(zip(edges[:-1], edges[1:]))
+
+
+# -- learn_one == learn_many ---------------------------------------------------------------------
+
+
+def test_learn_many_gives_the_estimates_of_a_learn_one_loop(rig60):
+    _, u, y = rig60
+    u, y = u[:30000], y[:30000]
+    gap = np.zeros(u.size, dtype=bool)
+    gap[[7000, 21000]] = True
+    one = BacklashRLS(warm_start_samples=5000, memory_s=8.0)
+    for i in range(u.size):
+        if gap[i]:
+            one.mark_gap()
+        one.learn_one(u[i], y[i])
+    many = BacklashRLS(warm_start_samples=5000, memory_s=8.0)
+    for lo, hi in _chunks(u.size, 1):  # chunk edges fall before, inside and after the warm-up
+        many.learn_many(u[lo:hi], y[lo:hi], gap[lo:hi])
+    np.testing.assert_allclose(_snapshot(many), _snapshot(one), rtol=1e-12, atol=0)
+    assert one.n_samples_seen_ == many.n_samples_seen_ == u.size
+    assert one.warm_start_["method"] == "batch"
+
+
+def test_cascade_learn_many_gives_the_estimates_of_a_learn_one_loop():
+    u = np.random.default_rng(3).uniform(-1, 1, 1500)
+    y, _ = simulate_cascade(u, BacklashParams(1.3, 0.6, 2.0, 0.7), [0.5], [-0.2, 0.35])
+    y = y + np.random.default_rng(4).normal(0, np.std(y) / 25, y.size)
+    kw = dict(origin="zero", warm_start_samples=400, memory_reversals=50)
+    one = CascadeRLS(**kw)
+    for a, b in zip(u, y):
+        one.learn_one(a, b)
+    many = CascadeRLS(**kw)
+    for lo, hi in _chunks(u.size, 2):
+        many.learn_many(u[lo:hi], y[lo:hi])
+    np.testing.assert_allclose(_snapshot(many), _snapshot(one), rtol=1e-12, atol=1e-15)
+
+
+# -- accuracy on rig-like data ------------------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    "kwargs",
+    [
+        dict(left_fraction=0.3),  # unequal sides
+        dict(ratio=-30.0),  # a stage that reverses the direction
+        dict(slope=0.97, play_deg=0.8),  # slopes other than 1
+    ],
+    ids=["unequal-sides", "negative-ratio", "slope-0.97"],
+)
+def test_rig_estimates_match_the_truth_and_the_batch_fit(kwargs):
+    params = dict(duration_s=60.0, play_deg=0.5, seed=7) | kwargs
+    rec = simulate_rig(**params)
+    u = rec.motor_deg / rec.ratio
+    est = BacklashRLS()
+    est.learn_many(u, rec.load_deg)
+    slope = params.get("slope", 1.0)
+    play = params["play_deg"]
+    assert est.backlash_ == pytest.approx(play, rel=0.005)
+    assert est.m_left_ == pytest.approx(slope, abs=2e-4)
+    assert est.m_right_ == pytest.approx(slope, abs=2e-4)
+    # flanks relative to the first sample (origin="first"): the true left line y = m (u + cL),
+    # seen through the encoders' offsets (floor quantisation: half a count low on average)
+    motor_offset = (1234.5 - 0.5 * 360.0 / 2**14) / rec.ratio
+    load_offset = -321.0 - 0.5 * LOAD_COUNT_DEG
+    c_left = u[0] - motor_offset + rec.c_left_deg[0] + (load_offset - rec.load_deg[0]) / slope
+    assert est.c_left_ == pytest.approx(c_left, abs=0.002)
+    assert est.c_right_ == pytest.approx(play - c_left, abs=0.002)
+    assert 0 < est.backlash_std_ < 0.01
+    if slope == 1.0:  # (the paper's batch start, slopes of 1, does not reach a rig slope of 0.97)
+        batch = VorosBacklash().fit(u, rec.load_deg)
+        assert est.backlash_ == pytest.approx(batch.backlash_, rel=0.01)
+        assert est.c_left_ == pytest.approx(batch.c_left_, abs=0.005)
+
+
+def test_tracks_wear_with_an_honest_standard_error():
+    duration, rate = 600.0, 0.1 / 7200.0  # the wear rate of the 2-hour benchmark case, 10 minutes of it
+    rec = simulate_rig(duration_s=duration, play_deg=lambda t: 0.5 + rate * t, seed=11)
+    u = rec.motor_deg / rec.ratio
+    est = BacklashRLS(memory_reversals=5)
+    errors, stds = [], []
+    for lo in range(0, u.size, 1000):
+        est.learn_many(u[lo : lo + 1000], rec.load_deg[lo : lo + 1000])
+        if lo >= 120_000:
+            errors.append(est.backlash_ - rec.play_deg[lo + 999])
+            stds.append(est.backlash_std_)
+    errors, stds = np.array(errors), np.array(stds)
+    assert np.sqrt(np.mean(errors**2)) < 0.002 * 0.5  # 0.2 % of the play
+    assert np.mean(np.abs(errors) <= 3 * stds) >= 0.95
+    assert est.wear_rate_ == pytest.approx(rate, rel=0.5)
+    # without forgetting the estimate cannot follow: the same data give a larger error
+    frozen = BacklashRLS(memory_reversals=None)
+    frozen.learn_many(u, rec.load_deg)
+    assert abs(frozen.backlash_ - rec.play_deg[-1]) > 5 * abs(est.backlash_ - rec.play_deg[-1])
+
+
+def _rig_with_idle(idle_s: float, dither_counts: int, seed: int = 5):
+    """Rig motion, then ``idle_s`` seconds of a still (or dithering) motor, then motion again."""
+    t1, u1 = rig_motion(120.0, seed=seed)
+    motor_step = 360.0 / 2**14 / 30.0  # one motor count referred to the load side
+    n_idle = int(idle_s * 1000)
+    dither = dither_counts * motor_step * (np.arange(n_idle) % 2)
+    t2, u2 = rig_motion(120.0, seed=seed + 1)
+    u = np.concatenate((u1, u1[-1] + dither, u1[-1] + u2))
+    x = simulate_backlash_varying(u, 1.0, np.full(u.size, 0.25), 1.0, np.full(u.size, 0.25))
+    rng = np.random.default_rng(seed)
+    y = quantise(x + 100.0 + rng.normal(0, 2 * LOAD_COUNT_DEG, u.size), 17)
+    motor = quantise(u * 30.0 + 50.0, 14)
+    return motor / 30.0, y, u1.size, u1.size + n_idle
+
+
+@pytest.mark.parametrize("dither_counts", [0, 1], ids=["still", "dithering-one-count"])
+def test_an_hour_of_idle_neither_moves_the_estimate_nor_winds_up(dither_counts):
+    u, y, idle_start, idle_end = _rig_with_idle(3600.0, dither_counts)
+    est = BacklashRLS(memory_s=5.0)  # per-update forgetting: the case that winds up without protection
+    est.learn_many(u[:idle_start], y[:idle_start])
+    before = est.backlash_
+    est.learn_many(u[idle_start:idle_end], y[idle_start:idle_end])
+    assert abs(est.backlash_ - before) < LOAD_COUNT_DEG
+    assert np.all(np.isfinite(est.P_)) and np.all(np.isfinite(est.theta_))
+    # the covariance is bounded by the information floor: at most 1 / info_floor
+    assert np.all(np.diag(est.P_local_) <= 1.0 / est.info_floor)
+    est.learn_many(u[idle_end:], y[idle_end:])
+    assert est.backlash_ == pytest.approx(0.5, abs=LOAD_COUNT_DEG)
+
+
+def test_a_gap_is_not_read_as_motion(rig60):
+    _, u, y = rig60
+    est = BacklashRLS()
+    est.learn_many(u[:30000], y[:30000])
+    far_u, far_y = u[29999] + 50.0, y[29999] + 50.3  # a jump that no flank explains
+    blind = BacklashRLS.from_state(est.state_dict())
+    blind.learn_one(far_u, far_y)
+    assert not np.array_equal(blind.theta_, est.theta_)  # read as motion, the jump is learned
+    before = est.theta_
+    est.mark_gap()
+    est.learn_one(far_u, far_y)
+    np.testing.assert_array_equal(est.theta_, before)
+    assert est.n_samples_seen_ == 30001
+    # learn_many's after_gap does the same
+    many = BacklashRLS()
+    many.learn_many(u[:30000], y[:30000])
+    many.learn_many(np.array([far_u]), np.array([far_y]), after_gap=np.array([True]))
+    np.testing.assert_array_equal(many.theta_, before)
+
+
+# -- saved state ------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("split", [3000, 40000], ids=["during-warm-up", "after-start"])
+def test_saved_state_round_trips_through_json(rig60, split):
+    _, u, y = rig60
+    whole = BacklashRLS(memory_s=10.0)
+    whole.learn_many(u, y)
+    first = BacklashRLS(memory_s=10.0)
+    first.learn_many(u[:split], y[:split])
+    text = json.dumps(first.state_dict(), allow_nan=False)
+    resumed = BacklashRLS.from_state(json.loads(text))
+    resumed.learn_many(u[split:], y[split:])
+    np.testing.assert_array_equal(_snapshot(resumed), _snapshot(whole))
+    assert resumed.u_ref_ == whole.u_ref_ == u[0]
+
+
+def test_saved_state_of_a_cascade_round_trips():
+    u = np.random.default_rng(8).uniform(-1, 1, 1500)
+    y, _ = simulate_cascade(u, BacklashParams(0.24, 0.035, 0.26, 0.07), [0.5], [-0.2, 0.35])
+    kw = dict(origin="zero", warm_start_samples=300)
+    whole = CascadeRLS(**kw)
+    whole.learn_many(u, y)
+    part = CascadeRLS(**kw)
+    part.learn_many(u[:700], y[:700])
+    resumed = CascadeRLS.from_state(json.loads(json.dumps(part.state_dict())))
+    resumed.learn_many(u[700:], y[700:])
+    np.testing.assert_array_equal(_snapshot(resumed), _snapshot(whole))
+
+
+def test_from_state_refuses_another_estimator():
+    est = BacklashRLS()
+    with pytest.raises(InvalidParameterError, match="BacklashRLS"):
+        CascadeRLS.from_state(est.state_dict())
+
+
+# -- cascade --------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    "params",
+    [BacklashParams(1.3, 0.6, 2.0, 0.7), BacklashParams(-1.3, 0.2, -1.3, 0.2)],
+    ids=["example-3", "example-5"],
+)
+def test_streamed_cascade_agrees_with_the_batch_fit(params):
+    rng = np.random.default_rng(12)
+    u = rng.uniform(-1, 1, 1500)
+    y, _ = simulate_cascade(u, params, [0.5], [-0.2, 0.35])
+    y = y + rng.normal(0, np.std(y) / 25, y.size)  # SNR 25
+    batch = VorosCascade(origin="zero").fit(u, y)
+    est = CascadeRLS(origin="zero", warm_start_samples=300, memory_reversals=None)
+    est.learn_many(u, y)
+    for name in ("m_left_", "c_left_", "m_right_", "c_right_"):
+        assert getattr(est, name) == pytest.approx(getattr(batch, name), rel=0.03), name
+    np.testing.assert_allclose(est.b_, batch.b_, atol=0.03)
+    assert np.isfinite(est.predict_one(0.0))
+
+
+# -- effects hook -----------------------------------------------------------------------------
+
+
+class LoadDrift:
+    """A drift of the load reading, linear in time: one column ``time_s``."""
+
+    name = "drift"
+    n_terms = 1
+
+    def terms(self, u_deg, time_s, torque_Nm):
+        return np.asarray(time_s, dtype=float).reshape(-1, 1)
+
+    def reset(self):
+        pass
+
+
+def test_effect_terms_are_fitted_jointly(rig60):
+    rec, u, _ = rig60
+    drift = 2e-3  # deg/s on the load encoder
+    y = rec.load_deg + drift * rec.time_s
+    est = BacklashRLS(effects=[LoadDrift()], memory_reversals=None)
+    est.learn_many(u, y, time_s=rec.time_s)
+    assert est.beta_[0] == pytest.approx(drift, rel=0.02)
+    assert est.backlash_ == pytest.approx(0.5, rel=0.005)
+    # the effects path is the same step: a loop of learn_one gives the same estimates
+    one = BacklashRLS(effects=[LoadDrift()], memory_reversals=None)
+    for a, b, t in zip(u[:15000], y[:15000], rec.time_s[:15000]):
+        one.learn_one(a, b, time_s=t)
+    many = BacklashRLS(effects=[LoadDrift()], memory_reversals=None)
+    many.learn_many(u[:15000], y[:15000], time_s=rec.time_s[:15000])
+    np.testing.assert_allclose(_snapshot(many), _snapshot(one), rtol=1e-12)
+    np.testing.assert_allclose(many.beta_, one.beta_, rtol=1e-12)
+    restored = BacklashRLS.from_state(json.loads(json.dumps(many.state_dict())), effects=[LoadDrift()])
+    np.testing.assert_array_equal(restored.beta_, many.beta_)
+
+
+class Zero:
+    name = "zero"
+    n_terms = 1
+
+    def terms(self, u_deg, time_s, torque_Nm):
+        return np.zeros((len(u_deg), 1))
+
+    def reset(self):
+        pass
+
+
+def test_a_null_effect_leaves_the_compiled_estimates_unchanged(rig60):
+    _, u, y = rig60
+    plain = BacklashRLS(memory_s=5.0)
+    plain.learn_many(u[:20000], y[:20000])
+    joint = BacklashRLS(memory_s=5.0, effects=[Zero()])
+    joint.learn_many(u[:20000], y[:20000])
+    np.testing.assert_allclose(joint.theta_, plain.theta_, rtol=1e-9, atol=1e-12)
+    assert joint.backlash_std_ == pytest.approx(plain.backlash_std_, rel=1e-6)
+
+
+# -- API ----------------------------------------------------------------------------------------
+
+
+def test_predict_one_is_the_one_step_ahead_load_angle(rig60):
+    _, u, y = rig60
+    est = BacklashRLS()
+    est.learn_many(u[:40000], y[:40000])
+    pred = np.empty(2000)
+    for i in range(2000):
+        pred[i] = est.predict_one(u[40000 + i])
+        est.learn_one(u[40000 + i], y[40000 + i])
+    assert np.sqrt(np.mean((pred - y[40000:42000]) ** 2)) < 4 * est.residual_rms_
+
+
+def test_not_fitted_before_the_warm_start_and_invalid_parameters():
+    est = BacklashRLS(warm_start_samples=100)
+    est.learn_one(0.0, 0.0)
+    with pytest.raises(NotFittedError):
+        est.backlash_
+    assert not hasattr(est, "theta_")
+    with pytest.raises(NotExcitedError):
+        est.force_start()
+    with pytest.raises(InvalidParameterError, match="memory_s"):
+        BacklashRLS(memory_s=-1.0).learn_one(0.0, 0.0)
+    with pytest.raises(InvalidParameterError, match="start"):
+        BacklashRLS(start="hot").learn_one(0.0, 0.0)
+    with pytest.raises(InvalidParameterError):
+        BacklashRLS().learn_one(math.nan, 0.0)
+    with pytest.raises(InvalidParameterError, match="EffectTerms"):
+        BacklashRLS(effects=[object()]).learn_one(0.0, 0.0)
+
+
+def test_clone_is_a_fresh_estimator_with_the_same_settings(rig60):
+    _, u, y = rig60
+    est = BacklashRLS(memory_s=3.0, warm_start_samples=4000)
+    est.learn_many(u[:20000], y[:20000])
+    twin = est.clone()
+    assert not twin.started and twin.memory_s == 3.0 and twin.warm_start_samples == 4000
+    twin.learn_many(u[:20000], y[:20000])
+    np.testing.assert_array_equal(_snapshot(twin), _snapshot(est))
+
+
+def test_cold_start_from_the_papers_start_values():
+    u = np.random.default_rng(1).uniform(-1, 1, 4000)
+    from online_backlash.model import simulate_backlash
+
+    x = simulate_backlash(u, BacklashParams(1.3, 0.5, 2.5, 0.7))
+    est = BacklashRLS(start="cold", origin="zero", memory_reversals=None)
+    est.learn_many(u, x)
+    assert est.warm_start_ == {}
+    np.testing.assert_allclose(est.theta_, BacklashParams(1.3, 0.5, 2.5, 0.7).theta, rtol=1e-6)
