@@ -93,7 +93,11 @@ def test_recent_rate_of_use():
     hours = np.where(days < 20, 2.0 * days, 40.0 + 5.0 * (days - 20))  # 2 h/day, then 5 h/day
     t = 1.7e9 + days * DAY
     assert usage_hours_per_day(t, hours, recent_days=7) == pytest.approx(5.0)
-    assert usage_hours_per_day(t, hours, recent_days=100) == pytest.approx(hours[-1] / 29)
+    assert usage_hours_per_day(t, hours, recent_days=100) == pytest.approx(np.polyfit(days, hours, 1)[0])
+    # a log a day: the rate over whole days, wherever in its log each estimate falls
+    bursts_t = np.concatenate([T + np.array([0.01, 0.02]) for T in days]) * DAY
+    bursts_h = np.concatenate([0.05 * k + np.array([0.025, 0.05]) for k in days])
+    assert usage_hours_per_day(bursts_t, bursts_h, recent_days=7) == pytest.approx(0.05, rel=0.05)
     assert usage_hours_per_day(t[:1], hours[:1]) is None
     assert usage_hours_per_day(np.full(3, 1.7e9), np.arange(3.0)) is None
 

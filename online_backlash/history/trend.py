@@ -148,23 +148,23 @@ def fit_trend(x: np.ndarray, backlash_deg: np.ndarray, confidence: float = 0.95)
 def usage_hours_per_day(time_unix_s: np.ndarray, operating_hours: np.ndarray, recent_days: float = 7.0) -> float | None:
     """Recent rate of use: operating hours per calendar day over the last ``recent_days``.
 
-    Taken between the first estimate inside the window (ending at the last estimate) and the
-    last one; the whole history if the window holds fewer than two estimates or no elapsed
-    time. None if there is no elapsed time at all.
+    The least-squares slope of operating hours against calendar time over the estimates of
+    the window (which ends at the last estimate); a slope rather than the difference of the
+    end points, since use comes in bursts (a log a day) and the end points fall anywhere in
+    them. The whole history if the window holds fewer than three estimates. None without
+    elapsed time.
     """
     t = np.asarray(time_unix_s, dtype=float)
     h = np.asarray(operating_hours, dtype=float)
     if t.size < 2:
         return None
-    last = int(np.argmax(t))
-    inside = np.flatnonzero(t >= t[last] - recent_days * 86400.0)
-    first = int(inside[np.argmin(t[inside])])
-    if t[last] - t[first] <= 0 or first == last:
-        first = int(np.argmin(t))
-    elapsed_days = (t[last] - t[first]) / 86400.0
-    if elapsed_days <= 0:
+    inside = t >= t.max() - recent_days * 86400.0
+    if inside.sum() < 3:
+        inside = np.ones(t.size, dtype=bool)
+    days = (t[inside] - t.max()) / 86400.0
+    if np.ptp(days) <= 0:
         return None
-    return float((h[last] - h[first]) / elapsed_days)
+    return float(np.polyfit(days, h[inside], 1)[0])
 
 
 @dataclass(frozen=True)

@@ -1,0 +1,118 @@
+"""``online-backlash history --db DB --gearbox ID``: a gearbox's estimates, wear trend and forecast."""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import math
+import sys
+
+from ..history.plot import plot_wear
+from ..history.report import WearReport, wear_report
+from ..history.store import HistoryStore
+from ._common import print_json
+
+CSV_COLUMNS = (
+    "time", "time_unix_s", "operating_hours", "load_revolutions", "reversals", "backlash_deg", "backlash_std_deg",
+    "backlash_arcmin", "backlash_std_arcmin", "c_left_deg", "c_right_deg", "m_left", "m_right", "residual_rms_deg",
+    "n_samples", "run_id", "sample_index",
+)
+
+
+def add_db_options(parser: argparse.ArgumentParser) -> None:
+    """``--db`` and ``--gearbox``, shared with ``track``."""
+    parser.add_argument("--db", required=True, help="history store: an SQLite file path or postgresql://user@host/dbname")
+    parser.add_argument("--gearbox", required=True, metavar="ID", help="the gearbox's id in the store")
+
+
+def add_subparser(subparsers: argparse._SubParsersAction) -> None:
+    parser = subparsers.add_parser(
+        "history",
+        help="show a gearbox's wear history, trend and forecast",
+        description="Show the stored backlash estimates of one gearbox, the trend against operating hours "
+        "(Theil-Sen, with its confidence band) and when it will cross the limit.",
+        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+    )
+    add_db_options(parser)
+    output = parser.add_mutually_exclusive_group()
+    output.add_argument("--json", action="store_true", help="print one JSON object")
+    output.add_argument("--csv", action="store_true", help="print the estimates as CSV")
+    parser.add_argument("--limit-arcmin", type=float, metavar="X", help="backlash limit for the forecast (default: the gearbox's stored limit)")
+    parser.add_argument("--plot", metavar="FILE.png", help="also draw the wear plot into this file")
+    parser.add_argument("--confidence", type=float, default=0.95, help="confidence of the trend band and forecast interval")
+    parser.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    with HistoryStore(args.db) as store:
+        report = wear_report(store, args.gearbox, args.limit_arcmin, args.confidence)
+    if args.plot:
+        plot_wear(report, args.plot)
+    if args.json:
+        print_json(report.as_dict())
+    elif args.csv:
+        write_csv(report)
+    else:
+        print(describe(report))
+        if args.plot:
+            print(f"wear plot: {args.plot}")
+    return 0
+
+
+def write_csv(report: WearReport) -> None:
+    writer = csv.DictWriter(sys.stdout, fieldnames=CSV_COLUMNS, extrasaction="ignore", lineterminator="\n")
+    writer.writeheader()
+    writer.writerows(report.rows())
+
+
+def _num(value: float | None, fmt: str) -> str:
+    return "-" if value is None or not math.isfinite(value) else format(value, fmt)
+
+
+def describe(report: WearReport) -> str:
+    """The text report: a table of estimates, then trend and forecast."""
+    g = report.gearbox
+    limit = "none stored" if g.limit_arcmin is None else f"{g.limit_arcmin:g} arcmin"
+    lines = [f"gearbox {g.id}: ratio {g.ratio:g}, limit {limit}, {len(report.estimates)} estimates"]
+    header = f"{'time (UTC)':<20} {'op. hours':>10} {'load rev':>10} {'reversals':>9} {'backlash deg':>12} {'std deg':>9} {'arcmin':>8} {'std arcmin':>10}"
+    lines += [header, "-" * len(header)]
+    for row in report.rows():
+        lines.append(
+            f"{row['time'][:19].replace('T', ' '):<20} {row['operating_hours']:>10.3f} {row['load_revolutions']:>10.1f} "
+            f"{row['reversals']:>9d} {row['backlash_deg']:>12.4f} {_num(row['backlash_std_deg'], '9.4f'):>9} "
+            f"{row['backlash_arcmin']:>8.2f} {_num(row['backlash_std_arcmin'], '10.2f'):>10}"
+        )
+    lines.append("")
+    lines += describe_trend(report)
+    return "\n".join(lines)
+
+
+def describe_trend(report: WearReport) -> list[str]:
+    """Trend and forecast lines (shared with ``demo``)."""
+    s = report.summary.as_dict()
+    if s["trend_deg_per_hour"] is None:
+        return ["trend: needs at least 3 estimates at different operating hours"]
+    lo, hi = s["trend_deg_per_hour_interval"]
+    conf = f"{s['trend_confidence']:.0%}"
+    lines = [
+        f"trend: {s['trend_deg_per_hour']:+.4g} deg per operating hour [{lo:+.4g}, {hi:+.4g}] ({conf}), "
+        f"now {s['trend_backlash_deg_now']:.4f} deg on the trend line",
+    ]
+    if s["trend_deg_per_revolution"] is not None:
+        lines.append(f"       {s['trend_deg_per_revolution'] * 1000:+.4g} deg per 1000 load revolutions")
+    if s["usage_hours_per_day"] is not None:
+        lines.append(f"use: {s['usage_hours_per_day']:.3g} operating hours per day recently")
+    if s["limit_deg"] is None:
+        lines.append("forecast: no limit (give --limit-arcmin, or store one with track --limit-arcmin)")
+        return lines
+    h, (h_lo, h_hi) = s["forecast_hours_to_limit"], s["forecast_hours_to_limit_interval"]
+    limit = f"limit {s['limit_arcmin']:g} arcmin ({s['limit_deg']:.4f} deg)"
+    if not math.isfinite(h):
+        lines.append(f"forecast: {limit} not reached (the trend does not grow)")
+        return lines
+    when = "already crossed on the trend line" if h < 0 else "reached in"
+    lines.append(f"forecast: {limit} {when} {abs(h):.3g} operating hours [{h_lo:.3g}, {_num(h_hi, '.3g')}] from the last estimate")
+    if s["forecast_date"] is not None:
+        d_lo, d_hi = s["forecast_date_interval"]
+        lines.append(f"          around {s['forecast_date']} [{d_lo}, {d_hi or 'never'}] at the recent rate of use")
+    return lines
