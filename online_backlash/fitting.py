@@ -8,14 +8,18 @@ from __future__ import annotations
 
 import os
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Callable, Iterable
 
 import numpy as np
 
-from .estimators import VorosBacklash
+from .errors import InvalidParameterError, LogFormatError
+from .estimators import BacklashRLS, VorosBacklash
 from .stream import SampleChunk, refer_to_load
 
 ARCMIN_PER_DEG = 60.0
+
+#: columns of the estimate-over-time trace (``estimate --trace``), in this order
+TRACE_COLUMNS = ("time", "backlash_deg", "backlash_std_deg", "c_left_deg", "c_right_deg", "m_left", "m_right")
 
 
 @dataclass
@@ -68,6 +72,108 @@ def fit_batch(chunk: SampleChunk, ratio: float, **params: Any) -> tuple[Backlash
         m_right=est.m_right_,
         residual_rms_deg=est.residual_rms_,
         extra={"n_iter": est.n_iter_},
+    )
+    return report, est
+
+
+def trace_point(est: BacklashRLS, time_s: float) -> dict[str, float]:
+    """The current estimate as one trace row (keys :data:`TRACE_COLUMNS`; degrees, load side)."""
+    return {
+        "time": float(time_s),
+        "backlash_deg": est.backlash_,
+        "backlash_std_deg": est.backlash_std_,
+        "c_left_deg": est.c_left_,
+        "c_right_deg": est.c_right_,
+        "m_left": est.m_left_,
+        "m_right": est.m_right_,
+    }
+
+
+def fit_recursive(
+    chunks: Iterable[SampleChunk],
+    ratio: float,
+    *,
+    every_s: float = 1.0,
+    trace: Callable[[dict[str, float]], None] | None = None,
+    estimator: BacklashRLS | None = None,
+    source: str | os.PathLike[str] = "<stream>",
+    **params: Any,
+) -> tuple[BacklashReport, BacklashRLS]:
+    """Stream a log through :class:`BacklashRLS` chunk by chunk (memory stays flat).
+
+    Parameters
+    ----------
+    chunks : iterable of SampleChunk
+        Consecutive blocks, e.g. ``CsvLog(path).iter_chunks()``; ``after_gap`` is passed on.
+    ratio : float
+        Gear ratio motor:load (``u = motor_deg / ratio``).
+    every_s : float
+        With ``trace``, one row per ``every_s`` seconds of data (log time).
+    trace : callable, optional
+        Called with :func:`trace_point` rows: the first sample at or after each tick
+        ``t0 + k every_s`` closes a row with the estimate *before* it, stamped with the time of
+        the last sample learned; a final row closes the log. Ticks inside a gap give one row.
+    estimator : BacklashRLS, optional
+        Continue this estimator (e.g. resumed from a saved state) instead of a new one.
+    source : str or PathLike
+        Names the log in errors.
+    **params
+        Settings of a new :class:`BacklashRLS`.
+
+    Returns
+    -------
+    report : BacklashReport
+        ``method="recursive"``; ``extra`` has ``backlash_std_deg`` and ``n_reversals``.
+    est : BacklashRLS
+    """
+    if not every_s > 0:
+        raise InvalidParameterError(f"every_s must be > 0, got {every_s!r}")
+    est = estimator if estimator is not None else BacklashRLS(**params)
+    next_tick: float | None = None
+    last_time: float | None = None
+    rows_since = 0
+    seen = False
+    for chunk in chunks:
+        if not len(chunk):
+            continue
+        seen = True
+        u = refer_to_load(chunk.motor_deg, ratio)
+        t = chunk.time_s
+        if trace is None:
+            est.learn_many(u, chunk.load_deg, chunk.after_gap, time_s=t, torque_Nm=chunk.torque_Nm)
+            continue
+        if next_tick is None:
+            next_tick = float(t[0]) + every_s
+        lo = 0
+        while lo < t.size:
+            hi = int(np.searchsorted(t, next_tick, side="left"))
+            if hi > lo:
+                est.learn_many(u[lo:hi], chunk.load_deg[lo:hi], chunk.after_gap[lo:hi], time_s=t[lo:hi], torque_Nm=chunk.torque_Nm[lo:hi])
+                last_time = float(t[hi - 1])
+                rows_since += hi - lo
+            if hi == t.size:
+                break
+            if rows_since and est.started:
+                trace(trace_point(est, last_time))
+                rows_since = 0
+            while next_tick <= t[hi]:
+                next_tick += every_s
+            lo = hi
+    if not seen:
+        raise LogFormatError(source, None, "no data rows")
+    est.force_start()  # a log shorter than the warm-up: start on what was buffered
+    if trace is not None and (rows_since or last_time is None):
+        trace(trace_point(est, last_time if last_time is not None else float("nan")))
+    report = BacklashReport(
+        method="recursive",
+        samples=est.n_samples_seen_,
+        backlash_deg=est.backlash_,
+        c_left_deg=est.c_left_,
+        c_right_deg=est.c_right_,
+        m_left=est.m_left_,
+        m_right=est.m_right_,
+        residual_rms_deg=est.residual_rms_,
+        extra={"backlash_std_deg": est.backlash_std_, "n_reversals": est.n_reversals_},
     )
     return report, est
 
