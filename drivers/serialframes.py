@@ -104,6 +104,7 @@ class FrameParser:
         del buf[:pos]
         if len(buf) > self.max_frame_bytes:  # garbage with no delimiter: one corrupt frame
             if not self._discarding:
+                self.counters.frames += 1
                 self._count_corrupt(f"no frame delimiter in {len(buf)} bytes")
                 self._discarding = True
             buf.clear()

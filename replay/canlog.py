@@ -172,13 +172,20 @@ class _Truncated(Exception):
 def _log_reader(path: Path) -> can.io.generic.MessageReader:
     """python-can's reader for ``path`` (by suffix, ``.gz`` looked through), times absolute.
 
-    ASC stores times relative to its header date; ask for absolute ones, as live. (``can.LogReader``
-    does not pass options to the reader of a ``.gz`` file, hence the gzip branch here.)
+    ASC stores times relative to its header date; ask for absolute ones, as live. The file is
+    opened here (in the mode and encoding python-can would use), so that it is closed again when
+    the reader rejects it, and so that ``.gz`` files get the same reader options.
     """
     suffix = log_suffix(path)
     reader = can.io.player.MESSAGE_READERS[suffix]
     options = {"relative_timestamp": False} if suffix == ".asc" else {}
-    if path.name.lower().endswith(".gz"):
-        text = issubclass(reader, can.io.generic.TextIOMessageReader)
-        return reader(gzip.open(path, "rt" if text else "rb"), **options)
-    return reader(path, **options)
+    if not issubclass(reader, can.io.generic.FileIOMessageReader):
+        return reader(path, **options)  # e.g. the SQLite reader opens its own database
+    mode = "rt" if issubclass(reader, can.io.generic.TextIOMessageReader) else "rb"
+    opener = gzip.open if path.name.lower().endswith(".gz") else open
+    file = opener(path, mode)
+    try:
+        return reader(file, **options)
+    except BaseException:
+        file.close()
+        raise
