@@ -307,6 +307,9 @@ class HistoryStore:
                 dbapi_connection.isolation_level = None
                 dbapi_connection.execute("PRAGMA foreign_keys=ON")
                 dbapi_connection.execute("PRAGMA busy_timeout=30000")
+                # with WAL, commits survive a killed process without a sync each (only a power cut
+                # may lose the latest ones, never consistency)
+                dbapi_connection.execute("PRAGMA synchronous=NORMAL")
 
             @event.listens_for(engine, "begin")
             def _on_begin(conn: Connection) -> None:

@@ -1,0 +1,398 @@
+"""Feed a gearbox's recursive estimator from logs and checkpoint it, with its estimates, in the store.
+
+One gearbox has one estimator (:class:`~online_backlash.estimators.recursive.BacklashRLS`,
+the recursive form of Vörös 2013) and one :class:`~online_backlash.history.usage.UsageCounter`
+for its whole life: every log continues from the state the previous one left, so the estimate
+follows the wear. Each log is a *run* of the store, keyed by the SHA-256 of the file.
+
+Every ``every_s`` seconds of data an estimate is appended, and in the same transaction the
+tracker state (estimator, usage counters, data clock) becomes the gearbox's checkpoint and the
+run's resume point (``samples_done``) moves on. A process killed at any instant therefore
+leaves a consistent store; run again on the same log, it skips the samples the checkpoint
+already holds and continues, so the history ends the same as an uninterrupted run: no
+duplicate, no missing row, nothing learnt twice. A log already complete is not read again.
+
+Calendar time of a sample: ``start_unix_s + (time_s - first time_s)`` when a start is given;
+the time column itself when it holds UNIX times (at least :data:`UNIX_TIME_MIN`); otherwise
+the log file's modification time is taken as its start. The first run of a log fixes it
+(``runs.started_unix_s``); a resumed run keeps it.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import math
+import os
+import time
+from dataclasses import dataclass, field
+from itertools import chain
+from typing import Any, Callable, Iterable, Iterator
+
+import numpy as np
+
+from ..errors import HistoryError, InvalidParameterError, LogFormatError, NotFittedError
+from ..estimators._validation import check_real
+from ..estimators.recursive import BacklashRLS
+from ..replay import open_log
+from ..stream import SampleChunk, refer_to_load
+from .store import Gearbox, HistoryStore, Run
+from .usage import UsageCounter
+
+#: Times at or above this (2001-09-09) are read as UNIX seconds.
+UNIX_TIME_MIN = 1.0e9
+
+#: Version of the checkpoint's layout (inside the store's ``gearboxes.checkpoint``).
+CHECKPOINT_FORMAT = 1
+
+#: ``progress(samples_fed, backlash_deg or None)``, called after every block.
+ProgressCallback = Callable[[int, "float | None"], None]
+
+
+def file_sha256(path: str | os.PathLike[str], block_bytes: int = 1 << 20) -> str:
+    """SHA-256 of a file's bytes (a compressed log is hashed as stored)."""
+    digest = hashlib.sha256()
+    with open(path, "rb") as f:
+        while block := f.read(block_bytes):
+            digest.update(block)
+    return digest.hexdigest()
+
+
+def log_clock_offset(path: str | os.PathLike[str], first_time_s: float, start_unix_s: float | None = None) -> float:
+    """Seconds to add to the log's ``time_s`` to get UNIX time (see the module docstring)."""
+    if start_unix_s is not None:
+        return start_unix_s - first_time_s
+    if first_time_s >= UNIX_TIME_MIN:
+        return 0.0
+    return os.stat(path).st_mtime - first_time_s
+
+
+def _default_clock_offset(first_time_s: float) -> float:
+    return 0.0 if first_time_s >= UNIX_TIME_MIN else time.time() - first_time_s
+
+
+@dataclass
+class TrackResult:
+    """What one ``track`` call did.
+
+    Attributes
+    ----------
+    already_imported : bool
+        The log's hash was stored as a complete run: nothing was read or written.
+    resumed_from : int
+        Samples of the log skipped because an earlier, interrupted run had committed them.
+    samples_fed : int
+        Samples fed to the estimator by this call.
+    estimates_added : int
+        Rows appended to the store by this call.
+    last_estimate : dict or None
+        The last row appended (column name -> value).
+    counters : dict
+        The log reader's counters (frames, samples, corrupt, skipped, gaps).
+    """
+
+    gearbox_id: str
+    run_id: int
+    source: str
+    already_imported: bool = False
+    resumed_from: int = 0
+    samples_fed: int = 0
+    estimates_added: int = 0
+    last_estimate: dict | None = None
+    counters: dict = field(default_factory=dict)
+
+
+class GearboxTracker:
+    """Track one gearbox: feed its estimator, append estimates, checkpoint in the store.
+
+    Parameters
+    ----------
+    store : HistoryStore
+        Where the gearbox, its runs and its estimates live.
+    gearbox_id : str
+        The gearbox; registered on its first run with ``ratio``.
+    ratio : float
+        Gear ratio motor:load (negative for a reversing stage); must match the stored one.
+    every_s : float
+        Seconds of data between estimates.
+    limit_arcmin : float, optional
+        Nominal backlash limit, stored with the gearbox (replaces a stored one).
+    estimator_params : dict, optional
+        Parameters of a new gearbox's :class:`BacklashRLS` (a known gearbox keeps its own).
+    usage_params : dict, optional
+        Parameters of a new gearbox's :class:`UsageCounter`.
+    """
+
+    def __init__(
+        self,
+        store: HistoryStore,
+        gearbox_id: str,
+        ratio: float,
+        every_s: float = 60.0,
+        limit_arcmin: float | None = None,
+        estimator_params: dict | None = None,
+        usage_params: dict | None = None,
+    ) -> None:
+        self.store = store
+        self.gearbox_id = gearbox_id
+        self.ratio = ratio
+        self.every_s = every_s
+        self.limit_arcmin = limit_arcmin
+        self.estimator_params = estimator_params
+        self.usage_params = usage_params
+
+    # -- public ----------------------------------------------------------------------------
+    def track_log(
+        self,
+        path: str | os.PathLike[str],
+        log_options: dict[str, Any] | None = None,
+        start_unix_s: float | None = None,
+        progress: ProgressCallback | None = None,
+    ) -> TrackResult:
+        """Feed one recorded log (resuming an interrupted run of it; nothing if already complete).
+
+        Parameters
+        ----------
+        path : str or os.PathLike
+            The log; its reader is chosen by suffix (:func:`online_backlash.replay.open_log`).
+        log_options : dict, optional
+            Reader options (``columns``, ``units``, ``motor_cpr``, ``load_cpr``, ``skip_bad``).
+        start_unix_s : float, optional
+            Calendar time of the first sample, UNIX seconds (see the module docstring).
+        progress : callable, optional
+            ``progress(samples_fed, backlash_deg or None)`` after every block.
+        """
+        path = os.fspath(path)
+        digest = file_sha256(path)
+        with open_log(path, **(log_options or {})) as reader:
+            return self.track_chunks(
+                reader.iter_chunks(),
+                path,
+                key=digest,
+                clock_offset=lambda first_time_s: log_clock_offset(path, first_time_s, start_unix_s),
+                counters=lambda: reader.counters.as_dict(),
+                progress=progress,
+            )
+
+    def track_chunks(
+        self,
+        chunks: Iterable[SampleChunk],
+        source: str,
+        key: str | None = None,
+        clock_offset: Callable[[float], float] | None = None,
+        counters: Callable[[], dict] | None = None,
+        progress: ProgressCallback | None = None,
+    ) -> TrackResult:
+        """Feed a stream of sample chunks as one run (the engine under :meth:`track_log`).
+
+        Parameters
+        ----------
+        chunks : iterable of SampleChunk
+            The samples (seconds, degrees; motor angle on the motor shaft).
+        source : str
+            Description stored with the run (a path, a bus and channel).
+        key : str, optional
+            Identity of the data (a log's SHA-256): a complete run with this key is not fed
+            again, an interrupted one is resumed. Without a key every call is a new run.
+        clock_offset : callable, optional
+            ``clock_offset(first_time_s)``: seconds to add to ``time_s`` for UNIX time; default
+            0 for UNIX times (at least :data:`UNIX_TIME_MIN`), else "the first sample is now".
+        counters : callable, optional
+            Returns the source's counters at the end (default: only ``samples``).
+        progress : callable, optional
+            ``progress(samples_fed, backlash_deg or None)`` after every block.
+        """
+        self._validate()
+        chunks = iter(chunks)
+        first = next(chunks, None)
+        if first is None:
+            raise LogFormatError(source, None, "no data rows")
+        first_time_s = float(first.time_s[0])
+        offset = clock_offset(first_time_s) if clock_offset is not None else _default_clock_offset(first_time_s)
+        gearbox, run = self.store.begin_run(self.gearbox_id, self.ratio, source, key, first_time_s + offset, self.limit_arcmin)
+        result = TrackResult(self.gearbox_id, run.id, source, resumed_from=run.samples_done)
+        if run.complete:
+            result.already_imported = True
+            result.counters = {k: getattr(run, k) for k in _COUNTERS}
+            return result
+        clock = run.started_unix_s - first_time_s  # a resumed run keeps its first clock
+        gearbox, run, state, ended = self._feed(gearbox, run, chain([first], chunks), clock, result, progress)
+        done = result.resumed_from + result.samples_fed
+        result.counters = counters() if counters is not None else {k: done if k == "samples" else 0 for k in _COUNTERS}
+        self.store.commit(gearbox, run, done, state.checkpoint(), counters=result.counters, ended_unix_s=ended)
+        return result
+
+    # -- internals -------------------------------------------------------------------------
+    def _validate(self) -> None:
+        check_real("every_s", self.every_s, 0.0)
+        try:
+            refer_to_load(0.0, self.ratio)
+        except InvalidParameterError as exc:
+            raise HistoryError(str(exc)) from exc
+
+    def _feed(
+        self,
+        gearbox: Gearbox,
+        run: Run,
+        chunks: Iterable[SampleChunk],
+        clock: float,
+        result: TrackResult,
+        progress: ProgressCallback | None,
+    ) -> tuple[Gearbox, Run, "TrackerState", float | None]:
+        """Skip what the run already committed, learn the rest, commit at every estimate.
+
+        Returns the latest gearbox and run records, the state after the last sample and the
+        calendar time of the last sample (None if every sample was skipped).
+        """
+        state = TrackerState.load(gearbox.checkpoint, self.estimator_params, self.usage_params)
+        if run.samples_done == 0:
+            state.mark_gap()  # the log does not continue the previous one
+        skip = run.samples_done
+        done = run.samples_done  # samples of this log in the state
+        ended = None
+        for chunk in chunks:
+            ended = clock + float(chunk.time_s[-1])
+            if skip >= len(chunk):
+                skip -= len(chunk)
+                continue
+            if skip:
+                chunk, skip = _tail(chunk, skip), 0
+            u = refer_to_load(chunk.motor_deg, self.ratio)
+            fed = 0
+            for end, due in state.learn(chunk.time_s, u, chunk.load_deg, chunk.after_gap, self.every_s):
+                done += end - fed
+                result.samples_fed += end - fed
+                fed = end
+                row = state.estimate_row(done, clock + float(chunk.time_s[end - 1])) if due else None
+                if row is not None:
+                    gearbox, run = self.store.commit(gearbox, run, done, state.checkpoint(), [row])
+                    result.estimates_added += 1
+                    result.last_estimate = row
+                if progress is not None:
+                    progress(result.samples_fed, state.backlash_deg())
+        return gearbox, run, state, ended
+
+
+_COUNTERS = ("frames", "samples", "corrupt", "skipped", "gaps")
+
+
+def _tail(chunk: SampleChunk, start: int) -> SampleChunk:
+    """The samples of ``chunk`` from index ``start`` on."""
+    return SampleChunk(chunk.time_s[start:], chunk.motor_deg[start:], chunk.load_deg[start:], chunk.torque_Nm[start:], chunk.after_gap[start:])
+
+
+class TrackerState:
+    """Everything a gearbox's tracking carries from one sample to the next, JSON round-trippable.
+
+    Attributes
+    ----------
+    estimator : BacklashRLS
+        The gearbox's recursive estimator.
+    usage : UsageCounter
+        Operating time, load revolutions and reversals since new.
+    data_s : float
+        Seconds of data seen (steps across gaps and between logs excluded).
+    next_estimate_s : float
+        ``data_s`` at which the next estimate is due.
+    prev_time_s : float or None
+        Time of the last sample of the current log (None at the start of a log).
+    """
+
+    def __init__(self, estimator: BacklashRLS, usage: UsageCounter, data_s: float = 0.0,
+                 next_estimate_s: float | None = None, prev_time_s: float | None = None) -> None:
+        self.estimator = estimator
+        self.usage = usage
+        self.data_s = data_s
+        self.next_estimate_s = next_estimate_s
+        self.prev_time_s = prev_time_s
+
+    @classmethod
+    def load(cls, checkpoint: dict | None, estimator_params: dict | None = None, usage_params: dict | None = None) -> "TrackerState":
+        """The state saved in a gearbox's checkpoint, or a new one (with these parameters) if None."""
+        if checkpoint is None:
+            return cls(BacklashRLS(**(estimator_params or {})), UsageCounter(**(usage_params or {})))
+        if checkpoint.get("format") != CHECKPOINT_FORMAT:
+            raise HistoryError(f"checkpoint format {checkpoint.get('format')!r} is not {CHECKPOINT_FORMAT}; upgrade online-backlash")
+        return cls(
+            BacklashRLS.from_state(checkpoint["estimator"]),
+            UsageCounter.from_state(checkpoint["usage"]),
+            checkpoint["data_s"],
+            checkpoint["next_estimate_s"],
+            checkpoint["prev_time_s"],
+        )
+
+    def checkpoint(self) -> dict:
+        """The state as a JSON-serialisable dict."""
+        return {
+            "format": CHECKPOINT_FORMAT,
+            "estimator": self.estimator.state_dict(),
+            "usage": self.usage.state_dict(),
+            "data_s": self.data_s,
+            "next_estimate_s": self.next_estimate_s,
+            "prev_time_s": self.prev_time_s,
+        }
+
+    def mark_gap(self) -> None:
+        """The next sample does not continue the last one."""
+        self.estimator.mark_gap()
+        self.usage.mark_gap()
+        self.prev_time_s = None
+
+    def learn(self, time_s: np.ndarray, u_deg: np.ndarray, y_deg: np.ndarray, after_gap: np.ndarray,
+              every_s: float) -> Iterator[tuple[int, bool]]:
+        """Learn a chunk block by block; yield ``(end, due)`` after each block.
+
+        A block ends at the sample where ``data_s`` reaches ``next_estimate_s`` (``due`` is
+        True: an estimate belongs there) or at the end of the chunk. ``data_s`` is summed
+        afresh from each block's start, so a run resumed at a block boundary computes the
+        very same numbers as an uninterrupted one.
+        """
+        if self.next_estimate_s is None:
+            self.next_estimate_s = self.data_s + every_s
+        n, pos = time_s.size, 0
+        while pos < n:
+            t = time_s[pos:]
+            previous = np.concatenate(([np.nan if self.prev_time_s is None else self.prev_time_s], t[:-1]))
+            step = t - previous
+            step[after_gap[pos:] | ~np.isfinite(step)] = 0.0
+            data_s = self.data_s + np.cumsum(step)
+            reach = int(np.searchsorted(data_s, self.next_estimate_s, side="left"))
+            due = reach < t.size
+            end = pos + (reach + 1 if due else t.size)
+            self.estimator.learn_many(u_deg[pos:end], y_deg[pos:end], after_gap=after_gap[pos:end])
+            self.usage.update(time_s[pos:end], u_deg[pos:end], after_gap[pos:end])
+            self.data_s = float(data_s[end - pos - 1])
+            self.prev_time_s = float(time_s[end - 1])
+            while due and self.next_estimate_s <= self.data_s:
+                self.next_estimate_s += every_s
+            yield end, due
+            pos = end
+
+    def backlash_deg(self) -> float | None:
+        """The current estimate of the play, degrees, or None before the estimator has one."""
+        try:
+            value = float(self.estimator.backlash_)
+        except NotFittedError:
+            return None
+        return value if math.isfinite(value) else None
+
+    def estimate_row(self, sample_index: int, time_unix_s: float) -> dict | None:
+        """The estimate to store now (columns of ``estimates``), or None before there is one."""
+        backlash = self.backlash_deg()
+        if backlash is None:
+            return None
+        est = self.estimator
+        return {
+            "sample_index": sample_index,
+            "time_unix_s": time_unix_s,
+            "backlash_deg": backlash,
+            "backlash_std_deg": float(est.backlash_std_),
+            "c_left_deg": float(est.c_left_),
+            "c_right_deg": float(est.c_right_),
+            "m_left": float(est.m_left_),
+            "m_right": float(est.m_right_),
+            "residual_rms_deg": float(getattr(est, "residual_rms_", math.nan)),
+            "n_samples": int(est.n_samples_seen_),
+            "operating_hours": self.usage.operating_hours,
+            "load_revolutions": self.usage.load_revolutions,
+            "reversals": self.usage.reversals,
+        }

@@ -1,0 +1,253 @@
+"""Tracking a gearbox: usage counters, estimates every S seconds, resume after a kill, a month of wear."""
+
+from __future__ import annotations
+
+import datetime as dt
+import os
+import signal
+import sqlite3
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pytest
+
+from online_backlash.errors import HistoryError, LogFormatError
+from online_backlash.history.report import wear_report
+from online_backlash.history.store import HistoryStore
+from online_backlash.history.track import GearboxTracker
+from online_backlash.history.usage import UsageCounter
+from online_backlash.rig import simulate_rig
+
+DAY = 86400.0
+T0 = 1.7e9  # 2023-11-14 22:13:20 UTC: logs carry UNIX times
+
+
+def write_wear_logs(folder, days, duration_s, play_at_hours, seed=0, every_days=1.0):
+    """Daily rig logs (UNIX time column); ``play_at_hours(h)`` is the play after h hours of running."""
+    paths, recordings = [], []
+    for k in range(days):
+        hours_before = k * duration_s / 3600.0
+        rec = simulate_rig(duration_s=duration_s, play_deg=lambda t, h=hours_before: play_at_hours(h + t / 3600.0), seed=seed + k)
+        rec.time_s = rec.time_s + T0 + k * every_days * DAY
+        path = folder / f"day{k:02d}.csv"
+        rec.write_csv(path)
+        paths.append(path)
+        recordings.append(rec)
+    return paths, recordings
+
+
+# -- usage counter ---------------------------------------------------------------------------
+
+
+def test_usage_counts_travel_reversals_and_motion_time():
+    rec = simulate_rig(duration_s=60.0, play_deg=0.2, seed=3)
+    u = rec.motor_deg / rec.ratio
+    counter = UsageCounter()
+    counter.update(rec.time_s, u)
+    true_travel = np.abs(np.diff(rec.u_true_deg)).sum() / 360.0
+    true_reversals = np.count_nonzero(np.diff(np.sign(np.diff(rec.u_true_deg))[np.diff(rec.u_true_deg) != 0]))
+    assert counter.load_revolutions == pytest.approx(true_travel, rel=0.01)
+    assert counter.reversals == true_reversals
+    assert 0.97 * 60 / 3600 < counter.operating_hours <= 60 / 3600
+
+
+def test_usage_ignores_standing_still_jitter_and_gaps():
+    t = np.arange(0.0, 100.0, 0.001)
+    step = 360.0 / 2**14 / 30  # one motor count, load side
+    u = np.where(t < 10.0, 3.0 * t, 30.0) + step * np.random.default_rng(0).integers(-1, 2, t.size)
+    counter = UsageCounter()
+    counter.update(t, u)
+    assert counter.operating_hours * 3600 == pytest.approx(10.0, abs=0.6)  # 90 s of jitter are not motion
+    assert counter.reversals == 0
+    gap = np.zeros(t.size, bool)
+    gap[50_000] = True
+    jump = UsageCounter()
+    jump.update(t, np.where(t < 50.0, 0.0, 500.0), gap)  # a jump across a gap is not travel
+    assert jump.load_revolutions == 0.0 and jump.operating_hours == 0.0
+
+
+def test_usage_state_round_trip_and_chunking_give_the_same_counts():
+    rec = simulate_rig(duration_s=20.0, seed=4)
+    u = rec.motor_deg / rec.ratio
+    whole = UsageCounter()
+    whole.update(rec.time_s, u)
+    parts = UsageCounter()
+    for lo, hi in ((0, 777), (777, 9000), (9000, u.size)):
+        parts = UsageCounter.from_state(parts.state_dict())
+        parts.update(rec.time_s[lo:hi], u[lo:hi])
+    assert parts.state_dict() == whole.state_dict()
+
+
+# -- tracking logs ----------------------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def wear_logs(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("wear_logs")
+    paths, _ = write_wear_logs(folder, days=3, duration_s=40.0, play_at_hours=lambda h: 0.2 + 0.5 * h, seed=10)
+    return paths
+
+
+def snapshot(db):
+    with sqlite3.connect(db) as conn:
+        return {
+            "gearboxes": conn.execute("SELECT id, ratio, limit_arcmin, checkpoint, revision FROM gearboxes ORDER BY id").fetchall(),
+            "runs": conn.execute(
+                "SELECT id, gearbox_id, source, log_sha256, status, started_unix_s, ended_unix_s, samples_done, "
+                "frames, samples, corrupt, skipped, gaps FROM runs ORDER BY id"
+            ).fetchall(),
+            "estimates": conn.execute("SELECT * FROM estimates ORDER BY id").fetchall(),
+        }
+
+
+def test_estimates_every_s_seconds_of_data_across_logs(tmp_path, wear_logs):
+    with HistoryStore(tmp_path / "w.db", create=True) as store:
+        tracker = GearboxTracker(store, "g1", 30.0, every_s=15.0, limit_arcmin=20.0)
+        results = [tracker.track_log(p) for p in wear_logs]
+        estimates = store.estimates("g1")
+        runs = store.runs("g1")
+    # 3 logs of 40 s (39.999 s of steps each): estimates at 15, 30, 45, ... seconds of data;
+    # the first waits for the estimator's warm start (10 000 samples)
+    data_s = np.array([(r.sample_index - 1) * 0.001 + 39.999 * (r.run_id - 1) for r in estimates])
+    assert np.allclose(data_s / 15.0, np.round(data_s / 15.0), atol=1e-6)
+    assert [round(x / 15.0) for x in data_s] == list(range(1, 8))
+    assert sum(r.estimates_added for r in results) == 7
+    assert all(r.complete and r.samples == 40_000 and r.frames == 40_000 for r in runs)
+    assert [r.started_unix_s for r in runs] == [T0 + k * DAY for k in range(3)]
+    for e in estimates:  # calendar time of the sample the estimate was taken at
+        assert e.time_unix_s == pytest.approx(T0 + (e.run_id - 1) * DAY + (e.sample_index - 1) * 0.001, abs=1e-6)
+    assert np.all(np.diff([e.operating_hours for e in estimates]) > 0)
+    # 15 000 samples apart, one more where the step from one log to the next (not data time) lies between
+    crossings = np.diff([e.run_id for e in estimates])
+    assert np.array_equal(np.diff([e.n_samples for e in estimates]), 15_000 + crossings)
+
+
+def test_same_log_twice_adds_nothing(tmp_path, wear_logs):
+    db = tmp_path / "w.db"
+    with HistoryStore(db, create=True) as store:
+        GearboxTracker(store, "g1", 30.0, every_s=10.0).track_log(wear_logs[0])
+    before = snapshot(db)
+    copy = tmp_path / "renamed.csv"
+    copy.write_bytes(wear_logs[0].read_bytes())  # the hash, not the name, identifies a log
+    with HistoryStore(db) as store:
+        result = GearboxTracker(store, "g1", 30.0, every_s=10.0).track_log(copy)
+    assert result.already_imported and result.estimates_added == 0 and result.samples_fed == 0
+    assert snapshot(db) == before
+
+
+def test_contradicting_ratio_and_bad_logs_leave_the_store_untouched(tmp_path, wear_logs):
+    db = tmp_path / "w.db"
+    with HistoryStore(db, create=True) as store:
+        GearboxTracker(store, "g1", 30.0).track_log(wear_logs[0])
+    before = snapshot(db)
+    bad = tmp_path / "bad.csv"
+    bad.write_text("when,a,b\n0,1,2\n")
+    with HistoryStore(db) as store:
+        with pytest.raises(HistoryError, match="stored with ratio 30"):
+            GearboxTracker(store, "g1", 50.0).track_log(wear_logs[1])
+        with pytest.raises(LogFormatError, match="header has no column"):
+            GearboxTracker(store, "g2", 30.0).track_log(bad)
+        with pytest.raises(FileNotFoundError):
+            GearboxTracker(store, "g2", 30.0).track_log(tmp_path / "missing.csv")
+    assert snapshot(db) == before
+
+
+class Interrupt(Exception):
+    pass
+
+
+@pytest.mark.parametrize("stop_after", [1, 3, 6, 11])
+def test_resume_after_an_interruption_equals_an_uninterrupted_run(tmp_path, wear_logs, stop_after):
+    """Stop inside ``track`` at the n-th progress call (between blocks), then run again."""
+    reference = tmp_path / "reference.db"
+    with HistoryStore(reference, create=True) as store:
+        for p in wear_logs:
+            GearboxTracker(store, "g1", 30.0, every_s=7.0).track_log(p)
+    db = tmp_path / "interrupted.db"
+    calls = 0
+
+    def stop(samples, backlash):
+        nonlocal calls
+        calls += 1
+        if calls == stop_after:
+            raise Interrupt
+
+    with HistoryStore(db, create=True) as store:
+        tracker = GearboxTracker(store, "g1", 30.0, every_s=7.0)
+        with pytest.raises(Interrupt):
+            for p in wear_logs:
+                tracker.track_log(p, progress=stop)
+        results = [tracker.track_log(p) for p in wear_logs]
+    # the first block ends before the estimator's warm start, so nothing was committed to resume from
+    assert any(r.resumed_from > 0 for r in results) == (stop_after > 1)
+    assert snapshot(db) == snapshot(reference)
+
+
+def test_sigkill_mid_log_then_restart_gives_the_uninterrupted_history(tmp_path):
+    paths, _ = write_wear_logs(tmp_path, days=2, duration_s=90.0, play_at_hours=lambda h: 0.25 + 0.2 * h, seed=20)
+    argv = [str(p) for p in paths] + ["--ratio", "30", "--gearbox", "g1", "--every", "2", "--quiet"]
+    command = [sys.executable, "-c", "import sys; from online_backlash.cli import main; sys.exit(main(sys.argv[1:]))", "track"]
+    reference, db = tmp_path / "reference.db", tmp_path / "killed.db"
+    subprocess.run([*command, *argv, "--db", str(reference)], check=True, capture_output=True)
+
+    proc = subprocess.Popen([*command, *argv, "--db", str(db)], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    deadline = time.monotonic() + 120
+    estimates_in_second_log = 0
+    while estimates_in_second_log < 10 and proc.poll() is None and time.monotonic() < deadline:
+        time.sleep(0.02)
+        if db.exists():
+            try:
+                with sqlite3.connect(f"file:{db}?mode=ro", uri=True) as conn:
+                    estimates_in_second_log = conn.execute("SELECT count(*) FROM estimates WHERE run_id = 2").fetchone()[0]
+            except sqlite3.OperationalError:  # tables not created yet
+                pass
+    proc.send_signal(signal.SIGKILL)
+    _, stderr = proc.communicate()
+    assert proc.returncode == -signal.SIGKILL, f"track ended before it could be killed mid-log: {stderr.decode()}"
+    killed = snapshot(db)
+    assert [r[4] for r in killed["runs"]] == ["complete", "running"]  # killed inside the second log
+    assert 0 < len(killed["estimates"]) < len(snapshot(reference)["estimates"])
+
+    done = subprocess.run([*command, *argv, "--db", str(db)], check=True, capture_output=True, text=True)
+    assert "day00.csv: already imported" in done.stdout and "resumed after" in done.stdout
+    assert snapshot(db) == snapshot(reference)  # no duplicate, no hole, bit-identical estimates
+
+
+# -- a month of wear --------------------------------------------------------------------------
+
+DAYS, LOG_S = 30, 120.0
+TOTAL_H = DAYS * LOG_S / 3600.0
+RATE = 0.10 / TOTAL_H  # play grows 0.20 -> 0.30 deg over the month's operating hours
+
+
+def test_a_month_of_wear_trend_and_forecast(tmp_path):
+    with HistoryStore(tmp_path / "month.db", create=True) as store:
+        tracker = GearboxTracker(store, "g1", 30.0, every_s=60.0, limit_arcmin=0.35 * 60)
+        travel_before = [0.0]  # true load revolutions before each log
+        for k in range(DAYS):
+            h0 = k * LOG_S / 3600.0
+            rec = simulate_rig(duration_s=LOG_S, play_deg=lambda t, h0=h0: 0.20 + RATE * (h0 + t / 3600.0), seed=100 + k)
+            rec.time_s = rec.time_s + T0 + k * DAY
+            tracker.track_chunks([rec.to_chunk()], f"day {k}", key=f"day-{k}")
+            travel = np.abs(np.diff(rec.u_true_deg)) / 360.0
+            travel_before.append(travel_before[-1] + travel.sum())
+        report = wear_report(store, "g1")
+    s = report.summary.as_dict()
+    last = report.estimates[-1]
+    # the last estimate is taken at a whole minute of data, before the end of the last log
+    last_k, last_i = last.run_id - 1, last.sample_index - 1
+    assert last.operating_hours == pytest.approx((last_k * LOG_S + last_i * 0.001) / 3600.0, rel=0.01)
+    travel_to_last = travel_before[last_k] + np.abs(np.diff(rec.u_true_deg[: last_i + 1])).sum() / 360.0
+    assert last.load_revolutions == pytest.approx(travel_to_last, rel=0.01)
+    assert s["trend_deg_per_hour"] == pytest.approx(RATE, rel=0.10)
+    lo, hi = s["trend_deg_per_hour_interval"]
+    assert lo < s["trend_deg_per_hour"] < hi
+    true_hours_at_limit = (0.35 - 0.20) / RATE
+    assert last.operating_hours + s["forecast_hours_to_limit"] == pytest.approx(true_hours_at_limit, rel=0.10)
+    # at 2 minutes a day the remaining 0.5 h take about 15 more days after the last log
+    assert s["usage_hours_per_day"] == pytest.approx(LOG_S / 3600.0, rel=0.05)
+    true_date = dt.datetime.fromtimestamp(T0 + (DAYS - 1) * DAY + (true_hours_at_limit - TOTAL_H) * 3600 / LOG_S * DAY, dt.timezone.utc)
+    assert abs((dt.date.fromisoformat(s["forecast_date"]) - true_date.date()).days) <= 2
+    assert len(report.estimates) >= 55
