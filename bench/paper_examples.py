@@ -18,7 +18,7 @@ how far the estimate still moves when the paper's iteration is run on to 200 ite
 until its switching pattern repeats) instead of stopping by the rule, time per fit, and
 issue 3's bar. Run::
 
-    python bench/paper_examples.py            # 20 seeds, as in docs/paper-examples.md
+    python bench/paper_examples.py --logs     # 20 seeds, as in docs/paper-examples.md
     python bench/paper_examples.py --seeds 3
 """
 
@@ -124,10 +124,47 @@ def example_table(ex: PaperExample, fits: list[dict]) -> tuple[list[str], dict]:
     return lines, medians
 
 
+def log_speed_table() -> list[str]:
+    """Fit time of ``VorosBacklash()`` (defaults: ``origin="first"``, refinement on) on the three
+    measured 20k-sample recordings in ``../shared/data`` (35:1 gearhead, motor 4096 and spindle
+    8192 counts per revolution, ratio -35 as the data README says) and on a 120 s simulated rig."""
+    from pathlib import Path
+
+    from online_backlash.replay import read_csv_arrays
+    from online_backlash.rig import simulate_rig
+    from online_backlash.stream import refer_to_load
+
+    shared = Path(__file__).resolve().parents[2] / "shared" / "data" / "davinci_tool_gearhead_backlash"
+    columns = {"time": "time_s", "motor": "motor_counts", "load": "spindle_counts"}
+    cases = []
+    for path in sorted(shared.glob("*.csv")):
+        chunk = read_csv_arrays(path, columns=columns, units="counts", motor_cpr=4096, load_cpr=8192)
+        cases.append((path.name, refer_to_load(chunk.motor_deg, -35.0), chunk.load_deg))
+    rig = simulate_rig(duration_s=120.0)
+    cases.append(("simulate_rig(duration_s=120), play 0.5 deg", refer_to_load(rig.motor_deg, rig.ratio), rig.load_deg))
+    VorosBacklash().fit(cases[0][1], cases[0][2])  # load the numba cache first
+    lines = [
+        "| data | samples | iterations (stop) | play, paper stage deg | play, refined deg | ms/fit (median of 5) |",
+        "|---|---|---|---|---|---|",
+    ]
+    for name, u, y in cases:
+        times = []
+        for _ in range(5):
+            t0 = time.perf_counter()
+            est = VorosBacklash().fit(u, y)
+            times.append(time.perf_counter() - t0)
+        lines.append(
+            f"| {name} | {u.size} | {est.n_iter_} ({est.stop_reason_}) | {est.equation_error_params_.play:.3f} "
+            f"| {est.backlash_:.3f} | {1e3 * statistics.median(times):.0f} |"
+        )
+    return lines
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--seeds", type=int, default=20, help="noise seeds per example (0..N-1)")
     parser.add_argument("--examples", type=int, nargs="+", default=sorted(PAPER_EXAMPLES))
+    parser.add_argument("--logs", action="store_true", help="also time fits on the measured 20k-sample logs")
     args = parser.parse_args(argv)
 
     print(f"# Vörös (2010) section 5, {args.seeds} noise seeds per example")
@@ -179,6 +216,11 @@ def main(argv: list[str] | None = None) -> int:
         f"paper's iteration within paper count + 3 (median): {'MET' if all_ok['iter'] else 'NOT MET'}; "
         f"paper's iteration alone, every median error < 3 %: {'met' if all_ok['paper'] else 'not met'}."
     )
+    if args.logs:
+        print()
+        print("### Fit time on logs")
+        print()
+        print("\n".join(log_speed_table()))
     return 0
 
 
