@@ -118,6 +118,7 @@ class CanSource:
         listeners: list[can.Listener] = [self.raw_log] if self.raw_log is not None else []
         listeners.append(_SampleListener(self.pipeline, self._queue))
         self._notifier = can.Notifier(bus, listeners, timeout=_POLL_S)
+        self._stop_requested = False
         self._stopped = False
         self._closed = False
 
@@ -132,7 +133,7 @@ class CanSource:
         deadline = None if self.duration_s is None else time.monotonic() + self.duration_s
         last = time.monotonic()
         while not self._stopped:
-            if deadline is not None and time.monotonic() >= deadline:
+            if self._stop_requested or (deadline is not None and time.monotonic() >= deadline):
                 self.stop()
                 break
             try:
@@ -149,6 +150,10 @@ class CanSource:
             except queue.Empty:
                 return
             yield _checked(item)
+
+    def request_stop(self) -> None:
+        """Ask the iteration to stop soon (safe from a signal handler or another thread)."""
+        self._stop_requested = True
 
     def stop(self) -> None:
         """Stop receiving: stop the notifier, close the raw log, count frames left unpaired."""

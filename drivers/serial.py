@@ -81,6 +81,7 @@ class SerialSource:
         self.timeout_s = timeout_s
         self.raw_log = RawByteLog(raw_log_dir) if raw_log_dir is not None else None
         self.bytes_read = 0
+        self._stop_requested = False
         self._stopped = False
 
     def __enter__(self) -> "SerialSource":
@@ -94,7 +95,8 @@ class SerialSource:
         deadline = None if self.duration_s is None else time.monotonic() + self.duration_s
         last = time.monotonic()
         while not self._stopped:
-            if deadline is not None and time.monotonic() >= deadline:
+            if self._stop_requested or (deadline is not None and time.monotonic() >= deadline):
+                self.stop()
                 return
             got = self.poll()
             if got is None:
@@ -119,6 +121,10 @@ class SerialSource:
             self.raw_log.write(data)
         self.bytes_read += len(data)
         return self.parser.feed(data)
+
+    def request_stop(self) -> None:
+        """Ask the iteration to stop soon (safe from a signal handler or another thread)."""
+        self._stop_requested = True
 
     def stop(self) -> None:
         """Stop reading; a partial last frame is counted as one corrupt frame."""

@@ -9,9 +9,11 @@ from __future__ import annotations
 import os
 from typing import Any, Callable
 
+import numpy as np
 from can.io.player import MESSAGE_READERS as _CAN_MESSAGE_READERS
 
 from online_backlash.errors import LogFormatError
+from online_backlash.stream import SampleChunk
 
 from .csv import CsvLog, read_csv_arrays
 
@@ -58,4 +60,13 @@ def open_log(path: str | os.PathLike[str], **options: Any):
     return reader(path, **options)
 
 
-__all__ = ["CsvLog", "LOG_READERS", "log_suffix", "open_log", "read_csv_arrays"]
+def read_log_arrays(path: str | os.PathLike[str], **options: Any) -> SampleChunk:
+    """Read a whole log of any registered format into one :class:`SampleChunk` (for batch fits)."""
+    with open_log(path, **options) as log:
+        chunks = [c for c in log.iter_chunks() if len(c)]
+    if not chunks:
+        raise LogFormatError(path, None, "no samples")
+    return SampleChunk(*(np.concatenate([getattr(c, f) for c in chunks]) for f in ("time_s", "motor_deg", "load_deg", "torque_Nm", "after_gap")))
+
+
+__all__ = ["CsvLog", "LOG_READERS", "log_suffix", "open_log", "read_csv_arrays", "read_log_arrays"]

@@ -25,7 +25,7 @@ from online_backlash.drivers.pairing import CanCounters, FramePipeline
 from online_backlash.drivers.rawlog import raw_log_files
 from online_backlash.errors import InvalidParameterError, LogFormatError
 from online_backlash.replay import log_suffix
-from online_backlash.stream import Sample
+from online_backlash.stream import Sample, SampleChunk, chunked
 
 #: Suffixes python-can reads (``.csv`` is ours: see :mod:`online_backlash.replay.csv`).
 CAN_LOG_SUFFIXES = tuple(s for s in can.io.player.MESSAGE_READERS if s != ".csv")
@@ -101,6 +101,10 @@ class CanLog:
         if os.path.isdir(self.path):
             return raw_log_files(self.path, [s + gz for s in CAN_LOG_SUFFIXES for gz in ("", ".gz")])
         return [Path(self.path)]
+
+    def iter_chunks(self, size: int = 65536) -> Iterator[SampleChunk]:
+        """The samples in :class:`~online_backlash.stream.SampleChunk` blocks (for ``learn_many``)."""
+        return chunked(self, size)
 
     def __iter__(self) -> Iterator[Sample]:
         self.pipeline = pipeline = FramePipeline(self._decoder, *self._pipeline_args)

@@ -17,7 +17,7 @@ from typing import Iterator
 from online_backlash.drivers.rawlog import SERIAL_SUFFIX, raw_log_files
 from online_backlash.drivers.serialframes import FrameParser, make_parser
 from online_backlash.errors import InvalidParameterError, LogFormatError
-from online_backlash.stream import Sample, StreamCounters
+from online_backlash.stream import Sample, SampleChunk, StreamCounters, chunked
 
 
 class SerialCapture:
@@ -76,6 +76,10 @@ class SerialCapture:
         if os.path.isdir(self.path):
             return raw_log_files(self.path, [SERIAL_SUFFIX])
         return [Path(self.path)]
+
+    def iter_chunks(self, size: int = 65536) -> Iterator[SampleChunk]:
+        """The samples in :class:`~online_backlash.stream.SampleChunk` blocks (for ``learn_many``)."""
+        return chunked(self, size)
 
     def __iter__(self) -> Iterator[Sample]:
         self.parser = parser = make_parser(*self._parser_args)

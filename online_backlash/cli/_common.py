@@ -60,3 +60,29 @@ def print_json(obj: dict[str, Any]) -> None:
 
     json.dump(clean(obj), sys.stdout, indent=2, sort_keys=False)
     sys.stdout.write("\n")
+
+
+def add_can_decoding_options(parser: argparse.ArgumentParser, required: bool) -> None:
+    """``--dbc F --motor-signal S --load-signal S``: how CAN frames carry the two angles."""
+    group = parser.add_argument_group("CAN decoding")
+    group.add_argument("--dbc", required=required, metavar="FILE", help="DBC describing the frames; 'rig' for the example rig.dbc shipped with the package")
+    group.add_argument("--motor-signal", required=required, metavar="MSG.SIGNAL", help="motor encoder counts, e.g. MotorAngle.Count")
+    group.add_argument("--load-signal", required=required, metavar="MSG.SIGNAL", help="load encoder counts, e.g. LoadAngle.Count")
+    group.add_argument("--counter-signal", default="Counter", metavar="NAME", help="rolling counter signal in those messages ('none': pair by time)")
+    group.add_argument("--checksum-signal", default="Checksum", metavar="NAME", help="CRC-8/SAE-J1850 checksum byte in those messages ('none': no check)")
+
+
+def can_decoding_options(args: argparse.Namespace) -> dict[str, Any]:
+    """Keyword arguments of the CAN sources (``CanSource``, ``CanLog``) from :func:`add_can_decoding_options`."""
+    from ..drivers.dbc import RIG_DBC
+
+    def optional(name: str) -> str | None:
+        return None if name.lower() == "none" else name
+
+    return {
+        "dbc": RIG_DBC if args.dbc == "rig" else args.dbc,
+        "motor_signal": args.motor_signal,
+        "load_signal": args.load_signal,
+        "counter_signal": optional(args.counter_signal),
+        "checksum_signal": optional(args.checksum_signal),
+    }

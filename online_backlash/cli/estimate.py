@@ -7,8 +7,8 @@ import csv
 
 from ..errors import InvalidParameterError
 from ..fitting import TRACE_COLUMNS, describe, fit_batch, fit_recursive
-from ..replay import CsvLog, read_csv_arrays
-from ._common import add_log_options, add_ratio_option, parse_column_map, print_json
+from ..replay import log_suffix, open_log, read_log_arrays
+from ._common import add_can_decoding_options, add_log_options, add_ratio_option, can_decoding_options, parse_column_map, print_json
 
 
 def add_subparser(subparsers: argparse._SubParsersAction) -> None:
@@ -22,7 +22,7 @@ def add_subparser(subparsers: argparse._SubParsersAction) -> None:
         ),
         formatter_class=argparse.ArgumentDefaultsHelpFormatter,
     )
-    parser.add_argument("log", help="recorded log (.csv, .csv.gz)")
+    parser.add_argument("log", help="recorded log: .csv[.gz]; a CAN log (.asc .blf .log .trc ..., with --dbc); a serial capture (.serial, with --serial-format)")
     add_ratio_option(parser)
     parser.add_argument("--method", choices=("recursive", "batch"), default="recursive", help="estimator")
     parser.add_argument("--json", action="store_true", help="print one JSON object")
@@ -33,11 +33,19 @@ def add_subparser(subparsers: argparse._SubParsersAction) -> None:
     group.add_argument("--memory-s", type=float, help="memory in seconds of motion (instead of / besides reversals)")
     group.add_argument("--sample-period", type=float, default=0.001, help="sampling period of the log, seconds")
     add_log_options(parser)
+    add_can_decoding_options(parser, required=False)
+    parser.add_argument("--serial-format", choices=("ascii", "binary"), help="frame format of a serial capture (.serial)")
     parser.set_defaults(func=run)
 
 
 def log_options(args: argparse.Namespace) -> dict:
-    """Reader options from the log-format arguments."""
+    """Reader options from the log-format arguments (by the log's suffix)."""
+    suffix = log_suffix(args.log)
+    if suffix == ".serial":
+        return {"serial_format": args.serial_format, "motor_cpr": args.motor_cpr, "load_cpr": args.load_cpr, "skip_bad": args.skip_bad_rows}
+    if suffix != ".csv":  # a CAN log (or an unknown suffix, which open_log reports)
+        counts = {k: None if v is None else int(v) for k, v in (("motor_cpr", args.motor_cpr), ("load_cpr", args.load_cpr))}
+        return {**can_decoding_options(args), **counts, "skip_bad": args.skip_bad_rows}
     return {
         "columns": parse_column_map(args.columns),
         "units": args.units,
@@ -51,10 +59,10 @@ def run(args: argparse.Namespace) -> int:
     if args.method == "batch":
         if args.trace:
             raise InvalidParameterError("--trace needs --method recursive")
-        report, _ = fit_batch(read_csv_arrays(args.log, **log_options(args)), args.ratio)
+        report, _ = fit_batch(read_log_arrays(args.log, **log_options(args)), args.ratio)
     else:
         params = {"memory_reversals": args.memory_reversals, "memory_s": args.memory_s, "sample_period_s": args.sample_period}
-        with CsvLog(args.log, **log_options(args)) as log:
+        with open_log(args.log, **log_options(args)) as log:
             if args.trace:
                 with open(args.trace, "w", newline="") as f:
                     writer = csv.DictWriter(f, fieldnames=TRACE_COLUMNS)

@@ -1,0 +1,181 @@
+"""``online-backlash listen can|serial ...``: estimate the backlash live from a rig.
+
+Every frame or byte received is written to ``--raw-log DIR`` before it is decoded, so
+``online-backlash estimate`` on those files gives the same result later. A status line on
+stderr shows the estimate with its standard error, samples/s, corrupt frames and gaps; the
+summary comes when ``--duration`` is reached or on Ctrl-C (with ``--json``: one JSON object on
+stdout, the keys of ``estimate --json`` plus the source's counters).
+"""
+
+from __future__ import annotations
+
+import argparse
+import signal
+import sys
+import threading
+import time
+from typing import Any, Callable
+
+from ..errors import LogFormatError, SourceError
+from ..fitting import ARCMIN_PER_DEG, describe, fit_recursive
+from ..stream import chunked
+from ._common import add_can_decoding_options, add_ratio_option, can_decoding_options, print_json
+
+
+def add_subparser(subparsers: argparse._SubParsersAction) -> None:
+    parser = subparsers.add_parser(
+        "listen",
+        help="estimate live from a CAN bus or a serial port",
+        description="Estimate the backlash live from a CAN bus (python-can + a DBC) or a serial port (pyserial).",
+        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+    )
+    sources = parser.add_subparsers(dest="source_kind", metavar="SOURCE", required=True)
+
+    can_parser = sources.add_parser(
+        "can",
+        help="a CAN bus (any python-can interface)",
+        description="Listen to a CAN bus; frames are decoded with a DBC.",
+        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+    )
+    can_parser.add_argument("--interface", required=True, help="python-can interface: socketcan, pcan, kvaser, vector, virtual, ...")
+    can_parser.add_argument("--channel", required=True, help="channel of the interface, e.g. can0")
+    can_parser.add_argument("--bitrate", type=int, help="bit rate, bit/s (where the interface sets it)")
+    add_can_decoding_options(can_parser, required=True)
+    can_parser.add_argument("--motor-cpr", type=int, help="motor counts per revolution; from the DBC if not given")
+    can_parser.add_argument("--load-cpr", type=int, help="load counts per revolution; from the DBC if not given")
+    can_parser.add_argument("--raw-format", choices=("blf", "asc", "log"), default="blf", help="format of the raw CAN log")
+    _add_common(can_parser)
+    can_parser.set_defaults(func=run, open_source=_open_can)
+
+    serial_parser = sources.add_parser(
+        "serial",
+        help="a serial port (pyserial URL)",
+        description="Listen to a serial port: 'ascii' lines time,motor,load (s, deg, deg) or 'binary' COBS frames with CRC-16.",
+        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+    )
+    serial_parser.add_argument("--port", required=True, help="pyserial URL: /dev/ttyUSB0, COM3, socket://host:port, loop://")
+    serial_parser.add_argument("--baud", type=int, default=115200, help="baud rate")
+    serial_parser.add_argument("--format", dest="serial_format", choices=("ascii", "binary"), required=True, help="frame format")
+    serial_parser.add_argument("--motor-cpr", type=float, help="motor counts per revolution (binary format)")
+    serial_parser.add_argument("--load-cpr", type=float, help="load counts per revolution (binary format)")
+    _add_common(serial_parser)
+    serial_parser.set_defaults(func=run, open_source=_open_serial)
+
+
+def _add_common(parser: argparse.ArgumentParser) -> None:
+    add_ratio_option(parser)
+    parser.add_argument("--raw-log", required=True, metavar="DIR", help="directory for the raw captures (written before decoding)")
+    parser.add_argument("--duration", type=float, metavar="S", help="stop after S seconds; without it, at Ctrl-C")
+    parser.add_argument("--timeout", type=float, metavar="S", help="fail when nothing arrives for S seconds")
+    parser.add_argument("--period", type=float, metavar="S", help="nominal sample period for gap detection; learnt if not given")
+    parser.add_argument("--json", action="store_true", help="print the summary as one JSON object on stdout")
+    parser.add_argument("--status-every", type=float, default=0.5, metavar="S", help="seconds of data between status lines")
+    group = parser.add_argument_group("recursive estimator")
+    group.add_argument("--memory-reversals", type=float, default=10.0, help="memory of the estimator, in reversals")
+    group.add_argument("--memory-s", type=float, help="memory in seconds of motion (instead of / besides reversals)")
+    group.add_argument("--sample-period", type=float, default=0.001, help="sampling period, seconds")
+
+
+def _open_can(args: argparse.Namespace):
+    from ..drivers.can import CanSource, open_bus
+
+    bus = open_bus(args.interface, args.channel, args.bitrate)
+    return CanSource(
+        bus,
+        **can_decoding_options(args),
+        motor_cpr=args.motor_cpr,
+        load_cpr=args.load_cpr,
+        raw_log_dir=args.raw_log,
+        raw_format=args.raw_format,
+        period_s=args.period,
+        duration_s=args.duration,
+        timeout_s=args.timeout,
+    )
+
+
+def _open_serial(args: argparse.Namespace):
+    from ..drivers.serial import SerialSource
+
+    return SerialSource(
+        args.port,
+        args.baud,
+        args.serial_format,
+        motor_cpr=args.motor_cpr,
+        load_cpr=args.load_cpr,
+        raw_log_dir=args.raw_log,
+        period_s=args.period,
+        duration_s=args.duration,
+        timeout_s=args.timeout,
+    )
+
+
+class _StatusLine:
+    """The live status line on stderr, fed by ``fit_recursive``'s trace rows."""
+
+    def __init__(self, counters: Any) -> None:
+        self.counters = counters
+        self.start = self._last = time.monotonic()
+        self._last_samples = 0
+        self.shown = False
+
+    def __call__(self, row: dict[str, float]) -> None:
+        now = time.monotonic()
+        c = self.counters
+        rate = (c.samples - self._last_samples) / max(now - self._last, 1e-9)
+        self._last, self._last_samples = now, c.samples
+        text = (
+            f"{now - self.start:7.1f} s  backlash {row['backlash_deg'] * ARCMIN_PER_DEG:8.3f}"
+            f" ± {row['backlash_std_deg'] * ARCMIN_PER_DEG:.3f} arcmin  {rate:7.0f} samples/s"
+            f"  corrupt {c.corrupt}  gaps {c.gaps}"
+        )
+        sys.stderr.write("\r" + text + "\x1b[K")
+        sys.stderr.flush()
+        self.shown = True
+
+    def end(self) -> None:
+        if self.shown:
+            sys.stderr.write("\n")
+
+
+def _on_interrupt(stop: Callable[[], None]) -> Callable[[], None]:
+    """Make Ctrl-C end the run gracefully (with a summary); returns the undo."""
+    if threading.current_thread() is not threading.main_thread():
+        return lambda: None
+    previous = signal.signal(signal.SIGINT, lambda *_: stop())
+    return lambda: signal.signal(signal.SIGINT, previous)
+
+
+def run(args: argparse.Namespace) -> int:
+    label = f"{args.source_kind} {getattr(args, 'channel', None) or getattr(args, 'port', '')}"
+    params = {"memory_reversals": args.memory_reversals, "memory_s": args.memory_s, "sample_period_s": args.sample_period}
+    started = time.monotonic()
+    with args.open_source(args) as source:
+        status = _StatusLine(source.counters)
+        undo = _on_interrupt(source.request_stop)
+        try:
+            report, _ = fit_recursive(chunked(source, 1), args.ratio, every_s=args.status_every, trace=status, source=label, **params)
+        except LogFormatError as exc:
+            if source.counters.samples:
+                raise
+            raise SourceError(f"{label}: no samples received ({_counts(source.counters.as_dict())})") from exc
+        finally:
+            undo()
+            status.end()
+    summary = report.as_dict()
+    summary.update(source.counters.as_dict())
+    summary["duration_s"] = time.monotonic() - started
+    summary["raw_log"] = args.raw_log
+    pipeline = getattr(source, "pipeline", None)
+    if pipeline is not None and pipeline.frames_per_sample == 2:
+        summary["pair_skew_mean_s"] = pipeline.skew_mean_s
+        summary["pair_skew_max_s"] = pipeline.skew_max_s
+    if args.json:
+        print_json(summary)
+    else:
+        print(describe(report, label))
+        print(f"received:       {_counts(source.counters.as_dict())} in {summary['duration_s']:.1f} s; raw log in {args.raw_log}")
+    return 0
+
+
+def _counts(counts: dict[str, int]) -> str:
+    return ", ".join(f"{k} {v}" for k, v in counts.items())
