@@ -127,22 +127,15 @@ def test_theta_round_trip_eq8_eq9():
     assert p.play == pytest.approx(0.6)
 
 
-def _cascade_by_loop(u, p, a, b):
-    """Eq. (1)-(3) then eq. (15)-(17) written as plain loops, zero before the start."""
-    x = np.zeros(u.size)
-    y = np.zeros(u.size)
-    prev = 0.0
+def _linear_by_loop(x, a, b):
+    """Eq. (15)-(17) as a plain loop: y(t) = x(t-1) + sum a_i x(t-i) - sum b_j y(t-j), zero before the start."""
+    y = np.zeros(x.size)
     coef_a = [1.0, *a]  # a1 = 1
-    for t in range(u.size):
-        if u[t] <= prev / p.m_left - p.c_left:
-            prev = p.m_left * (u[t] + p.c_left)
-        elif u[t] >= prev / p.m_right + p.c_right:
-            prev = p.m_right * (u[t] - p.c_right)
-        x[t] = prev
+    for t in range(x.size):
         acc = sum(coef_a[i - 1] * x[t - i] for i in range(1, len(coef_a) + 1) if t - i >= 0)
         acc -= sum(b[j - 1] * y[t - j] for j in range(1, len(b) + 1) if t - j >= 0)
         y[t] = acc
-    return y, x
+    return y
 
 
 @settings(max_examples=50, deadline=None)
@@ -154,10 +147,9 @@ def _cascade_by_loop(u, p, a, b):
 )
 def test_cascade_matches_direct_loop_of_eq15_17(u, p, a, b):
     y, x = simulate_cascade(u, p, np.array(a), np.array(b))
-    y_loop, x_loop = _cascade_by_loop(u, p, a, b)
-    assert np.allclose(x, x_loop, rtol=1e-12, atol=1e-12)
-    assert np.allclose(y, y_loop, rtol=1e-9, atol=1e-9)
-    assert np.allclose(linear_filter(x, np.array(a), np.array(b)), y)
+    assert np.array_equal(x, simulate_backlash(u, p))  # the internal variable is eq. (1)-(3)
+    assert np.allclose(y, _linear_by_loop(x, a, b), rtol=1e-9, atol=1e-9)
+    assert np.array_equal(linear_filter(x, np.array(a), np.array(b)), y)
 
 
 def test_paper_linear_block():
