@@ -1,0 +1,84 @@
+"""Replay of a 1,000,000-frame BLF log: our reader (decode + check + pair) beside a bare
+``can.LogReader`` loop over the same file, in one run.
+
+The log is the simulated 30:1 rig (:func:`online_backlash.rig.simulate_rig`) at 2 kHz with motor
+and load in two messages of the shipped ``rig.dbc`` (``MotorAngle``, ``LoadAngle``: counter and
+CRC-8 checksum), so 1,000,000 frames are 500,000 samples. The three loops run interleaved,
+``--repeat`` times each, and the best time of each is reported (the machine is shared).
+
+    python bench/replay_blf.py [--frames 1000000] [--repeat 3] [--path /tmp/rig-1M.blf]
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import platform
+import time
+
+import can
+
+from online_backlash.drivers.dbc import RIG_DBC, DbcDecoder
+from online_backlash.drivers.simulate import rig_can_frames
+from online_backlash.replay.canlog import CanLog
+from online_backlash.rig import simulate_rig
+
+SIGNALS = ("MotorAngle.Count", "LoadAngle.Count")
+
+
+def make_log(path: str, frames: int) -> None:
+    rec = simulate_rig(duration_s=frames / 2 / 2000.0, rate_hz=2000.0, seed=0)
+    decoder = DbcDecoder(RIG_DBC, *SIGNALS)
+    with can.Logger(path) as writer:
+        for msg in rig_can_frames(rec, decoder, start_s=1.7e9, skew_s=5e-5):
+            writer.on_message_received(msg)
+
+
+def bare(path: str) -> tuple[int, int]:
+    n = 0
+    for _ in can.LogReader(path):
+        n += 1
+    return n, 0
+
+
+def ours(path: str, checksum: str | None) -> tuple[int, int]:
+    log = CanLog(path, RIG_DBC, *SIGNALS, checksum_signal=checksum)
+    n = 0
+    for _ in log:
+        n += 1
+    return log.counters.frames, n
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--frames", type=int, default=1_000_000)
+    ap.add_argument("--repeat", type=int, default=3)
+    ap.add_argument("--path", default="/tmp/online-backlash-rig-1M.blf")
+    args = ap.parse_args()
+    if not os.path.exists(args.path):
+        t = time.perf_counter()
+        make_log(args.path, args.frames)
+        print(f"wrote {args.path} ({os.path.getsize(args.path) / 2**20:.1f} MiB) in {time.perf_counter() - t:.0f} s")
+    loops = {
+        "bare can.LogReader loop": lambda: bare(args.path),
+        "CanLog (decode + checksum + pair)": lambda: ours(args.path, "Checksum"),
+        "CanLog without checksum check": lambda: ours(args.path, None),
+    }
+    best: dict[str, float] = {}
+    counts: dict[str, tuple[int, int]] = {}
+    for _ in range(args.repeat):
+        for name, loop in loops.items():
+            t0, c0 = time.perf_counter(), time.process_time()
+            counts[name] = loop()
+            best[name] = min(best.get(name, float("inf")), time.perf_counter() - t0)
+    base = best["bare can.LogReader loop"]
+    print(f"python {platform.python_version()}, python-can {can.__version__}, best of {args.repeat}")
+    print(f"{'loop':36s} {'frames':>9s} {'samples':>9s} {'time s':>8s} {'frames/s':>10s} {'samples/s':>10s} {'vs bare':>8s}")
+    for name, t in best.items():
+        frames, samples = counts[name]
+        rate = f"{samples / t:10.0f}" if samples else f"{'-':>10s}"
+        print(f"{name:36s} {frames:9d} {samples:9d} {t:8.2f} {frames / t:10.0f} {rate} {t / base - 1:+8.0%}")
+
+
+if __name__ == "__main__":
+    main()
