@@ -150,9 +150,9 @@ def _make_backlash_steps(jit):
         r12 = st[o + R12]
         r22 = st[o + R22] + 1.0  # R <- R + phi phi^T
         st[o + R22] = r22
-        det = r11 * r22 - r12 * r12
-        st[o + M] += (-r12 / det) * e  # theta += R^-1 phi e
-        st[o + B] += (r11 / det) * e
+        g = e / (r11 * r22 - r12 * r12)
+        st[o + M] -= r12 * g  # theta += R^-1 phi e, R^-1 phi = [-r12, r11] / det
+        st[o + B] += r11 * g
         st[o + W_COUNT] += 1.0
         st[o + W_TIME] += st[T_MOTION]
         st[o + N_UPD] += 1.0
@@ -201,11 +201,12 @@ def backlash_run(st, c, u, y, after_gap):  # pragma: no cover - compiled
 
 
 # ---- CascadeRLS state layout -----------------------------------------------------------------
-# scalars, then theta (p), P (p*p, row-major), x_hat history (max(n_a, 2)), y history (n_b)
+# scalars, then theta (p), P (p*p, row-major), x_hat history (max(n_a, 2)), y history (n_b),
+# simulated-output history (n_b, the output-error regressor)
 CN_SEEN, CU0, CY0, C_K, C_UPREV, C_F1, C_F2, C_NOISE, C_NRES, C_IDLE, C_LAST, C_NREV = range(12)
 C_THETA = 12
 # constants
-Q_LAM, Q_LAM_REV, Q_TRACE_MAX, Q_NOISE_WINDOW, Q_ORIGIN_FIRST, Q_NA, Q_NB = range(7)
+Q_LAM, Q_LAM_REV, Q_TRACE_MAX, Q_NOISE_WINDOW, Q_ORIGIN_FIRST, Q_NA, Q_NB, Q_OUTPUT_ERROR = range(8)
 
 
 def cascade_sizes(n_a: int, n_b: int) -> tuple[int, int, int, int, int]:
@@ -214,7 +215,7 @@ def cascade_sizes(n_a: int, n_b: int) -> tuple[int, int, int, int, int]:
     off_p = C_THETA + p
     off_x = off_p + p * p
     off_y = off_x + max(n_a, 2)
-    return p, off_p, off_x, off_y, off_y + n_b
+    return p, off_p, off_x, off_y, off_y + 2 * n_b
 
 
 def _make_cascade_step(jit):
@@ -228,12 +229,15 @@ def _make_cascade_step(jit):
         ox = op + p * p
         nx = max(na, 2)
         oy = ox + nx
+        oyh = oy + nb
+        oe = c[Q_OUTPUT_ERROR] != 0.0
         if st[CN_SEEN] == 0.0 and c[Q_ORIGIN_FIRST] != 0.0:
             st[CU0] = u
             st[CY0] = y
         st[CN_SEEN] += 1.0
         uc = u - st[CU0]
         yc = y - st[CY0]
+        y_hat = yc  # the model output where no regression runs
         if st[C_K] == 0.0:
             # start, or restart after a gap: the system at rest, x = y B(1) / A(1)
             a_sum = 1.0
@@ -247,6 +251,7 @@ def _make_cascade_step(jit):
                 st[ox + i] = x0
             for j in range(nb):
                 st[oy + j] = yc
+                st[oyh + j] = yc
             st[C_UPREV] = uc
             st[C_IDLE] = 0.0
         elif st[C_K] >= max(na, nb, 2) and st[C_IDLE] <= na + nb + 1:
@@ -261,7 +266,8 @@ def _make_cascade_step(jit):
             for i in range(1, na):
                 phi[3 + i] = st[ox + i]  # x_hat(t-1-i)
             for j in range(nb):
-                phi[3 + na + j] = -st[oy + j]  # -y(t-1-j)
+                # -y(t-1-j); output-error form: the model's own simulated output instead
+                phi[3 + na + j] = -st[oyh + j] if oe else -st[oy + j]
             target = yc - st[ox + 1] * (1.0 - f1p) * (1.0 - f2p)  # eq. (24)
             lam = c[Q_LAM]
             side = 1.0 if f1p > 0.0 else (2.0 if f2p > 0.0 else 0.0)
@@ -279,24 +285,35 @@ def _make_cascade_step(jit):
                 if lam > 1.0:
                     lam = 1.0
             if lam != 1.0:
+                inv_lam = 1.0 / lam
                 for i in range(p * p):
-                    st[op + i] = st[op + i] / lam
+                    st[op + i] = st[op + i] * inv_lam
             s = 1.0
             e = target
             for i in range(p):
                 acc = 0.0
+                row = op + i * p
                 for j in range(p):
-                    acc += st[op + i * p + j] * phi[j]
+                    if phi[j] != 0.0:  # half of the backlash part of eq. (19) is zero at any time
+                        acc += st[row + j] * phi[j]
                 pphi[i] = acc
                 s += phi[i] * acc
                 e -= st[C_THETA + i] * phi[i]
             n = st[C_NRES] + 1.0
             st[C_NRES] = n
             st[C_NOISE] += (e * e - st[C_NOISE]) / min(n, c[Q_NOISE_WINDOW])
+            inv_s = 1.0 / s
             for i in range(p):
-                st[C_THETA + i] += pphi[i] * e / s
-                for j in range(p):
-                    st[op + i * p + j] -= pphi[i] * pphi[j] / s
+                k = pphi[i] * inv_s  # gain K = P phi / (1 + phi' P phi)
+                st[C_THETA + i] += k * e
+                for j in range(i, p):  # P <- P - K phi' P, symmetric: upper triangle, mirrored
+                    v = st[op + i * p + j] - k * pphi[j]
+                    st[op + i * p + j] = v
+                    st[op + j * p + i] = v
+            # a-posteriori model output (eq. 18 with the updated theta), for the output-error regressor
+            y_hat = yc - target
+            for i in range(p):
+                y_hat += st[C_THETA + i] * phi[i]
         if uc != st[C_UPREV]:
             st[C_IDLE] = 0.0
         else:
@@ -318,8 +335,10 @@ def _make_cascade_step(jit):
         st[ox] = x
         for j in range(nb - 1, 0, -1):
             st[oy + j] = st[oy + j - 1]
+            st[oyh + j] = st[oyh + j - 1]
         if nb > 0:
             st[oy] = yc
+            st[oyh] = y_hat
         st[C_UPREV] = uc
         st[C_F1] = f1
         st[C_F2] = f2

@@ -845,6 +845,13 @@ class CascadeRLS(_RecursiveBase):
         Initial covariance ``P = p0 I`` after the (warm or cold) start.
     trace_max : float or None
         Bound on ``trace(P)``; None: ``p0`` times the number of parameters.
+    regressor : {"output_error", "equation_error"}
+        ``"equation_error"``: eq. (19) as printed, with the measured ``-y(t-j)``.
+        ``"output_error"`` (default): the model's own simulated output ``-y_hat(t-j)`` in their
+        place, the pseudo-linear regression of the output-error method (Landau 1976; Ljung &
+        Söderström 1983, sec. 3.7): measurement noise then does not enter the regressor (the
+        equation error of eq. 24 is biased by it, like the batch iteration before its
+        output-error refinement).
 
     Attributes
     ----------
@@ -857,6 +864,14 @@ class CascadeRLS(_RecursiveBase):
         ``[1, a2, ..., a_{n_a}]``.
     b_ : array, shape (n_b,)
         ``[b1, ..., b_{n_b}]``.
+
+    References
+    ----------
+    J. Vörös, Automatica 46 (2010) 369-374 (eq. 15-24); J. Vörös, ASME J. Dyn. Sys. Meas.
+    Control 135(1) 014504 (2013). I. D. Landau, "Unbiased recursive identification using model
+    reference adaptive techniques", IEEE Trans. Autom. Control 21(2) (1976) 194-202. L. Ljung and
+    T. Söderström, *Theory and Practice of Recursive Identification*, MIT Press 1983.
+    K. J. Åström and B. Wittenmark, *Adaptive Control*, 2nd ed., Addison-Wesley 1995, ch. 11.
 
     Examples
     --------
@@ -886,6 +901,7 @@ class CascadeRLS(_RecursiveBase):
         p0: float = 1e3,
         trace_max: float | None = None,
         noise_window: int = 10_000,
+        regressor: str = "output_error",
     ) -> None:
         self.n_a = n_a
         self.n_b = n_b
@@ -898,12 +914,14 @@ class CascadeRLS(_RecursiveBase):
         self.p0 = p0
         self.trace_max = trace_max
         self.noise_window = noise_window
+        self.regressor = regressor
 
     def _validate(self) -> None:
         self._validate_common()
         check_int("n_a", self.n_a, 1)
         check_int("n_b", self.n_b, 0)
         check_real("p0", self.p0, 0.0)
+        check_option("regressor", self.regressor, ("output_error", "equation_error"))
         if self.trace_max is not None:
             check_real("trace_max", self.trace_max, 0.0)
 
@@ -920,7 +938,10 @@ class CascadeRLS(_RecursiveBase):
         lam, lam_rev = _memory_factors(self.memory_s, self.memory_reversals, self.sample_period_s)
         p_lin = self._p()
         trace_max = float(self.p0 * p_lin if self.trace_max is None else self.trace_max)
-        self._c = [lam, lam_rev, trace_max, float(self.noise_window), 1.0 if self.origin == "first" else 0.0, float(self.n_a), float(self.n_b)]
+        self._c = [
+            lam, lam_rev, trace_max, float(self.noise_window), 1.0 if self.origin == "first" else 0.0,
+            float(self.n_a), float(self.n_b), 1.0 if self.regressor == "output_error" else 0.0,
+        ]  # fmt: skip
         self._c_arr = np.asarray(self._c)
         p_, off_p, _, _, size = K.cascade_sizes(self.n_a, self.n_b)
         st = [0.0] * size
