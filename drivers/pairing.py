@@ -62,6 +62,18 @@ class FramePipeline:
         1 (one message carries both angles) or 2.
     skew_mean_s, skew_max_s : float
         Mean and largest absolute time between the frames of a pair (0 for one message).
+
+    Examples
+    --------
+    >>> from online_backlash.drivers.dbc import RIG_DBC, DbcDecoder, FrameEncoder
+    >>> pipe = FramePipeline(DbcDecoder(RIG_DBC, "MotorAngle.Count", "LoadAngle.Count"))
+    >>> motor, load = FrameEncoder(pipe.decoder).frames(12.5, motor_count=4096, load_count=32768, counter=3)
+    >>> pipe.feed(motor) is None  # waits for its partner
+    True
+    >>> pipe.feed(load)
+    Sample(time_s=12.5, motor_deg=90.0, load_deg=90.0, torque_Nm=None, seq=3, after_gap=False)
+    >>> pipe.counters.as_dict()
+    {'frames': 2, 'samples': 1, 'corrupt': 0, 'skipped': 0, 'gaps': 0, 'unpaired': 0}
     """
 
     def __init__(self, decoder: DbcDecoder, period_s: float | None = None, max_skew_s: float = 1e-3, strict: bool = False) -> None:

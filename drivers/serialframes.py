@@ -141,7 +141,18 @@ class FrameParser:
 
 
 class AsciiParser(FrameParser):
-    """``time,motor,load`` lines (seconds, degrees, degrees)."""
+    r"""``time,motor,load`` lines (seconds, degrees, degrees).
+
+    Examples
+    --------
+    >>> p = AsciiParser()
+    >>> p.feed(b"0.001,10.5,0.25\nnoise\n0.002,10.6")
+    [Sample(time_s=0.001, motor_deg=10.5, load_deg=0.25, torque_Nm=None, seq=None, after_gap=False)]
+    >>> p.feed(b",0.26\n")
+    [Sample(time_s=0.002, motor_deg=10.6, load_deg=0.26, torque_Nm=None, seq=None, after_gap=False)]
+    >>> p.counters.as_dict()
+    {'frames': 3, 'samples': 2, 'corrupt': 1, 'skipped': 0, 'gaps': 0}
+    """
 
     def _strip(self, record: bytes) -> bytes:
         return record.strip()
