@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import datetime as dt
 import os
 import signal
@@ -190,7 +191,10 @@ def test_sigkill_mid_log_then_restart_gives_the_uninterrupted_history(tmp_path):
     argv = [str(p) for p in paths] + ["--ratio", "30", "--gearbox", "g1", "--every", "2", "--quiet"]
     command = [sys.executable, "-c", "import sys; from online_backlash.cli import main; sys.exit(main(sys.argv[1:]))", "track"]
     reference, db = tmp_path / "reference.db", tmp_path / "killed.db"
-    subprocess.run([*command, *argv, "--db", str(reference)], check=True, capture_output=True)
+    with HistoryStore(reference, create=True) as store:  # what the command does, uninterrupted
+        tracker = GearboxTracker(store, "g1", 30.0, every_s=2.0)
+        for p in paths:
+            tracker.track_log(p)
 
     proc = subprocess.Popen([*command, *argv, "--db", str(db)], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
     deadline = time.monotonic() + 120
@@ -251,3 +255,28 @@ def test_a_month_of_wear_trend_and_forecast(tmp_path):
     true_date = dt.datetime.fromtimestamp(T0 + (DAYS - 1) * DAY + (true_hours_at_limit - TOTAL_H) * 3600 / LOG_S * DAY, dt.timezone.utc)
     assert abs((dt.date.fromisoformat(s["forecast_date"]) - true_date.date()).days) <= 2
     assert len(report.estimates) >= 55
+
+
+def test_interrupted_tracking_on_each_backend_equals_uninterrupted_sqlite(tmp_path, wear_logs, store_db):
+    """The same resume guarantee on PostgreSQL as on SQLite, and the same numbers on both."""
+    with HistoryStore(tmp_path / "reference.db", create=True) as store:
+        for p in wear_logs:
+            GearboxTracker(store, "g1", 30.0, every_s=7.0).track_log(p)
+        reference = [dataclasses.replace(e, run_id=0) for e in store.estimates("g1")]
+    calls = 0
+
+    def stop(samples, backlash):
+        nonlocal calls
+        calls += 1
+        if calls == 8:
+            raise Interrupt
+
+    with HistoryStore(store_db, create=True) as store:
+        tracker = GearboxTracker(store, "g1", 30.0, every_s=7.0)
+        with pytest.raises(Interrupt):
+            for p in wear_logs:
+                tracker.track_log(p, progress=stop)
+        results = [tracker.track_log(p) for p in wear_logs]
+        assert [r.already_imported for r in results] == [True, False, False] and results[1].resumed_from > 0
+        assert [dataclasses.replace(e, run_id=0) for e in store.estimates("g1")] == reference
+        assert [r.status for r in store.runs("g1")] == ["complete"] * 3

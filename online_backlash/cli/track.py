@@ -1,19 +1,27 @@
-"""``online-backlash track LOG --ratio R --db DB --gearbox ID``: add logs to a gearbox's wear history."""
+"""``online-backlash track LOG --ratio R --db DB --gearbox ID``: add logs to a gearbox's wear history.
+
+With ``--listen can|serial`` and the source options of ``listen`` it tracks a live rig instead,
+until ``--duration`` or Ctrl-C; the raw capture is written first, so it can be tracked again
+as a log (into another gearbox id) with the same estimates.
+"""
 
 from __future__ import annotations
 
 import argparse
 import datetime as dt
 import sys
+from contextlib import contextmanager
+from typing import Iterator
 
 from tqdm import tqdm
 
 from ..errors import InvalidParameterError
 from ..history.store import HistoryStore
-from ..history.track import GearboxTracker, TrackResult
-from ._common import add_log_options, add_ratio_option, print_json
+from ..history.track import GearboxTracker, ProgressCallback, TrackResult
+from ._common import add_can_decoding_options, add_log_options, add_ratio_option, print_json
 from .estimate import log_options
 from .history import add_db_options
+from .listen import _on_interrupt, _open_can, _open_serial
 
 
 def _unix_time(text: str) -> float:
@@ -36,7 +44,13 @@ def add_subparser(subparsers: argparse._SubParsersAction) -> None:
         "was; a log already imported adds nothing.",
         formatter_class=argparse.ArgumentDefaultsHelpFormatter,
     )
-    parser.add_argument("logs", nargs="+", metavar="LOG", help="recorded logs (.csv, .csv.gz), in the order they were recorded")
+    parser.add_argument(
+        "logs",
+        nargs="*",
+        metavar="LOG",
+        help="recorded logs, in the order they were recorded: .csv[.gz]; CAN logs (.asc .blf .log .trc ..., with --dbc); "
+        "serial captures (.serial, with --serial-format)",
+    )
     add_ratio_option(parser)
     add_db_options(parser)
     parser.add_argument("--every", type=float, default=60.0, metavar="S", help="seconds of data between estimates")
@@ -48,30 +62,88 @@ def add_subparser(subparsers: argparse._SubParsersAction) -> None:
         help="calendar time of the log's first sample (ISO 8601, UTC unless given); default: the time column "
         "if it holds UNIX times, else the file's modification time",
     )
+    parser.add_argument(
+        "--memory-reversals",
+        type=float,
+        metavar="N",
+        help="memory of a new gearbox's estimator, in reversals (shorter follows fast wear with less lag, "
+        "more noise); default: BacklashRLS's",
+    )
+    parser.add_argument("--sample-period", type=float, metavar="S", help="sampling period of a new gearbox's logs, seconds; default: BacklashRLS's (0.001)")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
     parser.add_argument("--json", action="store_true", help="print one JSON object per log")
     add_log_options(parser)
+    add_can_decoding_options(parser, required=False)
+    parser.add_argument("--serial-format", choices=("ascii", "binary"), help="frame format of serial captures (.serial) and serial ports")
+    live = parser.add_argument_group("live, instead of logs (the options of listen)")
+    live.add_argument("--listen", choices=("can", "serial"), help="track live from a CAN bus or a serial port until --duration or Ctrl-C")
+    live.add_argument("--interface", help="python-can interface (CAN): socketcan, pcan, kvaser, vector, virtual, ...")
+    live.add_argument("--channel", help="channel of the interface (CAN), e.g. can0")
+    live.add_argument("--bitrate", type=int, help="bit rate, bit/s (CAN, where the interface sets it)")
+    live.add_argument("--raw-format", choices=("blf", "asc", "log"), default="blf", help="format of the raw CAN log")
+    live.add_argument("--port", help="pyserial URL (serial): /dev/ttyUSB0, COM3, socket://host:port")
+    live.add_argument("--baud", type=int, default=115200, help="baud rate (serial)")
+    live.add_argument("--raw-log", metavar="DIR", help="directory for the raw captures, written before decoding (required with --listen)")
+    live.add_argument("--duration", type=float, metavar="S", help="stop after S seconds; without it, at Ctrl-C")
+    live.add_argument("--timeout", type=float, metavar="S", help="fail when nothing arrives for S seconds")
+    live.add_argument("--period", type=float, metavar="S", help="nominal sample period for gap detection; learnt if not given")
     parser.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
-    if args.start is not None and len(args.logs) > 1:
+    if args.listen is None and not args.logs:
+        raise InvalidParameterError("give the logs to track, or --listen can|serial to track live")
+    if args.listen is not None and (args.logs or args.raw_log is None):
+        raise InvalidParameterError("--listen tracks live: give --raw-log DIR and no logs")
+    if args.start is not None and len(args.logs) != 1:
         raise InvalidParameterError(f"--start gives the start of one log; {len(args.logs)} logs were given")
-    options = log_options(args)
     show_progress = not args.quiet and sys.stderr.isatty()
     with HistoryStore(args.db, create=True) as store:
-        tracker = GearboxTracker(store, args.gearbox, args.ratio, every_s=args.every, limit_arcmin=args.limit_arcmin)
+        given = {"memory_reversals": args.memory_reversals, "sample_period_s": args.sample_period}
+        params = {name: value for name, value in given.items() if value is not None}
+        tracker = GearboxTracker(
+            store, args.gearbox, args.ratio, every_s=args.every, limit_arcmin=args.limit_arcmin, estimator_params=params
+        )
+        if args.listen is not None:
+            with _progress_bar(f"{args.listen} live", show_progress) as progress:
+                result = _track_live(tracker, args, progress)
+            report(result, args.json)
+            return 0
         for path in args.logs:
-            with tqdm(desc=path, unit=" samples", unit_scale=True, disable=not show_progress, leave=False) as bar:
-
-                def progress(samples: int, backlash_deg: float | None) -> None:
-                    bar.update(samples - bar.n)
-                    if backlash_deg is not None:
-                        bar.set_postfix_str(f"backlash {backlash_deg:.4f} deg")
-
+            options = log_options(argparse.Namespace(**{**vars(args), "log": path}))
+            with _progress_bar(path, show_progress) as progress:
                 result = tracker.track_log(path, options, start_unix_s=args.start, progress=progress)
             report(result, args.json)
     return 0
+
+
+@contextmanager
+def _progress_bar(label: str, show: bool) -> Iterator[ProgressCallback]:
+    """A tqdm bar on stderr (samples, samples/s, the current estimate), as a progress callback."""
+    with tqdm(desc=label, unit=" samples", unit_scale=True, disable=not show, leave=False) as bar:
+
+        def progress(samples: int, backlash_deg: float | None) -> None:
+            bar.update(samples - bar.n)
+            if backlash_deg is not None:
+                bar.set_postfix_str(f"backlash {backlash_deg:.4f} deg")
+
+        yield progress
+
+
+def _track_live(tracker: GearboxTracker, args: argparse.Namespace, progress: ProgressCallback) -> TrackResult:
+    """Open the live source as ``listen`` does and track it until it ends (duration, Ctrl-C, timeout)."""
+    if args.listen == "can":
+        cprs = {k: None if getattr(args, k) is None else int(getattr(args, k)) for k in ("motor_cpr", "load_cpr")}
+        source_args, label = argparse.Namespace(**{**vars(args), **cprs}), f"can {args.interface} {args.channel}"
+        open_source = _open_can
+    else:
+        source_args, label, open_source = args, f"serial {args.port}", _open_serial
+    with open_source(source_args) as source:
+        undo = _on_interrupt(source.request_stop)
+        try:
+            return tracker.track_source(source, label, progress=progress)
+        finally:
+            undo()
 
 
 def report(result: TrackResult, as_json: bool) -> None:

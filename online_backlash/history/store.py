@@ -396,10 +396,14 @@ class HistoryStore:
         with self._connect() as conn:
             return list(conn.execute(select(gearboxes_table.c.id).order_by(gearboxes_table.c.id)).scalars())
 
+    def find_gearbox(self, gearbox_id: str) -> Gearbox | None:
+        """The stored gearbox ``gearbox_id``, or None if the store does not hold it."""
+        with self._connect() as conn:
+            return _get_gearbox(conn, gearbox_id)
+
     def gearbox(self, gearbox_id: str) -> Gearbox:
         """The stored gearbox ``gearbox_id``; HistoryError if the store does not hold it."""
-        with self._connect() as conn:
-            found = _get_gearbox(conn, gearbox_id)
+        found = self.find_gearbox(gearbox_id)
         if found is None:
             raise HistoryError(self._unknown(gearbox_id))
         return found

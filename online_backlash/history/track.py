@@ -34,7 +34,7 @@ from ..errors import HistoryError, InvalidParameterError, LogFormatError, NotFit
 from ..estimators._validation import check_real
 from ..estimators.recursive import BacklashRLS
 from ..replay import open_log
-from ..stream import SampleChunk, refer_to_load
+from ..stream import SampleChunk, chunked, refer_to_load
 from .store import Gearbox, HistoryStore, Run
 from .usage import UsageCounter
 
@@ -117,7 +117,8 @@ class GearboxTracker:
     limit_arcmin : float, optional
         Nominal backlash limit, stored with the gearbox (replaces a stored one).
     estimator_params : dict, optional
-        Parameters of a new gearbox's :class:`BacklashRLS` (a known gearbox keeps its own).
+        Parameters of a new gearbox's :class:`BacklashRLS`; a known gearbox keeps its own, and
+        parameters given that differ from them raise HistoryError.
     usage_params : dict, optional
         Parameters of a new gearbox's :class:`UsageCounter`.
     """
@@ -173,6 +174,28 @@ class GearboxTracker:
                 progress=progress,
             )
 
+    def track_source(self, source: Any, label: str, chunk_size: int = 100, progress: ProgressCallback | None = None) -> TrackResult:
+        """Feed a live source (``online_backlash.drivers``' CanSource, SerialSource) until it ends.
+
+        A live stream cannot be read again, so it has no key: each call is a new run that
+        continues the gearbox's state. A process killed meanwhile loses the samples after the
+        last checkpoint (the raw capture the source wrote still holds them); the store stays
+        consistent and the next call continues from the checkpoint. Times that are not UNIX
+        times (a device clock) are placed by taking the first sample as now.
+
+        Parameters
+        ----------
+        source : Source
+            Iterable of :class:`~online_backlash.stream.Sample` with ``counters``.
+        label : str
+            Description stored with the run, e.g. ``can socketcan can0``.
+        chunk_size : int
+            Samples learnt at once (latency of the estimate against cost per call).
+        """
+        return self.track_chunks(
+            chunked(source, chunk_size), label, counters=lambda: source.counters.as_dict(), progress=progress
+        )
+
     def track_chunks(
         self,
         chunks: Iterable[SampleChunk],
@@ -208,6 +231,7 @@ class GearboxTracker:
             raise LogFormatError(source, None, "no data rows")
         first_time_s = float(first.time_s[0])
         offset = clock_offset(first_time_s) if clock_offset is not None else _default_clock_offset(first_time_s)
+        self._check_estimator_params(self.store.find_gearbox(self.gearbox_id))
         gearbox, run = self.store.begin_run(self.gearbox_id, self.ratio, source, key, first_time_s + offset, self.limit_arcmin)
         result = TrackResult(self.gearbox_id, run.id, source, resumed_from=run.samples_done)
         if run.complete:
@@ -222,6 +246,18 @@ class GearboxTracker:
         return result
 
     # -- internals -------------------------------------------------------------------------
+    def _check_estimator_params(self, gearbox: Gearbox | None) -> None:
+        """A known gearbox keeps its estimator: refuse parameters that differ from its own."""
+        if gearbox is None or gearbox.checkpoint is None or not self.estimator_params:
+            return
+        saved = gearbox.checkpoint["estimator"]["params"]
+        for name, value in self.estimator_params.items():
+            if saved.get(name) != value:
+                raise HistoryError(
+                    f"gearbox {gearbox.id!r} is tracked with {name}={saved.get(name)!r}; {name}={value!r} would change "
+                    "its estimator (use another gearbox id to start afresh)"
+                )
+
     def _validate(self) -> None:
         check_real("every_s", self.every_s, 0.0)
         try:
@@ -289,20 +325,22 @@ class TrackerState:
         The gearbox's recursive estimator.
     usage : UsageCounter
         Operating time, load revolutions and reversals since new.
-    data_s : float
-        Seconds of data seen (steps across gaps and between logs excluded).
-    next_estimate_s : float
-        ``data_s`` at which the next estimate is due.
+    data_ns : int
+        Nanoseconds of data seen (steps across gaps and between logs excluded). Each step is
+        rounded to a whole nanosecond and summed as an integer, so the sum does not depend on
+        how the stream was cut into blocks (a resumed run, a live stream, a replay of it).
+    next_estimate_ns : int or None
+        ``data_ns`` at which the next estimate is due.
     prev_time_s : float or None
         Time of the last sample of the current log (None at the start of a log).
     """
 
-    def __init__(self, estimator: BacklashRLS, usage: UsageCounter, data_s: float = 0.0,
-                 next_estimate_s: float | None = None, prev_time_s: float | None = None) -> None:
+    def __init__(self, estimator: BacklashRLS, usage: UsageCounter, data_ns: int = 0,
+                 next_estimate_ns: int | None = None, prev_time_s: float | None = None) -> None:
         self.estimator = estimator
         self.usage = usage
-        self.data_s = data_s
-        self.next_estimate_s = next_estimate_s
+        self.data_ns = data_ns
+        self.next_estimate_ns = next_estimate_ns
         self.prev_time_s = prev_time_s
 
     @classmethod
@@ -315,8 +353,8 @@ class TrackerState:
         return cls(
             BacklashRLS.from_state(checkpoint["estimator"]),
             UsageCounter.from_state(checkpoint["usage"]),
-            checkpoint["data_s"],
-            checkpoint["next_estimate_s"],
+            checkpoint["data_ns"],
+            checkpoint["next_estimate_ns"],
             checkpoint["prev_time_s"],
         )
 
@@ -326,8 +364,8 @@ class TrackerState:
             "format": CHECKPOINT_FORMAT,
             "estimator": self.estimator.state_dict(),
             "usage": self.usage.state_dict(),
-            "data_s": self.data_s,
-            "next_estimate_s": self.next_estimate_s,
+            "data_ns": self.data_ns,
+            "next_estimate_ns": self.next_estimate_ns,
             "prev_time_s": self.prev_time_s,
         }
 
@@ -341,29 +379,27 @@ class TrackerState:
               every_s: float) -> Iterator[tuple[int, bool]]:
         """Learn a chunk block by block; yield ``(end, due)`` after each block.
 
-        A block ends at the sample where ``data_s`` reaches ``next_estimate_s`` (``due`` is
-        True: an estimate belongs there) or at the end of the chunk. ``data_s`` is summed
-        afresh from each block's start, so a run resumed at a block boundary computes the
-        very same numbers as an uninterrupted one.
+        A block ends at the sample where ``data_ns`` reaches ``next_estimate_ns`` (``due`` is
+        True: an estimate belongs there) or at the end of the chunk.
         """
-        if self.next_estimate_s is None:
-            self.next_estimate_s = self.data_s + every_s
+        every_ns = max(1, round(every_s * 1e9))
+        if self.next_estimate_ns is None:
+            self.next_estimate_ns = self.data_ns + every_ns
+        previous = np.concatenate(([np.nan if self.prev_time_s is None else self.prev_time_s], time_s[:-1]))
+        step = time_s - previous
+        step[after_gap | ~np.isfinite(step)] = 0.0
+        data_ns = self.data_ns + np.cumsum(np.rint(step * 1e9).astype(np.int64))
         n, pos = time_s.size, 0
         while pos < n:
-            t = time_s[pos:]
-            previous = np.concatenate(([np.nan if self.prev_time_s is None else self.prev_time_s], t[:-1]))
-            step = t - previous
-            step[after_gap[pos:] | ~np.isfinite(step)] = 0.0
-            data_s = self.data_s + np.cumsum(step)
-            reach = int(np.searchsorted(data_s, self.next_estimate_s, side="left"))
-            due = reach < t.size
-            end = pos + (reach + 1 if due else t.size)
+            reach = pos + int(np.searchsorted(data_ns[pos:], self.next_estimate_ns, side="left"))
+            due = reach < n
+            end = reach + 1 if due else n
             self.estimator.learn_many(u_deg[pos:end], y_deg[pos:end], after_gap=after_gap[pos:end])
             self.usage.update(time_s[pos:end], u_deg[pos:end], after_gap[pos:end])
-            self.data_s = float(data_s[end - pos - 1])
+            self.data_ns = int(data_ns[end - 1])
             self.prev_time_s = float(time_s[end - 1])
-            while due and self.next_estimate_s <= self.data_s:
-                self.next_estimate_s += every_s
+            while due and self.next_estimate_ns <= self.data_ns:
+                self.next_estimate_ns += every_ns
             yield end, due
             pos = end
 
