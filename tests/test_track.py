@@ -16,6 +16,7 @@ import pytest
 
 from online_backlash.errors import HistoryError, LogFormatError
 from online_backlash.history.report import wear_report
+from online_backlash.history.series import bundled_wear_series
 from online_backlash.history.store import HistoryStore
 from online_backlash.history.track import GearboxTracker
 from online_backlash.history.usage import UsageCounter
@@ -280,3 +281,19 @@ def test_interrupted_tracking_on_each_backend_equals_uninterrupted_sqlite(tmp_pa
         assert [r.already_imported for r in results] == [True, False, False] and results[1].resumed_from > 0
         assert [dataclasses.replace(e, run_id=0) for e in store.estimates("g1")] == reference
         assert [r.status for r in store.runs("g1")] == ["complete"] * 3
+
+
+def test_the_bundled_wear_series_shows_its_true_wear(tmp_path):
+    series = bundled_wear_series()
+    with HistoryStore(tmp_path / "w.db", create=True) as store:
+        results = series.track(store)
+        again = series.track(store)
+        report = wear_report(store, series.gearbox)
+    m = series.manifest
+    assert len(results) == len(m["logs"]) == 12 and not any(r.already_imported for r in results)
+    assert all(r.already_imported for r in again)
+    s = report.summary.as_dict()
+    # compressed wear (0.1 deg in 300 s of operation): the estimator lags a little; 15 % leaves room for it
+    assert s["trend_deg_per_hour"] == pytest.approx(m["true_rate_deg_per_hour"], rel=0.15)
+    assert report.summary.last_hours + s["forecast_hours_to_limit"] == pytest.approx(m["true_hours_at_limit"], rel=0.15)
+    assert s["limit_arcmin"] == m["limit_arcmin"]

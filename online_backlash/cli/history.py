@@ -110,8 +110,11 @@ def describe_trend(report: WearReport) -> list[str]:
     if not math.isfinite(h):
         lines.append(f"forecast: {limit} not reached (the trend does not grow)")
         return lines
-    when = "already crossed on the trend line" if h < 0 else "reached in"
-    lines.append(f"forecast: {limit} {when} {abs(h):.3g} operating hours [{h_lo:.3g}, {_num(h_hi, '.3g')}] from the last estimate")
+    interval = f"[{h_lo:.3g}, {_num(h_hi, '.3g')}]"
+    if h < 0:
+        lines.append(f"forecast: {limit} crossed by the trend line {-h:.3g} operating hours before the last estimate {interval}")
+    else:
+        lines.append(f"forecast: {limit} reached in {h:.3g} operating hours {interval} from the last estimate")
     if s["forecast_date"] is not None:
         d_lo, d_hi = s["forecast_date_interval"]
         lines.append(f"          around {s['forecast_date']} [{d_lo}, {d_hi or 'never'}] at the recent rate of use")
