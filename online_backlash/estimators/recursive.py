@@ -261,6 +261,10 @@ class _RecursiveBase:
         self._begin(start)
         buf = self._buf
         self._buf = {k: [] for k in buf}
+        self._replay(buf, compiled)
+
+    def _replay(self, buf: dict[str, list], compiled: bool) -> None:
+        """Learn the buffered samples (the same path as the call that triggered the start)."""
         if compiled:
             self._learn_arrays(*(np.asarray(buf[k], dtype=bool if k == "gap" else float) for k in ("u", "y", "gap", "time", "torque")))
         else:
@@ -584,6 +588,20 @@ class BacklashRLS(_RecursiveBase):
         self._st[K.HAVE_PREV] = 0.0
         self._reset_effects()
 
+    def _replay(self, buf: dict[str, list], compiled: bool) -> None:
+        """Learn the buffer with the lines frozen at the warm start: they keep the batch estimate
+        and gather its information (the covariance, residual variance, reversals), so a few
+        early samples cannot override the fit of the whole buffer."""
+        self._set_freeze(True)
+        try:
+            super()._replay(buf, compiled)
+        finally:
+            self._set_freeze(False)
+
+    def _set_freeze(self, freeze: bool) -> None:
+        self._c[K.K_FREEZE] = 1.0 if freeze else 0.0
+        self._c_arr = np.asarray(self._c)
+
     # -- the two paths -------------------------------------------------------------------------
     def _learn_py(self, u: float, y: float, t: float, q: float) -> None:
         if self._effects:
@@ -651,12 +669,17 @@ class BacklashRLS(_RecursiveBase):
         e = yc - st[side + K.B] - shift
         K.track_noise(st, c, e)
         R += np.outer(phi, phi)
-        delta = np.linalg.solve(R, phi) * e
-        st[K.LEFT + K.M] += delta[0]
-        st[K.LEFT + K.B] += delta[1]
-        st[K.RIGHT + K.M] += delta[2]
-        st[K.RIGHT + K.B] += delta[3]
-        self._beta += delta[4:]
+        if c[K.K_FREEZE] != 0.0:
+            # warm-start replay: the lines stay at the batch estimate; the effects learn given them
+            if self._beta.size:
+                self._beta += np.linalg.solve(R[4:, 4:], phi[4:]) * e
+        else:
+            delta = np.linalg.solve(R, phi) * e
+            st[K.LEFT + K.M] += delta[0]
+            st[K.LEFT + K.B] += delta[1]
+            st[K.RIGHT + K.M] += delta[2]
+            st[K.RIGHT + K.B] += delta[3]
+            self._beta += delta[4:]
         st[side + K.W_COUNT] += 1.0
         st[side + K.W_TIME] += st[K.T_MOTION]
         st[side + K.N_UPD] += 1.0
