@@ -160,7 +160,7 @@ class _VorosBase:
         check_is_fitted(self, "params_")
         check_option("stage", stage, ("final", "equation_error"))
         p = self.params_ if stage == "final" else self.equation_error_params_
-        out = {"m_left": p.m_left, "c_left": p.c_left, "m_right": p.m_right, "c_right": p.c_right}
+        out = {name: float(getattr(p, name)) for name in ("m_left", "c_left", "m_right", "c_right")}
         if hasattr(self, "a_"):
             a, b = (self.a_, self.b_) if stage == "final" else (self.equation_error_a_, self.equation_error_b_)
             out.update({f"a{i}": float(v) for i, v in enumerate(a[1:], start=2)})
@@ -376,6 +376,19 @@ class VorosCascade(_VorosBase):
         The estimate after every iteration (the paper's Figs. 8, 10, 12).
     residual_rms_ : float
         RMS of the simulation residual ``y - simulate(u)``, output units.
+
+    Examples
+    --------
+    The paper's example 3 (1500 samples, SNR 25):
+
+    >>> from online_backlash import VorosCascade
+    >>> from online_backlash.model import PAPER_EXAMPLES
+    >>> u, y = PAPER_EXAMPLES[3].generate(seed=0)
+    >>> est = VorosCascade(origin="zero").fit(u, y)
+    >>> {k: round(v, 2) for k, v in est.estimates().items()}
+    {'m_left': 1.3, 'c_left': 0.6, 'm_right': 2.0, 'c_right': 0.7, 'a2': 0.5, 'b1': -0.2, 'b2': 0.35}
+    >>> est.n_iter_ <= PAPER_EXAMPLES[3].paper_iterations + 3
+    True
     """
 
     def __init__(
