@@ -264,3 +264,15 @@ def test_track_live_can_then_the_raw_log_gives_the_same_history(capsys, tmp_path
     live, replayed = dump(live_db), dump(replay_db)
     assert len(live["estimates"]) == 4 and live["estimates"] == replayed["estimates"]
     assert live["estimates"][-1][4] == pytest.approx(T0 + 13.0, abs=0.01)  # time of the sample, from the frames
+
+
+@pytest.mark.postgres
+def test_track_and_history_on_postgresql(capsys, postgres_db, short_log):
+    code, out, _ = run_cli(capsys, "track", short_log, "--ratio", 30, "--db", postgres_db, "--gearbox", "rig-7", "--every", 5, "--limit-arcmin", 30)
+    assert code == 0 and "3 estimates added" in out
+    code, out, _ = run_cli(capsys, "history", "--db", postgres_db, "--gearbox", "rig-7", "--json")
+    d = json.loads(out)
+    assert code == 0 and d["gearbox"] == "rig-7" and len(d["estimates"]) == 3 and d["stored_limit_arcmin"] == 30
+    assert d["estimates"][-1]["backlash_deg"] == pytest.approx(0.3, abs=0.02)
+    code, out, _ = run_cli(capsys, "track", short_log, "--ratio", 30, "--db", postgres_db, "--gearbox", "rig-7")
+    assert code == 0 and "already imported" in out

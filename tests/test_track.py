@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import dataclasses
 import datetime as dt
-import os
 import signal
 import sqlite3
 import subprocess
@@ -297,3 +296,26 @@ def test_the_bundled_wear_series_shows_its_true_wear(tmp_path):
     assert s["trend_deg_per_hour"] == pytest.approx(m["true_rate_deg_per_hour"], rel=0.15)
     assert report.summary.last_hours + s["forecast_hours_to_limit"] == pytest.approx(m["true_hours_at_limit"], rel=0.15)
     assert s["limit_arcmin"] == m["limit_arcmin"]
+
+
+def test_a_run_resumed_after_another_log_does_not_join_their_samples(tmp_path, wear_logs):
+    """Interrupt log A, track log B, then resume A: A's next sample follows a gap, not B's last sample."""
+    calls = 0
+
+    def stop(samples, backlash):
+        nonlocal calls
+        calls += 1
+        if calls == 4:
+            raise Interrupt
+
+    with HistoryStore(tmp_path / "w.db", create=True) as store:
+        tracker = GearboxTracker(store, "g1", 30.0, every_s=7.0)
+        with pytest.raises(Interrupt):
+            tracker.track_log(wear_logs[0], progress=stop)
+        tracker.track_log(wear_logs[1])
+        resumed = tracker.track_log(wear_logs[0])
+        checkpoint = store.gearbox("g1").checkpoint
+    assert resumed.resumed_from > 0 and checkpoint["run_id"] == resumed.run_id
+    # data time: every step within a log, none between logs or at the resumption (40 000 samples each)
+    # (each 1 ms step is read from UNIX times of about 1.7e9 s, to about 0.2 us)
+    assert checkpoint["data_ns"] == pytest.approx((2 * (40_000 - 1) - 1) * 1_000_000, abs=100_000)

@@ -242,7 +242,7 @@ class GearboxTracker:
         gearbox, run, state, ended = self._feed(gearbox, run, chain([first], chunks), clock, result, progress)
         done = result.resumed_from + result.samples_fed
         result.counters = counters() if counters is not None else {k: done if k == "samples" else 0 for k in _COUNTERS}
-        self.store.commit(gearbox, run, done, state.checkpoint(), counters=result.counters, ended_unix_s=ended)
+        self.store.commit(gearbox, run, done, state.checkpoint(run.id), counters=result.counters, ended_unix_s=ended)
         return result
 
     # -- internals -------------------------------------------------------------------------
@@ -280,8 +280,8 @@ class GearboxTracker:
         calendar time of the last sample (None if every sample was skipped).
         """
         state = TrackerState.load(gearbox.checkpoint, self.estimator_params, self.usage_params)
-        if run.samples_done == 0:
-            state.mark_gap()  # the log does not continue the previous one
+        if run.samples_done == 0 or (gearbox.checkpoint or {}).get("run_id") != run.id:
+            state.mark_gap()  # the log does not continue the samples the state saw last
         skip = run.samples_done
         done = run.samples_done  # samples of this log in the state
         ended = None
@@ -300,7 +300,7 @@ class GearboxTracker:
                 fed = end
                 row = state.estimate_row(done, clock + float(chunk.time_s[end - 1])) if due else None
                 if row is not None:
-                    gearbox, run = self.store.commit(gearbox, run, done, state.checkpoint(), [row])
+                    gearbox, run = self.store.commit(gearbox, run, done, state.checkpoint(run.id), [row])
                     result.estimates_added += 1
                     result.last_estimate = row
                 if progress is not None:
@@ -358,10 +358,11 @@ class TrackerState:
             checkpoint["prev_time_s"],
         )
 
-    def checkpoint(self) -> dict:
-        """The state as a JSON-serialisable dict."""
+    def checkpoint(self, run_id: int | None = None) -> dict:
+        """The state as a JSON-serialisable dict, noting the run whose sample it saw last."""
         return {
             "format": CHECKPOINT_FORMAT,
+            "run_id": run_id,
             "estimator": self.estimator.state_dict(),
             "usage": self.usage.state_dict(),
             "data_ns": self.data_ns,
@@ -387,7 +388,7 @@ class TrackerState:
             self.next_estimate_ns = self.data_ns + every_ns
         previous = np.concatenate(([np.nan if self.prev_time_s is None else self.prev_time_s], time_s[:-1]))
         step = time_s - previous
-        step[after_gap | ~np.isfinite(step)] = 0.0
+        step[after_gap | ~(step > 0.0)] = 0.0  # NaN (start of a segment) and a clock that went back count nothing
         data_ns = self.data_ns + np.cumsum(np.rint(step * 1e9).astype(np.int64))
         n, pos = time_s.size, 0
         while pos < n:
