@@ -1,0 +1,49 @@
+"""``online-backlash diagnose LOG --ratio R``: trace what the backlash model lacks, add it, report before/after."""
+
+from __future__ import annotations
+
+import argparse
+
+from ..diagnostics.loop import diagnose
+from ..diagnostics.plot import plot_diagnosis
+from ..diagnostics.report import markdown_report
+from ..replay import read_csv_arrays
+from ._common import add_log_options, add_ratio_option, print_json
+from .estimate import log_options
+
+
+def add_subparser(subparsers: argparse._SubParsersAction) -> None:
+    parser = subparsers.add_parser(
+        "diagnose",
+        help="find effects the backlash model lacks in a recorded log and close the loop",
+        description=(
+            "Fit the backlash, test the residual for transmission error, delay, compliance and drift "
+            "(and unexplained structure), add what is significant, refit jointly, and report the error "
+            "before and after."
+        ),
+        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+    )
+    parser.add_argument("log", help="recorded log (.csv, .csv.gz); a torque column is used when mapped")
+    add_ratio_option(parser)
+    parser.add_argument("--json", action="store_true", help="print one JSON object")
+    parser.add_argument("--plot", metavar="FILE.png", help="write the residual before/after plot")
+    parser.add_argument("--report", metavar="FILE.md", help="write a Markdown report")
+    parser.add_argument("--max-terms", type=int, default=6, help="most terms (named or generic) to add")
+    add_log_options(parser)
+    parser.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    chunk = read_csv_arrays(args.log, **log_options(args))
+    result = diagnose(chunk, args.ratio, max_terms=args.max_terms)
+    if args.plot:
+        plot_diagnosis(result, args.plot)
+    text = markdown_report(result, args.log, plot=args.plot)
+    if args.report:
+        with open(args.report, "w", encoding="utf-8") as f:
+            f.write(text + "\n")
+    if args.json:
+        print_json(result.as_dict())
+    else:
+        print(text)
+    return 0

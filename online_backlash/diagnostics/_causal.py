@@ -1,0 +1,73 @@
+"""Causal, streaming-consistent bookkeeping shared by the effect terms.
+
+An effect whose columns at sample ``t`` need the ``w`` samples before it keeps those samples
+between calls of ``terms``. Before the first sample the record is taken to be at rest at its
+first value (the first sample repeated), so one call on a whole record and many calls on its
+pieces give the same rows (the :class:`~online_backlash.effect_terms.EffectTerms` contract).
+Units: degrees, seconds, newton metres.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..errors import InvalidParameterError
+
+
+class CausalWindow:
+    """Keep the last ``history`` samples of ``u`` (deg), ``time`` (s) and ``torque`` (N m)."""
+
+    def __init__(self, history: int) -> None:
+        self.history = int(history)
+        self.reset()
+
+    def reset(self) -> None:
+        """Forget the past (start of a record or after a gap)."""
+        self._past: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
+
+    def extend(
+        self, u_deg: np.ndarray, time_s: np.ndarray, torque_Nm: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
+        """Prepend the kept past to the new samples; return ``(u, time, torque, n_past)``.
+
+        Call :meth:`keep` afterwards with the same extended arrays.
+        """
+        u, t, q = (np.atleast_1d(np.asarray(a, dtype=float)) for a in (u_deg, time_s, torque_Nm))
+        if u.ndim != 1 or u.shape != t.shape or u.shape != q.shape:
+            raise InvalidParameterError(
+                f"u_deg, time_s and torque_Nm must be 1-D and equally long, got {u.shape}, {t.shape}, {q.shape}"
+            )
+        if u.size == 0:
+            return u, t, q, 0
+        past = self._past
+        if past is None:  # at rest at the first sample before the record starts
+            past = tuple(np.full(self.history, a[0]) for a in (u, t, q))
+        return (np.concatenate((past[0], u)), np.concatenate((past[1], t)), np.concatenate((past[2], q)), self.history)
+
+    def keep(self, u: np.ndarray, t: np.ndarray, q: np.ndarray) -> None:
+        """Store the last ``history`` samples of the extended arrays for the next call."""
+        if u.size:
+            h = self.history
+            self._past = (u[u.size - h :].copy(), t[t.size - h :].copy(), q[q.size - h :].copy())
+
+
+def lagged_difference(a: np.ndarray, lag: int) -> np.ndarray:
+    """``a[i] - a[i - lag]`` for ``i >= lag`` (the first ``lag`` entries are 0)."""
+    out = np.zeros_like(a)
+    out[lag:] = a[lag:] - a[:-lag]
+    return out
+
+
+def velocity_deg_s(u: np.ndarray, t: np.ndarray, window: int) -> np.ndarray:
+    """Causal velocity ``(u[i] - u[i-w]) / (t[i] - t[i-w])``, deg/s; 0 where no time has passed."""
+    du = lagged_difference(u, window)
+    dt = lagged_difference(t, window)
+    return np.divide(du, dt, out=np.zeros_like(du), where=dt > 0)
+
+
+def acceleration_deg_s2(u: np.ndarray, t: np.ndarray, window: int) -> np.ndarray:
+    """Causal acceleration from two velocities ``window`` samples apart, deg/s^2."""
+    v = velocity_deg_s(u, t, window)
+    dv = lagged_difference(v, window)
+    dt = lagged_difference(t, window)
+    return np.divide(dv, dt, out=np.zeros_like(dv), where=dt > 0)

@@ -1,0 +1,395 @@
+"""The effect library: what a real gearbox adds to the play-and-two-slopes model of eq. (1).
+
+Each effect adds to the predicted load angle a sum ``sum_k beta_k * term_k`` of known,
+causal functions of the data with coefficients ``beta`` that enter linearly. Appended to
+the regressor ``phi`` of eq. (8) (and so to the least-squares problem of eq. 14, or of eq. 19
+and 24 for the cascade), the problem stays *quasi-linear*: for fixed switching functions
+eq. (5)-(6), the output is linear in ``[theta, beta]``, so the paper's iteration, its
+output-error refinement and recursive least squares fit the backlash and the effects jointly.
+Every class implements :class:`~online_backlash.effect_terms.EffectTerms` (``name``,
+``n_terms``, ``terms``, ``reset``), so ``BacklashRLS(effects=[...])`` can track with it.
+
+Each class also
+
+* ``detect(data)`` -- tests a residual for its signature and returns a configured instance
+  with its score (the information criterion of :mod:`._scoring`, threshold
+  :data:`~._scoring.BIC_THRESHOLD`, plus a minimum share of the residual explained), and
+* ``describe(coef)`` -- its parameters with units, from the fitted ``beta``.
+
+Units: angles in degrees (load side), time in seconds, torque in N m.
+"""
+
+from __future__ import annotations
+
+import inspect
+from typing import Any, Callable, Sequence
+
+import numpy as np
+
+from ..errors import InvalidParameterError
+from ._causal import CausalWindow, acceleration_deg_s2, lagged_difference
+from ._scoring import Detection, DetectionData, best_detection
+
+#: the names an effect of the library may carry (the ``name`` of the JSON contract)
+VOCABULARY = ("transmission_error", "delay", "compliance", "drift")
+
+_RAD = np.pi / 180.0
+#: share of the residual one harmonic order must explain on its own to be kept
+MIN_ORDER_GAIN = 0.01
+#: a transmission error claims a repeating pattern: its order must repeat at least this often in the record
+PERIODIC_MIN_PERIODS = 2.0
+
+
+class EffectBase:
+    """Parameters from ``__init__`` (river style), a causal window, ``clone`` and ``reset``."""
+
+    name = "effect"
+    history = 0
+    #: True for an effect on the input side of the backlash (held through the dead band in
+    #: the output-error fit, see :mod:`.joint`); False for one on the load reading itself
+    input_side = True
+
+    def __init__(self) -> None:
+        self._window = CausalWindow(self.history)
+        self.reset()
+
+    def get_params(self) -> dict[str, Any]:
+        """The constructor arguments of this effect."""
+        names = [p for p in inspect.signature(type(self).__init__).parameters if p != "self"]
+        return {n: getattr(self, n) for n in names}
+
+    def clone(self) -> "EffectBase":
+        """A fresh copy with the same settings and no stream history."""
+        return type(self)(**self.get_params())
+
+    def reset(self) -> None:
+        """Forget the stream history (start of a record or after a gap)."""
+        self._window.reset()
+
+    @property
+    def n_terms(self) -> int:
+        """Number of regressor columns."""
+        raise NotImplementedError
+
+    def terms(self, u_deg: np.ndarray, time_s: np.ndarray, torque_Nm: np.ndarray) -> np.ndarray:
+        """Regressor columns ``(len(u_deg), n_terms)`` for consecutive samples (causal)."""
+        u, t, q, n_past = self._window.extend(u_deg, time_s, torque_Nm)
+        if u.size == 0:
+            return np.empty((0, self.n_terms))
+        cols = self._columns(u, t, q)
+        self._window.keep(u, t, q)
+        return np.ascontiguousarray(cols[n_past:]).reshape(-1, self.n_terms)
+
+    def _columns(self, u: np.ndarray, t: np.ndarray, q: np.ndarray) -> np.ndarray:
+        raise NotImplementedError
+
+    def describe(self, coef: np.ndarray) -> dict[str, Any]:
+        """The effect's parameters with units in their names, from its fitted coefficients."""
+        raise NotImplementedError
+
+    def __repr__(self) -> str:
+        args = ", ".join(f"{k}={v!r}" for k, v in self.get_params().items())
+        return f"{type(self).__name__}({args})"
+
+
+def harmonic_columns(angle_deg: np.ndarray, orders: Sequence[float]) -> np.ndarray:
+    """``[sin(n a), cos(n a)]`` for every order ``n`` (cycles per revolution of ``angle_deg``)."""
+    a = np.asarray(angle_deg, dtype=float)[:, None] * (np.asarray(orders, dtype=float)[None, :] * _RAD)
+    out = np.empty((a.shape[0], 2 * a.shape[1]))
+    out[:, 0::2] = np.sin(a)
+    out[:, 1::2] = np.cos(a)
+    return out
+
+
+def amplitudes_phases(coef: np.ndarray) -> list[tuple[float, float]]:
+    """``a sin + b cos = A sin(. + phase)``: ``(A, phase_deg)`` per ``(a, b)`` pair."""
+    c = np.asarray(coef, dtype=float).reshape(-1, 2)
+    return [(float(np.hypot(a, b)), float(np.degrees(np.arctan2(b, a)))) for a, b in c]
+
+
+def select_orders(
+    data: DetectionData,
+    columns: Callable[[float], np.ndarray],
+    max_order: int,
+    span_deg: float,
+    max_orders: int,
+    min_periods: float = 1.0,
+) -> list[int]:
+    """Harmonic orders chosen by forward selection (at most ``max_orders``), strongest first.
+
+    Only orders of which the data cover at least ``min_periods`` periods
+    (``n * span_deg >= 360 * min_periods``) are tried, and once an order is chosen its
+    neighbours closer than the resolution ``360 / span_deg`` are dropped: over a short span
+    they are nearly collinear and would fit huge amplitudes that cancel. Only the
+    ``2 max_orders`` orders strongest on their own take part. At each step every remaining order is scored given the orders
+    already chosen; the best is kept if it passes the information criterion and explains at
+    least :data:`MIN_ORDER_GAIN` of what is left (so the leakage of a strong order into its
+    neighbours is not kept).
+    """
+    if span_deg <= 0:
+        return []
+    resolution = 360.0 / span_deg
+    remaining = [n for n in range(1, max_order + 1) if n >= min_periods * resolution]
+    # forward selection among the strongest orders on their own (a cheap first pass)
+    first = sorted((data.score(True, columns(n)).delta_bic, n) for n in remaining)
+    remaining = [n for _, n in first[: 2 * max_orders]]
+    chosen: list[int] = []
+    current = data
+    while remaining and len(chosen) < max_orders:
+        scored = [(current.score(True, columns(n)), n) for n in remaining]
+        s, best = min(scored, key=lambda item: item[0].delta_bic)
+        if not s.significant(min_gain=MIN_ORDER_GAIN):
+            break
+        chosen.append(best)
+        remaining = [n for n in remaining if abs(n - best) >= resolution]
+        current = current.with_nuisance(current.hold(columns(best)))
+    return chosen
+
+
+class TransmissionError(EffectBase):
+    """Transmission error: harmonics of the load angle and of the motor angle, eq. (8) + columns.
+
+    ``sum_n a_n sin(n theta) + b_n cos(n theta)`` with ``theta`` the load angle (``load_orders``,
+    cycles per load revolution) or the motor angle ``ratio * u`` (``motor_orders``, cycles per
+    motor revolution). The load angle is approximated by ``u``, the motor angle referred to the
+    load side; the two differ by less than the play, a phase error of ``n * play`` degrees.
+
+    Parameters
+    ----------
+    load_orders, motor_orders : tuple of int
+        Harmonic orders on each shaft.
+    ratio : float
+        Gear ratio motor:load (to rebuild the motor angle from ``u``).
+    """
+
+    name = "transmission_error"
+
+    def __init__(self, load_orders: tuple[int, ...] = (), motor_orders: tuple[int, ...] = (), ratio: float = 1.0) -> None:
+        self.load_orders = tuple(load_orders)
+        self.motor_orders = tuple(motor_orders)
+        self.ratio = ratio
+        super().__init__()
+
+    @property
+    def n_terms(self) -> int:
+        return 2 * (len(self.load_orders) + len(self.motor_orders))
+
+    def _columns(self, u: np.ndarray, t: np.ndarray, q: np.ndarray) -> np.ndarray:
+        return np.column_stack(
+            (harmonic_columns(u, self.load_orders), harmonic_columns(u * self.ratio, self.motor_orders))
+        )
+
+    def describe(self, coef: np.ndarray) -> dict[str, Any]:
+        shafts = ["load"] * len(self.load_orders) + ["motor"] * len(self.motor_orders)
+        orders = self.load_orders + self.motor_orders
+        return {
+            "harmonics": [
+                {"shaft": s, "order_per_rev": int(n), "amplitude_deg": a, "phase_deg": p}
+                for s, n, (a, p) in zip(shafts, orders, amplitudes_phases(coef))
+            ],
+            "model": "sum A sin(order * shaft_angle + phase), added to the load angle",
+        }
+
+    @classmethod
+    def detect(cls, data: DetectionData, max_load_order: int = 24, max_motor_order: int = 3, max_orders: int = 6) -> Detection | None:
+        """Significant harmonics of the residual against the load and motor angles."""
+        u = data.u_deg
+        load = select_orders(data, lambda n: harmonic_columns(u, [n]), max_load_order, float(np.ptp(u)), max_orders, PERIODIC_MIN_PERIODS)
+        motor: list[int] = []
+        if abs(data.ratio) > 1:
+            motor_deg = u * data.ratio
+            motor = select_orders(
+                data, lambda n: harmonic_columns(motor_deg, [n]), max_motor_order, float(np.ptp(motor_deg)), max_orders, PERIODIC_MIN_PERIODS
+            )
+        if not load and not motor:
+            return None
+        effect = cls(tuple(sorted(int(n) for n in load)), tuple(sorted(int(n) for n in motor)), float(data.ratio))
+        s = data.score(effect.input_side, effect.clone().terms(u, data.time_s, data.torque_Nm))
+        return Detection(
+            effect, s, f"residual peaks at load orders {list(effect.load_orders)} and motor orders {list(effect.motor_orders)} per revolution"
+        )
+
+
+class Delay(EffectBase):
+    """A lag between the load and motor samples (the two encoders' clocks).
+
+    ``y(t) = x(t - d)``. The lag is not linear in its parameter; it is linearised on a grid:
+    with a grid lag of ``k`` samples, the column is ``u(t - k) - u(t)`` (deg, causal) and on a
+    flank of unit slope ``x(t - d) - x(t) = (d / k) [u(t - k) - u(t)]`` at constant speed, so the
+    coefficient ``beta`` gives ``d = beta k`` samples. ``detect`` picks ``k`` from a grid by the
+    information criterion. A negative ``d`` (the load sample leads) is a negative ``beta``.
+    Exact for ``d = k`` on a flank; inside the dead band, where the load does not move, the
+    column is a small error (the dead band is crossed in ``play / speed`` seconds).
+
+    Parameters
+    ----------
+    lag_step_samples : int
+        ``k``, the grid lag of the column, samples.
+    sample_period_s : float
+        The sampling period, to report the lag in seconds.
+    """
+
+    name = "delay"
+
+    def __init__(self, lag_step_samples: int = 1, sample_period_s: float = 1e-3) -> None:
+        if int(lag_step_samples) < 1:
+            raise InvalidParameterError(f"lag_step_samples must be >= 1, got {lag_step_samples!r}")
+        self.lag_step_samples = int(lag_step_samples)
+        self.sample_period_s = sample_period_s
+        self.history = self.lag_step_samples
+        super().__init__()
+
+    @property
+    def n_terms(self) -> int:
+        return 1
+
+    def _columns(self, u: np.ndarray, t: np.ndarray, q: np.ndarray) -> np.ndarray:
+        return -lagged_difference(u, self.lag_step_samples)
+
+    def describe(self, coef: np.ndarray) -> dict[str, Any]:
+        lag = float(coef[0]) * self.lag_step_samples
+        return {
+            "lag_samples": lag,
+            "lag_s": lag * self.sample_period_s,
+            "grid_lag_samples": self.lag_step_samples,
+            "model": "load sample taken lag_s after the motor sample (negative: before)",
+        }
+
+    @classmethod
+    def detect(cls, data: DetectionData, grid: Sequence[int] = (1, 2, 3, 5, 8, 13, 21, 34, 55)) -> Detection | None:
+        """The lag from the grid column that explains the residual best, then the column at that lag.
+
+        The final column's step is the estimated lag rounded to whole samples (at least 1), so
+        the column is exact for a whole-sample lag.
+        """
+        found = []
+        for k in grid:
+            s = data.score(cls.input_side, cls(k).terms(data.u_deg, data.time_s, data.torque_Nm))
+            found.append((s.delta_bic, k, float(s.coef[0]) * k))
+        _, k_grid, lag = min(found)
+        effect = cls(max(1, int(round(abs(lag)))), data.sample_period_s)
+        s = data.score(cls.input_side, effect.clone().terms(data.u_deg, data.time_s, data.torque_Nm))
+        p = effect.describe(s.coef)
+        return Detection(
+            effect, s, f"residual follows the motor-angle change over {k_grid} samples (lag {p['lag_samples']:.2f} samples, {p['lag_s'] * 1e3:.3f} ms)"
+        )
+
+
+class Compliance(EffectBase):
+    """Shaft compliance: a load deflection proportional to the transmitted torque.
+
+    With ``proxy="torque"`` the column is the measured torque (N m; the coefficient is the
+    compliance in deg/N m), with ``proxy="acceleration"`` it is the causal acceleration of
+    ``u`` over ``window_samples`` (deg/s^2; an inertial torque, coefficient in s^2). Missing
+    torque samples (NaN) contribute 0.
+
+    Parameters
+    ----------
+    proxy : {"torque", "acceleration"}
+    window_samples : int
+        Difference span of the acceleration estimate, samples.
+    """
+
+    name = "compliance"
+    input_side = False  # the twist follows the torque, also while the teeth are apart
+
+    def __init__(self, proxy: str = "torque", window_samples: int = 10) -> None:
+        if proxy not in ("torque", "acceleration"):
+            raise InvalidParameterError(f"proxy must be 'torque' or 'acceleration', got {proxy!r}")
+        self.proxy = proxy
+        self.window_samples = int(window_samples)
+        self.history = 2 * self.window_samples
+        super().__init__()
+
+    @property
+    def n_terms(self) -> int:
+        return 1
+
+    def _columns(self, u: np.ndarray, t: np.ndarray, q: np.ndarray) -> np.ndarray:
+        if self.proxy == "torque":
+            return np.nan_to_num(q, nan=0.0)
+        return acceleration_deg_s2(u, t, self.window_samples)
+
+    def describe(self, coef: np.ndarray) -> dict[str, Any]:
+        c = float(coef[0])
+        if self.proxy == "torque":
+            return {
+                "proxy": "measured torque",
+                "compliance_deg_per_Nm": c,
+                "stiffness_Nm_per_deg": 1.0 / abs(c) if c else float("inf"),
+            }
+        return {"proxy": "acceleration of the motor angle", "deflection_per_acceleration_s2": c}
+
+    @classmethod
+    def detect(cls, data: DetectionData) -> Detection | None:
+        """The measured torque (when the log has one) or the acceleration, whichever explains more."""
+        proxies = ["acceleration"]
+        if np.mean(np.isfinite(data.torque_Nm)) > 0.5:
+            proxies.insert(0, "torque")
+        found = []
+        for proxy in proxies:
+            effect = cls(proxy)
+            s = data.score(effect.input_side, effect.clone().terms(data.u_deg, data.time_s, data.torque_Nm))
+            found.append(Detection(effect, s, f"residual is proportional to the {proxy} (correlation {np.sqrt(max(s.gain, 0.0)):.2f})"))
+        return best_detection(found)
+
+
+class Drift(EffectBase):
+    """A slow offset in time (an encoder zero that moves as the rig warms up).
+
+    Columns ``((t - t0) / time_scale_s) ** j`` for ``j = 1 .. degree``, with ``t0`` the first
+    time seen; the coefficients are degrees (the offset at ``t0 + time_scale_s``). The constant
+    is left to the backlash offsets.
+
+    Parameters
+    ----------
+    degree : int
+        Polynomial degree, 1 to 3.
+    time_scale_s : float
+        Time that scales the powers (the record length for a batch fit), s.
+    """
+
+    name = "drift"
+    input_side = False  # the encoder zero moves whether or not the load does
+
+    def __init__(self, degree: int = 1, time_scale_s: float = 60.0) -> None:
+        if int(degree) < 1:
+            raise InvalidParameterError(f"degree must be >= 1, got {degree!r}")
+        if not time_scale_s > 0:
+            raise InvalidParameterError(f"time_scale_s must be > 0, got {time_scale_s!r}")
+        self.degree = int(degree)
+        self.time_scale_s = float(time_scale_s)
+        super().__init__()
+
+    def reset(self) -> None:
+        super().reset()
+        self._t0: float | None = None
+
+    @property
+    def n_terms(self) -> int:
+        return self.degree
+
+    def _columns(self, u: np.ndarray, t: np.ndarray, q: np.ndarray) -> np.ndarray:
+        if self._t0 is None:
+            self._t0 = float(t[0])
+        s = (t - self._t0) / self.time_scale_s
+        return np.column_stack([s**j for j in range(1, self.degree + 1)])
+
+    def describe(self, coef: np.ndarray) -> dict[str, Any]:
+        c = [float(v) for v in coef]
+        return {"degree": self.degree, "time_scale_s": self.time_scale_s, "coefficients_deg": c, "offset_at_time_scale_deg": float(sum(c))}
+
+    @classmethod
+    def detect(cls, data: DetectionData, max_degree: int = 3) -> Detection | None:
+        """The polynomial degree in time that explains the residual best."""
+        span = float(data.time_s[-1] - data.time_s[0]) or 1.0
+        found = []
+        for degree in range(1, max_degree + 1):
+            effect = cls(degree, span)
+            s = data.score(effect.input_side, effect.clone().terms(data.u_deg, data.time_s, data.torque_Nm))
+            found.append(Detection(effect, s, f"residual drifts in time (degree {degree} over {span:.0f} s)"))
+        return best_detection(found)
+
+
+#: the named effects, in the order they are tried
+LIBRARY = (TransmissionError, Delay, Compliance, Drift)

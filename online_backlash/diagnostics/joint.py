@@ -1,0 +1,217 @@
+"""Joint output-error fit of the backlash and the effect terms, and the play's identifiability.
+
+The augmented model is ``y(t) = x(t) + T(t) beta`` with ``x`` the backlash of eq. (1)-(3)
+run freely on ``u`` and ``T`` the effect columns. Columns of effects that act on the input
+side of the backlash (transmission error, delay, the generic terms in angle and velocity:
+``input_side = True``) are *held through the dead band*: while neither flank is engaged
+(``f1 = f2 = 0`` in eq. 5-6) the load does not move, so such a column keeps its value from the
+last engaged sample, exactly as ``x(t) = x(t-1)`` holds the flank terms ``u f1``, ``u f2`` of
+eq. (7). In the equation-error form (eq. 14, and the recursive estimator) the same happens by
+itself, since only engaged samples carry the flank regressors. For fixed backlash parameters the output is
+linear in ``beta`` (the quasi-linear structure of eq. 8 and 14 carried over), so ``beta`` is
+projected out exactly by least squares (variable projection) and only the four backlash
+parameters ``[mL, cL, mR, cR]`` are searched, by the same output-error refinement the batch
+estimator ends with (``VorosBacklash(refine=True)``).
+
+Identifiability. A column that switches with the direction of motion (a velocity or torque
+term on a test with one speed) moves both flank lines apart just as the play does. The
+variance inflation of the play, ``(1 - R2_base) / (1 - R2_joint)`` where ``R2`` is the share of
+the play's sensitivity ``dx/d(play)`` explained by the other backlash sensitivities (and, for
+``R2_joint``, the effect columns), says how much the effect blurs the play, and the play's
+standard error in the joint fit (corrected for the residual's autocorrelation) says whether
+the data still pin it down. When the inflation exceeds :data:`MAX_PLAY_INFLATION` or that
+error exceeds :data:`MAX_PLAY_STD_SHARE` of the play, the data cannot tell the effect and the
+play apart and :func:`fit_guarded` holds the play at
+its value without the effect. (A direction-switching torque term that also varies in size is
+separable: its size sets the coefficient, which then fixes its switching part.)
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.optimize import least_squares
+
+from ..model import BacklashParams, backlash_sensitivity, simulate_switching
+from ._scoring import effective_samples
+
+#: an effect may move the play only if the play's standard error stays below this share of it
+MAX_PLAY_STD_SHARE = 0.01
+#: and only if it inflates the play's variance by at most this factor (beyond it, the play
+#: would rest on a handful of samples near the reversals)
+MAX_PLAY_INFLATION = 100.0
+
+
+@dataclass(frozen=True)
+class JointFit:
+    """Backlash and effect coefficients fitted together, in the centred frame (degrees).
+
+    Attributes
+    ----------
+    params : BacklashParams
+    coef : array
+        Coefficients of all effect columns, in column order.
+    residual_deg : array
+        Simulation residual of the augmented model.
+    play_inflation : float
+        Variance inflation of the play caused by the effect columns (1 = none).
+    play_std_deg : float
+        Standard error of the play, corrected for the residual's autocorrelation, deg.
+    play_held : bool
+        True when the play was held fixed because the effects and the play are not separable.
+    """
+
+    params: BacklashParams
+    coef: np.ndarray
+    residual_deg: np.ndarray
+    play_inflation: float
+    play_std_deg: float
+    play_held: bool
+
+    @property
+    def rms_deg(self) -> float:
+        """RMS of the residual, deg."""
+        return float(np.sqrt(np.mean(self.residual_deg**2)))
+
+
+def _simulate(uc: np.ndarray, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The backlash output from rest at the origin and ``dx / d[mL, cL, mR, cR]`` (eq. 1-3)."""
+    return backlash_sensitivity(uc, BacklashParams(*p), 0.0)
+
+
+def engaged_index(uc: np.ndarray, params: BacklashParams) -> np.ndarray:
+    """For every sample, the index of the last sample with a flank engaged (eq. 5-6), itself if engaged."""
+    _, f1, f2 = simulate_switching(uc, params, 0.0)
+    idx = np.where((f1 + f2) > 0, np.arange(uc.size), 0)
+    return np.maximum.accumulate(idx)
+
+
+def hold_columns(columns: np.ndarray, held: np.ndarray, index: np.ndarray) -> np.ndarray:
+    """``columns`` with the ``held`` ones (boolean per column) taken at ``index`` (see :func:`engaged_index`)."""
+    if not np.any(held):
+        return columns
+    out = columns.copy()
+    out[:, held] = columns[index][:, held]
+    return out
+
+
+class _Projector:
+    """Least squares on fixed columns: ``coef(v)`` and the part of ``v`` they leave."""
+
+    def __init__(self, columns: np.ndarray) -> None:
+        self.q, self.r = (np.linalg.qr(columns) if columns.shape[1] else (columns, np.empty((0, 0))))
+
+    def leave(self, v: np.ndarray) -> np.ndarray:
+        return v - self.q @ (self.q.T @ v) if self.q.shape[1] else v
+
+    def coef(self, v: np.ndarray) -> np.ndarray:
+        return np.linalg.solve(self.r, self.q.T @ v) if self.q.shape[1] else np.empty(0)
+
+
+def _r2(target: np.ndarray, basis: np.ndarray) -> float:
+    coef, *_ = np.linalg.lstsq(basis, target, rcond=None)
+    left = target - basis @ coef
+    return 1.0 - float(np.dot(left, left)) / float(np.dot(target, target))
+
+
+def play_sensitivity(uc: np.ndarray, params: BacklashParams) -> tuple[np.ndarray, np.ndarray]:
+    """``dx/d(play)`` (both widths grown by half) and the other directions: a constant, ``dx/dmL``, ``dx/dmR``.
+
+    Moving ``cL`` and ``cR`` the same way shifts both flank lines, which is (up to the slopes) a
+    constant offset of ``x``; the constant stands for that direction, so the four columns span
+    what the four parameters can do without a near-duplicate.
+    """
+    _, dx = _simulate(uc, np.array([params.m_left, params.c_left, params.m_right, params.c_right]))
+    s_ml, s_cl, s_mr, s_cr = dx.T
+    return 0.5 * (s_cl + s_cr), np.column_stack((np.ones_like(uc), s_ml, s_mr))
+
+
+def fit_joint(
+    uc: np.ndarray,
+    yc: np.ndarray,
+    columns: np.ndarray,
+    start: BacklashParams,
+    hold_play: float | None = None,
+    held: np.ndarray | None = None,
+) -> JointFit:
+    """Minimise the simulation error of ``x(u) + columns @ coef`` over the backlash and ``coef``.
+
+    ``uc`` and ``yc`` are the referred motor angle and the load angle in the estimator's centred
+    frame (``VorosBacklash(origin="first")``: both minus their first sample). With
+    ``hold_play`` the play ``cL + cR`` is held at that value (degrees). ``held`` marks the
+    columns held through the dead band (input-side effects); the dead band is taken from the
+    start parameters, refreshed once after the first search.
+    """
+    held = np.zeros(columns.shape[1], dtype=bool) if held is None else np.asarray(held, dtype=bool)
+    result_params = start
+    for _ in range(2 if np.any(held) else 1):
+        fit = _fit_fixed_columns(uc, yc, hold_columns(columns, held, engaged_index(uc, result_params)), result_params, hold_play)
+        result_params = fit.params
+    return fit
+
+
+def _fit_fixed_columns(
+    uc: np.ndarray, yc: np.ndarray, columns: np.ndarray, start: BacklashParams, hold_play: float | None
+) -> JointFit:
+    """:func:`fit_joint` for columns that do not depend on the backlash parameters."""
+    proj = _Projector(columns)
+    # p = dp_dv @ v (+ the held play on cR)
+    dp_dv = np.array([[1.0, 0, 0], [0, 1, 0], [0, 0, 1], [0, -1, 0]]) if hold_play is not None else np.eye(4)
+
+    def unpack(v: np.ndarray) -> np.ndarray:
+        return dp_dv @ v + (np.array([0, 0, 0, hold_play]) if hold_play is not None else 0.0)
+
+    def valid(p: np.ndarray) -> bool:
+        return p[0] * p[2] > 0 and p[1] + p[3] >= 0
+
+    def residual(v: np.ndarray) -> np.ndarray:
+        p = unpack(v)
+        if not valid(p):
+            return np.full(uc.size, 1e6)
+        return proj.leave(yc - _simulate(uc, p)[0])
+
+    def jacobian(v: np.ndarray) -> np.ndarray:
+        p = unpack(v)
+        if not valid(p):
+            return np.zeros((uc.size, v.size))
+        return -proj.leave(_simulate(uc, p)[1] @ dp_dv)
+
+    p0 = np.array([start.m_left, start.c_left, start.m_right, start.c_right])
+    v0 = p0[:3] if hold_play is not None else p0
+    result = least_squares(residual, v0, jac=jacobian, x_scale="jac")
+    v = result.x if np.sum(result.fun**2) < np.sum(residual(v0) ** 2) else v0
+    p = unpack(v)
+    params = BacklashParams(*p)
+    x = _simulate(uc, p)[0]
+    coef = proj.coef(yc - x)
+    left = proj.leave(yc - x)
+    g, others = play_sensitivity(uc, params)
+    r2_base = _r2(g, others)
+    full = np.column_stack((others, columns))
+    r2_joint = _r2(g, full)
+    inflation = (1.0 - r2_base) / max(1.0 - r2_joint, 1e-12)
+    g_left = g - full @ np.linalg.lstsq(full, g, rcond=None)[0]
+    sigma2 = float(np.dot(left, left)) / effective_samples(left)
+    play_std = float(np.sqrt(sigma2 / max(float(np.dot(g_left, g_left)), 1e-300)))
+    return JointFit(params, coef, left, float(inflation), play_std, hold_play is not None)
+
+
+def separable(fit: JointFit, start: BacklashParams) -> bool:
+    """True when the joint fit pins the play down: inflation at most :data:`MAX_PLAY_INFLATION`
+    and standard error at most :data:`MAX_PLAY_STD_SHARE` of the play."""
+    return fit.play_inflation <= MAX_PLAY_INFLATION and fit.play_std_deg <= MAX_PLAY_STD_SHARE * max(fit.params.play, start.play)
+
+
+def fit_guarded(
+    uc: np.ndarray, yc: np.ndarray, columns: np.ndarray, start: BacklashParams, held: np.ndarray | None = None
+) -> JointFit:
+    """:func:`fit_joint` with the play free; if the play is not :func:`separable` from the columns, hold it at ``start.play``.
+
+    The held fit keeps the variance inflation and standard error measured with the play free.
+    """
+    fit = fit_joint(uc, yc, columns, start, held=held)
+    if separable(fit, start):
+        return fit
+    kept = fit_joint(uc, yc, columns, start, hold_play=start.play, held=held)
+    return JointFit(kept.params, kept.coef, kept.residual_deg, fit.play_inflation, fit.play_std_deg, True)

@@ -1,0 +1,51 @@
+"""The residual before and after the loop, against time and load angle, and its spectrum."""
+
+from __future__ import annotations
+
+import os
+
+import numpy as np
+
+from .loop import Diagnosis
+from .residuals import time_spectrum
+
+
+def plot_diagnosis(diagnosis: Diagnosis, path: str | os.PathLike[str], title: str | None = None) -> None:
+    """Write a PNG with three panels: residual against time, against load angle, and its spectrum (deg)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    d = diagnosis
+    before, after = d.residual_before_deg, d.residual_after_deg
+    period = float(np.median(np.diff(d.time_s))) if d.time_s.size > 1 else 1.0
+    step = max(1, before.size // 20000)
+    fig, axes = plt.subplots(3, 1, figsize=(9, 9.5))
+    ax = axes[0]
+    ax.plot(d.time_s[::step], before[::step], ".", ms=1, alpha=0.5, label=f"before (RMS {d.rms_before_deg:.4f} deg)")
+    ax.plot(d.time_s[::step], after[::step], ".", ms=1, alpha=0.5, label=f"after (RMS {d.rms_after_deg:.4f} deg)")
+    ax.set_xlabel("time, s")
+    ax.set_ylabel("simulation residual, deg")
+    ax.legend(loc="upper right", markerscale=8)
+    ax = axes[1]
+    ax.plot(d.load_deg[::step], before[::step], ".", ms=1, alpha=0.5, label="before")
+    ax.plot(d.load_deg[::step], after[::step], ".", ms=1, alpha=0.5, label="after")
+    ax.set_xlabel("load angle, deg")
+    ax.set_ylabel("simulation residual, deg")
+    ax.legend(loc="upper right", markerscale=8)
+    ax = axes[2]
+    for r, label in ((before, "before"), (after, "after")):
+        f, amp = time_spectrum(r, period)
+        ax.loglog(f[1:], amp[1:], label=label)
+    # white noise of RMS s has amplitude s * sqrt(2 df / fs) per bin
+    ax.axhline(d.noise.floor_deg * np.sqrt(2 * (f[1] - f[0]) * period), color="k", ls=":", lw=1,
+               label=f"white noise at the floor ({d.noise.floor_deg:.4f} deg RMS)")
+    ax.set_xlabel("frequency, Hz")
+    ax.set_ylabel("amplitude per bin, deg")
+    ax.legend(loc="upper right")
+    names = ", ".join(s.effect.name for s in d.steps) or "none"
+    fig.suptitle(title or f"residual before / after; terms added: {names}")
+    fig.tight_layout()
+    fig.savefig(os.fspath(path), dpi=110)
+    plt.close(fig)

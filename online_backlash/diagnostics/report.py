@@ -1,0 +1,53 @@
+"""A Markdown report of a :class:`~online_backlash.diagnostics.loop.Diagnosis` (no printing here)."""
+
+from __future__ import annotations
+
+import json
+import os
+from typing import Any
+
+from .loop import Diagnosis
+
+
+def _fmt(value: Any) -> str:
+    return json.dumps(value, default=float, allow_nan=True)
+
+
+def markdown_report(diagnosis: Diagnosis, source: str | os.PathLike[str] | None = None, plot: str | None = None) -> str:
+    """The loop's findings as Markdown: summary table, one section per term, the play guard's verdict."""
+    d = diagnosis.as_dict()
+    lines = ["# Residual diagnosis", ""]
+    if source is not None:
+        lines += [f"Log: `{os.fspath(source)}` ({d['samples']} samples)", ""]
+    lines += [
+        "| quantity | before | after |",
+        "|---|---|---|",
+        f"| residual RMS, deg | {d['rms_before_deg']:.5f} | {d['rms_after_deg']:.5f} |",
+        f"| backlash (play), deg | {d['backlash_before_deg']:.4f} | {d['backlash_after_deg']:.4f} |",
+        "",
+        f"Noise floor: {d['noise_floor_deg']:.5f} deg (load encoder step {d['load_step_deg']:.5f} deg, "
+        f"sample noise {d['load_noise_deg']:.5f} deg). The \"before\" is the four backlash parameters "
+        "refitted on the simulation (free-run) residual.",
+        "",
+    ]
+    if plot:
+        lines += [f"![residual before and after]({plot})", ""]
+    if not d["effects"] and not d["unexplained"]:
+        lines += ["Nothing significant is missing from the model: no effect was added.", ""]
+    for kind, title in (("effects", "Effect"), ("unexplained", "Unexplained structure")):
+        for i, e in enumerate(d[kind], 1):
+            ev = e["evidence"]
+            lines += [
+                f"## {title} {i}: `{e['name']}`",
+                "",
+                f"- evidence: {ev['summary']}; criterion delta_bic_eff = {ev['delta_bic_eff']:.0f} "
+                f"(threshold {ev['threshold']:.0f}), {ev['share_of_residual_explained']:.1%} of the residual explained",
+                f"- residual RMS {e['rms_before_deg']:.5f} -> {e['rms_after_deg']:.5f} deg; "
+                f"play {e['backlash_before_deg']:.4f} -> {e['backlash_after_deg']:.4f} deg",
+                f"- play variance inflation {ev['play_variance_inflation']:.1f}, play standard error {ev['play_std_deg']:.2g} deg: "
+                + ("separable from the play" if ev["play_separable"] else ev["note"]),
+            ]
+            if "where" in e:
+                lines.append(f"- where: {e['where']}; no effect of the library explains it, a generic term closes it")
+            lines += [f"- parameters: `{_fmt(e['parameters'])}`", ""]
+    return "\n".join(lines)
