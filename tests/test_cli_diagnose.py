@@ -1,0 +1,78 @@
+"""``online-backlash diagnose``: the JSON contract, plot and report files, errors, and a measured recording."""
+
+from __future__ import annotations
+
+import csv
+import json
+from pathlib import Path
+
+import pytest
+
+from online_backlash.cli import main
+from online_backlash.diagnostics import synthetic
+from online_backlash.rig import simulate_rig
+
+KEYS = {"rms_before_deg", "rms_after_deg", "noise_floor_deg", "backlash_before_deg", "backlash_after_deg", "effects", "unexplained"}
+EFFECT_KEYS = {"name", "parameters", "rms_before_deg", "rms_after_deg", "evidence"}
+DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "davinci_tool_gearhead_backlash"
+RUN49 = DATA / "tool4_L_run49_0.5Hz_torque100pct.csv"
+DAVINCI = [
+    "--ratio", "-35", "--units", "counts", "--motor-cpr", "4096", "--load-cpr", "8192",
+    "--columns", "time=time_s,motor=motor_counts,load=spindle_counts,torque=backend_torque_Nm",
+]  # fmt: skip
+
+
+@pytest.fixture(scope="module")
+def te_log(tmp_path_factory):
+    rec = simulate_rig(duration_s=30.0, seed=7)
+    t, m, y, _ = synthetic.transmission_error(rec)
+    path = tmp_path_factory.mktemp("logs") / "te.csv"
+    with open(path, "w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(["time", "motor", "load"])
+        for row in zip(t, m, y):
+            w.writerow([f"{row[0]:.6f}", f"{row[1]:.9f}", f"{row[2]:.9f}"])
+    return path
+
+
+def test_json_contract_plot_and_report(te_log, tmp_path, capsys):
+    png, md = tmp_path / "r.png", tmp_path / "r.md"
+    code = main(["diagnose", str(te_log), "--ratio", "30", "--json", "--plot", str(png), "--report", str(md)])
+    assert code == 0
+    out = json.loads(capsys.readouterr().out)
+    assert KEYS <= set(out)
+    assert [e["name"] for e in out["effects"]] == ["transmission_error"]
+    assert EFFECT_KEYS <= set(out["effects"][0])
+    assert out["unexplained"] == []
+    assert out["rms_after_deg"] < 0.5 * out["rms_before_deg"]
+    assert out["backlash_after_deg"] == pytest.approx(0.5, rel=0.02)
+    assert png.read_bytes()[:4] == b"\x89PNG"
+    text = md.read_text()
+    assert "`transmission_error`" in text and str(png) in text
+
+
+def test_text_output(te_log, capsys):
+    assert main(["diagnose", str(te_log), "--ratio", "30", "--max-terms", "0"]) == 0
+    out = capsys.readouterr().out
+    assert out.startswith("# Residual diagnosis") and "no effect was added" in out
+
+
+def test_errors_are_one_line(tmp_path, capsys):
+    assert main(["diagnose", str(tmp_path / "missing.csv"), "--ratio", "30"]) == 1
+    assert capsys.readouterr().err.startswith("error: ")
+    bad = tmp_path / "bad.csv"
+    bad.write_text("time,motor,load\n0,1,2\n0.001,x,3\n")
+    assert main(["diagnose", str(bad), "--ratio", "30"]) == 1
+    assert "bad.csv:3" in capsys.readouterr().err
+
+
+def test_measured_recording(capsys):
+    assert RUN49.exists(), f"measured data missing: {RUN49}"
+    assert main(["diagnose", str(RUN49), *DAVINCI, "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["backlash_before_deg"] == pytest.approx(1.74, abs=0.05)
+    assert 0.15 < out["rms_before_deg"] < 0.25
+    assert out["rms_after_deg"] < 0.5 * out["rms_before_deg"]
+    assert out["noise_floor_deg"] == pytest.approx(360 / 8192 / 12**0.5, rel=0.2)
+    for e in out["effects"] + out["unexplained"]:
+        assert e["rms_after_deg"] < e["rms_before_deg"]
