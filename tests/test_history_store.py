@@ -5,6 +5,7 @@ from __future__ import annotations
 import math
 import os
 import sqlite3
+import threading
 
 import pytest
 from sqlalchemy import Double, create_engine, inspect, select, text
@@ -248,3 +249,27 @@ def test_schema_matches_the_table_definitions(filled):
     finally:
         engine.dispose()
     assert isinstance(metadata.tables["estimates"].c.backlash_deg.type, Double)
+
+
+def test_concurrent_creation_makes_one_store(store_db):
+    start = threading.Barrier(4)
+    errors = []
+
+    def open_store():
+        start.wait()
+        try:
+            HistoryStore(store_db, create=True).close()
+        except HistoryError as exc:
+            errors.append(exc)
+
+    threads = [threading.Thread(target=open_store) for _ in range(4)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    # SQLite serialises the creators (BEGIN IMMEDIATE); a PostgreSQL creator that loses the race
+    # gets a clear HistoryError instead of a half-made store
+    assert len(errors) <= 3 and all("creating the history store" in str(e) for e in errors)
+    if "://" not in store_db:
+        assert errors == []
+    assert sorted(snapshot(store_db)["meta"]) == [("application", "online-backlash"), ("schema_version", str(SCHEMA_VERSION))]

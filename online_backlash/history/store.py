@@ -358,12 +358,17 @@ class HistoryStore:
             with self._connect() as conn:
                 # a persistent property of the file; must run outside a transaction
                 conn.connection.dbapi_connection.execute("PRAGMA journal_mode=WAL")
-        with self._connect(write=True) as conn, conn.begin():
-            metadata.create_all(conn)
-            conn.execute(
-                meta_table.insert(),
-                [{"key": "application", "value": APPLICATION}, {"key": "schema_version", "value": str(SCHEMA_VERSION)}],
-            )
+        try:
+            with self._connect(write=True) as conn, conn.begin():
+                if "meta" in inspect(conn).get_table_names():
+                    return  # another process created it meanwhile
+                metadata.create_all(conn)
+                conn.execute(
+                    meta_table.insert(),
+                    [{"key": "application", "value": APPLICATION}, {"key": "schema_version", "value": str(SCHEMA_VERSION)}],
+                )
+        except SQLAlchemyError as exc:
+            raise HistoryError(f"creating the history store in {self.name} failed: {exc}") from exc
 
     def _migrate(self, version: int) -> None:
         missing = [v for v in range(version, SCHEMA_VERSION) if v not in MIGRATIONS]
