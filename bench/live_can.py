@@ -4,8 +4,8 @@ A sender thread plays the simulated 30:1 rig onto python-can's ``virtual`` bus a
 motor and load in separate messages of the shipped ``rig.dbc`` (4,000 frames/s), stamping each
 frame with its scheduled time (as a device with hardware timestamps would). The listener is what
 ``online-backlash listen can`` runs: :class:`~online_backlash.drivers.can.CanSource` (raw BLF log
-first, then decoding and pairing in the notifier thread) and ``fit_recursive`` over one-sample
-chunks in the main thread.
+first, then decoding and pairing in the notifier thread) and ``fit_recursive`` over
+chunks of whatever has arrived (``CanSource.iter_chunks``) in the main thread.
 
 Reported: frames sent, frames counted by the source, frames read back from the raw log; the
 latency from the moment the frame completing a sample was sent to the moment the estimate had
@@ -32,7 +32,6 @@ from online_backlash.drivers.dbc import RIG_DBC, DbcDecoder
 from online_backlash.drivers.simulate import rig_can_frames
 from online_backlash.fitting import fit_recursive
 from online_backlash.rig import simulate_rig
-from online_backlash.stream import chunked
 
 SIGNALS = ("MotorAngle.Count", "LoadAngle.Count")
 
@@ -79,12 +78,12 @@ def main() -> None:
     def timed(chunks):
         for chunk in chunks:
             yield chunk
-            learnt_at.append(time.time())  # fit_recursive asks for the next chunk: this one is learnt
+            learnt_at.extend([time.time()] * len(chunk))  # fit_recursive asks for the next chunk: this one is learnt
 
     sender = threading.Thread(target=send)
     wall0, cpu0 = time.perf_counter(), time.process_time()
     sender.start()
-    report, est = fit_recursive(timed(chunked(source, 1)), rec.ratio, memory_reversals=10.0, sample_period_s=1.0 / args.rate)
+    report, est = fit_recursive(timed(source.iter_chunks()), rec.ratio, memory_reversals=10.0, sample_period_s=1.0 / args.rate)
     sender.join()
     source.close()
     wall, cpu = time.perf_counter() - wall0, time.process_time() - cpu0

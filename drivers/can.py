@@ -21,7 +21,7 @@ import can
 from cantools.database.can import Database
 
 from online_backlash.errors import SourceError, SourceTimeoutError
-from online_backlash.stream import Sample
+from online_backlash.stream import Sample, SampleChunk, chunked
 
 from .dbc import DbcDecoder
 from .pairing import FramePipeline
@@ -130,6 +130,17 @@ class CanSource:
 
     def __iter__(self) -> Iterator[Sample]:
         """Samples as they arrive; after :meth:`stop` (or ``duration_s``), those still queued, then the end."""
+        for batch in self._batches(1 << 16):
+            yield from batch
+
+    def iter_chunks(self, size: int = 4096) -> Iterator[SampleChunk]:
+        """Whatever has arrived, as one :class:`~online_backlash.stream.SampleChunk` (at most ``size``
+        samples) per call: the live fast path of ``learn_many``, with no waiting to fill a block."""
+        for batch in self._batches(size):
+            yield from chunked(batch, len(batch))
+
+    def _batches(self, size: int) -> Iterator[list[Sample]]:
+        """Wait for a sample, then take those queued behind it (at most ``size``)."""
         deadline = None if self.duration_s is None else time.monotonic() + self.duration_s
         last = time.monotonic()
         while not self._stopped:
@@ -137,19 +148,23 @@ class CanSource:
                 self.stop()
                 break
             try:
-                item = self._queue.get(timeout=_POLL_S)
+                batch = [_checked(self._queue.get(timeout=_POLL_S))]
             except queue.Empty:
                 if self.timeout_s is not None and time.monotonic() - last > self.timeout_s:
                     raise SourceTimeoutError(f"no CAN sample for {self.timeout_s} s on {self.bus.channel_info}") from None
                 continue
             last = time.monotonic()
-            yield _checked(item)
-        while True:
+            yield self._drain(batch, size)
+        while batch := self._drain([], size):
+            yield batch
+
+    def _drain(self, batch: list[Sample], size: int) -> list[Sample]:
+        while len(batch) < size:
             try:
-                item = self._queue.get_nowait()
+                batch.append(_checked(self._queue.get_nowait()))
             except queue.Empty:
-                return
-            yield _checked(item)
+                break
+        return batch
 
     def request_stop(self) -> None:
         """Ask the iteration to stop soon (safe from a signal handler or another thread)."""

@@ -15,7 +15,7 @@ from typing import Iterator
 import serial
 
 from online_backlash.errors import SourceError, SourceTimeoutError
-from online_backlash.stream import Sample
+from online_backlash.stream import Sample, SampleChunk, chunked
 
 from .rawlog import RawByteLog
 from .serialframes import make_parser
@@ -92,6 +92,16 @@ class SerialSource:
 
     def __iter__(self) -> Iterator[Sample]:
         """Samples as they arrive, until :meth:`stop`, ``duration_s`` or ``timeout_s``."""
+        for batch in self._batches():
+            yield from batch
+
+    def iter_chunks(self) -> Iterator[SampleChunk]:
+        """The samples of each read as one :class:`~online_backlash.stream.SampleChunk`: the live
+        fast path of ``learn_many``, with no waiting to fill a block."""
+        for batch in self._batches():
+            yield from chunked(batch, len(batch))
+
+    def _batches(self) -> Iterator[list[Sample]]:
         deadline = None if self.duration_s is None else time.monotonic() + self.duration_s
         last = time.monotonic()
         while not self._stopped:
@@ -104,7 +114,8 @@ class SerialSource:
                     raise SourceTimeoutError(f"no byte for {self.timeout_s} s on {self.port.name!r}")
                 continue
             last = time.monotonic()
-            yield from got
+            if got:
+                yield got
 
     def poll(self) -> list[Sample] | None:
         """Read what has arrived (waiting at most the port timeout), capture it, parse it.

@@ -18,7 +18,6 @@ from typing import Any, Callable
 
 from ..errors import LogFormatError, SourceError
 from ..fitting import ARCMIN_PER_DEG, describe, fit_recursive
-from ..stream import chunked
 from ._common import add_can_decoding_options, add_ratio_option, can_decoding_options, print_json
 
 
@@ -153,7 +152,7 @@ def run(args: argparse.Namespace) -> int:
         status = _StatusLine(source.counters)
         undo = _on_interrupt(source.request_stop)
         try:
-            report, _ = fit_recursive(chunked(source, 1), args.ratio, every_s=args.status_every, trace=status, source=label, **params)
+            report, _ = fit_recursive(source.iter_chunks(), args.ratio, every_s=args.status_every, trace=status, source=label, **params)
         except LogFormatError as exc:
             if source.counters.samples:
                 raise
