@@ -34,7 +34,7 @@ from ..errors import HistoryError, InvalidParameterError, LogFormatError, NotFit
 from ..estimators._validation import check_real
 from ..estimators.recursive import BacklashRLS
 from ..replay import open_log
-from ..stream import SampleChunk, chunked, refer_to_load
+from ..stream import SampleChunk, refer_to_load
 from .store import Gearbox, HistoryStore, Run
 from .usage import UsageCounter
 
@@ -174,7 +174,7 @@ class GearboxTracker:
                 progress=progress,
             )
 
-    def track_source(self, source: Any, label: str, chunk_size: int = 100, progress: ProgressCallback | None = None) -> TrackResult:
+    def track_source(self, source: Any, label: str, progress: ProgressCallback | None = None) -> TrackResult:
         """Feed a live source (``online_backlash.drivers``' CanSource, SerialSource) until it ends.
 
         A live stream cannot be read again, so it has no key: each call is a new run that
@@ -186,15 +186,11 @@ class GearboxTracker:
         Parameters
         ----------
         source : Source
-            Iterable of :class:`~online_backlash.stream.Sample` with ``counters``.
+            A live source: ``iter_chunks()`` yields what has arrived, ``counters`` counts it.
         label : str
             Description stored with the run, e.g. ``can socketcan can0``.
-        chunk_size : int
-            Samples learnt at once (latency of the estimate against cost per call).
         """
-        return self.track_chunks(
-            chunked(source, chunk_size), label, counters=lambda: source.counters.as_dict(), progress=progress
-        )
+        return self.track_chunks(source.iter_chunks(), label, counters=lambda: source.counters.as_dict(), progress=progress)
 
     def track_chunks(
         self,
