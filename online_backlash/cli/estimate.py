@@ -35,6 +35,7 @@ def add_subparser(subparsers: argparse._SubParsersAction) -> None:
     add_log_options(parser)
     add_can_decoding_options(parser, required=False)
     parser.add_argument("--serial-format", choices=("ascii", "binary"), help="frame format of a serial capture (.serial)")
+    parser.add_argument("--realtime", action="store_true", help="replay a CAN log or serial capture at its recorded pace")
     parser.set_defaults(func=run)
 
 
@@ -42,10 +43,10 @@ def log_options(args: argparse.Namespace) -> dict:
     """Reader options from the log-format arguments (by the log's suffix)."""
     suffix = log_suffix(args.log)
     if suffix == ".serial":
-        return {"serial_format": args.serial_format, "motor_cpr": args.motor_cpr, "load_cpr": args.load_cpr, "skip_bad": args.skip_bad_rows}
+        return {"serial_format": args.serial_format, "motor_cpr": args.motor_cpr, "load_cpr": args.load_cpr, "skip_bad": args.skip_bad_rows, "realtime": getattr(args, "realtime", False)}
     if suffix != ".csv":  # a CAN log (or an unknown suffix, which open_log reports)
         counts = {k: None if v is None else int(v) for k, v in (("motor_cpr", args.motor_cpr), ("load_cpr", args.load_cpr))}
-        return {**can_decoding_options(args), **counts, "skip_bad": args.skip_bad_rows}
+        return {**can_decoding_options(args), **counts, "skip_bad": args.skip_bad_rows, "realtime": getattr(args, "realtime", False)}
     return {
         "columns": parse_column_map(args.columns),
         "units": args.units,
