@@ -9,8 +9,9 @@ criterion below therefore uses an effective sample size from the lag-1 autocorre
     delta_bic = n_eff ln(RSS_after / RSS_before) + q ln(n_eff)
 
 ``delta_bic < 0`` favours the columns; :data:`BIC_THRESHOLD` ("very strong" evidence on the
-Kass-Raftery scale) keeps false alarms rare, and :data:`MIN_GAIN` asks the columns to remove a
-share of the residual's mean square that matters.
+Kass-Raftery scale) keeps false alarms rare, :data:`MIN_GAIN` asks the columns to remove a
+share of the residual's mean square that matters, and :data:`MIN_OWN_SHARE` refuses columns
+that are nearly collinear with what the model already has.
 """
 
 from __future__ import annotations
@@ -23,6 +24,10 @@ import numpy as np
 BIC_THRESHOLD = -10.0
 #: and the term must remove at least this share of the residual's mean square
 MIN_GAIN = 0.05
+#: and every column must keep at least this share of its variance once the terms already in
+#: the model are projected out; below it the term is nearly collinear with them and would only
+#: trade amplitude with them (collinearity with the play is the joint fit's guard)
+MIN_OWN_SHARE = 0.1
 
 
 @dataclass(frozen=True)
@@ -39,6 +44,8 @@ class Score:
         Change of the information criterion (negative: the columns are worth their parameters).
     coef : array
         Least-squares coefficients of the columns (the intercept dropped).
+    own_share : float
+        Smallest share of a column's variance left after projecting out the nuisance columns.
     """
 
     n_terms: int
@@ -47,6 +54,7 @@ class Score:
     n_eff: float
     delta_bic: float
     coef: np.ndarray
+    own_share: float = 1.0
 
     @property
     def gain(self) -> float:
@@ -54,8 +62,8 @@ class Score:
         return 1.0 - self.rss_after / self.rss_before if self.rss_before > 0 else 0.0
 
     def significant(self, bic_threshold: float = BIC_THRESHOLD, min_gain: float = MIN_GAIN) -> bool:
-        """True when the criterion and the size test both pass."""
-        return self.delta_bic < bic_threshold and self.gain >= min_gain
+        """True when the criterion, the size test and the collinearity test all pass."""
+        return self.delta_bic < bic_threshold and self.gain >= min_gain and self.own_share >= MIN_OWN_SHARE
 
 
 def effective_samples(residual: np.ndarray) -> float:
@@ -76,23 +84,29 @@ def score_columns(residual: np.ndarray, columns: np.ndarray, nuisance: np.ndarra
     let the play absorb.
     """
     base = np.ones((residual.size, 1)) if nuisance is None else nuisance
-    return _score_projected(residual, columns, np.linalg.qr(base)[0])
+    qb = np.linalg.qr(base)[0]
+    return _score_projected(residual, columns, qb, qb)
 
 
-def _score_projected(residual: np.ndarray, columns: np.ndarray, qb: np.ndarray) -> Score:
-    """:func:`score_columns` with the nuisance columns given by an orthonormal basis ``qb``."""
+def _score_projected(residual: np.ndarray, columns: np.ndarray, qb: np.ndarray, qt: np.ndarray) -> Score:
+    """:func:`score_columns` with the nuisance columns given by an orthonormal basis ``qb``;
+    the own share is measured against the basis ``qt`` (a constant and the terms already added)."""
     columns = np.asarray(columns, dtype=float).reshape(residual.size, -1)
     q = columns.shape[1]
     r0 = residual - qb @ (qb.T @ residual)
     xp = columns - qb @ (qb.T @ columns)
+    xt = columns - qt @ (qt.T @ columns)
+    centred = columns - columns.mean(axis=0)
+    total = np.einsum("ij,ij->j", centred, centred)
+    own = float(np.min(np.einsum("ij,ij->j", xt, xt) / np.maximum(total, 1e-300))) if q else 1.0
     coef, *_ = np.linalg.lstsq(xp, r0, rcond=None)
     left = r0 - xp @ coef
     rss0, rss1 = float(np.dot(r0, r0)), float(np.dot(left, left))
     n_eff = effective_samples(left)
     if rss0 <= 0:
-        return Score(q, rss0, rss1, n_eff, 0.0, coef)
+        return Score(q, rss0, rss1, n_eff, 0.0, coef, own)
     delta = n_eff * np.log(max(rss1, 1e-300) / rss0) + q * np.log(n_eff)
-    return Score(q, rss0, rss1, n_eff, float(delta), coef)
+    return Score(q, rss0, rss1, n_eff, float(delta), coef, own)
 
 
 @dataclass(frozen=True)
@@ -111,10 +125,21 @@ class DetectionData:
     sample_period_s: float
     nuisance: np.ndarray | None = None
     engaged_index: np.ndarray | None = None
+    #: leading nuisance columns that are the backlash's own directions, a constant first (not
+    #: counted in ``own_share``); the nuisance columns must include a constant
+    n_backlash: int = 0
 
     def __post_init__(self) -> None:
-        base = np.ones((self.residual_deg.size, 1)) if self.nuisance is None else self.nuisance
+        ones = np.ones((self.residual_deg.size, 1))
+        base = ones if self.nuisance is None else self.nuisance
+        if self.nuisance is None:
+            terms = ones
+        elif self.n_backlash:  # the backlash block starts with the constant: keep it
+            terms = np.column_stack((ones, self.nuisance[:, self.n_backlash :]))
+        else:
+            terms = self.nuisance
         object.__setattr__(self, "_qb", np.linalg.qr(base)[0])
+        object.__setattr__(self, "_qt", np.linalg.qr(terms)[0])
 
     def hold(self, columns: np.ndarray) -> np.ndarray:
         """Input-side columns held through the dead band of the current model (see :mod:`.joint`)."""
@@ -124,7 +149,7 @@ class DetectionData:
     def score(self, input_side: bool, columns: np.ndarray) -> Score:
         """:func:`score_columns` of ``columns`` on this residual beyond the nuisance columns
         (held through the dead band when ``input_side``)."""
-        return _score_projected(self.residual_deg, self.hold(columns) if input_side else columns, self._qb)
+        return _score_projected(self.residual_deg, self.hold(columns) if input_side else columns, self._qb, self._qt)
 
     def with_nuisance(self, columns: np.ndarray) -> "DetectionData":
         """The same data with ``columns`` added to the nuisance columns."""

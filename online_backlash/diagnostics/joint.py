@@ -37,7 +37,7 @@ from ..model import BacklashParams, backlash_sensitivity, simulate_switching
 from ._scoring import effective_samples
 
 #: an effect may move the play only if the play's standard error stays below this share of it
-MAX_PLAY_STD_SHARE = 0.01
+MAX_PLAY_STD_SHARE = 0.005
 #: and only if it inflates the play's variance by at most this factor (beyond it, the play
 #: would rest on a handful of samples near the reversals)
 MAX_PLAY_INFLATION = 100.0

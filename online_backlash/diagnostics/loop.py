@@ -66,6 +66,7 @@ class Step:
             "threshold": BIC_THRESHOLD,
             "share_of_residual_explained": s.gain,
             "effective_samples": s.n_eff,
+            "own_variance_share": s.own_share,
             "play_variance_inflation": self.play_inflation,
             "play_std_deg": self.play_std_deg,
             "play_separable": not self.play_held,
@@ -74,7 +75,7 @@ class Step:
             evidence["note"] = (
                 "this term is nearly collinear with the play (variance inflation "
                 f"{self.play_inflation:.0f}, limit {MAX_PLAY_INFLATION:.0f}; play standard error "
-                f"{self.play_std_deg:.2g} deg, limit {MAX_PLAY_STD_SHARE:.0%} of the play); the data cannot "
+                f"{self.play_std_deg:.2g} deg, limit {MAX_PLAY_STD_SHARE:.1%} of the play); the data cannot "
                 "tell them apart, so the play was held at its value without the term"
             )
         out = {
@@ -227,7 +228,7 @@ def diagnose(
         if steps:  # the terms already added may move too
             done = [s.effect for s in steps]
             nuisance = np.column_stack((nuisance, hold_columns(_columns(done, u, t, q), _held(done), index)))
-        data = DetectionData(u, t, q, current.residual_deg, float(ratio), period, nuisance, index)
+        data = DetectionData(u, t, q, current.residual_deg, float(ratio), period, nuisance, index, others.shape[1] + 1)
         named = _significant([c.detect(data) for c in LIBRARY if c not in taken], bic_threshold, min_gain)
         generic = _significant([c.detect(data) for c in GENERIC if c not in taken], bic_threshold, min_gain)
         done = [s.effect for s in steps]
