@@ -128,11 +128,12 @@ def cascade_case(example: int, seed: int) -> tuple[np.ndarray, np.ndarray, np.nd
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--seeds", type=int, default=3, help="repeats (noise and motion seeds) of each case")
+    ap.add_argument("--seeds", type=int, default=3, help="repeats (noise and motion seeds) of the wear and idle cases")
+    ap.add_argument("--cascade-seeds", type=int, default=10, help="noise seeds of each paper example")
     args = ap.parse_args()
     seeds = range(args.seeds)
     print(f"# recursive accuracy ({platform.machine()}, {os.cpu_count()} cores)\n")
-    print(f"command: `python bench/recursive_accuracy.py --seeds {args.seeds}`\n")
+    print(f"command: `python bench/recursive_accuracy.py --seeds {args.seeds} --cascade-seeds {args.cascade_seeds}`\n")
 
     print("## Wear: play 0.50 -> 0.60 deg over 2 h of rig data (after the first 5 min; 1 load count = 0.00275 deg)\n")
     print("| settings | seed | RMS error (deg) | RMS / play | RMS (counts) | max (counts) | truth within +-3 std | mean std (counts) |")
@@ -161,13 +162,14 @@ def main() -> None:
     print("largest relative difference over [mL, cL, mR, cR, a2, b1, b2]\n")
     print("| example | seed | recursive vs batch | recursive vs truth | batch vs truth |")
     print("|---:|---:|---:|---:|---:|")
-    worst = 0.0
+    diffs = []
     for example in EXAMPLES:
-        for seed in seeds:
+        for seed in range(args.cascade_seeds):
             rb, rt, bt = cascade_case(example, seed)
-            worst = max(worst, float(rb.max()))
+            diffs.append(float(rb.max()))
             print(f"| {example} | {seed} | {100 * rb.max():.2f} % | {100 * rt.max():.2f} % | {100 * bt.max():.2f} % |")
-    print(f"\nworst recursive-vs-batch difference: {100 * worst:.2f} % (bar: 3 %)")
+    within = sum(d <= 0.03 for d in diffs)
+    print(f"\nrecursive within 3 % of batch in {within} of {len(diffs)} runs; worst {100 * max(diffs):.2f} %")
 
 
 if __name__ == "__main__":

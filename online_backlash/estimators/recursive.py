@@ -9,7 +9,10 @@
 Both start from the paper's batch algorithm (:class:`~online_backlash.estimators.batch.VorosBacklash`,
 :class:`~online_backlash.estimators.batch.VorosCascade`) fitted on the first stretch of data that
 reverses (a *warm start*), or from a saved state (:meth:`state_dict` / :meth:`from_state`).
-Samples buffered during the warm-up are then learned recursively, so none is lost or counted twice.
+Samples buffered during the warm-up are then learned recursively, so none is lost or counted
+twice (``BacklashRLS`` holds its lines at the batch estimate during that replay and only gathers
+their information, so that a few slow, coarsely quantised first samples cannot override the
+fit of the whole buffer).
 
 ``learn_one`` runs the per-sample step in plain Python (the readable reference);
 ``learn_many`` runs the same source compiled by numba (``_rls_kernels``), so both give the same
@@ -421,7 +424,9 @@ class BacklashRLS(_RecursiveBase):
         Sampling period, seconds (converts ``memory_s`` and counts the motion clock).
     start : {"batch", "cold"}
         ``"batch"``: warm start from :class:`VorosBacklash` on the first ``warm_start_samples``
-        samples (retried on 2x, 3x, 4x as many if they do not reverse, then a cold start).
+        samples (retried on 2x, 3x, 4x as many if they do not reverse, then a start from the
+        direction of motion); the buffered samples are then replayed with the lines held at the
+        batch estimate, which gives them the buffer's information.
         ``"cold"``: the paper's start values ``mL = mR = 1, cL = cR = 0.001``.
     warm_start_samples : int
         Samples buffered for the warm start.
