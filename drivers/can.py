@@ -20,7 +20,7 @@ from typing import Any, Iterator
 import can
 from cantools.database.can import Database
 
-from online_backlash.errors import SourceError, SourceTimeoutError
+from online_backlash.errors import BacklashError, SourceError, SourceTimeoutError
 from online_backlash.stream import Sample, SampleChunk, chunked
 
 from .dbc import DbcDecoder
@@ -189,7 +189,10 @@ class CanSource:
 
 
 def _checked(item: Sample | Exception) -> Sample:
-    """A queued Sample, or the error the notifier thread hit, re-raised here."""
-    if isinstance(item, Exception):
+    """A queued Sample, or the error the notifier thread hit, re-raised here (as a SourceError
+    unless it is one of ours already: a strict FrameError, say)."""
+    if isinstance(item, BacklashError):
         raise item
+    if isinstance(item, Exception):
+        raise SourceError(f"CAN reception stopped: {type(item).__name__}: {item}") from item
     return item

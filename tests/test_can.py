@@ -15,7 +15,7 @@ from online_backlash.drivers.pairing import FramePipeline
 from online_backlash.drivers.rawlog import RawCanLog
 from online_backlash.drivers.simulate import rig_can_frames
 from online_backlash.drivers.unwrap import Unwrapper
-from online_backlash.errors import FrameError, InvalidParameterError
+from online_backlash.errors import FrameError, InvalidParameterError, SourceError
 from online_backlash import VorosBacklash
 from online_backlash.replay import open_log
 from online_backlash.rig import simulate_rig
@@ -234,3 +234,29 @@ def test_live_estimates_equal_the_replayed_raw_log_bit_for_bit(tmp_path, rec, si
     fitted = ("m_left_", "c_left_", "m_right_", "c_right_", "backlash_", "residual_rms_")
     assert [getattr(est_live, a) for a in fitted] == [getattr(est_replay, a) for a in fitted]
     assert est_live.backlash_ == pytest.approx(0.5, abs=0.05)
+
+
+def test_a_failing_bus_ends_the_stream_with_a_source_error(tmp_path):
+    rx = can.Bus(interface="virtual", channel="failing")
+
+    def broken(timeout):
+        raise can.CanOperationError("controller went bus-off")
+
+    with CanSource(rx, RIG_DBC, *ONE, raw_log_dir=tmp_path) as source:
+        rx._recv_internal = broken
+        with pytest.raises(SourceError, match="bus-off"):
+            next(iter(source))
+
+
+def test_strict_decoding_raises_the_frame_error_in_the_consumer(tmp_path):
+    dec = DbcDecoder(RIG_DBC, *ONE)
+    (frame,) = FrameEncoder(dec).frames(T0, 1, 2, 0)
+    frame.data[0] ^= 1
+    tx = can.Bus(interface="virtual", channel="strict", preserve_timestamps=True)
+    rx = can.Bus(interface="virtual", channel="strict")
+    with CanSource(rx, RIG_DBC, *ONE, raw_log_dir=tmp_path, strict=True) as source:
+        tx.send(frame)
+        tx.shutdown()
+        with pytest.raises(FrameError, match="checksum"):
+            next(iter(source))
+    assert source.raw_log.frames == 1  # logged before it was decoded
