@@ -114,7 +114,7 @@ def cascade_case(example: int, seed: int) -> tuple[np.ndarray, np.ndarray, np.nd
     y, _ = simulate_cascade(u, EXAMPLES[example], A, B)
     y = y + rng.normal(0, np.std(y) / 25, y.size)
     batch = VorosCascade(origin="zero").fit(u, y)
-    est = CascadeRLS(origin="zero", warm_start_samples=300, memory_reversals=None)
+    est = CascadeRLS(origin="zero", warm_start_samples=500, memory_reversals=None)
     est.learn_many(u, y)
 
     def vec(e):

@@ -207,7 +207,7 @@ def backlash_run(st, c, u, y, after_gap):  # pragma: no cover - compiled
 CN_SEEN, CU0, CY0, C_K, C_UPREV, C_F1, C_F2, C_NOISE, C_NRES, C_IDLE, C_LAST, C_NREV = range(12)
 C_THETA = 12
 # constants
-Q_LAM, Q_LAM_REV, Q_TRACE_MAX, Q_NOISE_WINDOW, Q_ORIGIN_FIRST, Q_NA, Q_NB, Q_OUTPUT_ERROR = range(8)
+Q_LAM, Q_LAM_REV, Q_TRACE_MAX, Q_NOISE_WINDOW, Q_ORIGIN_FIRST, Q_NA, Q_NB, Q_OUTPUT_ERROR, Q_FREEZE = range(9)
 
 
 def cascade_sizes(n_a: int, n_b: int) -> tuple[int, int, int, int, int]:
@@ -304,9 +304,11 @@ def _make_cascade_step(jit):
             st[C_NRES] = n
             st[C_NOISE] += (e * e - st[C_NOISE]) / min(n, c[Q_NOISE_WINDOW])
             inv_s = 1.0 / s
+            frozen = c[Q_FREEZE] != 0.0  # warm-start replay: theta held, P gathers the information
             for i in range(p):
                 k = pphi[i] * inv_s  # gain K = P phi / (1 + phi' P phi)
-                st[C_THETA + i] += k * e
+                if not frozen:
+                    st[C_THETA + i] += k * e
                 for j in range(i, p):  # P <- P - K phi' P, symmetric: upper triangle, mirrored
                     v = st[op + i * p + j] - k * pphi[j]
                     st[op + i * p + j] = v

@@ -9,10 +9,10 @@
 Both start from the paper's batch algorithm (:class:`~online_backlash.estimators.batch.VorosBacklash`,
 :class:`~online_backlash.estimators.batch.VorosCascade`) fitted on the first stretch of data that
 reverses (a *warm start*), or from a saved state (:meth:`state_dict` / :meth:`from_state`).
-Samples buffered during the warm-up are then learned recursively, so none is lost or counted
-twice (``BacklashRLS`` holds its lines at the batch estimate during that replay and only gathers
-their information, so that a few slow, coarsely quantised first samples cannot override the
-fit of the whole buffer).
+Samples buffered during the warm-up are then replayed with the parameters held at the batch
+estimate, which gathers their information (covariance, residual variance, reversals): none is
+lost or counted twice, and a few slow, coarsely quantised first samples cannot override the
+fit of the whole buffer.
 
 ``learn_one`` runs the per-sample step in plain Python (the readable reference);
 ``learn_many`` runs the same source compiled by numba (``_rls_kernels``), so both give the same
@@ -267,7 +267,21 @@ class _RecursiveBase:
         self._replay(buf, compiled)
 
     def _replay(self, buf: dict[str, list], compiled: bool) -> None:
-        """Learn the buffered samples (the same path as the call that triggered the start)."""
+        """Learn the buffered samples (by the path of the call that triggered the start) with the
+        parameters held at the warm start: the replay only gathers their information (the
+        covariance, residual variance, reversals), so a few early samples cannot override the
+        fit of the whole buffer."""
+        self._set_freeze(True)
+        try:
+            self._learn_buffer(buf, compiled)
+        finally:
+            self._set_freeze(False)
+
+    def _set_freeze(self, freeze: bool) -> None:
+        self._c[self._FREEZE] = 1.0 if freeze else 0.0
+        self._c_arr = np.asarray(self._c)
+
+    def _learn_buffer(self, buf: dict[str, list], compiled: bool) -> None:
         if compiled:
             self._learn_arrays(*(np.asarray(buf[k], dtype=bool if k == "gap" else float) for k in ("u", "y", "gap", "time", "torque")))
         else:
@@ -499,7 +513,7 @@ class BacklashRLS(_RecursiveBase):
     0.5
     """
 
-    _U0, _Y0 = K.U0, K.Y0
+    _U0, _Y0, _FREEZE = K.U0, K.Y0, K.K_FREEZE
 
     def __init__(
         self,
@@ -593,19 +607,7 @@ class BacklashRLS(_RecursiveBase):
         self._st[K.HAVE_PREV] = 0.0
         self._reset_effects()
 
-    def _replay(self, buf: dict[str, list], compiled: bool) -> None:
-        """Learn the buffer with the lines frozen at the warm start: they keep the batch estimate
-        and gather its information (the covariance, residual variance, reversals), so a few
-        early samples cannot override the fit of the whole buffer."""
-        self._set_freeze(True)
-        try:
-            super()._replay(buf, compiled)
-        finally:
-            self._set_freeze(False)
 
-    def _set_freeze(self, freeze: bool) -> None:
-        self._c[K.K_FREEZE] = 1.0 if freeze else 0.0
-        self._c_arr = np.asarray(self._c)
 
     # -- the two paths -------------------------------------------------------------------------
     def _learn_py(self, u: float, y: float, t: float, q: float) -> None:
@@ -914,7 +916,7 @@ class CascadeRLS(_RecursiveBase):
     (1.3, array([-0.2 ,  0.35]))
     """
 
-    _U0, _Y0 = K.CU0, K.CY0
+    _U0, _Y0, _FREEZE = K.CU0, K.CY0, K.Q_FREEZE
 
     def __init__(
         self,
@@ -968,7 +970,7 @@ class CascadeRLS(_RecursiveBase):
         trace_max = float(self.p0 * p_lin if self.trace_max is None else self.trace_max)
         self._c = [
             lam, lam_rev, trace_max, float(self.noise_window), 1.0 if self.origin == "first" else 0.0,
-            float(self.n_a), float(self.n_b), 1.0 if self.regressor == "output_error" else 0.0,
+            float(self.n_a), float(self.n_b), 1.0 if self.regressor == "output_error" else 0.0, 0.0,
         ]  # fmt: skip
         self._c_arr = np.asarray(self._c)
         p_, off_p, _, _, size = K.cascade_sizes(self.n_a, self.n_b)
