@@ -6,14 +6,15 @@ exactly what :class:`~online_backlash.drivers.dbc.DbcDecoder` and the serial par
 
 from __future__ import annotations
 
-from typing import Iterator
+import os
+from typing import Any, Iterator
 
 import can
 import numpy as np
 
-from online_backlash.rig import RigRecording
+from online_backlash.rig import RigRecording, simulate_rig
 
-from .dbc import DbcDecoder, FrameEncoder, counts_of
+from .dbc import RIG_DBC, DbcDecoder, FrameEncoder, counts_of
 from .serialframes import encode_ascii, encode_binary
 
 
@@ -40,3 +41,39 @@ def rig_serial_records(rec: RigRecording, serial_format: str, motor_cpr: float |
     load = np.rint(rec.load_deg / (360.0 / load_cpr)).astype(np.int64).tolist()
     for i in range(len(time_us)):
         yield encode_binary(i, time_us[i], motor[i], load[i])
+
+
+def write_rig_can_log(
+    path: str | os.PathLike[str],
+    duration_s: float = 60.0,
+    motor_signal: str = "MotorAngle.Count",
+    load_signal: str = "LoadAngle.Count",
+    start_s: float = 1.7e9,
+    **rig: Any,
+) -> int:
+    """Write a simulated rig as a CAN log (any python-can writer format, by suffix) encoded
+    with the shipped ``rig.dbc``; ``rig`` goes to :func:`~online_backlash.rig.simulate_rig`.
+    Returns the number of frames written."""
+    rec = simulate_rig(duration_s=duration_s, **rig)
+    n = 0
+    with can.Logger(os.fspath(path)) as writer:
+        for msg in rig_can_frames(rec, DbcDecoder(RIG_DBC, motor_signal, load_signal), start_s, skew_s=5e-5):
+            writer.on_message_received(msg)
+            n += 1
+    return n
+
+
+def write_rig_serial_capture(
+    path: str | os.PathLike[str],
+    serial_format: str = "binary",
+    duration_s: float = 60.0,
+    motor_cpr: float = 2**14,
+    load_cpr: float = 2**17,
+    **rig: Any,
+) -> int:
+    """Write a simulated rig as a serial capture (``ascii`` or ``binary``); returns the bytes written."""
+    rec = simulate_rig(duration_s=duration_s, **rig)
+    data = b"".join(rig_serial_records(rec, serial_format, motor_cpr, load_cpr))
+    with open(path, "wb") as f:
+        f.write(data)
+    return len(data)

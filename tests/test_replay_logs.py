@@ -114,3 +114,14 @@ def test_gzip_of_a_damaged_file_is_a_log_format_error(tmp_path, frames):
     (tmp_path / "bad.blf.gz").write_bytes(raw[: len(raw) // 3])
     with pytest.raises(LogFormatError, match=r"bad\.blf\.gz"):
         list(open_log(tmp_path / "bad.blf.gz", **SPLIT))
+
+
+def test_simulated_rig_logs_for_the_readme_examples(tmp_path):
+    from online_backlash.drivers.simulate import write_rig_can_log, write_rig_serial_capture
+
+    assert write_rig_can_log(tmp_path / "rig.trc", duration_s=0.5) == 1000
+    log = open_log(tmp_path / "rig.trc", **SPLIT)
+    assert len(list(log)) == 500 and log.counters.corrupt == 0 and log.counters.gaps == 0
+    write_rig_serial_capture(tmp_path / "rig.serial", "binary", duration_s=0.5)
+    cap = open_log(tmp_path / "rig.serial", serial_format="binary", motor_cpr=2**14, load_cpr=2**17)
+    assert len(list(cap)) == 500 and cap.counters.frames == 500
