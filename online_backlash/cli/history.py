@@ -37,7 +37,7 @@ def add_subparser(subparsers: argparse._SubParsersAction) -> None:
     output = parser.add_mutually_exclusive_group()
     output.add_argument("--json", action="store_true", help="print one JSON object")
     output.add_argument("--csv", action="store_true", help="print the estimates as CSV")
-    parser.add_argument("--limit-arcmin", type=float, metavar="X", help="backlash limit for the forecast (default: the gearbox's stored limit)")
+    parser.add_argument("--limit-arcmin", type=float, metavar="X", help="backlash limit for the forecast; without it, the gearbox's stored limit")
     parser.add_argument("--plot", metavar="FILE.png", help="also draw the wear plot into this file")
     parser.add_argument("--confidence", type=float, default=0.95, help="confidence of the trend band and forecast interval")
     parser.set_defaults(func=run)
