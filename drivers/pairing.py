@@ -11,6 +11,8 @@ newer pair completes, is counted ``unpaired`` (frames arrive in order, so it is 
 of a sample is the earlier frame's; the skew (load frame time minus motor frame time) is
 summarised in ``skew_mean_s`` and ``skew_max_s``.
 
+A Sample's ``seq`` is the rolling counter of its frame(s) (None without counters).
+
 Every frame ends in exactly one counter, so at the end (after :meth:`FramePipeline.flush`)::
 
     frames == skipped + corrupt + unpaired + frames_per_sample * samples
