@@ -205,9 +205,8 @@ class TransmissionError(EffectBase):
             return None
         effect = cls(tuple(sorted(int(n) for n in load)), tuple(sorted(int(n) for n in motor)), float(data.ratio))
         s = data.score(effect.input_side, effect.clone().terms(u, data.time_s, data.torque_Nm))
-        return Detection(
-            effect, s, f"residual peaks at load orders {list(effect.load_orders)} and motor orders {list(effect.motor_orders)} per revolution"
-        )
+        shafts = [f"{shaft} orders {list(orders)}" for shaft, orders in (("load", effect.load_orders), ("motor", effect.motor_orders)) if orders]
+        return Detection(effect, s, f"residual repeats with the shaft angle: {' and '.join(shafts)} per revolution")
 
 
 class Delay(EffectBase):

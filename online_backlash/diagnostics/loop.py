@@ -40,7 +40,8 @@ class Step:
     """One term added by the loop.
 
     ``kind`` is ``"effect"`` (a named effect of the library) or ``"unexplained"`` (a generic term
-    closing structure no named effect explains). ``parameters`` come from the final joint fit;
+    closing structure no named effect explains), ``number`` its place in the order added (from 1).
+    ``parameters`` come from the final joint fit;
     ``rms_before_deg`` and ``rms_after_deg`` are the residual RMS just before and after adding it.
     """
 
@@ -54,6 +55,7 @@ class Step:
     play_inflation: float
     play_std_deg: float
     play_held: bool
+    number: int = 0
     parameters: dict[str, Any] = field(default_factory=dict)
 
     def as_dict(self) -> dict[str, Any]:
@@ -73,12 +75,13 @@ class Step:
         }
         if self.play_held:
             evidence["note"] = (
-                "this term is nearly collinear with the play (variance inflation "
-                f"{self.play_inflation:.0f}, limit {MAX_PLAY_INFLATION:.0f}; play standard error "
-                f"{self.play_std_deg:.2g} deg, limit {MAX_PLAY_STD_SHARE:.1%} of the play); the data cannot "
-                "tell them apart, so the play was held at its value without the term"
+                "the data cannot separate this term from the play (play variance inflation "
+                f"{self.play_inflation:.1f}, limit {MAX_PLAY_INFLATION:.0f}; play standard error "
+                f"{self.play_std_deg:.2g} deg, limit {MAX_PLAY_STD_SHARE:.1%} of the play), "
+                "so the play was held at its value without the term"
             )
         out = {
+            "step": self.number,
             "name": self.effect.name,
             "parameters": self.parameters,
             "rms_before_deg": self.rms_before_deg,
@@ -249,7 +252,10 @@ def diagnose(
         if fit.rms_deg >= current.rms_deg:
             break
         steps.append(
-            Step(kind, chosen.effect, chosen, current.rms_deg, fit.rms_deg, current.params.play, fit.params.play, fit.play_inflation, fit.play_std_deg, fit.play_held)
+            Step(
+                kind, chosen.effect, chosen, current.rms_deg, fit.rms_deg, current.params.play, fit.params.play,
+                fit.play_inflation, fit.play_std_deg, fit.play_held, len(steps) + 1,
+            )
         )
         current = fit
     _describe(steps, current)

@@ -34,20 +34,21 @@ def markdown_report(diagnosis: Diagnosis, source: str | os.PathLike[str] | None 
         lines += [f"![residual before and after]({plot})", ""]
     if not d["effects"] and not d["unexplained"]:
         lines += ["Nothing significant is missing from the model: no effect was added.", ""]
-    for kind, title in (("effects", "Effect"), ("unexplained", "Unexplained structure")):
-        for i, e in enumerate(d[kind], 1):
-            ev = e["evidence"]
-            lines += [
-                f"## {title} {i}: `{e['name']}`",
-                "",
-                f"- evidence: {ev['summary']}; criterion delta_bic_eff = {ev['delta_bic_eff']:.0f} "
-                f"(threshold {ev['threshold']:.0f}), {ev['share_of_residual_explained']:.1%} of the residual explained",
-                f"- residual RMS {e['rms_before_deg']:.5f} -> {e['rms_after_deg']:.5f} deg; "
-                f"play {e['backlash_before_deg']:.4f} -> {e['backlash_after_deg']:.4f} deg",
-                f"- play variance inflation {ev['play_variance_inflation']:.1f}, play standard error {ev['play_std_deg']:.2g} deg: "
-                + ("separable from the play" if ev["play_separable"] else ev["note"]),
-            ]
-            if "where" in e:
-                lines.append(f"- where: {e['where']}; no effect of the library explains it, a generic term closes it")
-            lines += [f"- parameters: `{_fmt(e['parameters'])}`", ""]
+    steps = sorted([("effect", e) for e in d["effects"]] + [("unexplained", e) for e in d["unexplained"]], key=lambda s: s[1]["step"])
+    for kind, e in steps:
+        ev = e["evidence"]
+        title = "effect" if kind == "effect" else "unexplained structure"
+        lines += [
+            f"## Step {e['step']}: {title} `{e['name']}`",
+            "",
+            f"- evidence: {ev['summary']}; criterion delta_bic_eff = {ev['delta_bic_eff']:.0f} "
+            f"(threshold {ev['threshold']:.0f}), {ev['share_of_residual_explained']:.1%} of the residual explained",
+            f"- residual RMS {e['rms_before_deg']:.5f} -> {e['rms_after_deg']:.5f} deg; "
+            f"play {e['backlash_before_deg']:.4f} -> {e['backlash_after_deg']:.4f} deg",
+            f"- play variance inflation {ev['play_variance_inflation']:.1f}, play standard error {ev['play_std_deg']:.2g} deg: "
+            + ("separable from the play" if ev["play_separable"] else ev["note"]),
+        ]
+        if "where" in e:
+            lines.append(f"- where: {e['where']}; no effect of the library explains it, a generic term closes it")
+        lines += [f"- parameters: `{_fmt(e['parameters'])}`", ""]
     return "\n".join(lines)
