@@ -13,6 +13,8 @@
    term). Refit the backlash and all terms jointly by output error
    (:func:`.joint.fit_joint`); if the new terms blur the play (its standard error above a share
    :data:`.joint.MAX_PLAY_STD_SHARE`), hold the play and say so.
+   A term whose joint refit does not remove at least ``min_gain`` of the mean square residual
+   is refused (the linear score can promise more than the refit delivers when the play is held).
 4. Repeat until nothing is significant or the residual reaches the noise floor.
 
 Angles in degrees on the load side, time in seconds.
@@ -223,18 +225,18 @@ def diagnose(
     before = simulation_residual(base.params_, uc, yc)
     current = JointFit(base.params_, np.empty(0), before, 1.0, float("nan"), False)
     steps: list[Step] = []
+    refused: set[type] = set()
     while len(steps) < max_terms and current.rms_deg > floor_ratio * noise.floor_deg:
-        taken = {type(s.effect) for s in steps}
+        taken = {type(s.effect) for s in steps} | refused
         g, others = play_sensitivity(uc, current.params)
         index = engaged_index(uc, current.params)
         nuisance = np.column_stack((others, g))
-        if steps:  # the terms already added may move too
-            done = [s.effect for s in steps]
+        done = [s.effect for s in steps]
+        if done:  # the terms already added may move too
             nuisance = np.column_stack((nuisance, hold_columns(_columns(done, u, t, q), _held(done), index)))
         data = DetectionData(u, t, q, current.residual_deg, float(ratio), period, nuisance, index, others.shape[1] + 1)
         named = _significant([c.detect(data) for c in LIBRARY if c not in taken], bic_threshold, min_gain)
         generic = _significant([c.detect(data) for c in GENERIC if c not in taken], bic_threshold, min_gain)
-        done = [s.effect for s in steps]
 
         def refit(found: Detection) -> JointFit:
             terms = done + [found.effect]
@@ -249,8 +251,9 @@ def diagnose(
             kind, chosen, fit = "effect", named, fit_named
         else:
             kind, chosen, fit = "unexplained", generic, fit_generic
-        if fit.rms_deg >= current.rms_deg:
-            break
+        if fit.rms_deg**2 > (1.0 - min_gain) * current.rms_deg**2:
+            refused.add(type(chosen.effect))  # the refit does not realise the gain: try the others
+            continue
         steps.append(
             Step(
                 kind, chosen.effect, chosen, current.rms_deg, fit.rms_deg, current.params.play, fit.params.play,
