@@ -18,6 +18,10 @@ with the medians of the RMS and of the play before and after, and the time per l
 
 Run: ``python bench/closing_loop.py`` (10 seeds of 180 s logs: about 10 minutes on 2 cores);
 ``--seeds``, ``--duration-s`` and ``--cases`` shrink it, ``--verbose`` prints every log.
+
+``--tracker`` prints instead, per seed, the play tracked by ``BacklashRLS`` on a log with a
+delay and on one with a load-shaft transmission error, without and with the effects the loop
+found (``BacklashRLS(effects=diagnosis.effects)``).
 """
 
 from __future__ import annotations
@@ -29,6 +33,8 @@ import time
 
 import numpy as np
 
+from online_backlash import BacklashRLS
+from online_backlash.diagnostics import synthetic
 from online_backlash.diagnostics.loop import diagnose_arrays
 from online_backlash.diagnostics.synthetic import INJECTORS
 from online_backlash.rig import simulate_rig
@@ -62,6 +68,29 @@ def run_case(name: str, seed: int, duration_s: float) -> dict:
     return d
 
 
+def tracker(seeds: int, duration_s: float) -> None:
+    """The recursive estimator without and with the effects found by the loop."""
+    cases = {
+        "delay": synthetic.delay,
+        "load transmission error": lambda rec: synthetic.transmission_error(rec, load_amp_deg=0.03, motor_amp_deg=0.0),
+        "load + motor transmission error": synthetic.transmission_error,
+    }
+    print("| case | seed | effects found | BacklashRLS play, deg | with the effects, deg |")
+    print("|---|---|---|---|---|")
+    for name, inject in cases.items():
+        for seed in range(seeds):
+            rec = simulate_rig(duration_s=duration_s, play_deg=PLAY_DEG, seed=seed)
+            t, m, y, q = inject(rec)
+            found = diagnose_arrays(t, m, y, rec.ratio, torque_Nm=q).effects
+            u = m / rec.ratio
+            plays = []
+            for effects in ([], found):
+                est = BacklashRLS(effects=effects)
+                est.learn_many(u, y, time_s=t, torque_Nm=q)
+                plays.append(est.backlash_)
+            print(f"| {name} | {seed} | {', '.join(map(repr, found)) or '-'} | {plays[0]:.4f} | {plays[1]:.4f} |", flush=True)
+
+
 def count(rows: list[dict], key: str) -> str:
     values = [r[key] for r in rows if r[key] is not None]
     return f"{sum(values)}/{len(values)}" if values else "n/a"
@@ -73,7 +102,11 @@ def main() -> None:
     parser.add_argument("--duration-s", type=float, default=180.0)
     parser.add_argument("--cases", default=",".join(INJECTORS), help="comma-separated subset of " + ",".join(INJECTORS))
     parser.add_argument("--verbose", action="store_true", help="print one line per log")
+    parser.add_argument("--tracker", action="store_true", help="run the recursive-estimator check instead")
     args = parser.parse_args()
+    if args.tracker:
+        tracker(args.seeds, args.duration_s)
+        return
     print(f"machine: {platform.processor() or platform.machine()}, {os.cpu_count()} CPUs, Python {platform.python_version()}")
     print(f"logs: {args.duration_s:.0f} s at 1 kHz, play {PLAY_DEG} deg, seeds 0..{args.seeds - 1}\n")
     print("| case | named first | <= 1.5 floor | <= 1/2 before | play 2 % | RMS before, deg | RMS after, deg | floor, deg | play before, deg | play after, deg | terms found (seed 0) | s per log |")
