@@ -121,6 +121,9 @@ def test_tracks_wear_with_an_honest_standard_error():
     assert np.sqrt(np.mean(errors**2)) < 0.002 * 0.5  # 0.2 % of the play
     assert np.mean(np.abs(errors) <= 3 * stds) >= 0.95
     assert est.wear_rate_ == pytest.approx(rate, rel=0.5)
+    # the flanks' distances from the reference point add up to the play, however far the shaft turned
+    assert abs(u[-1] - u[0]) > 2000.0
+    assert est.c_left_ + est.c_right_ == pytest.approx(est.backlash_, abs=1e-12)
     # without forgetting the estimate cannot follow: the same data give a larger error
     frozen = BacklashRLS(memory_reversals=None)
     frozen.learn_many(u, rec.load_deg)

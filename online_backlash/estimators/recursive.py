@@ -465,8 +465,12 @@ class BacklashRLS(_RecursiveBase):
     m_left_, m_right_ : float
         Slopes of eq. (1).
     c_left_, c_right_ : float
-        Eq. (9), in the reference-origin coordinates (distances from the first sample to the
-        flanks with ``origin="first"``); extrapolated from the local lines.
+        Distances, input units, from the reference point to the left and right flanks at the
+        current output level; they sum to ``backlash_``. The reference point is the reference
+        origin (the first sample with ``origin="first"``) carried along the band at the mean
+        slope; with equal slopes, or at the origin's level, they are eq. (9)'s ``c1 / m1`` and
+        ``c2 / m2``. Over a long run their split is only as good as the slopes (the origin lies
+        far away), their sum is not.
     backlash_ : float
         The play: horizontal distance between the flanks at the current output level (equal
         to ``c_left_ + c_right_`` when the slopes are equal), input units.
@@ -475,7 +479,8 @@ class BacklashRLS(_RecursiveBase):
         plus the lag of each flank behind the wear (estimated wear rate times the mean age of
         the flank's information, which grows while the flank sits disengaged).
     theta_ : array, shape (4,)
-        ``[mL, mL cL, mR, mR cR]`` of eq. (8), reference-origin coordinates.
+        ``[mL, mL cL, mR, mR cR]`` of eq. (8) in reference-origin coordinates (extrapolated
+        from the local lines: on a long run a tiny slope difference moves ``c1``, ``c2``).
     P_ : array, shape (4, 4)
         Unscaled covariance of ``theta_`` (multiply by ``noise_var_``).
     P_local_ : array, shape (4, 4)
@@ -783,17 +788,28 @@ class BacklashRLS(_RecursiveBase):
     def m_right_(self) -> float:
         return float(self.theta_[2])
 
+    def _flank_split(self) -> tuple[float, float]:
+        """Distances from the reference point to the left and right flanks at the current output level.
+
+        The reference point is the reference origin carried along the band at the mean slope,
+        ``u* = level / ((mL + mR) / 2)`` (reference-origin coordinates).
+        """
+        mL, bL, uL, mR, bR, uR = self._lines()
+        level = self._st[K.Y_PREV]
+        u_star = level / (0.5 * (mL + mR))
+        return u_star - (uL + (level - bL) / mL), (uR + (level - bR) / mR) - u_star
+
     @property
     def c_left_(self) -> float:
-        """Eq. (9): ``c1 / m1``."""
-        th = self.theta_
-        return float(th[1] / th[0])
+        """Distance from the reference point to the left flank (eq. 9's ``c1 / m1`` at the origin's level)."""
+        self._check_started()
+        return float(self._flank_split()[0])
 
     @property
     def c_right_(self) -> float:
-        """Eq. (9): ``c2 / m2``."""
-        th = self.theta_
-        return float(th[3] / th[2])
+        """Distance from the reference point to the right flank (eq. 9's ``c2 / m2`` at the origin's level)."""
+        self._check_started()
+        return float(self._flank_split()[1])
 
     @property
     def backlash_(self) -> float:
