@@ -11,6 +11,7 @@ import struct
 import termios
 import threading
 import time
+import tty
 
 import can
 import pytest
@@ -95,10 +96,12 @@ def test_listen_serial_on_a_pty_then_estimate_the_capture(tmp_path, capsys, rec,
     payload = b"".join(rig_serial_records(rec, fmt, 16384, 131072))
     payload = payload[:5000] + b"\x00noise\n" + payload[5000:]
     master, slave = os.openpty()
+    tty.setraw(slave)  # no line discipline on the bytes, even before the CLI has opened the port
     written = threading.Event()
 
     def write():
-        time.sleep(0.3)  # let the CLI open the port (raw mode) first
+        # the capture file appears once the CLI has opened the port (which flushes its input)
+        wait_for(lambda: (tmp_path / "raw").is_dir() and any((tmp_path / "raw").iterdir()))
         for i in range(0, len(payload), 4096):
             os.write(master, payload[i : i + 4096])
         written.set()

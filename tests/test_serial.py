@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import os
 import threading
+import tty
 
 import numpy as np
 import pytest
@@ -133,6 +134,7 @@ def test_live_estimates_equal_the_replayed_capture_bit_for_bit(tmp_path, rec, fm
     payload = faulty_stream(rec, fmt)
     if port == "pty":
         master, slave = os.openpty()
+        tty.setraw(slave)
         source = SerialSource(os.ttyname(slave), 115200, fmt, raw_log_dir=tmp_path, **CPR)
         live = run_live(source, payload, lambda b: os.write(master, b))
         os.close(master)
