@@ -17,6 +17,19 @@ Each class also
 * ``describe(coef)`` -- its parameters with units, from the fitted ``beta``.
 
 Units: angles in degrees (load side), time in seconds, torque in N m.
+
+Examples
+--------
+>>> import numpy as np
+>>> from online_backlash.diagnostics.effects import TransmissionError
+>>> te = TransmissionError(load_orders=(2,), ratio=30.0)
+>>> u = np.array([0.0, 45.0, 90.0])
+>>> te.terms(u, np.zeros(3), np.full(3, np.nan)).round(6)  # sin(2u), cos(2u)
+array([[ 0.,  1.],
+       [ 1.,  0.],
+       [ 0., -1.]])
+>>> te.describe(np.array([0.0, 0.02]))["harmonics"][0]["amplitude_deg"]
+0.02
 """
 
 from __future__ import annotations
