@@ -6,7 +6,7 @@ an optional ``torque`` (N m); other columns are ignored. Real logs name their co
 otherwise: ``columns={"time": "time_s", "motor": "motor_counts", "load": "spindle_counts"}``
 maps them.
 
-Rows are parsed in blocks by :func:`numpy.loadtxt` (the fast path); a block that fails is
+Rows are parsed in blocks by pandas' C parser (the fast path); a block that fails is
 re-read row by row with the :mod:`csv` module to name the exact line. A malformed row, a
 non-finite value or a time that goes backwards raises :class:`LogFormatError` naming the file
 and line, or, with ``skip_bad=True``, is counted in ``counters.corrupt`` and skipped. A time
@@ -183,17 +183,18 @@ class CsvLog:
         numbers = np.arange(first + 1, first + 1 + len(lines))
         # per-line checks through map (C-level loops; a list comprehension here dominated the read time)
         blank = np.fromiter(map(operator.not_, map(str.strip, lines)), bool, len(lines))
-        if blank.all():  # nothing to parse (loadtxt would warn "input contained no data")
+        if blank.all():  # nothing to parse
             return np.empty((0, len(usecols))), numbers[:0]
         try:
-            values = np.loadtxt(lines, delimiter=",", usecols=usecols, ndmin=2, dtype=float)
-            commas = np.fromiter(map(str.count, lines, repeat(",")), np.int64, len(lines))
-            row_ok = commas[~blank] == self._n_columns - 1
-            if values.shape[0] == (~blank).sum() and row_ok.all():
-                self.counters.frames += values.shape[0]
-                return values, numbers[~blank]
-        except ValueError:
-            pass
+            values = _read_block("".join(lines), usecols)
+        except ValueError:  # pandas' ParserError is a ValueError too
+            return self._parse_rows(lines, numbers, usecols)
+        commas = np.fromiter(map(str.count, lines, repeat(",")), np.int64, len(lines))
+        row_ok = commas[~blank] == self._n_columns - 1
+        if values.shape[0] == (~blank).sum() and row_ok.all() and not np.isnan(values).any():
+            self.counters.frames += values.shape[0]
+            return values, numbers[~blank]
+        # a short row, an empty field or a literal NaN: re-read row by row for the exact reason
         return self._parse_rows(lines, numbers, usecols)
 
     def _parse_rows(self, lines: list[str], numbers: np.ndarray, usecols: list[int]) -> tuple[np.ndarray, np.ndarray]:
@@ -265,6 +266,19 @@ class CsvLog:
             after_gap=after_gap,
         )
         return chunk, (float(time[-1]) if time.size else last_time)
+
+
+def _read_block(text: str, usecols: list[int]) -> np.ndarray:
+    """Parse a block of CSV rows (no header) to floats with pandas' C parser, columns in ``usecols`` order.
+
+    Raises ValueError on anything that is not a number.
+    """
+    import pandas as pd  # imported here: only reading a log needs it
+
+    frame = pd.read_csv(
+        io.StringIO(text), header=None, usecols=usecols, dtype=float, engine="c", skip_blank_lines=True
+    )
+    return frame[usecols].to_numpy(dtype=float)
 
 
 def read_csv_arrays(path: str | os.PathLike[str], **options) -> SampleChunk:
