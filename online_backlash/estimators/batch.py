@@ -35,7 +35,6 @@ from dataclasses import dataclass
 from typing import Callable
 
 import numpy as np
-from scipy.signal import lfilter
 
 from ..errors import ConvergenceWarning, InvalidParameterError, NotExcitedError
 from ..model import (
@@ -461,6 +460,8 @@ class VorosCascade(_VorosBase):
         With ``B y = A x`` (eq. 15): ``dy/d(backlash) = (A/B) dx/d(backlash)``,
         ``dy/da_i = (q^-i / B) x`` and ``dy/db_j = -(q^-j / B) y``.
         """
+        from scipy.signal import lfilter  # imported here: scipy.signal costs ~1 s at package import
+
         num, den = self._filter_coefficients(p)
         x, dx = backlash_sensitivity(uc, p.backlash, 0.0)
         y = lfilter(num, den, x)
