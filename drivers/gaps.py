@@ -1,7 +1,7 @@
 """Gap detection shared by the live adapters and the log readers.
 
 A gap is reported when a rolling counter skips values, or when a time step is longer than
-:data:`~online_backlash.replay.csv.GAP_PERIODS` nominal periods (the rule of the CSV reader).
+:data:`~online_backlash.stream.GAP_PERIODS` nominal periods (the rule of every source).
 The nominal period is given, or learnt as the median of the first steps without a counter jump.
 """
 
@@ -10,8 +10,7 @@ from __future__ import annotations
 import statistics
 
 from online_backlash.errors import InvalidParameterError
-from online_backlash.replay.csv import GAP_PERIODS
-from online_backlash.stream import Gap
+from online_backlash.stream import GAP_PERIODS, Gap
 
 
 class GapDetector:

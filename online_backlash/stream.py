@@ -21,6 +21,9 @@ import numpy as np
 
 from .errors import InvalidParameterError
 
+#: A time step longer than this many nominal sample periods is a gap (every source uses this rule).
+GAP_PERIODS = 3.0
+
 
 @dataclass(frozen=True, slots=True)
 class Sample:

@@ -28,12 +28,11 @@ from typing import Iterator
 import numpy as np
 
 from online_backlash.errors import InvalidParameterError, LogFormatError
-from online_backlash.stream import Gap, Sample, SampleChunk, StreamCounters
+from online_backlash.stream import GAP_PERIODS, Gap, Sample, SampleChunk, StreamCounters
 
 ROLES = ("time", "motor", "load", "torque")
 _REQUIRED = ("time", "motor", "load")
 _UNITS = ("deg", "rad", "counts")
-GAP_PERIODS = 3.0
 
 
 def angle_scale(units: str, cpr: float | None, which: str) -> float:
