@@ -10,15 +10,14 @@ stdout, the keys of ``estimate --json`` plus the source's counters).
 from __future__ import annotations
 
 import argparse
-import signal
 import sys
-import threading
 import time
-from typing import Any, Callable
+from typing import Any
 
 from ..errors import LogFormatError, SourceError
 from ..fitting import ARCMIN_PER_DEG, describe, fit_recursive
-from ._common import add_can_decoding_options, add_ratio_option, can_decoding_options, print_json
+from ._common import add_can_decoding_options, add_ratio_option, print_json
+from ._live import on_interrupt, open_can_source, open_serial_source
 
 
 def add_subparser(subparsers: argparse._SubParsersAction) -> None:
@@ -44,7 +43,7 @@ def add_subparser(subparsers: argparse._SubParsersAction) -> None:
     can_parser.add_argument("--load-cpr", type=int, help="load counts per revolution; from the DBC if not given")
     can_parser.add_argument("--raw-format", choices=("blf", "asc", "log"), default="blf", help="format of the raw CAN log")
     _add_common(can_parser)
-    can_parser.set_defaults(func=run, open_source=_open_can)
+    can_parser.set_defaults(func=run, open_source=open_can_source)
 
     serial_parser = sources.add_parser(
         "serial",
@@ -58,7 +57,7 @@ def add_subparser(subparsers: argparse._SubParsersAction) -> None:
     serial_parser.add_argument("--motor-cpr", type=float, help="motor counts per revolution (binary format)")
     serial_parser.add_argument("--load-cpr", type=float, help="load counts per revolution (binary format)")
     _add_common(serial_parser)
-    serial_parser.set_defaults(func=run, open_source=_open_serial)
+    serial_parser.set_defaults(func=run, open_source=open_serial_source)
 
 
 def _add_common(parser: argparse.ArgumentParser) -> None:
@@ -73,39 +72,6 @@ def _add_common(parser: argparse.ArgumentParser) -> None:
     group.add_argument("--memory-reversals", type=float, default=10.0, help="memory of the estimator, in reversals")
     group.add_argument("--memory-s", type=float, help="memory in seconds of motion (instead of / besides reversals)")
     group.add_argument("--sample-period", type=float, default=0.001, help="sampling period, seconds")
-
-
-def _open_can(args: argparse.Namespace):
-    from ..drivers.can import CanSource, open_bus
-
-    bus = open_bus(args.interface, args.channel, args.bitrate)
-    return CanSource(
-        bus,
-        **can_decoding_options(args),
-        motor_cpr=args.motor_cpr,
-        load_cpr=args.load_cpr,
-        raw_log_dir=args.raw_log,
-        raw_format=args.raw_format,
-        period_s=args.period,
-        duration_s=args.duration,
-        timeout_s=args.timeout,
-    )
-
-
-def _open_serial(args: argparse.Namespace):
-    from ..drivers.serial import SerialSource
-
-    return SerialSource(
-        args.port,
-        args.baud,
-        args.serial_format,
-        motor_cpr=args.motor_cpr,
-        load_cpr=args.load_cpr,
-        raw_log_dir=args.raw_log,
-        period_s=args.period,
-        duration_s=args.duration,
-        timeout_s=args.timeout,
-    )
 
 
 class _StatusLine:
@@ -136,21 +102,13 @@ class _StatusLine:
             sys.stderr.write("\n")
 
 
-def _on_interrupt(stop: Callable[[], None]) -> Callable[[], None]:
-    """Make Ctrl-C end the run gracefully (with a summary); returns the undo."""
-    if threading.current_thread() is not threading.main_thread():
-        return lambda: None
-    previous = signal.signal(signal.SIGINT, lambda *_: stop())
-    return lambda: signal.signal(signal.SIGINT, previous)
-
-
 def run(args: argparse.Namespace) -> int:
     label = f"{args.source_kind} {getattr(args, 'channel', None) or getattr(args, 'port', '')}"
     params = {"memory_reversals": args.memory_reversals, "memory_s": args.memory_s, "sample_period_s": args.sample_period}
     started = time.monotonic()
     with args.open_source(args) as source:
         status = _StatusLine(source.counters)
-        undo = _on_interrupt(source.request_stop)
+        undo = on_interrupt(source.request_stop)
         try:
             report, _ = fit_recursive(source.iter_chunks(), args.ratio, every_s=args.status_every, trace=status, source=label, **params)
         except LogFormatError as exc:

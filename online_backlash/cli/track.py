@@ -19,9 +19,9 @@ from ..errors import InvalidParameterError
 from ..history.store import HistoryStore
 from ..history.track import GearboxTracker, ProgressCallback, TrackResult
 from ._common import add_can_decoding_options, add_log_options, add_ratio_option, print_json
+from ._live import on_interrupt, open_can_source, open_serial_source
 from .estimate import log_options
 from .history import add_db_options
-from .listen import _on_interrupt, _open_can, _open_serial
 
 
 def _unix_time(text: str) -> float:
@@ -135,11 +135,11 @@ def _track_live(tracker: GearboxTracker, args: argparse.Namespace, progress: Pro
     if args.listen == "can":
         cprs = {k: None if getattr(args, k) is None else int(getattr(args, k)) for k in ("motor_cpr", "load_cpr")}
         source_args, label = argparse.Namespace(**{**vars(args), **cprs}), f"can {args.interface} {args.channel}"
-        open_source = _open_can
+        open_source = open_can_source
     else:
-        source_args, label, open_source = args, f"serial {args.port}", _open_serial
+        source_args, label, open_source = args, f"serial {args.port}", open_serial_source
     with open_source(source_args) as source:
-        undo = _on_interrupt(source.request_stop)
+        undo = on_interrupt(source.request_stop)
         try:
             return tracker.track_source(source, label, progress=progress)
         finally:

@@ -1,0 +1,53 @@
+"""Opening live sources from parsed options, and Ctrl-C handling (shared by ``listen`` and ``track``)."""
+
+from __future__ import annotations
+
+import argparse
+import signal
+import threading
+from typing import Callable
+
+from ._common import can_decoding_options
+
+
+def open_can_source(args: argparse.Namespace):
+    """A :class:`~online_backlash.drivers.can.CanSource` from the options of ``listen can``."""
+    from ..drivers.can import CanSource, open_bus
+
+    bus = open_bus(args.interface, args.channel, args.bitrate)
+    return CanSource(
+        bus,
+        **can_decoding_options(args),
+        motor_cpr=args.motor_cpr,
+        load_cpr=args.load_cpr,
+        raw_log_dir=args.raw_log,
+        raw_format=args.raw_format,
+        period_s=args.period,
+        duration_s=args.duration,
+        timeout_s=args.timeout,
+    )
+
+
+def open_serial_source(args: argparse.Namespace):
+    """A :class:`~online_backlash.drivers.serial.SerialSource` from the options of ``listen serial``."""
+    from ..drivers.serial import SerialSource
+
+    return SerialSource(
+        args.port,
+        args.baud,
+        args.serial_format,
+        motor_cpr=args.motor_cpr,
+        load_cpr=args.load_cpr,
+        raw_log_dir=args.raw_log,
+        period_s=args.period,
+        duration_s=args.duration,
+        timeout_s=args.timeout,
+    )
+
+
+def on_interrupt(stop: Callable[[], None]) -> Callable[[], None]:
+    """Make Ctrl-C end the run gracefully (with a summary); returns the undo."""
+    if threading.current_thread() is not threading.main_thread():
+        return lambda: None
+    previous = signal.signal(signal.SIGINT, lambda *_: stop())
+    return lambda: signal.signal(signal.SIGINT, previous)
