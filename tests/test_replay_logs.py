@@ -13,7 +13,7 @@ from online_backlash.drivers.dbc import RIG_DBC, DbcDecoder
 from online_backlash.drivers.pairing import FramePipeline
 from online_backlash.drivers.simulate import rig_can_frames
 from online_backlash.errors import InvalidParameterError, LogFormatError
-from online_backlash.replay import LOG_READERS, open_log
+from online_backlash.replay import LOG_READERS, open_log, read_log_arrays
 from online_backlash.replay.canlog import CanLog
 from online_backlash.rig import simulate_rig
 
@@ -74,6 +74,43 @@ def test_a_raw_log_directory_is_read_in_name_order(tmp_path, frames, expected):
     write_log(tmp_path / "can-20260101T000000_000000Z-0001.asc", frames[1001:])
     (tmp_path / "notes.txt").write_text("not a log")
     assert angles(CanLog(tmp_path, **SPLIT)) == angles(expected)
+
+
+def test_open_log_and_read_log_arrays_take_a_raw_log_directory(tmp_path, frames, expected):
+    write_log(tmp_path / "can-20260101T000000_000000Z-0000.blf", frames[:1001])
+    write_log(tmp_path / "can-20260101T000000_000000Z-0001.blf", frames[1001:])
+    log = open_log(tmp_path, **SPLIT)
+    assert angles(log) == angles(expected) and log.counters.frames == len(frames)
+    arrays = read_log_arrays(tmp_path, **SPLIT)
+    assert arrays.load_deg.tolist() == [s.load_deg for s in expected]
+
+
+def test_a_serial_capture_directory_reads_as_one_capture(tmp_path):
+    from online_backlash.drivers.simulate import write_rig_serial_capture
+
+    write_rig_serial_capture(tmp_path / "whole.serial", "binary", duration_s=0.2)
+    data = (tmp_path / "whole.serial").read_bytes()
+    split = tmp_path / "raw"
+    split.mkdir()
+    (split / "serial-20260101T000000_000000Z-0000.serial").write_bytes(data[:1001])  # cut inside a frame
+    (split / "serial-20260101T000000_000000Z-0001.serial").write_bytes(data[1001:])
+    options = {"serial_format": "binary", "motor_cpr": 2**14, "load_cpr": 2**17}
+    whole, parts = read_log_arrays(tmp_path / "whole.serial", **options), read_log_arrays(split, **options)
+    assert len(parts) == 200 and parts.motor_deg.tolist() == whole.motor_deg.tolist()
+
+
+def test_a_log_directory_must_hold_one_format(tmp_path, frames):
+    with pytest.raises(LogFormatError, match="empty directory"):
+        open_log(tmp_path, **SPLIT)
+    write_log(tmp_path / "a.blf", frames[:10])
+    (tmp_path / "b.serial").write_bytes(b"0.0,1.0,2.0\n")
+    with pytest.raises(LogFormatError, match=r"one format, found suffixes \['\.blf', '\.serial'\]"):
+        open_log(tmp_path, **SPLIT)
+    csvs = tmp_path / "csvs"
+    csvs.mkdir()
+    (csvs / "a.csv").write_text("time,motor,load\n0,0,0\n")
+    with pytest.raises(LogFormatError, match="not supported; give one file"):
+        open_log(csvs)
 
 
 def test_a_truncated_blf_names_the_file_and_the_frame(tmp_path, frames):
