@@ -13,6 +13,13 @@ information matrix ``R`` (the inverse of the unscaled covariance) for ``[m, b]``
 reference is an exact reparametrisation (``b += m d``, ``R <- T^-T R T^-1``), so the regressor
 of eq. (8) on an engaged flank becomes ``[0, 1]`` and the intercept is never an extrapolation
 to a far-away origin.
+
+The switching functions eq. (12)-(13) are evaluated on the model's own output ``X_HAT``
+(eq. 1-3 run with the current estimates: on the engaged flank's line, held in the dead band),
+not on the measured ``x(t-1)``: the *output-error* classification of the batch estimator's
+final refinement. With the measured output, noise and a compliance ramp after each reversal
+(the load creeping up to the flank) put samples that the model sees on a flank into the
+dead band, so the flank's line is fitted without them.
 """
 
 from __future__ import annotations
@@ -23,8 +30,8 @@ from numba import njit
 N_SEEN, HAVE_PREV, U0, Y0, U_PREV, Y_PREV, T_MOTION = range(7)
 LEFT, RIGHT = 7, 16  # offset of each flank's block; also the flank's code in LAST_SIDE
 M, B, UREF, R11, R12, R22, W_COUNT, W_TIME, N_UPD = range(9)  # fields of a flank block
-LAST_SIDE, N_REV, NOISE_VAR, N_RESID, W_EWMA, W_EWMA_SET, T_LAST_REV, W_RATE = range(25, 33)
-STATE_SIZE = 33
+LAST_SIDE, N_REV, NOISE_VAR, N_RESID, W_EWMA, W_EWMA_SET, T_LAST_REV, W_RATE, X_HAT = range(25, 34)
+STATE_SIZE = 34
 
 # ---- BacklashRLS constants ---------------------------------------------------------------------
 K_DT, K_LAM, K_LAM_REV, K_FLOOR_M, K_FLOOR_B, K_MIN_STEP, K_NOISE_WINDOW, K_WEAR_HORIZON, K_ORIGIN_FIRST, K_FREEZE = range(10)
@@ -36,7 +43,7 @@ def _make_backlash_steps(jit):
 
     @jit
     def begin_sample(st, c, u, y):
-        """Reference origin, counters and previous sample. Returns ``(uc, yc, du, y_prev)``.
+        """Reference origin, counters and previous sample. Returns ``(uc, yc, du)``.
 
         ``du = 0`` means no update can follow (first sample, after a gap, motor still, or a
         step no larger than ``min_step_deg``).
@@ -48,9 +55,9 @@ def _make_backlash_steps(jit):
         uc = u - st[U0]
         yc = y - st[Y0]
         du = uc - st[U_PREV]
-        y_prev = st[Y_PREV]
         if st[HAVE_PREV] == 0.0:
             du = 0.0
+            st[X_HAT] = yc  # (re)start the model's output at the measured one
         st[HAVE_PREV] = 1.0
         st[U_PREV] = uc
         st[Y_PREV] = yc
@@ -58,24 +65,25 @@ def _make_backlash_steps(jit):
             st[T_MOTION] += c[K_DT]  # the motion clock: seconds during which the motor moved
         if abs(du) <= c[K_MIN_STEP]:
             du = 0.0
-        return uc, yc, du, y_prev
+        return uc, yc, du
 
     @jit
-    def engaged_side(st, uc, y_prev, du):
+    def engaged_side(st, uc, x_prev, du):
         """The flank that drives the load now, eq. (12)-(13), or 0.
 
         ``f1 = h((mL u + mL cL - x(t-1)) / mL)`` is evaluated as the sign of
-        ``(yL(u) - x(t-1)) mL`` (same sign, no division), with ``yL`` the local left line.
+        ``(yL(u) - x(t-1)) mL`` (same sign, no division), with ``yL`` the local left line
+        and ``x(t-1) = x_prev`` the model's output (``X_HAT``).
         A flank carries information only while the motor drives into it: the left one
         when ``u`` decreases, the right one when ``u`` increases.
         """
         if du < 0.0:
             m = st[LEFT + M]
-            if (st[LEFT + B] + m * (uc - st[LEFT + UREF]) - y_prev) * m <= 0.0:  # eq. (12)
+            if (st[LEFT + B] + m * (uc - st[LEFT + UREF]) - x_prev) * m <= 0.0:  # eq. (12)
                 return LEFT
         elif du > 0.0:
             m = st[RIGHT + M]
-            if (y_prev - st[RIGHT + B] - m * (uc - st[RIGHT + UREF])) * m <= 0.0:  # eq. (13)
+            if (x_prev - st[RIGHT + B] - m * (uc - st[RIGHT + UREF])) * m <= 0.0:  # eq. (13)
                 return RIGHT
         return 0
 
@@ -157,14 +165,15 @@ def _make_backlash_steps(jit):
         st[o + W_COUNT] += 1.0
         st[o + W_TIME] += st[T_MOTION]
         st[o + N_UPD] += 1.0
+        st[X_HAT] = st[o + B]  # the model's output: on the updated line, at uc
 
     @jit
     def step(st, c, u, y):
         """Learn one sample ``(u, y)`` (input and output in the caller's frame)."""
-        uc, yc, du, y_prev = begin_sample(st, c, u, y)
+        uc, yc, du = begin_sample(st, c, u, y)
         if du == 0.0:
             return
-        side = engaged_side(st, uc, y_prev, du)
+        side = engaged_side(st, uc, st[X_HAT], du)
         if side == 0:
             return
         lam = reversal(st, c, side, yc)
