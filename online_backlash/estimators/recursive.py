@@ -883,9 +883,16 @@ class CascadeRLS(_RecursiveBase):
     forgetting factor is raised towards 1 whenever ``trace(P) / lam`` would exceed
     ``trace_max`` (Åström & Wittenmark 1995, ch. 11), so ``P`` stays bounded.
 
-    The lines are kept in reference-origin coordinates (the paper's ``theta``); this estimator
-    is meant for systems whose input stays near its origin, like the paper's examples. For a
-    rig whose shaft turns many revolutions use :class:`BacklashRLS`.
+    Limitation: the lines are kept in reference-origin coordinates (the paper's ``theta``),
+    not in coordinates local to the operating point as in :class:`BacklashRLS`. The
+    intercepts ``c1 = mL cL`` and ``c2 = mR cR`` are therefore read at ``u = 0``: with the input
+    at a distance ``U`` from the origin a slope error ``dm`` moves them by about ``dm U``, and
+    the regressor columns ``u f1``, ``f1`` become nearly collinear, so ``P`` is badly
+    conditioned. (Local coordinates would need the reparametrisation ``b = c + m u_ref``
+    applied to ``theta``, to two rows and columns of the shared ``P`` and to the ``x_hat``
+    of eq. 23 at every move of the reference; not done.) This estimator is meant for systems
+    whose input stays within a few play widths of its origin, like the paper's examples; for
+    a rig whose shaft turns many revolutions use :class:`BacklashRLS`.
 
     Parameters
     ----------
