@@ -221,7 +221,7 @@ def diagnose(
     base = VorosBacklash(refine=True).fit(u, y)
     uc, yc = u - base.u_ref_, y - base.y_ref_
     noise = noise_floor(y)
-    period = float(f"{np.median(np.diff(t)):.12g}") if t.size > 1 else 1.0  # 1e-3, not 0.000999999...
+    period = round(float(np.median(np.diff(t))), 12) if t.size > 1 else 1.0  # 0.001, not 0.000999999...
     before = simulation_residual(base.params_, uc, yc)
     current = JointFit(base.params_, np.empty(0), before, 1.0, float("nan"), False)
     steps: list[Step] = []
