@@ -287,7 +287,7 @@ class Zero:
 
 def test_a_null_effect_leaves_the_compiled_estimates_unchanged(rig60):
     _, u, y = rig60
-    plain = BacklashRLS(memory_s=5.0)
+    plain = BacklashRLS(memory_s=5.0, switching="measured")  # the effects path's default
     plain.learn_many(u[:20000], y[:20000])
     joint = BacklashRLS(memory_s=5.0, effects=[Zero()])
     joint.learn_many(u[:20000], y[:20000])
@@ -319,6 +319,8 @@ def test_not_fitted_before_the_warm_start_and_invalid_parameters():
         est.force_start()
     with pytest.raises(InvalidParameterError, match="memory_s"):
         BacklashRLS(memory_s=-1.0).learn_one(0.0, 0.0)
+    with pytest.raises(InvalidParameterError, match="switching"):
+        BacklashRLS(switching="both").learn_one(0.0, 0.0)
     with pytest.raises(InvalidParameterError, match="start"):
         BacklashRLS(start="hot").learn_one(0.0, 0.0)
     with pytest.raises(InvalidParameterError):
@@ -388,3 +390,7 @@ def test_measured_gearhead_play_agrees_with_the_batch_fit(name, rel):
     assert est.backlash_ == pytest.approx(batch_play, rel=rel)
     assert 0.97 < est.m_left_ < 1.01 and 0.97 < est.m_right_ < 1.01
     assert est.n_reversals_ >= 3
+    if rel == 0.03:  # eq. (12)-(13) on the measured output leave the creeping samples out
+        measured = BacklashRLS(switching="measured")
+        measured.learn_many(u, y, gap)
+        assert measured.backlash_ > 1.1 * batch_play

@@ -15,6 +15,7 @@ of eq. (8) on an engaged flank becomes ``[0, 1]`` and the intercept is never an 
 to a far-away origin.
 
 The switching functions eq. (12)-(13) are evaluated on the model's own output ``X_HAT``
+(``switching="model"``, the default without effects)
 (eq. 1-3 run with the current estimates: on the engaged flank's line, held in the dead band),
 not on the measured ``x(t-1)``: the *output-error* classification of the batch estimator's
 final refinement. With the measured output, noise and a compliance ramp after each reversal
@@ -34,8 +35,8 @@ LAST_SIDE, N_REV, NOISE_VAR, N_RESID, W_EWMA, W_EWMA_SET, T_LAST_REV, W_RATE, X_
 STATE_SIZE = 34
 
 # ---- BacklashRLS constants ---------------------------------------------------------------------
-K_DT, K_LAM, K_LAM_REV, K_FLOOR_M, K_FLOOR_B, K_MIN_STEP, K_NOISE_WINDOW, K_WEAR_HORIZON, K_ORIGIN_FIRST, K_FREEZE = range(10)
-N_CONSTS = 10
+K_DT, K_LAM, K_LAM_REV, K_FLOOR_M, K_FLOOR_B, K_MIN_STEP, K_NOISE_WINDOW, K_WEAR_HORIZON, K_ORIGIN_FIRST, K_FREEZE, K_SWITCH_MODEL = range(11)
+N_CONSTS = 11
 
 
 def _make_backlash_steps(jit):
@@ -43,7 +44,7 @@ def _make_backlash_steps(jit):
 
     @jit
     def begin_sample(st, c, u, y):
-        """Reference origin, counters and previous sample. Returns ``(uc, yc, du)``.
+        """Reference origin, counters and previous sample. Returns ``(uc, yc, du, y_prev)``.
 
         ``du = 0`` means no update can follow (first sample, after a gap, motor still, or a
         step no larger than ``min_step_deg``).
@@ -55,6 +56,7 @@ def _make_backlash_steps(jit):
         uc = u - st[U0]
         yc = y - st[Y0]
         du = uc - st[U_PREV]
+        y_prev = st[Y_PREV]
         if st[HAVE_PREV] == 0.0:
             du = 0.0
             st[X_HAT] = yc  # (re)start the model's output at the measured one
@@ -65,7 +67,7 @@ def _make_backlash_steps(jit):
             st[T_MOTION] += c[K_DT]  # the motion clock: seconds during which the motor moved
         if abs(du) <= c[K_MIN_STEP]:
             du = 0.0
-        return uc, yc, du
+        return uc, yc, du, y_prev
 
     @jit
     def engaged_side(st, uc, x_prev, du):
@@ -73,7 +75,7 @@ def _make_backlash_steps(jit):
 
         ``f1 = h((mL u + mL cL - x(t-1)) / mL)`` is evaluated as the sign of
         ``(yL(u) - x(t-1)) mL`` (same sign, no division), with ``yL`` the local left line
-        and ``x(t-1) = x_prev`` the model's output (``X_HAT``).
+        and ``x(t-1) = x_prev`` (the model's output ``X_HAT``, or the measured one).
         A flank carries information only while the motor drives into it: the left one
         when ``u`` decreases, the right one when ``u`` increases.
         """
@@ -170,10 +172,10 @@ def _make_backlash_steps(jit):
     @jit
     def step(st, c, u, y):
         """Learn one sample ``(u, y)`` (input and output in the caller's frame)."""
-        uc, yc, du = begin_sample(st, c, u, y)
+        uc, yc, du, y_prev = begin_sample(st, c, u, y)
         if du == 0.0:
             return
-        side = engaged_side(st, uc, st[X_HAT], du)
+        side = engaged_side(st, uc, st[X_HAT] if c[K_SWITCH_MODEL] != 0.0 else y_prev, du)
         if side == 0:
             return
         lam = reversal(st, c, side, yc)

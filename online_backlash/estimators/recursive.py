@@ -41,6 +41,7 @@ from .batch import VorosBacklash, VorosCascade, _start_params
 
 _STARTS = ("batch", "cold")
 _ORIGINS = ("first", "zero")
+_SWITCHING = ("model", "measured")
 _WARM_ATTEMPTS = 4  # batch attempts (at 1x..4x warm_start_samples) before a cold start
 _STATE_FORMAT = 2  # 2: the model's output X_HAT joined the BacklashRLS state
 
@@ -407,10 +408,10 @@ class BacklashRLS(_RecursiveBase):
     estimates are those of eq. (11) with ``theta = [mL, mL cL, mR, mR cR]``; ``theta_`` reports
     them in the reference-origin coordinates of the paper.
 
-    The switching functions eq. (12)-(13) are evaluated with the current estimates and the
-    model's own output ``x_hat(t-1)`` (eq. 1-3 run with the current estimates: on the line of
-    the flank last updated, held in the dead band), as in the output-error refinement of the
-    batch estimator, rather than the measured ``x(t-1)``. On a real drive the load creeps up to
+    The switching functions eq. (12)-(13) are evaluated with the current estimates and, by
+    default, the model's own output ``x_hat(t-1)`` (eq. 1-3 run with the current estimates: on
+    the line of the flank last updated, held in the dead band), as in the output-error
+    refinement of the batch estimator, rather than the measured ``x(t-1)``. On a real drive the load creeps up to
     the flank after each reversal (compliance); read through the measured output, those samples
     look like dead band and the flank's line is fitted without them, which made the play 0.2 deg
     (12 %) larger than the batch fit on the da Vinci gearhead recordings
@@ -465,6 +466,13 @@ class BacklashRLS(_RecursiveBase):
     effects : list of EffectTerms, optional
         Extra regressor columns fitted jointly with the lines (see
         :mod:`online_backlash.effect_terms`); that path runs in Python, also in ``learn_many``.
+    switching : {"model", "measured"} or None
+        ``x(t-1)`` in eq. (12)-(13): ``"model"``, the model's own output (output-error
+        classification); ``"measured"``, the measured output minus the effects (eq. 12-13 as
+        printed). None: ``"model"`` without effects, ``"measured"`` with them (effect terms
+        such as a delay describe the measured output sample by sample, and the corrected
+        measurement classifies the samples around a reversal better: with a delay effect
+        ``"model"`` left a 3 % bias in ``tests/test_diagnostics.py``).
 
     Attributes
     ----------
@@ -539,6 +547,7 @@ class BacklashRLS(_RecursiveBase):
         info_floor: float = 1e-6,
         noise_window: int = 10_000,
         effects: Sequence[EffectTerms] | None = None,
+        switching: str | None = None,
     ) -> None:
         self.memory_s = memory_s
         self.memory_reversals = memory_reversals
@@ -551,12 +560,21 @@ class BacklashRLS(_RecursiveBase):
         self.info_floor = info_floor
         self.noise_window = noise_window
         self.effects = effects
+        self.switching = switching
 
     def _validate(self) -> None:
         self._validate_common()
         check_real("min_step_deg", self.min_step_deg, 0.0, low_open=False)
         check_real("wear_horizon_s", self.wear_horizon_s, 0.0)
         check_real("info_floor", self.info_floor, 0.0)
+        if self.switching is not None:
+            check_option("switching", self.switching, _SWITCHING)
+
+    def _switching(self) -> str:
+        """``switching``, with None resolved: ``"model"`` without effects, ``"measured"`` with them."""
+        if self.switching is not None:
+            return self.switching
+        return "measured" if self._effects else "model"
 
     @staticmethod
     def _warm_fit(uc: np.ndarray, yc: np.ndarray) -> tuple[BacklashParams, int]:
@@ -598,6 +616,7 @@ class BacklashRLS(_RecursiveBase):
         self._c[K.K_NOISE_WINDOW] = float(self.noise_window)
         self._c[K.K_WEAR_HORIZON] = float(self.wear_horizon_s)
         self._c[K.K_ORIGIN_FIRST] = 1.0 if self.origin == "first" else 0.0
+        self._c[K.K_SWITCH_MODEL] = 1.0 if self._switching() == "model" else 0.0
         self._c_arr = np.asarray(self._c)
         st = [0.0] * K.STATE_SIZE
         st[K.LEFT + K.M] = start.m_left
@@ -651,13 +670,14 @@ class BacklashRLS(_RecursiveBase):
         (with no effects this is exactly the per-flank step).
         """
         st, c, R = self._st, self._c, self._R
-        uc, yc, du = K.begin_sample(st, c, u, y)
+        uc, yc, du, y_prev = K.begin_sample(st, c, u, y)
         if du == 0.0:
             return
+        # eq. (12)-(13) on x = y - beta . terms (the backlash output without the effects)
         shift = float(self._beta @ terms)
-        self._prev_shift = shift
-        # eq. (12)-(13) on the model's output (the backlash output without the effects)
-        side = K.engaged_side(st, uc, st[K.X_HAT], du)
+        prev_shift, self._prev_shift = self._prev_shift, shift
+        x_prev = st[K.X_HAT] if c[K.K_SWITCH_MODEL] != 0.0 else y_prev - prev_shift
+        side = K.engaged_side(st, uc, x_prev, du)
         if side == 0:
             return
         lam_rev = K.reversal(st, c, side, yc - shift)
