@@ -1,0 +1,234 @@
+"""The rules of :class:`~online_backlash.drivers.pairing.FramePipeline` on decoded blocks of frames, compiled.
+
+For replay, frames come in blocks (:mod:`~online_backlash.drivers.blockdecode`); this module
+pairs them, unwraps the counts (:class:`~online_backlash.drivers.unwrap.Unwrapper`), applies
+:class:`~online_backlash.drivers.assemble.SampleAssembler`'s checks and
+:class:`~online_backlash.drivers.gaps.GapDetector`'s rule in one numba loop whose state carries
+over from block to block, so the samples, counters, gaps and pair skew are those of the per-frame
+path, bit for bit (``tests/test_can_blocks.py`` compares them). The live source keeps the
+per-frame path (one frame at a time, low latency).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+from online_backlash.errors import InvalidParameterError
+from online_backlash.stream import GAP_PERIODS, Gap
+
+from .blockdecode import OK, DecodedBlock
+from .dbc import BOTH, MOTOR, DbcDecoder
+from .gaps import GapDetector
+from .pairing import CanCounters
+
+# integer state: pending frame [motor, load] (has, counter, count); unwrapper [motor, load] (has, last, total);
+# gap detector (has last, last counter, steps learnt, period known); pairs counted
+_P_HAS, _P_COUNTER, _P_COUNT = 0, 2, 4
+_U_HAS, _U_LAST, _U_TOTAL = 6, 8, 10
+_G_HAS, _G_COUNTER, _G_STEPS, _G_KNOWN, _N_PAIRS = 12, 13, 14, 15, 16
+_N_INT = 17
+# float state: pending frame time [motor, load]; assembler's last time; gap detector's last time and period; skew
+_P_TIME, _A_LAST, _G_LAST, _G_PERIOD, _SKEW_MEAN, _SKEW_MAX = 0, 2, 3, 4, 5, 6
+_N_FLOAT = 7
+
+
+@njit(cache=True)
+def _unwrap(ist, k, count, modulus):  # pragma: no cover - compiled
+    """Unwrapper.__call__ for encoder k (0 motor, 1 load)."""
+    if ist[_U_HAS + k] == 0:
+        ist[_U_HAS + k] = 1
+        ist[_U_TOTAL + k] = count
+    else:
+        step = ((count - ist[_U_LAST + k]) % modulus + modulus) % modulus
+        if step > modulus // 2:
+            step -= modulus
+        ist[_U_TOTAL + k] += step
+    ist[_U_LAST + k] = count
+    return ist[_U_TOTAL + k]
+
+
+@njit(cache=True)
+def _median(values):  # pragma: no cover - compiled
+    """statistics.median."""
+    s = np.sort(values)
+    n = s.size
+    if n % 2 == 1:
+        return s[n // 2]
+    return (s[n // 2 - 1] + s[n // 2]) / 2
+
+
+@njit(cache=True)
+def _pair_block(
+    status, role, counter, motor, load, time_s,
+    paired, max_skew_s, motor_cpr, load_cpr, motor_scale, load_scale, modulus, gap_periods,
+    ist, fst, steps,
+    out_time, out_motor, out_load, out_seq, out_gap, gap_time, gap_dt, gap_missing,
+):  # pragma: no cover - compiled
+    """Process one block; returns (samples, gaps, corrupt, unpaired) added by it."""
+    n_samples = 0
+    n_gaps = 0
+    corrupt = 0
+    unpaired = 0
+    frames_per_sample = 2 if paired else 1
+    learn_steps = steps.size
+    for i in range(status.size):
+        if status[i] != OK:
+            continue
+        t = time_s[i]
+        c = counter[i]
+        skew = 0.0
+        if role[i] == BOTH:
+            motor_count, load_count, sample_t = motor[i], load[i], t
+        else:
+            mine = 0 if role[i] == MOTOR else 1
+            other = 1 - mine
+            match = False
+            if ist[_P_HAS + other] == 1:
+                if c >= 0:
+                    match = c == ist[_P_COUNTER + other]
+                else:
+                    match = abs(t - fst[_P_TIME + other]) <= max_skew_s
+            if not match:
+                if ist[_P_HAS + mine] == 1:
+                    unpaired += 1
+                ist[_P_HAS + mine] = 1
+                ist[_P_COUNTER + mine] = c
+                ist[_P_COUNT + mine] = motor[i] if mine == 0 else load[i]
+                fst[_P_TIME + mine] = t
+                continue
+            ist[_P_HAS + other] = 0
+            if ist[_P_HAS + mine] == 1:
+                unpaired += 1
+                ist[_P_HAS + mine] = 0
+            if mine == 0:
+                motor_t, load_t, motor_count, load_count = t, fst[_P_TIME + 1], motor[i], ist[_P_COUNT + 1]
+            else:
+                motor_t, load_t, motor_count, load_count = fst[_P_TIME], t, ist[_P_COUNT], load[i]
+            sample_t = load_t if load_t < motor_t else motor_t  # min(motor, load) as Python does it
+            skew = load_t - motor_t
+        if paired:
+            ist[_N_PAIRS] += 1
+            fst[_SKEW_MEAN] += (abs(skew) - fst[_SKEW_MEAN]) / ist[_N_PAIRS]
+            if abs(skew) > fst[_SKEW_MAX]:
+                fst[_SKEW_MAX] = abs(skew)
+        motor_deg = _unwrap(ist, 0, motor_count, motor_cpr) * motor_scale
+        load_deg = _unwrap(ist, 1, load_count, load_cpr) * load_scale
+        # SampleAssembler.make
+        if not (np.isfinite(sample_t) and np.isfinite(motor_deg) and np.isfinite(load_deg)):
+            corrupt += frames_per_sample
+            continue
+        if sample_t < fst[_A_LAST]:
+            corrupt += frames_per_sample
+            continue
+        fst[_A_LAST] = sample_t
+        # GapDetector.check
+        gap = False
+        if ist[_G_HAS] == 0:
+            ist[_G_HAS] = 1
+        else:
+            dt = sample_t - fst[_G_LAST]
+            last_c = ist[_G_COUNTER]
+            missing = 0
+            if modulus > 0 and c >= 0 and last_c >= 0:
+                missing = ((c - last_c - 1) % modulus + modulus) % modulus
+            if ist[_G_KNOWN] == 0:
+                if missing == 0:
+                    steps[ist[_G_STEPS]] = dt
+                    ist[_G_STEPS] += 1
+                    if ist[_G_STEPS] == learn_steps:
+                        median = _median(steps)
+                        if median > 0:
+                            fst[_G_PERIOD] = median
+                            ist[_G_KNOWN] = 1
+                        ist[_G_STEPS] = 0
+                else:
+                    gap = True
+            elif missing != 0 or dt > gap_periods * fst[_G_PERIOD]:
+                gap = True
+                missing = max(missing, int(np.rint(dt / fst[_G_PERIOD])) - 1)
+            if gap:
+                gap_time[n_gaps] = sample_t
+                gap_dt[n_gaps] = dt
+                gap_missing[n_gaps] = missing
+                n_gaps += 1
+        fst[_G_LAST] = sample_t
+        ist[_G_COUNTER] = c
+        out_time[n_samples] = sample_t
+        out_motor[n_samples] = motor_deg
+        out_load[n_samples] = load_deg
+        out_seq[n_samples] = c
+        out_gap[n_samples] = gap
+        n_samples += 1
+    return n_samples, n_gaps, corrupt, unpaired
+
+
+class BlockPipeline:
+    """:class:`~online_backlash.drivers.pairing.FramePipeline` (non-strict) for decoded blocks.
+
+    Parameters
+    ----------
+    decoder : DbcDecoder
+    period_s, max_skew_s
+        As for FramePipeline.
+
+    Attributes
+    ----------
+    counters : CanCounters
+        ``samples``, ``corrupt`` (from the sample checks), ``unpaired`` and ``gaps`` are counted
+        here; the caller counts ``frames`` and the decoder's ``corrupt`` and ``skipped``.
+    frames_per_sample : int
+    skew_mean_s, skew_max_s : float
+    """
+
+    def __init__(self, decoder: DbcDecoder, period_s: float | None = None, max_skew_s: float = 1e-3) -> None:
+        if not max_skew_s >= 0:
+            raise InvalidParameterError(f"max_skew_s must be >= 0, got {max_skew_s!r}")
+        gaps = GapDetector(decoder.counter_modulus, period_s)  # validates, and holds the rule's settings
+        self.decoder = decoder
+        self.max_skew_s = float(max_skew_s)
+        self.counters = CanCounters()
+        self.frames_per_sample = 2 if decoder.paired else 1
+        self._modulus = gaps.counter_modulus or 0
+        self._ist = np.zeros(_N_INT, dtype=np.int64)
+        self._fst = np.zeros(_N_FLOAT, dtype=np.float64)
+        self._fst[_A_LAST] = -math.inf
+        if gaps.period_s is not None:
+            self._fst[_G_PERIOD] = gaps.period_s
+            self._ist[_G_KNOWN] = 1
+        self._steps = np.zeros(gaps.learn_steps, dtype=np.float64)
+
+    @property
+    def skew_mean_s(self) -> float:
+        return float(self._fst[_SKEW_MEAN])
+
+    @property
+    def skew_max_s(self) -> float:
+        return float(self._fst[_SKEW_MAX])
+
+    def feed(self, block: DecodedBlock, time_s: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """The samples completed by this block: time (s), motor and load (deg), seq (-1: none), after_gap."""
+        n = time_s.shape[0]
+        out = (np.empty(n), np.empty(n), np.empty(n), np.empty(n, dtype=np.int64), np.empty(n, dtype=np.bool_))
+        gaps = (np.empty(n), np.empty(n), np.empty(n, dtype=np.int64))
+        dec = self.decoder
+        n_samples, n_gaps, corrupt, unpaired = _pair_block(
+            block.status, block.role, block.counter, block.motor, block.load, time_s,
+            dec.paired, self.max_skew_s, dec.motor.counts_per_rev, dec.load.counts_per_rev,
+            dec.motor.deg_per_count, dec.load.deg_per_count, self._modulus, GAP_PERIODS,
+            self._ist, self._fst, self._steps, *out, *gaps,
+        )  # fmt: skip
+        c = self.counters
+        c.samples += n_samples
+        c.corrupt += corrupt
+        c.unpaired += unpaired
+        for t, dt, missing in zip(*(g[:n_gaps].tolist() for g in gaps)):
+            c.report_gap(Gap(t, dt, missing))
+        return tuple(a[:n_samples] for a in out)
+
+    def flush(self) -> None:
+        """End of stream: the frames still waiting for a partner are unpaired."""
+        self.counters.unpaired += int(self._ist[_P_HAS] + self._ist[_P_HAS + 1])
+        self._ist[_P_HAS : _P_HAS + 2] = 0

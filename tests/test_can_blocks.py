@@ -1,0 +1,134 @@
+"""The block path of CAN replay (arrays, compiled pairing) equals the per-frame path of live decoding."""
+
+from __future__ import annotations
+
+import can
+import cantools
+import numpy as np
+import pytest
+from crccheck.crc import Crc8SaeJ1850
+
+from online_backlash.drivers.blockdecode import crc8, crc8_table, signal_values, words
+from online_backlash.drivers.dbc import RIG_DBC, DbcDecoder
+from online_backlash.drivers.pairing import FramePipeline
+from online_backlash.drivers.simulate import rig_can_frames
+from online_backlash.replay import canlog
+from online_backlash.replay.canlog import CanLog
+from online_backlash.rig import simulate_rig
+from online_backlash.stream import chunked
+
+SPLIT = ("MotorAngle.Count", "LoadAngle.Count")
+ONE = ("RigAngles.Motor", "RigAngles.Load")
+T0 = 1_700_000_000.0
+
+TEST_DBC = """VERSION ""
+BU_: A
+BO_ 16 Mixed: 8 A
+ SG_ LeU : 3|13@1+ (1,0) [0|0] "" A
+ SG_ LeS : 18|11@1- (1,0) [0|0] "" A
+ SG_ BeU : 39|12@0+ (1,0) [0|0] "" A
+ SG_ BeS : 43|17@0- (1,0) [0|0] "" A
+ SG_ Top : 58|1@1+ (1,0) [0|0] "" A
+BO_ 17 Short: 5 A
+ SG_ BeOdd : 13|19@0+ (1,0) [0|0] "" A
+ SG_ LeOdd : 33|7@1- (1,0) [0|0] "" A
+"""
+
+
+def test_the_crc_table_comes_from_crccheck_and_gives_its_crc():
+    table = crc8_table()
+    assert table[0] == 0 and len(set(table.tolist())) == 256  # a CRC table is a permutation with 0 -> 0
+    rng = np.random.default_rng(1)
+    for width in range(0, 9):
+        rows = rng.integers(0, 256, size=(300, width), dtype=np.uint8)
+        assert crc8(rows).tolist() == [Crc8SaeJ1850.calc(bytes(r)) for r in rows]
+
+
+def test_signal_values_equal_cantools_decode_both_byte_orders_and_signs():
+    db = cantools.database.load_string(TEST_DBC, database_format="dbc")
+    rng = np.random.default_rng(2)
+    for message in db.messages:
+        rows = rng.integers(0, 256, size=(500, message.length), dtype=np.uint8)
+        le, be = words(rows)
+        for signal in message.signals:
+            expected = [message.decode_simple(bytes(r), False, False)[signal.name] for r in rows]
+            assert signal_values(le, be, signal).tolist() == expected, signal.name
+
+
+def damaged_frames(signals, counter_signal="Counter"):
+    """A simulated run with every kind of trouble: corrupt, foreign, orphans, lost frames, silence, time going back."""
+    rec = simulate_rig(duration_s=0.6, rate_hz=1000.0, seed=3)
+    dec = DbcDecoder(RIG_DBC, *signals, counter_signal=counter_signal)
+    frames = list(rig_can_frames(rec, dec, T0, skew_s=1e-4))
+    ours = frames[0].arbitration_id
+    n = len(frames)  # 1200 frames in two messages, 600 in one
+    for f in frames[97::97]:
+        f.data[1] ^= 0x10  # bad checksum
+    for f in frames[131::131]:
+        f.data = f.data[:-1]  # wrong length
+        f.dlc = len(f.data)
+    del frames[n // 3 : n // 3 + 5]  # lost frames: a counter jump (and an orphan in two messages)
+    del frames[n // 2]
+    frames[n // 2 + 100 : n // 2 + 102] = [frames[n // 2 + 100], frames[n // 2 + 100], frames[n // 2 + 101]]  # a repeated frame
+    for f in frames[3 * n // 4 :]:
+        f.timestamp += 0.05  # a silence
+    for f in frames[n // 4 : n // 4 + 2]:
+        f.timestamp = T0 - 1.0  # time goes backwards
+    extra = [
+        can.Message(timestamp=T0, arbitration_id=0x3AB, data=b"\xde\xad"),  # other traffic
+        can.Message(timestamp=T0, arbitration_id=ours, is_error_frame=True),
+        can.Message(timestamp=T0, arbitration_id=ours, is_remote_frame=True, dlc=len(frames[0].data)),
+        can.Message(timestamp=T0, arbitration_id=ours, is_extended_id=True, data=frames[0].data),
+    ]
+    for k, i in enumerate(range(50, len(frames), 150)):
+        msg = extra[k % len(extra)]
+        frames.insert(i, can.Message(timestamp=frames[i].timestamp, arbitration_id=msg.arbitration_id, is_extended_id=msg.is_extended_id,
+                                     is_error_frame=msg.is_error_frame, is_remote_frame=msg.is_remote_frame, dlc=msg.dlc, data=msg.data))
+    return frames
+
+
+@pytest.mark.parametrize(
+    "signals, options",
+    [
+        (SPLIT, {}),
+        (SPLIT, {"counter_signal": None, "max_skew_s": 2e-4}),  # paired by time
+        (ONE, {}),
+        (ONE, {"motor_cpr": 16000, "period_s": 1e-3}),  # counts >= 16000 are out of range, so corrupt
+    ],
+    ids=["by-counter", "by-time", "one-message", "out-of-range"],
+)
+@pytest.mark.parametrize("block_frames", [7, canlog.BLOCK_FRAMES])
+def test_block_path_equals_the_per_frame_path(tmp_path, monkeypatch, signals, options, block_frames):
+    monkeypatch.setattr(canlog, "BLOCK_FRAMES", block_frames)
+    frames = damaged_frames(signals, options.get("counter_signal", "Counter"))
+    path = tmp_path / "run.blf"
+    with can.Logger(path) as writer:
+        for f in frames:
+            writer.on_message_received(f)
+    decoder_options = {k: options[k] for k in ("motor_cpr", "counter_signal") if k in options}
+    pipe = FramePipeline(DbcDecoder(RIG_DBC, *signals, **decoder_options), options.get("period_s"), options.get("max_skew_s", 1e-3))
+    expected = [s for s in map(pipe.feed, can.LogReader(path)) if s is not None]
+    pipe.flush()
+
+    log = CanLog(path, RIG_DBC, *signals, **options)
+    assert log.block_path
+    assert list(log) == expected  # time, angles, seq and after_gap, exactly
+    c, e = log.counters, pipe.counters
+    assert c.as_dict() == e.as_dict() and list(c.gap_log) == list(e.gap_log)
+    assert (log.pipeline.skew_mean_s, log.pipeline.skew_max_s) == (pipe.skew_mean_s, pipe.skew_max_s)
+    assert c.corrupt > 0 and c.skipped > 0 and c.gaps > 0 and (c.unpaired > 0 or signals == ONE)
+
+    want = list(chunked(expected, 100))
+    got = list(CanLog(path, RIG_DBC, *signals, **options).iter_chunks(100))
+    assert [len(g) for g in got] == [len(w) for w in want]
+    for g, w in zip(got, want):
+        for field in ("time_s", "motor_deg", "load_deg", "after_gap"):
+            assert np.array_equal(getattr(g, field), getattr(w, field)), field
+        assert np.isnan(g.torque_Nm).all()
+
+
+def test_realtime_and_strict_take_the_per_frame_path(tmp_path):
+    log = CanLog(tmp_path / "x.blf", RIG_DBC, *SPLIT)
+    assert log.block_path
+    assert not CanLog(tmp_path / "x.blf", RIG_DBC, *SPLIT, realtime=True).block_path
+    assert not CanLog(tmp_path / "x.blf", RIG_DBC, *SPLIT, strict=True).block_path
