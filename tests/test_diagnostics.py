@@ -185,3 +185,14 @@ def test_tracking_with_the_found_effect_is_unbiased(rec, name):
     # is within 3 % (bench/closing_loop.py --tracker: within 2 % in 8 of 10 seeds for the delay)
     assert abs(tracked.backlash_ - PLAY) <= 0.1 * abs(plain.backlash_ - PLAY) or abs(plain.backlash_ - PLAY) < 0.005
     assert tracked.backlash_ == pytest.approx(PLAY, rel=0.03)
+
+
+def test_profiles_locate_the_effect_and_one_step_residual(rec):
+    diag = _diagnose(rec, "drift")
+    prof = diag.profiles(bins=20)
+    assert set(prof) == {"time", "load angle", "motor angle", "velocity"}
+    before, after = prof["time"]
+    # the warm-up drift sits at the start and the end of the record against time, and is gone after
+    assert np.nanmax(np.abs(before.mean_deg)) > 4 * np.nanmax(np.abs(after.mean_deg))
+    e = diag.one_step_residual_deg
+    assert e.shape == diag.u_deg.shape and np.sqrt(np.mean(e**2)) < 3 * diag.noise.floor_deg

@@ -34,7 +34,7 @@ from ._scoring import BIC_THRESHOLD, MIN_GAIN, Detection, DetectionData
 from .effects import LIBRARY
 from .generic import GENERIC
 from .joint import MAX_PLAY_INFLATION, MAX_PLAY_STD_SHARE, JointFit, engaged_index, fit_guarded, hold_columns, play_sensitivity
-from .residuals import NoiseFloor, noise_floor, simulation_residual
+from .residuals import NoiseFloor, Profile, noise_floor, one_step_residual, profile, simulation_residual
 
 
 @dataclass
@@ -112,8 +112,10 @@ class Diagnosis:
     noise : NoiseFloor
     residual_before_deg, residual_after_deg : arrays
         Simulation residuals of the base and final models.
-    u_deg, time_s : arrays
-        The referred motor angle and the time of the record.
+    u_deg, load_deg, time_s : arrays
+        The referred motor angle, the load angle and the time of the record.
+    ratio : float
+        Gear ratio motor:load.
     """
 
     base: VorosBacklash
@@ -125,6 +127,7 @@ class Diagnosis:
     u_deg: np.ndarray
     load_deg: np.ndarray
     time_s: np.ndarray
+    ratio: float
 
     @property
     def effects(self) -> list[Any]:
@@ -143,6 +146,25 @@ class Diagnosis:
     @property
     def rms_after_deg(self) -> float:
         return float(np.sqrt(np.mean(self.residual_after_deg**2)))
+
+    @property
+    def one_step_residual_deg(self) -> np.ndarray:
+        """The equation error of eq. (14) with the base fit's parameters, deg."""
+        return one_step_residual(self.base.params_, self.u_deg - self.base.u_ref_, self.load_deg - self.base.y_ref_)
+
+    def profiles(self, bins: int = 40) -> dict[str, tuple[Profile, Profile]]:
+        """The simulation residual before and after, binned against time, load angle, motor angle and velocity."""
+        period = float(np.median(np.diff(self.time_s))) if self.time_s.size > 1 else 1.0
+        variables = {
+            "time": (self.time_s, "s"),
+            "load angle": (self.load_deg, "deg"),
+            "motor angle": (self.u_deg * self.ratio, "deg"),
+            "velocity": (np.gradient(self.u_deg, period), "deg/s"),
+        }
+        return {
+            name: tuple(profile(r, v, name, unit, bins) for r in (self.residual_before_deg, self.residual_after_deg))
+            for name, (v, unit) in variables.items()
+        }
 
     def as_dict(self) -> dict[str, Any]:
         """The JSON contract of ``online-backlash diagnose --json``."""
@@ -262,7 +284,7 @@ def diagnose(
         )
         current = fit
     _describe(steps, current)
-    return Diagnosis(base, current, steps, noise, before, current.residual_deg, u, y, t)
+    return Diagnosis(base, current, steps, noise, before, current.residual_deg, u, y, t, float(ratio))
 
 
 def _describe(steps: list[Step], final: JointFit) -> None:

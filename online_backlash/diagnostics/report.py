@@ -6,11 +6,20 @@ import json
 import os
 from typing import Any
 
+import numpy as np
+
 from .loop import Diagnosis
+from .residuals import Profile
 
 
 def _fmt(value: Any) -> str:
     return json.dumps(value, default=float, allow_nan=True)
+
+
+def _peak(p: Profile) -> str:
+    """The largest absolute bin mean and where it sits."""
+    i = int(np.nanargmax(np.abs(p.mean_deg)))
+    return f"{p.mean_deg[i]:+.4f} at {p.centers[i]:.4g}"
 
 
 def markdown_report(diagnosis: Diagnosis, source: str | os.PathLike[str] | None = None, plot: str | None = None) -> str:
@@ -32,6 +41,15 @@ def markdown_report(diagnosis: Diagnosis, source: str | os.PathLike[str] | None 
     ]
     if plot:
         lines += [f"![residual before and after]({plot})", ""]
+    lines += [
+        "Where the residual sits: the largest mean of the simulation residual in 40 bins of each variable, deg.",
+        "",
+        "| against | before | after |",
+        "|---|---|---|",
+    ]
+    for name, (before, after) in diagnosis.profiles().items():
+        lines.append(f"| {name} ({before.unit}) | {_peak(before)} | {_peak(after)} |")
+    lines.append("")
     if not d["effects"] and not d["unexplained"]:
         lines += ["Nothing significant is missing from the model: no effect was added.", ""]
     steps = sorted([("effect", e) for e in d["effects"]] + [("unexplained", e) for e in d["unexplained"]], key=lambda s: s[1]["step"])
