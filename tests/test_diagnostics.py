@@ -150,7 +150,10 @@ def test_effect_parameters_match_the_truth(rec):
 
 
 def test_effect_outside_the_library_is_reported_and_reduced(rec):
-    d = _diagnose(rec, "outside_library").as_dict()
+    diag = _diagnose(rec, "outside_library")
+    d = diag.as_dict()
+    in_order = sorted(d["effects"] + d["unexplained"], key=lambda e: e["step"])
+    assert [e.name for e in diag.all_terms] == [e["name"] for e in in_order]
     reported = d["effects"] + d["unexplained"]
     assert reported
     assert d["rms_after_deg"] <= 0.7 * d["rms_before_deg"]

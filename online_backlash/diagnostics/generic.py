@@ -17,7 +17,7 @@ the loop's identifiability guard decides whether they may move it.
 
 from __future__ import annotations
 
-from typing import Any, Sequence
+from typing import Any
 
 import numpy as np
 

@@ -7,14 +7,15 @@
 2. Score every effect of the library and every generic term on the residual (an information
    criterion with an effective sample size, plus a minimum share explained, see
    :mod:`._scoring`).
-3. Refit jointly with the best significant named effect and, separately, with the best
-   generic term; keep the named effect unless the generic term leaves clearly less (then the
-   structure is *unexplained*: it is reported with where it sits and closed with that generic
-   term). Refit the backlash and all terms jointly by output error
-   (:func:`.joint.fit_joint`); if the new terms blur the play (its standard error above a share
-   :data:`.joint.MAX_PLAY_STD_SHARE`), hold the play and say so.
-   A term whose joint refit does not remove at least ``min_gain`` of the mean square residual
-   is refused (the linear score can promise more than the refit delivers when the play is held).
+3. Refit the backlash and all terms jointly by output error (:func:`.joint.fit_guarded`), once
+   with the best significant named effect and once with the best generic term; keep the named
+   effect unless the generic term leaves clearly less (then the structure is *unexplained*: it
+   is reported with where it sits and closed with that generic term). If the new terms blur
+   the play (variance inflation above :data:`.joint.MAX_PLAY_INFLATION` or standard error
+   above :data:`.joint.MAX_PLAY_STD_SHARE` of the play), the play is held and the report says
+   so. A term whose joint refit does not remove at least ``min_gain`` of the mean square
+   residual is refused (the linear score can promise more than the refit delivers when the
+   play is held).
 4. Repeat until nothing is significant or the residual reaches the noise floor.
 
 Angles in degrees on the load side, time in seconds.
