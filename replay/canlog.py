@@ -40,7 +40,7 @@ from online_backlash.stream import Sample, SampleChunk, chunked
 #: Suffixes python-can reads (``.csv`` is ours: see :mod:`online_backlash.replay.csv`).
 CAN_LOG_SUFFIXES = tuple(s for s in can.io.player.MESSAGE_READERS if s != ".csv")
 #: Frames read into arrays at once on the block path.
-BLOCK_FRAMES = 8192
+BLOCK_FRAMES = 1024
 
 
 class CanLog:
