@@ -214,11 +214,13 @@ def backlash_run(st, c, u, y, after_gap):  # pragma: no cover - compiled
 
 # ---- CascadeRLS state layout -----------------------------------------------------------------
 # scalars, then theta (p), P (p*p, row-major), x_hat history (max(n_a, 2)), y history (n_b),
-# simulated-output history (n_b, the output-error regressor)
+# simulated-output history (n_b, the output-error regressor), then for the prediction-error
+# regressor: d x_hat / d [m1, c1, m2, c2] history (4 per x_hat entry) and the filtered
+# gradient psi, current and n_b past (p each)
 CN_SEEN, CU0, CY0, C_K, C_UPREV, C_F1, C_F2, C_NOISE, C_NRES, C_IDLE, C_LAST, C_NREV = range(12)
 C_THETA = 12
 # constants
-Q_LAM, Q_LAM_REV, Q_TRACE_MAX, Q_NOISE_WINDOW, Q_ORIGIN_FIRST, Q_NA, Q_NB, Q_OUTPUT_ERROR, Q_FREEZE = range(9)
+Q_LAM, Q_LAM_REV, Q_TRACE_MAX, Q_NOISE_WINDOW, Q_ORIGIN_FIRST, Q_NA, Q_NB, Q_OUTPUT_ERROR, Q_FREEZE, Q_PRED_ERROR = range(10)
 
 
 def cascade_sizes(n_a: int, n_b: int) -> tuple[int, int, int, int, int]:
@@ -227,7 +229,7 @@ def cascade_sizes(n_a: int, n_b: int) -> tuple[int, int, int, int, int]:
     off_p = C_THETA + p
     off_x = off_p + p * p
     off_y = off_x + max(n_a, 2)
-    return p, off_p, off_x, off_y, off_y + 2 * n_b
+    return p, off_p, off_x, off_y, off_y + 2 * n_b + 4 * max(n_a, 2) + p * (n_b + 1)
 
 
 def _make_cascade_step(jit):
@@ -242,7 +244,10 @@ def _make_cascade_step(jit):
         nx = max(na, 2)
         oy = ox + nx
         oyh = oy + nb
+        osx = oyh + nb  # d x_hat(t-1-i) / d [m1, c1, m2, c2] at osx + 4 i
+        opsi = osx + 4 * nx  # psi(t - j) at opsi + j p
         oe = c[Q_OUTPUT_ERROR] != 0.0
+        pe = c[Q_PRED_ERROR] != 0.0
         if st[CN_SEEN] == 0.0 and c[Q_ORIGIN_FIRST] != 0.0:
             st[CU0] = u
             st[CY0] = y
@@ -264,6 +269,8 @@ def _make_cascade_step(jit):
             for j in range(nb):
                 st[oy + j] = yc
                 st[oyh + j] = yc
+            for i in range(4 * nx + p * (nb + 1)):
+                st[osx + i] = 0.0
             st[C_UPREV] = uc
             st[C_IDLE] = 0.0
         elif st[C_K] >= max(na, nb, 2) and st[C_IDLE] <= na + nb + 1:
@@ -300,20 +307,45 @@ def _make_cascade_step(jit):
                 inv_lam = 1.0 / lam
                 for i in range(p * p):
                     st[op + i] = st[op + i] * inv_lam
-            s = 1.0
             e = target
             for i in range(p):
-                acc = 0.0
-                row = op + i * p
-                for j in range(p):
-                    if phi[j] != 0.0:  # half of the backlash part of eq. (19) is zero at any time
-                        acc += st[row + j] * phi[j]
-                pphi[i] = acc
-                s += phi[i] * acc
                 e -= st[C_THETA + i] * phi[i]
             n = st[C_NRES] + 1.0
             st[C_NRES] = n
             st[C_NOISE] += (e * e - st[C_NOISE]) / min(n, c[Q_NOISE_WINDOW])
+            if pe:
+                # recursive prediction-error method: the gain follows the gradient of the model
+                # output, d y_hat / d theta = (A / B) d x_hat / d[m1..c2], (q^-i / B) x_hat,
+                # -(q^-j / B) y_hat (eq. 15-18 differentiated), i.e. phi with the sensitivity of
+                # x_hat (held through the dead band) and filtered by 1 / B
+                y_hat = yc - e  # a-priori model output
+                for j in range(nb, 0, -1):
+                    for i in range(p):
+                        st[opsi + j * p + i] = st[opsi + (j - 1) * p + i]
+                for k in range(4):
+                    g = st[osx + k]
+                    for i in range(1, na):
+                        g += st[C_THETA + 3 + i] * st[osx + 4 * i + k]
+                    phi[k] = g
+                for i in range(p):
+                    v = phi[i]
+                    for j in range(1, nb + 1):
+                        v -= st[C_THETA + 3 + na + j - 1] * st[opsi + j * p + i]
+                    phi[i] = v
+                    st[opsi + i] = v
+            s = 1.0
+            for i in range(p):
+                acc = 0.0
+                row = op + i * p
+                if pe:  # the gradient is dense
+                    for j in range(p):
+                        acc += st[row + j] * phi[j]
+                else:
+                    for j in range(p):
+                        if phi[j] != 0.0:  # half of the backlash part of eq. (19) is zero at any time
+                            acc += st[row + j] * phi[j]
+                pphi[i] = acc
+                s += phi[i] * acc
             inv_s = 1.0 / s
             frozen = c[Q_FREEZE] != 0.0  # warm-start replay: theta held, P gathers the information
             for i in range(p):
@@ -324,10 +356,11 @@ def _make_cascade_step(jit):
                     v = st[op + i * p + j] - k * pphi[j]
                     st[op + i * p + j] = v
                     st[op + j * p + i] = v
-            # a-posteriori model output (eq. 18 with the updated theta), for the output-error regressor
-            y_hat = yc - target
-            for i in range(p):
-                y_hat += st[C_THETA + i] * phi[i]
+            if not pe:
+                # a-posteriori model output (eq. 18 with the updated theta), for the output-error regressor
+                y_hat = yc - target
+                for i in range(p):
+                    y_hat += st[C_THETA + i] * phi[i]
         if uc != st[C_UPREV]:
             st[C_IDLE] = 0.0
         else:
@@ -347,6 +380,14 @@ def _make_cascade_step(jit):
         for i in range(nx - 1, 0, -1):
             st[ox + i] = st[ox + i - 1]
         st[ox] = x
+        if pe:  # d x_hat / d [m1, c1, m2, c2]: the engaged line's regressor, else held
+            for i in range(4 * nx - 1, 3, -1):
+                st[osx + i] = st[osx + i - 4]
+            if f1 > 0.0 or f2 > 0.0:
+                st[osx] = uc * f1
+                st[osx + 1] = f1
+                st[osx + 2] = uc * f2
+                st[osx + 3] = -f2
         for j in range(nb - 1, 0, -1):
             st[oy + j] = st[oy + j - 1]
             st[oyh + j] = st[oyh + j - 1]

@@ -925,13 +925,21 @@ class CascadeRLS(_RecursiveBase):
         Initial covariance ``P = p0 I`` after the (warm or cold) start.
     trace_max : float or None
         Bound on ``trace(P)``; None: ``p0`` times the number of parameters.
-    regressor : {"output_error", "equation_error"}
+    regressor : {"prediction_error", "output_error", "equation_error"}
         ``"equation_error"``: eq. (19) as printed, with the measured ``-y(t-j)``.
-        ``"output_error"`` (default): the model's own simulated output ``-y_hat(t-j)`` in their
+        ``"output_error"``: the model's own simulated output ``-y_hat(t-j)`` in their
         place, the pseudo-linear regression of the output-error method (Landau 1976; Ljung &
         Söderström 1983, sec. 3.7): measurement noise then does not enter the regressor (the
         equation error of eq. 24 is biased by it, like the batch iteration before its
         output-error refinement).
+        ``"prediction_error"`` (default): the recursive prediction-error method for the same
+        output error (Ljung & Söderström 1983, sec. 3.8): the gain follows the gradient of
+        the model output, the output-error regressor with the sensitivity of ``x_hat`` held
+        through the dead band and filtered by ``1 / B(q^-1)``. It minimises the criterion of
+        the batch estimator's refinement, where the pseudo-linear regression stops at its own
+        fixed point: on the paper's examples 3-5 streamed after a 500-sample warm start it
+        lands within 3 % of :class:`VorosCascade` in 30 of 30 runs, against 27 of 30
+        (``docs/benchmarks.md``).
 
     Attributes
     ----------
@@ -981,7 +989,7 @@ class CascadeRLS(_RecursiveBase):
         p0: float = 1e3,
         trace_max: float | None = None,
         noise_window: int = 10_000,
-        regressor: str = "output_error",
+        regressor: str = "prediction_error",
     ) -> None:
         self.n_a = n_a
         self.n_b = n_b
@@ -1001,7 +1009,7 @@ class CascadeRLS(_RecursiveBase):
         check_int("n_a", self.n_a, 1)
         check_int("n_b", self.n_b, 0)
         check_real("p0", self.p0, 0.0)
-        check_option("regressor", self.regressor, ("output_error", "equation_error"))
+        check_option("regressor", self.regressor, ("prediction_error", "output_error", "equation_error"))
         if self.trace_max is not None:
             check_real("trace_max", self.trace_max, 0.0)
 
@@ -1020,7 +1028,8 @@ class CascadeRLS(_RecursiveBase):
         trace_max = float(self.p0 * p_lin if self.trace_max is None else self.trace_max)
         self._c = [
             lam, lam_rev, trace_max, float(self.noise_window), 1.0 if self.origin == "first" else 0.0,
-            float(self.n_a), float(self.n_b), 1.0 if self.regressor == "output_error" else 0.0, 0.0,
+            float(self.n_a), float(self.n_b), 0.0 if self.regressor == "equation_error" else 1.0, 0.0,
+            1.0 if self.regressor == "prediction_error" else 0.0,
         ]  # fmt: skip
         self._c_arr = np.asarray(self._c)
         p_, off_p, _, _, size = K.cascade_sizes(self.n_a, self.n_b)
