@@ -6,8 +6,8 @@ r"""Live CAN: a python-can Bus, a Notifier, the raw writer first, then the decod
                   \-> _SampleListener (DbcDecoder + FramePipeline) -> queue -> iter(CanSource)
 
 The notifier thread receives and decodes; the consumer iterates Samples in its own thread.
-The same :class:`~online_backlash.drivers.pairing.FramePipeline` decodes replayed logs
-(:class:`online_backlash.replay.canlog.CanLog`), so the same frames give the same samples.
+Replayed logs (:class:`online_backlash.replay.canlog.CanLog`) apply the same rules to blocks of
+frames (:mod:`~online_backlash.drivers.blockpairing`; tested equal), so the same frames give the same samples.
 """
 
 from __future__ import annotations

@@ -1,7 +1,9 @@
 """CAN frames to Samples: check, pair motor and load frames, unwrap, detect gaps.
 
-One :class:`FramePipeline` is fed every frame seen (live from a Notifier, or from a log
-reader), so the same frames give the same samples live and replayed.
+One :class:`FramePipeline` is fed every frame seen live (from a Notifier) and, frame by frame,
+in paced or strict replay; fast replay applies the same rules to blocks of frames
+(:mod:`~online_backlash.drivers.blockpairing`, tested equal), so the same frames give the same
+samples live and replayed.
 
 Pairing (when motor and load come in two messages): by rolling counter when the messages have
 one (a frame pairs with the pending frame of the other message with the same counter), else by
