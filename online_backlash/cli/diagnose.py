@@ -7,8 +7,8 @@ import argparse
 from ..diagnostics.loop import diagnose
 from ..diagnostics.plot import plot_diagnosis
 from ..diagnostics.report import markdown_report
-from ..replay import read_csv_arrays
-from ._common import add_log_options, add_ratio_option, print_json
+from ..replay import read_log_arrays
+from ._common import add_can_decoding_options, add_log_options, add_ratio_option, print_json
 from .estimate import log_options
 
 
@@ -23,18 +23,23 @@ def add_subparser(subparsers: argparse._SubParsersAction) -> None:
         ),
         formatter_class=argparse.ArgumentDefaultsHelpFormatter,
     )
-    parser.add_argument("log", help="recorded log (.csv, .csv.gz); a torque column is used when mapped")
+    parser.add_argument(
+        "log",
+        help="recorded log: .csv[.gz] (a torque column is used when mapped); a CAN log (with --dbc); a serial capture (with --serial-format)",
+    )
     add_ratio_option(parser)
     parser.add_argument("--json", action="store_true", help="print one JSON object")
     parser.add_argument("--plot", metavar="FILE.png", help="write the residual before/after plot")
     parser.add_argument("--report", metavar="FILE.md", help="write a Markdown report")
     parser.add_argument("--max-terms", type=int, default=6, help="most terms (named or generic) to add")
     add_log_options(parser)
+    add_can_decoding_options(parser, required=False)
+    parser.add_argument("--serial-format", choices=("ascii", "binary"), help="frame format of a serial capture (.serial)")
     parser.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
-    chunk = read_csv_arrays(args.log, **log_options(args))
+    chunk = read_log_arrays(args.log, **log_options(args))
     result = diagnose(chunk, args.ratio, max_terms=args.max_terms)
     if args.plot:
         plot_diagnosis(result, args.plot)
