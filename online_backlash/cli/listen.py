@@ -1,9 +1,9 @@
 """``online-backlash listen can|serial ...``: estimate the backlash live from a rig.
 
 Every frame or byte received is written to ``--raw-log DIR`` before it is decoded, so
-``online-backlash estimate DIR`` (the whole directory, or one of its files) gives the same result later. A status line on
-stderr shows the estimate with its standard error, samples/s, corrupt frames and gaps; the
-summary comes when ``--duration`` is reached or on Ctrl-C (with ``--json``: one JSON object on
+``online-backlash estimate DIR`` (the whole directory, or one of its files) gives the same
+result later. A status line on stderr shows the estimate with its standard error, samples/s,
+corrupt frames and gaps; the summary comes when ``--duration`` is reached or on Ctrl-C (with ``--json``: one JSON object on
 stdout, the keys of ``estimate --json`` plus the source's counters).
 """
 
