@@ -216,9 +216,9 @@ def backlash_run(st, c, u, y, after_gap):  # pragma: no cover - compiled
 # scalars, then theta (p), P (p*p, row-major), x_hat history (max(n_a, 2)), y history (n_b),
 # simulated-output history (n_b, the output-error regressor), then for the prediction-error
 # regressor: d x_hat / d [m1, c1, m2, c2] history (4 per x_hat entry) and the filtered
-# gradient psi, current and n_b past (p each)
-CN_SEEN, CU0, CY0, C_K, C_UPREV, C_F1, C_F2, C_NOISE, C_NRES, C_IDLE, C_LAST, C_NREV = range(12)
-C_THETA = 12
+# gradient psi, a ring of n_b + 1 slots of p (C_PSI_HEAD: the slot of psi(t-1))
+CN_SEEN, CU0, CY0, C_K, C_UPREV, C_F1, C_F2, C_NOISE, C_NRES, C_IDLE, C_LAST, C_NREV, C_PSI_HEAD = range(13)
+C_THETA = 13
 # constants
 Q_LAM, Q_LAM_REV, Q_TRACE_MAX, Q_NOISE_WINDOW, Q_ORIGIN_FIRST, Q_NA, Q_NB, Q_OUTPUT_ERROR, Q_FREEZE, Q_PRED_ERROR = range(10)
 
@@ -245,7 +245,7 @@ def _make_cascade_step(jit):
         oy = ox + nx
         oyh = oy + nb
         osx = oyh + nb  # d x_hat(t-1-i) / d [m1, c1, m2, c2] at osx + 4 i
-        opsi = osx + 4 * nx  # psi(t - j) at opsi + j p
+        opsi = osx + 4 * nx  # ring of psi vectors
         oe = c[Q_OUTPUT_ERROR] != 0.0
         pe = c[Q_PRED_ERROR] != 0.0
         if st[CN_SEEN] == 0.0 and c[Q_ORIGIN_FIRST] != 0.0:
@@ -319,43 +319,45 @@ def _make_cascade_step(jit):
                 # -(q^-j / B) y_hat (eq. 15-18 differentiated), i.e. phi with the sensitivity of
                 # x_hat (held through the dead band) and filtered by 1 / B
                 y_hat = yc - e  # a-priori model output
-                for j in range(nb, 0, -1):
-                    for i in range(p):
-                        st[opsi + j * p + i] = st[opsi + (j - 1) * p + i]
                 for k in range(4):
                     g = st[osx + k]
                     for i in range(1, na):
                         g += st[C_THETA + 3 + i] * st[osx + 4 * i + k]
                     phi[k] = g
+                n_slots = nb + 1
+                head = int(st[C_PSI_HEAD])
+                for j in range(1, nb + 1):  # psi(t) = raw(t) - sum_j b_j psi(t-j)
+                    b_j = st[C_THETA + 3 + na + j - 1]
+                    o = opsi + ((head + j - 1) % n_slots) * p
+                    for i in range(p):
+                        phi[i] -= b_j * st[o + i]
+                head = (head + nb) % n_slots  # the free slot (psi(t-nb-1)) takes psi(t)
+                st[C_PSI_HEAD] = head
+                o = opsi + head * p
                 for i in range(p):
-                    v = phi[i]
-                    for j in range(1, nb + 1):
-                        v -= st[C_THETA + 3 + na + j - 1] * st[opsi + j * p + i]
-                    phi[i] = v
-                    st[opsi + i] = v
+                    st[o + i] = phi[i]
+            # P phi as a sum of P's rows (P is symmetric), skipping the zeros of phi: half of
+            # the backlash part of eq. (19) is zero at any time
+            for i in range(p):
+                pphi[i] = 0.0
+            for j in range(p):
+                pj = phi[j]
+                if pj != 0.0:
+                    row = op + j * p
+                    for i in range(p):
+                        pphi[i] += st[row + i] * pj
             s = 1.0
             for i in range(p):
-                acc = 0.0
-                row = op + i * p
-                if pe:  # the gradient is dense
-                    for j in range(p):
-                        acc += st[row + j] * phi[j]
-                else:
-                    for j in range(p):
-                        if phi[j] != 0.0:  # half of the backlash part of eq. (19) is zero at any time
-                            acc += st[row + j] * phi[j]
-                pphi[i] = acc
-                s += phi[i] * acc
+                s += phi[i] * pphi[i]
             inv_s = 1.0 / s
-            frozen = c[Q_FREEZE] != 0.0  # warm-start replay: theta held, P gathers the information
-            for i in range(p):
-                k = pphi[i] * inv_s  # gain K = P phi / (1 + phi' P phi)
-                if not frozen:
-                    st[C_THETA + i] += k * e
-                for j in range(i, p):  # P <- P - K phi' P, symmetric: upper triangle, mirrored
-                    v = st[op + i * p + j] - k * pphi[j]
-                    st[op + i * p + j] = v
-                    st[op + j * p + i] = v
+            if c[Q_FREEZE] == 0.0:  # (warm-start replay: theta held, P gathers the information)
+                for i in range(p):
+                    st[C_THETA + i] += pphi[i] * inv_s * e  # gain K = P phi / (1 + phi' P phi)
+            for i in range(p):  # P <- P - P phi phi' P / s, exactly symmetric
+                row = op + i * p
+                pi = pphi[i]
+                for j in range(p):
+                    st[row + j] -= (pi * pphi[j]) * inv_s
             if not pe:
                 # a-posteriori model output (eq. 18 with the updated theta), for the output-error regressor
                 y_hat = yc - target
