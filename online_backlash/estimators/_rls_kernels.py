@@ -31,8 +31,8 @@ from numba import njit
 N_SEEN, HAVE_PREV, U0, Y0, U_PREV, Y_PREV, T_MOTION = range(7)
 LEFT, RIGHT = 7, 16  # offset of each flank's block; also the flank's code in LAST_SIDE
 M, B, UREF, R11, R12, R22, W_COUNT, W_TIME, N_UPD = range(9)  # fields of a flank block
-LAST_SIDE, N_REV, NOISE_VAR, N_RESID, W_EWMA, W_EWMA_SET, T_LAST_REV, W_RATE, X_HAT = range(25, 34)
-STATE_SIZE = 34
+LAST_SIDE, N_REV, NOISE_VAR, N_RESID, W_EWMA, W_EWMA_SET, T_LAST_REV, W_RATE, X_HAT, HOLD_SIDE = range(25, 35)
+STATE_SIZE = 35  # HOLD_SIDE: the flank the model's output X_HAT rests on (0: unknown, after a start or gap)
 
 # ---- BacklashRLS constants ---------------------------------------------------------------------
 K_DT, K_LAM, K_LAM_REV, K_FLOOR_M, K_FLOOR_B, K_MIN_STEP, K_NOISE_WINDOW, K_WEAR_HORIZON, K_ORIGIN_FIRST, K_FREEZE, K_SWITCH_MODEL = range(11)
@@ -60,6 +60,7 @@ def _make_backlash_steps(jit):
         if st[HAVE_PREV] == 0.0:
             du = 0.0
             st[X_HAT] = yc  # (re)start the model's output at the measured one
+            st[HOLD_SIDE] = 0.0
         st[HAVE_PREV] = 1.0
         st[U_PREV] = uc
         st[Y_PREV] = yc
@@ -150,9 +151,13 @@ def _make_backlash_steps(jit):
         st[NOISE_VAR] += (e * e - st[NOISE_VAR]) / min(n, c[K_NOISE_WINDOW])
 
     @jit
-    def update_side(st, c, o, uc, yc):
-        """One RLS update of flank ``o`` with target ``y(t)`` (eq. 11 on an engaged flank)."""
-        recenter(st, o, uc)
+    def update_side(st, c, o, yc):
+        """One RLS update of flank ``o``'s line at its reference with target ``y(t)``.
+
+        On an engaged flank (reference moved to ``u(t)`` first) this is eq. (11); in the
+        dead band (reference left where the flank was last driven) it is the output-error
+        gradient of eq. (1)'s third case: the load rests where the flank left it.
+        """
         forget_side(st, o, c[K_LAM], c[K_FLOOR_M], c[K_FLOOR_B])
         e = yc - st[o + B]  # a-priori error, eq. (14); the local regressor is [0, 1]
         track_noise(st, c, e)
@@ -167,7 +172,8 @@ def _make_backlash_steps(jit):
         st[o + W_COUNT] += 1.0
         st[o + W_TIME] += st[T_MOTION]
         st[o + N_UPD] += 1.0
-        st[X_HAT] = st[o + B]  # the model's output: on the updated line, at uc
+        st[X_HAT] = st[o + B]  # the model's output: on the updated line, at its reference
+        st[HOLD_SIDE] = o
 
     @jit
     def step(st, c, u, y):
@@ -175,14 +181,18 @@ def _make_backlash_steps(jit):
         uc, yc, du, y_prev = begin_sample(st, c, u, y)
         if du == 0.0:
             return
-        side = engaged_side(st, uc, st[X_HAT] if c[K_SWITCH_MODEL] != 0.0 else y_prev, du)
+        model = c[K_SWITCH_MODEL] != 0.0
+        side = engaged_side(st, uc, st[X_HAT] if model else y_prev, du)
         if side == 0:
+            if model and st[HOLD_SIDE] != 0.0:  # moving in the dead band
+                update_side(st, c, int(st[HOLD_SIDE]), yc)
             return
         lam = reversal(st, c, side, yc)
         if lam != 1.0:
             forget_side(st, LEFT, lam, c[K_FLOOR_M], c[K_FLOOR_B])
             forget_side(st, RIGHT, lam, c[K_FLOOR_M], c[K_FLOOR_B])
-        update_side(st, c, side, uc, yc)
+        recenter(st, side, uc)
+        update_side(st, c, side, yc)
 
     return begin_sample, engaged_side, flank_width, reversal, recenter, track_noise, step
 

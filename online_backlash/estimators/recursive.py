@@ -409,21 +409,28 @@ class BacklashRLS(_RecursiveBase):
     them in the reference-origin coordinates of the paper.
 
     The switching functions eq. (12)-(13) are evaluated with the current estimates and, by
-    default, the model's own output ``x_hat(t-1)`` (eq. 1-3 run with the current estimates: on
-    the line of the flank last updated, held in the dead band), as in the output-error
-    refinement of the batch estimator, rather than the measured ``x(t-1)``. On a real drive the load creeps up to
-    the flank after each reversal (compliance); read through the measured output, those samples
-    look like dead band and the flank's line is fitted without them, which made the play 0.2 deg
-    (12 %) larger than the batch fit on the da Vinci gearhead recordings
-    (``docs/benchmarks.md``). With ``phi`` of eq. (8) only one flank is in the regressor at a
-    time, so the 4-parameter RLS splits exactly into one 2-parameter RLS per flank.
+    default (``switching="model"``), the model's own output ``x_hat(t-1)`` (eq. 1-3 run with
+    the current estimates: on the line of the flank last updated, held in the dead band), as
+    in the output-error refinement of the batch estimator, rather than the measured
+    ``x(t-1)``. A sample taken while the motor moves inside the model's dead band then updates
+    the flank last driven at its last operating point, where eq. (1)'s third case holds the
+    load (the output-error gradient; the batch refinement uses those samples too). On a real
+    drive the load creeps onto the flank after each reversal (compliance) while a position
+    loop jumps the motor through the gap: read through the measured output, those samples
+    look like dead band and the flank's line was fitted without them, which made the play
+    0.2-0.34 deg (12-20 %) larger than the batch fit on the da Vinci gearhead recordings;
+    now 0.8-2.5 % (``docs/benchmarks.md``). With ``phi`` of eq. (8) only one flank is in the
+    regressor at a time, so the 4-parameter RLS splits exactly into one 2-parameter RLS per
+    flank.
 
     **Anti-windup** (what the estimator does while the rig idles). Three mechanisms:
 
     1. *Conditional, per-side updating* (Åström & Wittenmark 1995, ch. 11): a flank is
        updated, and its information forgotten, only on samples where the motor moved into it
        (eq. 12 and ``u`` decreasing for the left flank, eq. 13 and ``u`` increasing for the
-       right). A still motor, or motion inside the dead band, changes nothing.
+       right), or (``switching="model"``) moved inside the dead band after driving it,
+       which informs only its intercept at its last operating point. A still motor changes
+       nothing.
     2. *Regularised forgetting* (Gunnarsson 1996): information decays towards a floor,
        ``R <- lam R + (1 - lam) R_floor``, so the covariance ``R^-1`` is bounded by
        ``R_floor^-1`` however long the data carry no information in some direction
@@ -676,23 +683,27 @@ class BacklashRLS(_RecursiveBase):
         # eq. (12)-(13) on x = y - beta . terms (the backlash output without the effects)
         shift = float(self._beta @ terms)
         prev_shift, self._prev_shift = self._prev_shift, shift
-        x_prev = st[K.X_HAT] if c[K.K_SWITCH_MODEL] != 0.0 else y_prev - prev_shift
-        side = K.engaged_side(st, uc, x_prev, du)
-        if side == 0:
-            return
-        lam_rev = K.reversal(st, c, side, yc - shift)
+        model = c[K.K_SWITCH_MODEL] != 0.0
+        side = K.engaged_side(st, uc, st[K.X_HAT] if model else y_prev - prev_shift, du)
         floor = np.full(R.shape[0], self.info_floor)
-        if lam_rev != 1.0:
-            R *= lam_rev
-            R += np.diag((1.0 - lam_rev) * floor)
-            for o in (K.LEFT, K.RIGHT):
-                st[o + K.W_COUNT] *= lam_rev
-                st[o + K.W_TIME] *= lam_rev
-        j = 0 if side == K.LEFT else 2
-        d = K.recenter(st, side, uc)
-        # information matrix under b' = b + m d: column/row j <- j - d (j+1)
-        R[:, j] -= d * R[:, j + 1]
-        R[j, :] -= d * R[j + 1, :]
+        if side == 0:
+            if not (model and st[K.HOLD_SIDE] != 0.0):
+                return
+            side = int(st[K.HOLD_SIDE])  # moving in the dead band: the last flank at its reference
+            j = 0 if side == K.LEFT else 2
+        else:
+            lam_rev = K.reversal(st, c, side, yc - shift)
+            if lam_rev != 1.0:
+                R *= lam_rev
+                R += np.diag((1.0 - lam_rev) * floor)
+                for o in (K.LEFT, K.RIGHT):
+                    st[o + K.W_COUNT] *= lam_rev
+                    st[o + K.W_TIME] *= lam_rev
+            j = 0 if side == K.LEFT else 2
+            d = K.recenter(st, side, uc)
+            # information matrix under b' = b + m d: column/row j <- j - d (j+1)
+            R[:, j] -= d * R[:, j + 1]
+            R[j, :] -= d * R[j + 1, :]
         lam = c[K.K_LAM]
         idx = np.r_[j, j + 1, 4 : R.shape[0]]
         scale = np.ones(R.shape[0])
@@ -722,6 +733,7 @@ class BacklashRLS(_RecursiveBase):
         st[side + K.W_TIME] += st[K.T_MOTION]
         st[side + K.N_UPD] += 1.0
         st[K.X_HAT] = st[side + K.B]
+        st[K.HOLD_SIDE] = side
 
     def _extra_state(self) -> dict[str, Any]:
         if not self._effects:
