@@ -31,3 +31,14 @@ def test_ci_runs_the_readme_test_command():
         pytest.fail(".ci/run is missing")
     ci = (ROOT / ".ci" / "run").read_text().splitlines()
     assert setup_commands()[1] in [ln.strip() for ln in ci]
+
+
+def test_readme_python_example_runs():
+    text = (ROOT / "README.md").read_text()
+    blocks = re.findall(r"```python\n(.*?)```", text, re.S)
+    assert blocks, "README has no Python example"
+    namespace: dict = {}
+    for block in blocks:
+        exec(compile(block, "README.md", "exec"), namespace)  # noqa: S102 - our own README
+    assert abs(namespace["rls"].backlash_ - 0.5) < 0.01
+    assert abs(namespace["est"].backlash_ - 1.2) < 1e-6
