@@ -196,7 +196,8 @@ def test_sigkill_mid_log_then_restart_gives_the_uninterrupted_history(tmp_path):
         for p in paths:
             tracker.track_log(p)
 
-    proc = subprocess.Popen([*command, *argv, "--db", str(db)], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    # cwd: run the installed package, not the source tree (drivers/ and replay/ are mapped at install)
+    proc = subprocess.Popen([*command, *argv, "--db", str(db)], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, cwd=tmp_path)
     deadline = time.monotonic() + 120
     estimates_in_second_log = 0
     while estimates_in_second_log < 10 and proc.poll() is None and time.monotonic() < deadline:
@@ -214,7 +215,7 @@ def test_sigkill_mid_log_then_restart_gives_the_uninterrupted_history(tmp_path):
     assert [r[4] for r in killed["runs"]] == ["complete", "running"]  # killed inside the second log
     assert 0 < len(killed["estimates"]) < len(snapshot(reference)["estimates"])
 
-    done = subprocess.run([*command, *argv, "--db", str(db)], check=True, capture_output=True, text=True)
+    done = subprocess.run([*command, *argv, "--db", str(db)], check=True, capture_output=True, text=True, cwd=tmp_path)
     assert "day00.csv: already imported" in done.stdout and "resumed after" in done.stdout
     assert snapshot(db) == snapshot(reference)  # no duplicate, no hole, bit-identical estimates
 
