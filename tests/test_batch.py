@@ -2,14 +2,25 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
 from online_backlash import VorosBacklash, VorosCascade
 from online_backlash.errors import ConvergenceWarning, InvalidParameterError, NotExcitedError, NotFittedError
 from online_backlash.model import PAPER_EXAMPLES, BacklashParams, simulate_backlash, simulate_cascade
+from online_backlash.replay import read_csv_arrays
 from online_backlash.rig import simulate_rig
 from online_backlash.stream import refer_to_load
+
+SHARED = Path(__file__).resolve().parents[2] / "shared" / "data" / "davinci_tool_gearhead_backlash"
+DAVINCI = {
+    "columns": {"time": "time_s", "motor": "motor_counts", "load": "spindle_counts"},
+    "units": "counts",
+    "motor_cpr": 4096,
+    "load_cpr": 8192,
+}
 
 ESTIMATORS = [VorosBacklash, VorosCascade]
 
@@ -81,6 +92,33 @@ def test_one_flank_never_engaged_is_not_excited():
     x = simulate_backlash(u, BacklashParams(1.0, 0.5, 1.0, 0.5))
     with pytest.raises(NotExcitedError, match="both sides"):
         VorosBacklash().fit(u, x)
+
+
+@pytest.mark.parametrize("slope", [0.9, 0.97, 1.0, 1.03])
+def test_rig_slope_off_one_starts_from_the_direction_of_motion(slope):
+    # a 280 deg stroke at slope 0.97 ends 8 deg below the paper's start line (slopes +-1):
+    # from there every sample lies on the right flank and the left is empty
+    rec = simulate_rig(duration_s=10.0, slope=slope, play_deg=0.5, seed=0)
+    u = refer_to_load(rec.motor_deg, rec.ratio)
+    est = VorosBacklash().fit(u, rec.load_deg)
+    assert est.start_ == ("paper" if slope == 1.0 else "direction")
+    assert est.backlash_ == pytest.approx(0.5, rel=0.02)
+    assert est.m_left_ == pytest.approx(slope, rel=1e-3) and est.m_right_ == pytest.approx(slope, rel=1e-3)
+
+
+def test_paper_examples_keep_the_paper_start():
+    for number in (1, 2):
+        u, x = PAPER_EXAMPLES[number].generate(seed=0)
+        assert VorosBacklash(origin="zero").fit(u, x).start_ == "paper"
+
+
+def test_stretch_moving_one_way_is_not_excited():
+    # the last 4977 samples of a measured gearhead run: one reversal, but the input falls on
+    # only 7 samples (never with the load), so no start engages the left flank
+    chunk = read_csv_arrays(SHARED / "tool4_L_run00_0.1Hz_torque10pct.csv", **DAVINCI)
+    u, y = chunk.motor_deg[-4977:] / -35.0, chunk.load_deg[-4977:]
+    with pytest.raises(NotExcitedError, match="1366 samples with the input rising and 0 with it falling"):
+        VorosBacklash().fit(u, y)
 
 
 def test_thousand_degree_offsets_change_no_estimate(rig):

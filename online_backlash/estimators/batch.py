@@ -107,6 +107,32 @@ def _start_params(u: np.ndarray, y: np.ndarray) -> BacklashParams:
     return BacklashParams(sign, 1e-3, sign, 1e-3)
 
 
+def _direction_guess(u: np.ndarray, y: np.ndarray) -> BacklashParams:
+    """Start lines from the direction of motion alone (no switching functions).
+
+    A sample is taken as engaged when input and output move together (``du dy`` of the sign of
+    the overall correlation): on the right flank when ``u`` rises, on the left when it falls.
+    One least-squares fit ``y = m u + b_side`` gives a common slope and the two intercepts, so
+    the lines pass through the data of each flank whatever the slope.
+    """
+    du, dy = np.diff(u), np.diff(y)
+    sign = 1.0 if _inner(du, dy) >= 0 else -1.0
+    moving = du * dy * sign > 0
+    right = moving & (du > 0)
+    left = moving & (du < 0)
+    if right.sum() < 2 or left.sum() < 2:
+        raise NotExcitedError(
+            f"input and output move together on {int(right.sum())} samples with the input rising "
+            f"and {int(left.sum())} with it falling; both flanks need at least 2"
+        )
+    sel = right | left
+    X = np.column_stack((u[1:][sel], right[sel], left[sel])).astype(float)
+    (m, b_right, b_left), _ = _normal_equations(X, y[1:][sel])
+    if m == 0:
+        raise NotExcitedError("the output does not follow the input (zero slope) while both move")
+    return BacklashParams(m, b_left / m, m, -b_right / m)
+
+
 def _check_sides(f1: np.ndarray, f2: np.ndarray) -> None:
     if f1.sum() < 2 or f2.sum() < 2:
         raise NotExcitedError(
@@ -246,12 +272,29 @@ class VorosBacklash(_VorosBase):
         False when the iteration stopped at ``max_iter`` (a ConvergenceWarning was issued).
     stop_reason_ : {"tol", "cycle", "max_iter"}
         Why the iteration stopped.
+    start_ : {"paper", "direction"}
+        Where the iteration started (see Notes).
     refine_nfev_ : int
         Simulations run by the refinement (when ``refine=True``).
     residual_rms_ : float
         RMS of the simulation residual ``x - simulate(u)`` on the fitted data, input units.
     u_ref_, y_ref_ : float
         The origin subtracted from the inputs and outputs.
+
+    Notes
+    -----
+    Start. The iteration starts from the paper's values, ``mL = mR = +-1``, ``cL = cR = 0.001``
+    (``start_ = "paper"``). On a rig whose slope is not 1 (a gear ratio off its nominal value)
+    the data drift away from those lines over a long stroke: with ``u`` running 280 deg one way
+    at slope 0.97 they end 8 deg below the start line, every sample falls on one flank, and
+    eq. (12)-(13) leave the other empty. When the paper's start engages fewer than 2 samples
+    on a side, or leads to a zero slope or slopes of opposite sign (eq. 9), the iteration is
+    run again from lines fitted to the direction of motion (``start_ = "direction"``): samples
+    where input and output move together, rising ``u`` on the right flank and falling ``u``
+    on the left, give one least-squares slope and an intercept per flank, so each line passes
+    through its flank's data. Where the paper's start works it is kept, and so are the
+    paper's iteration counts. When neither start engages both flanks (a stretch that barely
+    moves one way), :class:`~online_backlash.errors.NotExcitedError` says so with the counts.
 
     Examples
     --------
@@ -274,7 +317,7 @@ class VorosBacklash(_VorosBase):
         Raises
         ------
         NotExcitedError
-            When ``u`` never reverses or one flank is never engaged.
+            When ``u`` never reverses or one flank is never engaged (from either start, see Notes).
         """
         self._validate_params()
         u, x = check_pair(u, x)
@@ -291,9 +334,26 @@ class VorosBacklash(_VorosBase):
             target = x_t - x_prev * (1 - f1) * (1 - f2)  # left side of eq. (11)
             return _solve(phi[active], target[active])  # eq. (14), least squares
 
-        theta, history = self._iterate(step, _start_params(uc, xc).theta)
-        self.history_ = [BacklashParams.from_theta(t) for t in history]
-        self.equation_error_params_ = BacklashParams.from_theta(theta)
+        def run(start: BacklashParams) -> list[BacklashParams]:
+            # eq. (9) on every estimate: a zero slope or slopes of opposite sign raise here
+            return [BacklashParams.from_theta(t) for t in self._iterate(step, start.theta)[1]]
+
+        try:
+            self.history_ = run(_start_params(uc, xc))
+            self.start_ = "paper"
+        except (NotExcitedError, InvalidParameterError):
+            # the paper's start lines lie off the data (slope not +-1 over a long stroke):
+            # start again from lines fitted to the direction of motion
+            try:
+                self.history_ = run(_direction_guess(uc, xc))
+            except (NotExcitedError, InvalidParameterError) as exc:
+                raise NotExcitedError(
+                    "the paper's iteration found no estimate that engages both flanks, from the "
+                    f"paper's start or from the direction of motion ({exc}); the data do not "
+                    "excite both sides of the dead band well enough (more reversals needed)"
+                ) from exc
+            self.start_ = "direction"
+        self.equation_error_params_ = self.history_[-1]
         params = self.equation_error_params_
         if self.refine:
             params = self._refine(uc, xc, params)

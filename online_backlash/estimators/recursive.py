@@ -37,7 +37,7 @@ from ..errors import ConvergenceWarning, InvalidParameterError, NotExcitedError,
 from ..model import BacklashParams
 from . import _rls_kernels as K
 from ._validation import check_int, check_option, check_real
-from .batch import VorosBacklash, VorosCascade, _start_params
+from .batch import VorosBacklash, VorosCascade, _direction_guess, _start_params
 
 _STARTS = ("batch", "cold")
 _ORIGINS = ("first", "zero")
@@ -61,26 +61,6 @@ def _check_effects(effects: Sequence[EffectTerms] | None) -> list[EffectTerms]:
                 f"effects must follow online_backlash.effect_terms.EffectTerms (name, n_terms, terms, reset), got {eff!r}"
             )
     return out
-
-
-def _direction_guess(u: np.ndarray, y: np.ndarray) -> BacklashParams:
-    """Start lines from the direction of motion alone (no switching functions).
-
-    A sample is taken as engaged when input and output move together (``du dy`` of the sign of
-    the overall correlation): on the right flank when ``u`` rises, on the left when it falls.
-    One least-squares fit ``y = m u + b_side`` gives a common slope and the two intercepts.
-    """
-    du, dy = np.diff(u), np.diff(y)
-    sign = 1.0 if np.dot(du, dy) >= 0 else -1.0
-    moving = du * dy * sign > 0
-    right = moving & (du > 0)
-    left = moving & (du < 0)
-    if right.sum() < 2 or left.sum() < 2:
-        raise NotExcitedError("the input and output never move together in both directions")
-    sel = right | left
-    X = np.column_stack((u[1:][sel], right[sel], left[sel])).astype(float)
-    (m, b_right, b_left), *_ = np.linalg.lstsq(X, y[1:][sel], rcond=None)
-    return BacklashParams(m, b_left / m, m, -b_right / m)
 
 
 class _RecursiveBase:
@@ -585,22 +565,10 @@ class BacklashRLS(_RecursiveBase):
 
     @staticmethod
     def _warm_fit(uc: np.ndarray, yc: np.ndarray) -> tuple[BacklashParams, int]:
-        """:class:`VorosBacklash` on the buffer (reference-origin coordinates).
-
-        The paper starts from slopes of +-1; on a rig whose slope is not 1 the start lines drift
-        apart from the data over many revolutions and every sample falls on one side. Then the
-        input is first rescaled by the slope of :func:`_direction_guess`, so that the paper's
-        start fits, and the estimate is scaled back (``mL = s mL'``, ``cL = cL' / s``).
-        """
-        try:
-            batch = VorosBacklash(origin="zero").fit(uc, yc)
-            return batch.params_, int(batch.n_iter_)
-        except NotExcitedError:
-            guess = _direction_guess(uc, yc)
-        scale = 0.5 * (guess.m_left + guess.m_right)
-        batch = VorosBacklash(origin="zero").fit(uc * scale, yc)
-        p = batch.params_
-        return BacklashParams(p.m_left * scale, p.c_left / scale, p.m_right * scale, p.c_right / scale), int(batch.n_iter_)
+        """:class:`VorosBacklash` on the buffer (reference-origin coordinates); on a rig whose
+        slope is not 1 it starts from the direction of motion (its ``start_``)."""
+        batch = VorosBacklash(origin="zero").fit(uc, yc)
+        return batch.params_, int(batch.n_iter_)
 
     def _cold_params(self, u: np.ndarray | None, y: np.ndarray | None) -> BacklashParams:
         if u is None or u.size < 2:
