@@ -7,6 +7,7 @@ import datetime as dt
 import io
 import json
 import os
+import re
 import signal
 import sqlite3
 import threading
@@ -276,3 +277,17 @@ def test_track_and_history_on_postgresql(capsys, postgres_db, short_log):
     assert d["estimates"][-1]["backlash_deg"] == pytest.approx(0.3, abs=0.02)
     code, out, _ = run_cli(capsys, "track", short_log, "--ratio", 30, "--db", postgres_db, "--gearbox", "rig-7")
     assert code == 0 and "already imported" in out
+
+
+def test_demo_replays_the_bundled_wear_series(capsys, tmp_path):
+    assert main(["demo", "--plot", str(tmp_path / "fit.png")]) == 0
+    out = capsys.readouterr().out
+    wear = out[out.index("wear history:"):]
+    assert "12 daily logs of gearbox demo-30to1 (true play 0.200 -> 0.300 deg)" in wear and "58 estimates" in wear
+    trend = float(re.search(r"^trend: ([+-][0-9.]+) deg per operating hour", wear, re.M).group(1))
+    true_rate = float(re.search(r"^true wear: +([0-9.]+) deg per operating hour", wear, re.M).group(1))
+    assert trend == pytest.approx(true_rate, rel=0.15)
+    assert re.search(r"^forecast: limit 21 arcmin \(0.3500 deg\) reached in [0-9.]+ operating hours", wear, re.M)
+    assert re.search(r"^ +around 2026-11-\d\d \[2026-11-\d\d, 2026-11-\d\d\] at the recent rate of use", wear, re.M)
+    png = tmp_path / "wear-demo.png"
+    assert f"wear plot:      {png}" in wear and png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"

@@ -1,14 +1,22 @@
-"""``online-backlash demo``: the main job on a recording bundled with the package (no rig needed)."""
+"""``online-backlash demo``: the main job on data bundled with the package (no rig needed).
+
+First one recording (estimate and characteristic plot), then a multi-day series of short logs
+of one gearbox wearing, replayed into a temporary SQLite wear history: trend, forecast, wear plot.
+"""
 
 from __future__ import annotations
 
 import argparse
+import tempfile
 from importlib import resources
+from pathlib import Path
 
 from ..fitting import describe, fit_batch
+from ..history import HistoryStore, bundled_wear_series, plot_wear, wear_report
 from ..plotting import plot_characteristic
 from ..replay import read_csv_arrays
 from ..stream import refer_to_load
+from .history import describe_trend
 
 #: The bundled log (made by scripts/make_demo_log.py): 30:1 gearbox, 0.50 deg play, encoder counts.
 DEMO_LOG = "demo_rig_30to1.csv.gz"
@@ -20,10 +28,15 @@ def add_subparser(subparsers: argparse._SubParsersAction) -> None:
     parser = subparsers.add_parser(
         "demo",
         help="run the main job on a bundled recording (no rig needed)",
-        description="Estimate the backlash of a bundled 30:1 gearbox recording (true play 0.50 deg) and plot the fit.",
+        description="Estimate the backlash of a bundled 30:1 gearbox recording (true play 0.50 deg) and plot the fit; "
+        "then replay a bundled 12-day series of one gearbox wearing into a temporary wear history and forecast "
+        "when its play crosses the limit.",
         formatter_class=argparse.ArgumentDefaultsHelpFormatter,
     )
     parser.add_argument("--plot", default="backlash-demo.png", help="where to write the plot (PNG)")
+    parser.add_argument(
+        "--wear-plot", metavar="FILE.png", help="where to write the wear plot (default: wear-demo.png beside --plot)"
+    )
     parser.set_defaults(func=run)
 
 
@@ -36,4 +49,27 @@ def run(args: argparse.Namespace) -> int:
     u = refer_to_load(chunk.motor_deg, DEMO_RATIO)
     plot_characteristic(u, chunk.load_deg, est.predict(u, chunk.load_deg[0]), args.plot, "online-backlash demo: 30:1 gearbox")
     print(f"plot:           {args.plot}")
+    wear_demo(args.wear_plot or Path(args.plot).with_name("wear-demo.png"))
     return 0
+
+
+def wear_demo(plot_path: str | Path) -> None:
+    """Replay the bundled wear series into a temporary SQLite history; print trend and forecast; plot."""
+    series = bundled_wear_series()
+    truth = series.manifest
+    with tempfile.TemporaryDirectory() as folder, HistoryStore(Path(folder) / "wear.db", create=True) as store:
+        series.track(store)
+        report = wear_report(store, series.gearbox)
+    print()
+    print(
+        f"wear history:   {len(series.files)} daily logs of gearbox {series.gearbox} (true play "
+        f"{truth['logs'][0]['play_deg_first']:.3f} -> {truth['logs'][-1]['play_deg_last']:.3f} deg), "
+        f"replayed into a temporary SQLite store: {len(report.estimates)} estimates"
+    )
+    print("\n".join(describe_trend(report)))
+    print(
+        f"true wear:      {truth['true_rate_deg_per_hour']:.4g} deg per operating hour; the limit is reached at "
+        f"{truth['true_hours_at_limit']:.4g} operating hours ({truth['true_hours_at_limit'] - report.summary.last_hours:.3g} after the last estimate)"
+    )
+    plot_wear(report, plot_path)
+    print(f"wear plot:      {plot_path}")
