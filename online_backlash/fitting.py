@@ -36,6 +36,21 @@ class BacklashReport:
     residual_rms_deg: float
     extra: dict[str, Any] = field(default_factory=dict)
 
+    @classmethod
+    def from_estimator(cls, method: str, samples: int, est: Any, **extra: Any) -> "BacklashReport":
+        """The report of a fitted estimator (batch or recursive: the same fitted attributes, degrees)."""
+        return cls(
+            method=method,
+            samples=samples,
+            backlash_deg=est.backlash_,
+            c_left_deg=est.c_left_,
+            c_right_deg=est.c_right_,
+            m_left=est.m_left_,
+            m_right=est.m_right_,
+            residual_rms_deg=est.residual_rms_,
+            extra=extra,
+        )
+
     @property
     def backlash_arcmin(self) -> float:
         """The play in arc minutes."""
@@ -62,18 +77,7 @@ def fit_batch(chunk: SampleChunk, ratio: float, **params: Any) -> tuple[Backlash
     """Fit :class:`VorosBacklash` (eq. 8-14, then the output-error refinement) to a whole log in memory."""
     u = refer_to_load(chunk.motor_deg, ratio)
     est = VorosBacklash(**params).fit(u, chunk.load_deg)
-    report = BacklashReport(
-        method="batch",
-        samples=int(len(chunk)),
-        backlash_deg=est.backlash_,
-        c_left_deg=est.c_left_,
-        c_right_deg=est.c_right_,
-        m_left=est.m_left_,
-        m_right=est.m_right_,
-        residual_rms_deg=est.residual_rms_,
-        extra={"n_iter": est.n_iter_},
-    )
-    return report, est
+    return BacklashReport.from_estimator("batch", int(len(chunk)), est, n_iter=est.n_iter_), est
 
 
 def trace_point(est: BacklashRLS, time_s: float) -> dict[str, float]:
@@ -164,16 +168,8 @@ def fit_recursive(
     est.force_start()  # a log shorter than the warm-up: start on what was buffered
     if trace is not None and (rows_since or last_time is None):
         trace(trace_point(est, last_time if last_time is not None else float("nan")))
-    report = BacklashReport(
-        method="recursive",
-        samples=est.n_samples_seen_,
-        backlash_deg=est.backlash_,
-        c_left_deg=est.c_left_,
-        c_right_deg=est.c_right_,
-        m_left=est.m_left_,
-        m_right=est.m_right_,
-        residual_rms_deg=est.residual_rms_,
-        extra={"backlash_std_deg": est.backlash_std_, "n_reversals": est.n_reversals_},
+    report = BacklashReport.from_estimator(
+        "recursive", est.n_samples_seen_, est, backlash_std_deg=est.backlash_std_, n_reversals=est.n_reversals_
     )
     return report, est
 
