@@ -12,7 +12,6 @@ from importlib import resources
 from pathlib import Path
 
 from ..fitting import describe, fit_batch
-from ..history import HistoryStore, bundled_wear_series, plot_wear, wear_report
 from ..plotting import plot_characteristic
 from ..replay import read_csv_arrays
 from ..stream import refer_to_load
@@ -55,6 +54,8 @@ def run(args: argparse.Namespace) -> int:
 
 def wear_demo(plot_path: str | Path) -> None:
     """Replay the bundled wear series into a temporary SQLite history; print trend and forecast; plot."""
+    from ..history import HistoryStore, bundled_wear_series, plot_wear, wear_report  # SQLAlchemy, scipy: only here
+
     series = bundled_wear_series()
     truth = series.manifest
     with tempfile.TemporaryDirectory() as folder, HistoryStore(Path(folder) / "wear.db", create=True) as store:

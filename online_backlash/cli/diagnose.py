@@ -4,9 +4,6 @@ from __future__ import annotations
 
 import argparse
 
-from ..diagnostics.loop import diagnose
-from ..diagnostics.plot import plot_diagnosis
-from ..diagnostics.report import markdown_report
 from ..replay import read_log_arrays
 from ._common import add_can_decoding_options, add_log_options, add_ratio_option, print_json
 from .estimate import log_options
@@ -39,6 +36,11 @@ def add_subparser(subparsers: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    # imported here: the diagnostics (scipy) load only for this subcommand, not for every CLI start
+    from ..diagnostics.loop import diagnose
+    from ..diagnostics.plot import plot_diagnosis
+    from ..diagnostics.report import markdown_report
+
     chunk = read_log_arrays(args.log, **log_options(args))
     result = diagnose(chunk, args.ratio, max_terms=args.max_terms)
     if args.plot:

@@ -7,10 +7,12 @@ import csv
 import math
 import sys
 
-from ..history.plot import plot_wear
-from ..history.report import WearReport, wear_report
-from ..history.store import HistoryStore
+from typing import TYPE_CHECKING
+
 from ._common import print_json
+
+if TYPE_CHECKING:
+    from ..history.report import WearReport
 
 CSV_COLUMNS = (
     "time", "time_unix_s", "operating_hours", "load_revolutions", "reversals", "backlash_deg", "backlash_std_deg",
@@ -44,6 +46,11 @@ def add_subparser(subparsers: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    # imported here: SQLAlchemy, scipy.stats and matplotlib load only for this subcommand
+    from ..history.plot import plot_wear
+    from ..history.report import wear_report
+    from ..history.store import HistoryStore
+
     with HistoryStore(args.db) as store:
         report = wear_report(store, args.gearbox, args.limit_arcmin, args.confidence)
     if args.plot:

@@ -11,17 +11,16 @@ import argparse
 import datetime as dt
 import sys
 from contextlib import contextmanager
-from typing import Iterator
-
-from tqdm import tqdm
+from typing import TYPE_CHECKING, Iterator
 
 from ..errors import InvalidParameterError
-from ..history.store import HistoryStore
-from ..history.track import GearboxTracker, ProgressCallback, TrackResult
 from ._common import add_can_decoding_options, add_log_options, add_ratio_option, print_json
 from ._live import on_interrupt, open_can_source, open_serial_source
 from .estimate import log_options
 from .history import add_db_options
+
+if TYPE_CHECKING:
+    from ..history.track import GearboxTracker, ProgressCallback, TrackResult
 
 
 def _unix_time(text: str) -> float:
@@ -97,6 +96,10 @@ def run(args: argparse.Namespace) -> int:
         raise InvalidParameterError("--listen tracks live: give --raw-log DIR and no logs")
     if args.start is not None and len(args.logs) != 1:
         raise InvalidParameterError(f"--start gives the start of one log; {len(args.logs)} logs were given")
+    # imported here: SQLAlchemy loads only for this subcommand
+    from ..history.store import HistoryStore
+    from ..history.track import GearboxTracker
+
     show_progress = not args.quiet and sys.stderr.isatty()
     with HistoryStore(args.db, create=True) as store:
         given = {"memory_reversals": args.memory_reversals, "sample_period_s": args.sample_period}
@@ -120,6 +123,8 @@ def run(args: argparse.Namespace) -> int:
 @contextmanager
 def _progress_bar(label: str, show: bool) -> Iterator[ProgressCallback]:
     """A tqdm bar on stderr (samples, samples/s, the current estimate), as a progress callback."""
+    from tqdm import tqdm
+
     with tqdm(desc=label, unit=" samples", unit_scale=True, disable=not show, leave=False) as bar:
 
         def progress(samples: int, backlash_deg: float | None) -> None:
