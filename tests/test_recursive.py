@@ -13,6 +13,8 @@ from online_backlash import BacklashRLS, CascadeRLS, VorosBacklash, VorosCascade
 from online_backlash.errors import InvalidParameterError, NotExcitedError, NotFittedError
 from online_backlash.model import BacklashParams, simulate_backlash_varying, simulate_cascade
 from online_backlash.replay import read_csv_arrays
+from online_backlash.diagnostics import synthetic
+from online_backlash.diagnostics.effects import TransmissionError
 from online_backlash.rig import quantise, rig_motion, simulate_rig
 
 LOAD_COUNT_DEG = 360.0 / 2**17  # one count of the 17-bit load encoder
@@ -281,6 +283,18 @@ def test_effect_terms_are_fitted_jointly(rig60):
     np.testing.assert_allclose(many.beta_, one.beta_, rtol=1e-12)
     restored = BacklashRLS.from_state(json.loads(json.dumps(many.state_dict())), effects=[LoadDrift()])
     np.testing.assert_array_equal(restored.beta_, many.beta_)
+
+
+def test_warm_start_fits_the_effects_jointly():
+    # a load transmission error left out of the warm start biased the slopes by 5e-4 and the
+    # play, read hundreds of degrees from the origin, by 56 % (0.78 deg; bench/closing_loop.py --tracker)
+    rec = simulate_rig(duration_s=60.0, play_deg=0.5, seed=0)
+    t, m, y, q = synthetic.transmission_error(rec, load_amp_deg=0.03, motor_amp_deg=0.0)
+    est = BacklashRLS(effects=[TransmissionError((2,), (), rec.ratio)])
+    est.learn_many(m / rec.ratio, y, time_s=t, torque_Nm=q)
+    assert est.backlash_ == pytest.approx(0.5, rel=0.01)
+    assert est.m_left_ == pytest.approx(1.0, abs=1e-5) and est.m_right_ == pytest.approx(1.0, abs=1e-5)
+    assert np.hypot(*est.beta_) == pytest.approx(0.03, rel=0.05)
 
 
 class Zero:
