@@ -106,4 +106,4 @@ def test_a_log_without_reversals_is_an_error(capsys, tmp_path):
             f.write(f"{ti:.3f},{300 * ti:.6f},{10 * ti:.6f}\n")
     assert main(["estimate", str(path), "--ratio", "30"]) == 1
     err = capsys.readouterr().err
-    assert err.startswith("error:") and "move" in err
+    assert err.startswith("error:") and "reverses" in err
