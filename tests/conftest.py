@@ -1,46 +1,26 @@
 """Shared fixtures: a private PostgreSQL server for the history-store tests.
 
-``postgres_server_url`` starts a throwaway server from Debian's PostgreSQL binaries
-(``/usr/lib/postgresql/*/bin``, installed by ``.ci/run``) in a temporary folder, on a free
-localhost port with trust authentication, and stops it at the end of the session. With
-``ONLINE_BACKLASH_TEST_PG_URL`` set, that server is used instead. Missing binaries make the
+``postgres_server_url`` uses the server at ``ONLINE_BACKLASH_TEST_PG_URL`` (``.ci/run`` starts
+one and sets it); without it, it starts a throwaway server itself (``pg_server.py``: Debian's
+binaries, a temporary folder, a free localhost port, trust authentication) and stops it at the
+end of the session. Missing binaries make the
 PostgreSQL tests fail (not skip). ``store_db`` gives each test a fresh store location, once
 as an SQLite file and once as a new database on the PostgreSQL server.
 """
 
 from __future__ import annotations
 
-import glob
 import os
-import pwd
 import shutil
-import socket
-import subprocess
 import tempfile
 import uuid
 from pathlib import Path
 
+import pg_server
 import psycopg
 import pytest
 
 PG_URL_ENV = "ONLINE_BACKLASH_TEST_PG_URL"
-
-
-def _postgres_bin() -> Path:
-    found = sorted(glob.glob("/usr/lib/postgresql/*/bin/initdb"), key=lambda p: int(Path(p).parts[-3]))
-    if not found:
-        pytest.fail(
-            "PostgreSQL server binaries not found (/usr/lib/postgresql/*/bin/initdb): install Debian's "
-            f"'postgresql' package (.ci/run does) or set {PG_URL_ENV} to a server URL",
-            pytrace=False,
-        )
-    return Path(found[-1]).parent
-
-
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 @pytest.fixture(scope="session")
@@ -49,27 +29,16 @@ def postgres_server_url():
     if os.environ.get(PG_URL_ENV):
         yield os.environ[PG_URL_ENV]
         return
-    bindir = _postgres_bin()
     folder = Path(tempfile.mkdtemp(prefix="online-backlash-pg-"))
-    as_postgres: list[str] = []
-    if os.geteuid() == 0:  # initdb refuses to run as root
-        user = pwd.getpwnam("postgres")
-        os.chown(folder, user.pw_uid, user.pw_gid)
-        as_postgres = ["runuser", "-u", "postgres", "--"]
-    data, log, port = folder / "data", folder / "server.log", _free_port()
-
-    def run(*cmd: str) -> None:
-        done = subprocess.run([*as_postgres, *cmd], capture_output=True, text=True)
-        if done.returncode != 0:
-            pytest.fail(f"{' '.join(cmd)} failed: {done.stderr or done.stdout}", pytrace=False)
-
-    options = f"-c listen_addresses=127.0.0.1 -c port={port} -c unix_socket_directories={folder} -c fsync=off"
-    run(str(bindir / "initdb"), "-D", str(data), "-A", "trust", "-U", "postgres", "-E", "UTF8", "--no-sync")
-    run(str(bindir / "pg_ctl"), "-D", str(data), "-l", str(log), "-w", "-t", "60", "-o", options, "start")
     try:
-        yield f"postgresql://postgres@127.0.0.1:{port}/postgres"
+        url = pg_server.start(folder)
+    except pg_server.PostgresUnavailable as exc:
+        shutil.rmtree(folder, ignore_errors=True)
+        pytest.fail(str(exc), pytrace=False)
+    try:
+        yield url
     finally:
-        subprocess.run([*as_postgres, str(bindir / "pg_ctl"), "-D", str(data), "-m", "immediate", "stop"], capture_output=True)
+        pg_server.stop(folder)
         shutil.rmtree(folder, ignore_errors=True)
 
 
