@@ -14,16 +14,16 @@ from __future__ import annotations
 
 import os
 import queue
-import time
 from typing import Any, Iterator
 
 import can
 from cantools.database.can import Database
 
-from online_backlash.errors import BacklashError, SourceError, SourceTimeoutError
-from online_backlash.stream import Sample, SampleChunk, chunked
+from online_backlash.errors import BacklashError, SourceError
+from online_backlash.stream import Sample
 
 from .dbc import DbcDecoder
+from .live import LiveSource
 from .pairing import FramePipeline
 from .rawlog import RawCanLog
 
@@ -56,7 +56,7 @@ class _SampleListener(can.Listener):
         self.out.put(exc)
 
 
-class CanSource:
+class CanSource(LiveSource):
     """Samples from a live CAN bus, decoded with a DBC; a Source.
 
     Parameters
@@ -84,7 +84,11 @@ class CanSource:
     pipeline : FramePipeline
         Pairing skew (``skew_mean_s``, ``skew_max_s``) and frames per sample.
     raw_log : RawCanLog or None
+    max_batch : int
+        Most samples handed on per receive (a block of ``iter_chunks``).
     """
+
+    max_batch = 4096
 
     def __init__(
         self,
@@ -122,53 +126,29 @@ class CanSource:
         self._stopped = False
         self._closed = False
 
-    def __enter__(self) -> "CanSource":
-        return self
+    def _receive(self) -> list[Sample] | None:
+        """Wait for a sample, then take those queued behind it (at most ``max_batch``)."""
+        try:
+            first = _checked(self._queue.get(timeout=_POLL_S))
+        except queue.Empty:
+            return None
+        return self._drain([first])
 
-    def __exit__(self, *exc: object) -> None:
-        self.close()
+    def _where(self) -> str:
+        return f"CAN {self.bus.channel_info}"
 
-    def __iter__(self) -> Iterator[Sample]:
-        """Samples as they arrive; after :meth:`stop` (or ``duration_s``), those still queued, then the end."""
-        for batch in self._batches(1 << 16):
-            yield from batch
-
-    def iter_chunks(self, size: int = 4096) -> Iterator[SampleChunk]:
-        """Whatever has arrived, as one :class:`~online_backlash.stream.SampleChunk` (at most ``size``
-        samples) per call: the live fast path of ``learn_many``, with no waiting to fill a block."""
-        for batch in self._batches(size):
-            yield from chunked(batch, len(batch))
-
-    def _batches(self, size: int) -> Iterator[list[Sample]]:
-        """Wait for a sample, then take those queued behind it (at most ``size``)."""
-        deadline = None if self.duration_s is None else time.monotonic() + self.duration_s
-        last = time.monotonic()
-        while not self._stopped:
-            if self._stop_requested or (deadline is not None and time.monotonic() >= deadline):
-                self.stop()
-                break
-            try:
-                batch = [_checked(self._queue.get(timeout=_POLL_S))]
-            except queue.Empty:
-                if self.timeout_s is not None and time.monotonic() - last > self.timeout_s:
-                    raise SourceTimeoutError(f"no CAN sample for {self.timeout_s} s on {self.bus.channel_info}") from None
-                continue
-            last = time.monotonic()
-            yield self._drain(batch, size)
-        while batch := self._drain([], size):
+    def _leftovers(self) -> Iterator[list[Sample]]:
+        """After :meth:`stop` (or ``duration_s``), the samples still queued."""
+        while batch := self._drain([]):
             yield batch
 
-    def _drain(self, batch: list[Sample], size: int) -> list[Sample]:
-        while len(batch) < size:
+    def _drain(self, batch: list[Sample]) -> list[Sample]:
+        while len(batch) < self.max_batch:
             try:
                 batch.append(_checked(self._queue.get_nowait()))
             except queue.Empty:
                 break
         return batch
-
-    def request_stop(self) -> None:
-        """Ask the iteration to stop soon (safe from a signal handler or another thread)."""
-        self._stop_requested = True
 
     def stop(self) -> None:
         """Stop receiving: stop the notifier, close the raw log, count frames left unpaired."""

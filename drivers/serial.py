@@ -9,14 +9,13 @@ bytes to the same parser, so it gives the same samples.
 from __future__ import annotations
 
 import os
-import time
-from typing import Iterator
 
 import serial
 
-from online_backlash.errors import SourceError, SourceTimeoutError
-from online_backlash.stream import Sample, SampleChunk, chunked
+from online_backlash.errors import SourceError
+from online_backlash.stream import Sample
 
+from .live import LiveSource
 from .rawlog import RawByteLog
 from .serialframes import make_parser
 
@@ -31,7 +30,7 @@ def open_port(url: str, baudrate: int = 115200) -> serial.SerialBase:
         raise SourceError(f"cannot open serial port {url!r}: {exc}") from exc
 
 
-class SerialSource:
+class SerialSource(LiveSource):
     """Samples from a serial port; a Source.
 
     Parameters
@@ -84,38 +83,11 @@ class SerialSource:
         self._stop_requested = False
         self._stopped = False
 
-    def __enter__(self) -> "SerialSource":
-        return self
+    def _receive(self) -> list[Sample] | None:
+        return self.poll()
 
-    def __exit__(self, *exc: object) -> None:
-        self.close()
-
-    def __iter__(self) -> Iterator[Sample]:
-        """Samples as they arrive, until :meth:`stop`, ``duration_s`` or ``timeout_s``."""
-        for batch in self._batches():
-            yield from batch
-
-    def iter_chunks(self) -> Iterator[SampleChunk]:
-        """The samples of each read as one :class:`~online_backlash.stream.SampleChunk`: the live
-        fast path of ``learn_many``, with no waiting to fill a block."""
-        for batch in self._batches():
-            yield from chunked(batch, len(batch))
-
-    def _batches(self) -> Iterator[list[Sample]]:
-        deadline = None if self.duration_s is None else time.monotonic() + self.duration_s
-        last = time.monotonic()
-        while not self._stopped:
-            if self._stop_requested or (deadline is not None and time.monotonic() >= deadline):
-                self.stop()
-                return
-            got = self.poll()
-            if got is None:
-                if self.timeout_s is not None and time.monotonic() - last > self.timeout_s:
-                    raise SourceTimeoutError(f"no byte for {self.timeout_s} s on {self.port.name!r}")
-                continue
-            last = time.monotonic()
-            if got:
-                yield got
+    def _where(self) -> str:
+        return f"serial port {self.port.name!r}"
 
     def poll(self) -> list[Sample] | None:
         """Read what has arrived (waiting at most the port timeout), capture it, parse it.
@@ -132,10 +104,6 @@ class SerialSource:
             self.raw_log.write(data)
         self.bytes_read += len(data)
         return self.parser.feed(data)
-
-    def request_stop(self) -> None:
-        """Ask the iteration to stop soon (safe from a signal handler or another thread)."""
-        self._stop_requested = True
 
     def stop(self) -> None:
         """Stop reading; a partial last frame is counted as one corrupt frame."""

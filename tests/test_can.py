@@ -260,3 +260,14 @@ def test_strict_decoding_raises_the_frame_error_in_the_consumer(tmp_path):
         with pytest.raises(FrameError, match="checksum"):
             next(iter(source))
     assert source.raw_log.frames == 1  # logged before it was decoded
+
+
+def test_a_silent_bus_times_out_and_a_duration_ends_the_stream(tmp_path):
+    from online_backlash.errors import SourceTimeoutError
+
+    with CanSource(can.Bus(interface="virtual", channel="silent"), RIG_DBC, *ONE, timeout_s=0.2) as source:
+        with pytest.raises(SourceTimeoutError, match="nothing received for 0.2 s on CAN"):
+            next(iter(source))
+    with CanSource(can.Bus(interface="virtual", channel="quiet"), RIG_DBC, *ONE, duration_s=0.2) as source:
+        assert list(source.iter_chunks()) == []
+        assert source.counters.frames == 0

@@ -184,3 +184,14 @@ def test_capture_rotates_and_the_files_concatenate_to_the_bytes_received(tmp_pat
     assert len(names) > 5 and names == [p.name for p in raw.files]
     assert b"".join((tmp_path / n).read_bytes() for n in names) == payload
     assert len(list(SerialCapture(tmp_path, serial_format="ascii"))) == rec.time_s.size
+
+
+def test_a_silent_port_times_out_and_a_duration_ends_the_stream():
+    from online_backlash.errors import SourceTimeoutError
+
+    with SerialSource("loop://", 115200, "ascii", timeout_s=0.2) as source:
+        with pytest.raises(SourceTimeoutError, match="nothing received for 0.2 s on serial port"):
+            next(iter(source))
+    with SerialSource("loop://", 115200, "ascii", duration_s=0.2) as source:
+        assert list(source) == []
+        assert source.bytes_read == 0
