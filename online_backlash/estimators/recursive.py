@@ -392,6 +392,23 @@ class _RecursiveBase:
         self._check_started()
         return self._st[self._Y0]
 
+    @property
+    def noise_var_(self) -> float:
+        """Online estimate of the output noise variance, output units squared."""
+        self._check_started()
+        return float(self._st[self._NOISE])
+
+    @property
+    def residual_rms_(self) -> float:
+        """``sqrt(noise_var_)``, output units."""
+        return math.sqrt(self.noise_var_)
+
+    @property
+    def n_reversals_(self) -> int:
+        """Reversals of the input seen so far."""
+        self._check_started()
+        return int(self._st[self._NREV])
+
 
 def _finite(name: str, value: float) -> float:
     v = float(value)
@@ -541,7 +558,7 @@ class BacklashRLS(_RecursiveBase):
     0.5
     """
 
-    _U0, _Y0, _FREEZE = K.U0, K.Y0, K.K_FREEZE
+    _U0, _Y0, _FREEZE, _NOISE, _NREV = K.U0, K.Y0, K.K_FREEZE, K.NOISE_VAR, K.N_REV
 
     def __init__(
         self,
@@ -858,23 +875,9 @@ class BacklashRLS(_RecursiveBase):
         return float(K.flank_width(self._st, self._st[K.Y_PREV]))
 
     @property
-    def noise_var_(self) -> float:
-        self._check_started()
-        return float(self._st[K.NOISE_VAR])
-
-    @property
-    def residual_rms_(self) -> float:
-        return math.sqrt(self.noise_var_)
-
-    @property
     def wear_rate_(self) -> float:
         self._check_started()
         return float(self._st[K.W_RATE])
-
-    @property
-    def n_reversals_(self) -> int:
-        self._check_started()
-        return int(self._st[K.N_REV])
 
     @property
     def beta_(self) -> np.ndarray:
@@ -987,7 +990,7 @@ class CascadeRLS(_RecursiveBase):
     (1.3, array([-0.2 ,  0.35]))
     """
 
-    _U0, _Y0, _FREEZE = K.CU0, K.CY0, K.Q_FREEZE
+    _U0, _Y0, _FREEZE, _NOISE, _NREV = K.CU0, K.CY0, K.Q_FREEZE, K.C_NOISE, K.C_NREV
 
     def __init__(
         self,
@@ -1123,19 +1126,6 @@ class CascadeRLS(_RecursiveBase):
     def b_(self) -> np.ndarray:
         return self.theta_[4 + self.n_a - 1 :].copy()
 
-    @property
-    def noise_var_(self) -> float:
-        self._check_started()
-        return float(self._st[K.C_NOISE])
-
-    @property
-    def residual_rms_(self) -> float:
-        return math.sqrt(self.noise_var_)
-
-    @property
-    def n_reversals_(self) -> int:
-        self._check_started()
-        return int(self._st[K.C_NREV])
 
     @property
     def backlash_std_(self) -> float:
