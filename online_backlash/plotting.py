@@ -7,15 +7,6 @@ import os
 import numpy as np
 
 
-def _figure(rows: int, cols: int, size: tuple[float, float]):
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    return plt.subplots(rows, cols, figsize=size)
-
-
 def plot_characteristic(
     u_deg: np.ndarray,
     load_deg: np.ndarray,
@@ -33,7 +24,10 @@ def plot_characteristic(
     y = np.asarray(load_deg, dtype=float)
     m = np.asarray(model_deg, dtype=float)
     y0 = y[0] - u[0]
-    fig, (ax1, ax2) = _figure(1, 2, (11, 4.2))
+    from matplotlib.figure import Figure  # no pyplot: no global backend or figure registry to manage
+
+    fig = Figure(figsize=(11, 4.2))
+    ax1, ax2 = fig.subplots(1, 2)
     ax1.plot(u, y - u - y0, ".", ms=1, color="0.6", label="measured")
     ax1.plot(u, m - u - y0, "-", lw=0.8, color="C3", label="fitted model")
     ax1.set_xlabel("motor angle / ratio  [deg]")
@@ -59,6 +53,3 @@ def plot_characteristic(
         fig.suptitle(title)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
-    import matplotlib.pyplot as plt
-
-    plt.close(fig)

@@ -12,16 +12,14 @@ from .residuals import time_spectrum
 
 def plot_diagnosis(diagnosis: Diagnosis, path: str | os.PathLike[str], title: str | None = None) -> None:
     """Write a PNG with three panels: residual against time, against load angle, and its spectrum (deg)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from matplotlib.figure import Figure  # no pyplot: no global backend or figure registry to manage
 
     d = diagnosis
     before, after = d.residual_before_deg, d.residual_after_deg
     period = float(np.median(np.diff(d.time_s))) if d.time_s.size > 1 else 1.0
     step = max(1, before.size // 20000)
-    fig, axes = plt.subplots(3, 1, figsize=(9, 9.5))
+    fig = Figure(figsize=(9, 9.5))
+    axes = fig.subplots(3, 1)
     ax = axes[0]
     ax.plot(d.time_s[::step], before[::step], ".", ms=1, alpha=0.5, label=f"before (RMS {d.rms_before_deg:.4f} deg)")
     ax.plot(d.time_s[::step], after[::step], ".", ms=1, alpha=0.5, label=f"after (RMS {d.rms_after_deg:.4f} deg)")
@@ -48,4 +46,3 @@ def plot_diagnosis(diagnosis: Diagnosis, path: str | os.PathLike[str], title: st
     fig.suptitle(title or f"residual before / after; terms added: {names}")
     fig.tight_layout()
     fig.savefig(os.fspath(path), dpi=110)
-    plt.close(fig)
