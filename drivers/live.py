@@ -14,10 +14,10 @@ import time
 from typing import Iterator
 
 from online_backlash.errors import SourceTimeoutError
-from online_backlash.stream import Sample, SampleChunk, chunked
+from online_backlash.stream import Sample, SampleChunk, SampleSource, chunked
 
 
-class LiveSource:
+class LiveSource(SampleSource):
     """Base of the live sources; subclasses set ``duration_s``, ``timeout_s`` (seconds or None),
     ``_stop_requested = _stopped = False`` and implement ``_receive``, ``_where``, ``stop`` and ``close``."""
 

@@ -35,7 +35,7 @@ from online_backlash.drivers.pairing import CanCounters, FramePipeline
 from online_backlash.drivers.rawlog import raw_log_files
 from online_backlash.errors import InvalidParameterError, LogFormatError
 from online_backlash.replay import log_suffix
-from online_backlash.stream import Sample, SampleChunk, chunked
+from online_backlash.stream import Sample, SampleChunk, SampleSource, chunked
 
 #: Suffixes python-can reads (``.csv`` is ours: see :mod:`online_backlash.replay.csv`).
 CAN_LOG_SUFFIXES = tuple(s for s in can.io.player.MESSAGE_READERS if s != ".csv")
@@ -43,7 +43,7 @@ CAN_LOG_SUFFIXES = tuple(s for s in can.io.player.MESSAGE_READERS if s != ".csv"
 BLOCK_FRAMES = 1024
 
 
-class CanLog:
+class CanLog(SampleSource):
     """A recorded CAN log (or a directory of them, in name order) as a sample Source.
 
     Parameters

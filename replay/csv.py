@@ -28,7 +28,7 @@ from typing import Iterator
 import numpy as np
 
 from online_backlash.errors import InvalidParameterError, LogFormatError
-from online_backlash.stream import GAP_PERIODS, Gap, Sample, SampleChunk, StreamCounters
+from online_backlash.stream import GAP_PERIODS, Gap, Sample, SampleChunk, SampleSource, StreamCounters
 
 ROLES = ("time", "motor", "load", "torque")
 _REQUIRED = ("time", "motor", "load")
@@ -48,7 +48,7 @@ def angle_scale(units: str, cpr: float | None, which: str) -> float:
     return 360.0 / cpr
 
 
-class CsvLog:
+class CsvLog(SampleSource):
     """A CSV log replayed as a stream of :class:`~online_backlash.stream.Sample`.
 
     Parameters

@@ -17,10 +17,10 @@ from typing import Iterator
 from online_backlash.drivers.rawlog import SERIAL_SUFFIX, raw_log_files
 from online_backlash.drivers.serialframes import FrameParser, make_parser
 from online_backlash.errors import InvalidParameterError, LogFormatError
-from online_backlash.stream import Sample, SampleChunk, StreamCounters, chunked
+from online_backlash.stream import Sample, SampleChunk, SampleSource, StreamCounters, chunked
 
 
-class SerialCapture:
+class SerialCapture(SampleSource):
     """A serial capture file (or a ``--raw-log`` directory of them, concatenated in name order).
 
     Parameters

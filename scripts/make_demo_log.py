@@ -7,7 +7,7 @@ Gaussian noise, written as encoder counts. Run from the repository root:
 
     python scripts/make_demo_log.py
 
-It writes ``online_backlash/data/demo_rig_30to1.csv.gz`` (deterministic: seed 2026).
+It writes ``src/online_backlash/data/demo_rig_30to1.csv.gz`` (deterministic: seed 2026).
 """
 
 from pathlib import Path
@@ -17,6 +17,6 @@ from online_backlash.rig import simulate_rig
 DEMO = dict(duration_s=60.0, ratio=30.0, play_deg=0.5, left_fraction=0.4, noise_counts=2.0, seed=2026)
 
 if __name__ == "__main__":
-    out = Path(__file__).resolve().parents[1] / "online_backlash" / "data" / "demo_rig_30to1.csv.gz"
+    out = Path(__file__).resolve().parents[1] / "src" / "online_backlash" / "data" / "demo_rig_30to1.csv.gz"
     simulate_rig(**DEMO).write_csv(out, units="counts")
     print(f"wrote {out}")

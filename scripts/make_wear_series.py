@@ -11,7 +11,7 @@ from the repository root:
 
     python scripts/make_wear_series.py
 
-It writes ``online_backlash/data/wear/day01.csv.gz`` ... ``day12.csv.gz`` and ``series.json``
+It writes ``src/online_backlash/data/wear/day01.csv.gz`` ... ``day12.csv.gz`` and ``series.json``
 (the gearbox, the reader options and the true wear), deterministically (seeds 2026 + day).
 """
 
@@ -37,7 +37,7 @@ def play_deg(hours: float):
 
 
 def main() -> None:
-    out = Path(__file__).resolve().parents[1] / "online_backlash" / "data" / "wear"
+    out = Path(__file__).resolve().parents[1] / "src" / "online_backlash" / "data" / "wear"
     out.mkdir(parents=True, exist_ok=True)
     logs = []
     for day in range(DAYS):

@@ -19,7 +19,7 @@ from online_backlash.errors import FrameError, InvalidParameterError, SourceErro
 from online_backlash import VorosBacklash
 from online_backlash.replay import open_log
 from online_backlash.rig import simulate_rig
-from online_backlash.stream import Source
+from online_backlash.stream import SampleSource
 
 SPLIT = ("MotorAngle.Count", "LoadAngle.Count")
 ONE = ("RigAngles.Motor", "RigAngles.Load")
@@ -217,7 +217,7 @@ def test_live_estimates_equal_the_replayed_raw_log_bit_for_bit(tmp_path, rec, si
     frames[500].data[1] ^= 0x10
     del frames[1500:1540]
     live, source = play_live(frames, tmp_path, signals, raw_format, f"live-{raw_format}")
-    assert isinstance(source, Source)
+    assert isinstance(source, SampleSource)
     c = source.counters
     assert c.frames == len(frames) == source.raw_log.frames
     assert c.skipped == 1 and c.corrupt == 1 and c.gaps >= 1
@@ -225,7 +225,7 @@ def test_live_estimates_equal_the_replayed_raw_log_bit_for_bit(tmp_path, rec, si
 
     log = open_log(source.raw_log.files[0], dbc=RIG_DBC, motor_signal=signals[0], load_signal=signals[1])
     replayed = list(log)
-    assert isinstance(log, Source)
+    assert isinstance(log, SampleSource)
     assert log.counters.as_dict() == c.as_dict()
     assert [(s.motor_deg, s.load_deg, s.seq, s.after_gap) for s in replayed] == [(s.motor_deg, s.load_deg, s.seq, s.after_gap) for s in live]
     assert np.allclose([s.time_s for s in replayed], [s.time_s for s in live], rtol=0, atol=1e-3)

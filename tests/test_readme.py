@@ -42,3 +42,16 @@ def test_readme_python_example_runs():
         exec(compile(block, "README.md", "exec"), namespace)  # noqa: S102 - our own README
     assert abs(namespace["rls"].backlash_ - 0.5) < 0.01
     assert abs(namespace["est"].backlash_ - 1.2) < 1e-6
+
+
+def test_readme_python_commands_import_from_the_project_root():
+    """From the root, where a user has just run ``pip install .``, the README's ``python -c`` lines import the
+    installed package: no source folder named ``online_backlash`` shadows it without ``drivers``/``replay``."""
+    import subprocess
+    import sys
+
+    text = (ROOT / "README.md").read_text()
+    imports = sorted(set(re.findall(r'python -c "(from online_backlash[.\w]* import \w+)', text)))
+    assert imports, "README has no python -c example"
+    proc = subprocess.run([sys.executable, "-c", "; ".join(imports)], cwd=ROOT, capture_output=True, text=True)
+    assert proc.returncode == 0, proc.stderr

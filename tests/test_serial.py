@@ -17,7 +17,7 @@ from online_backlash.errors import FrameError, InvalidParameterError, LogFormatE
 from online_backlash.replay import open_log
 from online_backlash.replay.serialcapture import SerialCapture
 from online_backlash.rig import simulate_rig
-from online_backlash.stream import Source
+from online_backlash.stream import SampleSource
 
 CPR = {"motor_cpr": 2**14, "load_cpr": 2**17}
 
@@ -143,14 +143,14 @@ def test_live_estimates_equal_the_replayed_capture_bit_for_bit(tmp_path, rec, fm
         source = SerialSource("loop://", 115200, fmt, raw_log_dir=tmp_path, **CPR)
         live = run_live(source, payload, source.port.write)
     c = source.counters
-    assert isinstance(source, Source)
+    assert isinstance(source, SampleSource)
     assert c.corrupt >= 2 and c.gaps >= 1 and reconciles(c)
     (capture,) = source.raw_log.files
     assert capture.read_bytes() == payload  # verbatim, garbage included
 
     log = open_log(capture, serial_format=fmt, **CPR)
     replayed = list(log)
-    assert isinstance(log, Source)
+    assert isinstance(log, SampleSource)
     assert replayed == live
     assert log.counters.as_dict() == c.as_dict()
     fitted = ("m_left_", "c_left_", "m_right_", "c_right_", "backlash_", "residual_rms_")

@@ -6,9 +6,8 @@ of nonlinear cascade systems with time-varying general input backlash", ASME J. 
 Meas. Control 135(1) 014504 (2013).
 """
 
+from ._version import __version__
 from .estimators import BacklashRLS, CascadeRLS, VorosBacklash, VorosCascade
 from .stream import Sample
-
-__version__ = "0.1.0"
 
 __all__ = ["BacklashRLS", "CascadeRLS", "Sample", "VorosBacklash", "VorosCascade", "__version__"]

@@ -15,7 +15,8 @@ from __future__ import annotations
 import math
 from collections import deque
 from dataclasses import dataclass, field
-from typing import Iterable, Iterator, Protocol, runtime_checkable
+from abc import ABC, abstractmethod
+from typing import Iterable, Iterator, TypeVar
 
 import numpy as np
 
@@ -113,19 +114,43 @@ class StreamCounters:
         }
 
 
-@runtime_checkable
-class Source(Protocol):
-    """What every adapter provides: iterate Samples, count, close."""
+_SourceT = TypeVar("_SourceT", bound="SampleSource")
+
+
+class SampleSource(ABC):
+    """The one contract every source implements: live CAN and serial, and every recorded log.
+
+    A source yields its samples as :class:`SampleChunk` blocks (:meth:`iter_chunks`, the fast
+    path into ``learn_many``) or one :class:`Sample` at a time (``__iter__``, written once here
+    on top of the blocks), counts what it saw in ``counters`` and releases its file, bus or port
+    in :meth:`close`; it is a context manager that closes on exit. A subclass writes only
+    :meth:`iter_chunks` and :meth:`close`, and sets ``counters`` in its ``__init__``.
+
+    Units: time in seconds, angles in degrees on their own shafts (the motor angle is *not*
+    divided by the ratio: :meth:`SampleChunk.referred` does that, in one place), torque in N m.
+    """
 
     counters: StreamCounters
 
-    def __iter__(self) -> Iterator[Sample]: ...
+    @abstractmethod
+    def iter_chunks(self, max_samples: int | None = None) -> Iterator[SampleChunk]:
+        """The samples in blocks of at most ``max_samples`` (None: the source's natural block,
+        e.g. whatever one receive delivered live, or one parsed block of a file)."""
 
-    def close(self) -> None: ...
+    @abstractmethod
+    def close(self) -> None:
+        """Release the file, bus or port (idempotent)."""
 
-    def __enter__(self) -> "Source": ...
+    def __iter__(self) -> Iterator[Sample]:
+        """The samples one at a time (the slow path, for per-sample consumers and tests)."""
+        for chunk in self.iter_chunks():
+            yield from chunk.samples()
 
-    def __exit__(self, *exc: object) -> None: ...
+    def __enter__(self: _SourceT) -> _SourceT:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
 
 
 def refer_to_load(motor_deg: np.ndarray | float, ratio: float) -> np.ndarray | float:
@@ -143,8 +168,9 @@ def refer_to_load(motor_deg: np.ndarray | float, ratio: float) -> np.ndarray | f
 class SampleChunk:
     """A block of consecutive samples as arrays (the fast path of ``learn_many``).
 
-    ``segment_start[i]`` is True where sample ``i`` follows a gap (or starts the stream).
-    Times in seconds, angles in degrees, torque in N m (NaN where absent).
+    ``after_gap[i]`` is True where sample ``i`` follows a gap. Times in seconds, angles in
+    degrees on their own shafts, torque in N m (NaN where absent); ``seq`` holds the source's
+    sequence numbers (frame counter, CSV line; -1 where unknown) where it has them, else None.
     """
 
     time_s: np.ndarray
@@ -153,8 +179,25 @@ class SampleChunk:
     torque_Nm: np.ndarray
     after_gap: np.ndarray
 
+    seq: np.ndarray | None = None
+
     def __len__(self) -> int:
         return len(self.time_s)
+
+    def referred(self, ratio: float) -> tuple[np.ndarray, np.ndarray]:
+        """The estimator's input and output, degrees on the load side: ``(u, y) = (motor_deg / ratio, load_deg)``.
+
+        The one place where the motor angle is referred to the load side (:func:`refer_to_load`).
+        """
+        return np.asarray(refer_to_load(self.motor_deg, ratio)), self.load_deg
+
+    def samples(self) -> Iterator[Sample]:
+        """The block as :class:`Sample` objects (torque None where NaN, seq None where absent or negative)."""
+        seq = self.seq.tolist() if self.seq is not None else [None] * len(self)
+        for t, m, y, q, n, g in zip(
+            self.time_s.tolist(), self.motor_deg.tolist(), self.load_deg.tolist(), self.torque_Nm.tolist(), seq, self.after_gap.tolist()
+        ):
+            yield Sample(t, m, y, None if math.isnan(q) else q, None if n is None or n < 0 else n, g)
 
 
 def chunked(samples: Iterable[Sample], size: int = 65536) -> Iterator[SampleChunk]:

@@ -1,6 +1,6 @@
 """The multi-day wear series bundled with the package, and replaying it into a history store.
 
-``online_backlash/data/wear/`` holds daily logs of one synthetic gearbox wearing and
+``src/online_backlash/data/wear/`` holds daily logs of one synthetic gearbox wearing and
 ``series.json`` describing them (gearbox id, ratio, limit, reader options, estimator settings
 and the true wear), made by ``scripts/make_wear_series.py``.
 """
@@ -50,7 +50,7 @@ class WearSeries:
 
 
 def bundled_wear_series() -> WearSeries:
-    """The series shipped in ``online_backlash/data/wear`` (12 daily 25 s logs, play 0.20 -> 0.30 deg)."""
+    """The series shipped in ``src/online_backlash/data/wear`` (12 daily 25 s logs, play 0.20 -> 0.30 deg)."""
     folder = resources.files("online_backlash") / "data" / "wear"
     manifest = json.loads((folder / "series.json").read_text(encoding="utf-8"))
     return WearSeries(manifest, [folder / log["file"] for log in manifest["logs"]])
