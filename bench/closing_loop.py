@@ -109,7 +109,10 @@ def main() -> None:
         return
     print(f"machine: {platform.processor() or platform.machine()}, {os.cpu_count()} CPUs, Python {platform.python_version()}")
     print(f"logs: {args.duration_s:.0f} s at 1 kHz, play {PLAY_DEG} deg, seeds 0..{args.seeds - 1}\n")
-    print("| case | named first | <= 1.5 floor | <= 1/2 before | play 2 % | RMS before, deg | RMS after, deg | floor, deg | play before, deg | play after, deg | terms found (seed 0) | s per log |")
+    print(
+        "| case | named first | <= 1.5 floor | <= 1/2 before | play 2 % | RMS before, deg | RMS after, deg | floor, deg "
+        "| play before, deg | play after, deg | terms found (seed 0) | s per log |"
+    )
     print("|---|---|---|---|---|---|---|---|---|---|---|---|")
     for name in args.cases.split(","):
         rows = [run_case(name, seed, args.duration_s) for seed in range(args.seeds)]
@@ -120,10 +123,10 @@ def main() -> None:
                     f"floor {r['noise_floor_deg']:.5f} play {r['backlash_before_deg']:.4f}->{r['backlash_after_deg']:.4f} -->"
                 )
 
-        def med(key: str, fmt: str) -> str:
+        def med(key: str, fmt: str, rows: list = rows) -> str:
             return format(float(np.median([r[key] for r in rows])), fmt)
 
-        def span(key: str) -> str:
+        def span(key: str, rows: list = rows) -> str:
             v = [r[key] for r in rows]
             return f"{min(v):.4f}..{max(v):.4f}"
 

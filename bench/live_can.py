@@ -4,8 +4,9 @@ A sender thread plays the simulated 30:1 rig onto python-can's ``virtual`` bus a
 motor and load in separate messages of the shipped ``rig.dbc`` (4,000 frames/s), stamping each
 frame with its scheduled time (as a device with hardware timestamps would). The listener is what
 ``online-backlash listen can`` runs: :class:`~online_backlash.drivers.can.CanSource` (raw BLF log
-first, then decoding and pairing in the notifier thread) and ``fit_recursive`` over
-chunks of whatever has arrived (``CanSource.iter_chunks``) in the main thread.
+first in the notifier thread) and ``fit_recursive`` over chunks of whatever has arrived
+(``CanSource.iter_chunks``: the samples decoded in the notifier thread since the last receive,
+as one block of arrays) in the main thread.
 
 Reported: frames sent, frames counted by the source, frames read back from the raw log; the
 latency from the moment the frame completing a sample was sent to the moment the estimate had
@@ -27,11 +28,11 @@ import time
 import can
 import numpy as np
 
+from online_backlash.codecs.dbc import RIG_DBC, DbcDecoder
 from online_backlash.drivers.can import CanSource
-from online_backlash.drivers.dbc import RIG_DBC, DbcDecoder
-from online_backlash.drivers.simulate import rig_can_frames
 from online_backlash.fitting import fit_recursive
 from online_backlash.rig import simulate_rig
+from online_backlash.rig_logs import rig_can_frames
 
 SIGNALS = ("MotorAngle.Count", "LoadAngle.Count")
 
@@ -95,14 +96,18 @@ def main() -> None:
     after = latency_ms[int(warm) + int(args.rate) :]  # one second after the warm start
 
     c = source.counters
-    print(f"python {platform.python_version()}, python-can {can.__version__}; {args.duration:g} s at {2 * args.rate:g} frames/s; switch interval {sys.getswitchinterval() * 1e3:g} ms")
+    print(
+        f"python {platform.python_version()}, python-can {can.__version__}; {args.duration:g} s at {2 * args.rate:g} frames/s; "
+        f"switch interval {sys.getswitchinterval() * 1e3:g} ms"
+    )
     print(f"frames sent               {len(frames)}")
     print(f"frames counted by source  {c.frames}  (samples {c.samples}, corrupt {c.corrupt}, skipped {c.skipped}, unpaired {c.unpaired}, gaps {c.gaps})")
     print(f"frames in the raw log     {read_back}  ({len(source.raw_log.files)} file(s))")
     print(f"lost                      {len(frames) - read_back}")
     print(f"estimate                  {report.backlash_deg * 60:.3f} arcmin ± {report.extra['backlash_std_deg'] * 60:.3f} (true {rec.play_deg[-1] * 60:.3f})")
     for name, lat in (("all samples", latency_ms), ("after warm start + 1 s", after)):
-        print(f"latency {name:24s} p50 {np.percentile(lat, 50):7.3f} ms  p99 {np.percentile(lat, 99):7.3f} ms  p99.9 {np.percentile(lat, 99.9):7.3f} ms  max {lat.max():8.3f} ms")
+        p50, p99, p999 = np.percentile(lat, [50, 99, 99.9])
+        print(f"latency {name:24s} p50 {p50:7.3f} ms  p99 {p99:7.3f} ms  p99.9 {p999:7.3f} ms  max {lat.max():8.3f} ms")
     print(f"CPU process               {cpu / wall:6.1%} of one core ({cpu:.1f} s in {wall:.1f} s)")
     print(f"CPU sender thread         {sender_cpu[0] / wall:6.1%}")
     print(f"CPU listener (difference) {(cpu - sender_cpu[0]) / wall:6.1%}")

@@ -42,11 +42,11 @@ import numpy as np
 if not hasattr(np, "float_"):
     np.float_ = np.float64
 
-import blm  # noqa: E402  (needs the alias above)
+import blm
 
-from online_backlash import VorosBacklash, VorosCascade  # noqa: E402
-from online_backlash.errors import ConvergenceWarning  # noqa: E402
-from online_backlash.model import PAPER_EXAMPLES, PaperExample  # noqa: E402
+from online_backlash import VorosBacklash, VorosCascade
+from online_backlash.errors import ConvergenceWarning
+from online_backlash.model import PAPER_EXAMPLES, PaperExample
 
 BAR_ERROR = 0.03  # median relative error, every parameter
 BAR_EXTRA_ITERATIONS = 3  # median iterations <= paper's count + 3
@@ -129,7 +129,7 @@ def example_table(ex: PaperExample, fits: list[dict]) -> tuple[list[str], dict]:
 
 
 def log_speed_table() -> list[str]:
-    """Fit time of ``VorosBacklash()`` (defaults: ``origin="first"``, refinement on) on the three
+    """Fit time of ``VorosBacklash()`` (defaults: ``origin="zero"``, refinement on) on the three
     measured 20k-sample recordings in ``../shared/data`` (35:1 gearhead, motor 4096 and spindle
     8192 counts per revolution, ratio -35 as the data README says) and on a 120 s simulated rig."""
     from pathlib import Path

@@ -138,7 +138,12 @@ def main() -> None:
     print("## Wear: play 0.50 -> 0.60 deg over 2 h of rig data (after the first 5 min; 1 load count = 0.00275 deg)\n")
     print("| settings | seed | RMS error (deg) | RMS / play | RMS (counts) | max (counts) | truth within +-3 std | mean std (counts) |")
     print("|---|---:|---:|---:|---:|---:|---:|---:|")
-    for label, settings in (("default (memory_reversals=10)", {}), ("memory_reversals=5", {"memory_reversals": 5}), ("memory_s=5, no per-reversal memory", {"memory_s": 5.0, "memory_reversals": None})):
+    memories = (
+        ("default (memory_reversals=10)", {}),
+        ("memory_reversals=5", {"memory_reversals": 5}),
+        ("memory_s=5, no per-reversal memory", {"memory_s": 5.0, "memory_reversals": None}),
+    )
+    for label, settings in memories:
         for seed in seeds:
             r = wear_case(seed, settings)
             print(
@@ -147,7 +152,10 @@ def main() -> None:
             )
 
     print("\n## Idle: 20 min motion, 1 h motor still (or dithering one motor count), 20 min motion\n")
-    print("| settings | motor during the hour | seed | change over the hour (counts) | std before / after (counts) | max abs P_local_ | finite | error at the end (counts) |")
+    print(
+        "| settings | motor during the hour | seed | change over the hour (counts) | std before / after (counts) "
+        "| max abs P_local_ | finite | error at the end (counts) |"
+    )
     print("|---|---|---:|---:|---:|---:|---|---:|")
     for label, settings in (("default", {}), ("memory_s=5", {"memory_s": 5.0, "memory_reversals": None})):
         for dither, what in ((0, "still"), (1, "dithering 1 count")):

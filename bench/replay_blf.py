@@ -8,8 +8,8 @@ CRC-8 checksum), so 1,000,000 frames are 500,000 samples. The loops run interlea
 
 ``CanLog.iter_chunks()`` is what ``estimate`` and the estimators' ``learn_many`` use (the block
 path: arrays, vectorised decoding and checksum, compiled pairing); iterating ``CanLog`` gives
-``Sample`` objects from the same path; ``strict=True`` takes the per-frame path that live
-decoding uses. The first block-path run of a process also loads numba's compiled pairing loop
+``Sample`` objects from the same path; ``strict=True`` takes the per-frame path (held equal
+to the block path by ``tests/test_can_blocks.py``). The first block-path run of a process also loads numba's compiled pairing loop
 (printed separately; the best-of times exclude it after the first repeat).
 
     python bench/replay_blf.py [--frames 1000000] [--repeat 3] [--path /tmp/rig-1M.blf]
@@ -24,9 +24,9 @@ import time
 
 import can
 
-from online_backlash.drivers.dbc import RIG_DBC, DbcDecoder
-from online_backlash.drivers.simulate import write_rig_can_log
+from online_backlash.codecs.dbc import RIG_DBC, DbcDecoder
 from online_backlash.replay.canlog import CanLog
+from online_backlash.rig_logs import write_rig_can_log
 
 SIGNALS = ("MotorAngle.Count", "LoadAngle.Count")
 

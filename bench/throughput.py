@@ -11,6 +11,11 @@ Prints one markdown table, all rows measured in this run on the same rig-like da
 * the paper's batch algorithm (``VorosBacklash``) refitted on a sliding window;
 * the limit: a bare compiled 4-parameter RLS update (covariance form) with no switching at all.
 
+Then a second table on an input that reverses every few samples (a leaky random walk plus a slow
+sine: about every 2 samples, the worst case for the switching and the reversal bookkeeping):
+``BacklashRLS.learn_many`` and ``CascadeRLS.learn_many`` (n_a = n_b = 2) beside the bare compiled
+4-parameter RLS loop with forgetting on the same input, in the same run, as a share of it.
+
 Each row also prints the estimate the timed run reached (a loop that skips updates is not
 fast, it is wrong). Then, with ``--csv-rows`` > 0, the end-to-end ``online-backlash estimate``
 on a CSV log of that many rows (peak RSS and rows/s, CSV parsing included) beside
@@ -32,9 +37,10 @@ import time
 
 import numpy as np
 from numba import njit
+from scipy.signal import lfilter
 
 from online_backlash import BacklashRLS, CascadeRLS, VorosBacklash
-from online_backlash.model import BacklashParams, simulate_cascade
+from online_backlash.model import BacklashParams, simulate_backlash, simulate_cascade
 from online_backlash.rig import simulate_rig
 
 PLAY_DEG = 0.5
@@ -44,7 +50,7 @@ LOAD_COUNT_DEG = 360.0 / 2**17
 class Timer:
     """Wall-clock and CPU (process) time of a block; on a shared machine the CPU time is what one core spends."""
 
-    def __enter__(self) -> "Timer":
+    def __enter__(self) -> Timer:
         self.wall, self.cpu = time.perf_counter(), time.process_time()
         return self
 
@@ -109,6 +115,55 @@ def bare_rls(u, y, side, lam):  # pragma: no cover - compiled
             for j in range(4):
                 P[i, j] = (P[i, j] - k * pphi[j]) * inv_lam
     return theta
+
+
+def reversal_dense_input(n: int, seed: int = 5) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Input that reverses every few samples, and the outputs of the two estimators' systems.
+
+    ``u``: a leaky random walk (steps of 0.1 deg, pole 0.999: about 2.2 deg rms) plus a sine of
+    2 deg at 0.1 Hz, 1 kHz; ``x``: backlash of play 0.5 deg (slopes 1) on it, plus noise of 0.01
+    deg; ``y``: the same backlash followed by the linear block of the paper's example 3
+    (``a2 = 0.5``, ``b = [-0.2, 0.35]``), plus the same noise. Degrees.
+    """
+    rng = np.random.default_rng(seed)
+    t = np.arange(n) * 1e-3
+    u = lfilter([1.0], [1.0, -0.999], rng.normal(0.0, 0.1, n)) + 2.0 * np.sin(2 * np.pi * 0.1 * t)
+    params = BacklashParams(1.0, 0.25, 1.0, 0.25)
+    x = simulate_backlash(u, params) + rng.normal(0.0, 0.01, n)
+    y = simulate_cascade(u, params, [0.5], [-0.2, 0.35])[0] + rng.normal(0.0, 0.01, n)
+    return u, x, y
+
+
+def reversal_dense_rows(n: int, repeat: int) -> list[tuple[str, int, Timer, str]]:
+    """The bare loop and both estimators' ``learn_many`` on :func:`reversal_dense_input`, each
+    started (warm start, compilation) on the first 20,000 samples and timed on the rest."""
+    u, x, y = reversal_dense_input(n)
+    warm = 20_000
+    rows = []
+    side = np.concatenate(([False], np.diff(u) > 0))
+    bare_rls(u[:100], x[:100], side[:100], 1.0)
+    t = best_of(repeat, lambda: bare_rls(u[warm:], x[warm:], side[warm:], 1.0 - 1e-4))
+    reversals = int(np.sum(np.diff(side[warm:].astype(np.int8)) != 0))
+    rows.append(("bare compiled 4-parameter RLS loop (forgetting 1 - 1e-4, no switching)", n - warm, t, f"({reversals:,} reversals of the input)"))
+    # memory_reversals=None: a memory counted in reversals would be a few dozen samples here
+    for name, cls, kw, out in (
+        ("`BacklashRLS.learn_many`", BacklashRLS, {}, x),
+        ("`CascadeRLS.learn_many` n_a = n_b = 2", CascadeRLS, {}, y),
+    ):
+        est = cls(origin="zero", warm_start_samples=2000, memory_reversals=None, **kw)
+        est.learn_many(u[:warm], out[:warm])
+        state = est.state_dict()
+        holder = {}
+
+        def run(cls=cls, state=state, out=out, holder=holder):
+            holder["est"] = fresh = cls.from_state(state)
+            fresh.learn_many(u[warm:], out[warm:])
+
+        t = best_of(repeat, run)
+        e = holder["est"]
+        th = e.theta_
+        rows.append((name, n - warm, t, f"mL {th[0]:.4f} cL {th[1] / th[0]:.4f} mR {th[2]:.4f} cR {th[3] / th[2]:.4f} (truth 1 0.25 1 0.25)"))
+    return rows
 
 
 # -- Python loops with third-party RLS updates ---------------------------------------------------
@@ -251,7 +306,8 @@ def main() -> None:
     rate_cascade = (n - warm) / t.cpu
     rows.append((
         "`CascadeRLS.learn_many` n_a = n_b = 2 (compiled)", n - warm, t,
-        f"mL {cas.m_left_:.3f} cL {cas.c_left_:.3f} mR {cas.m_right_:.3f} cR {cas.c_right_:.3f} b {np.round(cas.b_, 3).tolist()} (truth 1.3 0.6 2.0 0.7 [-0.2, 0.35])",
+        f"mL {cas.m_left_:.3f} cL {cas.c_left_:.3f} mR {cas.m_right_:.3f} cR {cas.c_right_:.3f} b {np.round(cas.b_, 3).tolist()}"
+        " (truth 1.3 0.6 2.0 0.7 [-0.2, 0.35])",
     ))  # fmt: skip
 
     # bare compiled update (the limit)
@@ -282,8 +338,14 @@ def main() -> None:
     # batch refit on a sliding window: 10 s window, refit every second of data
     window, hop, refits = 10_000, 1_000, 5
     fits = []
-    t, _ = timed(lambda: [fits.append(VorosBacklash().fit(u[warm + k * hop : warm + k * hop + window], y[warm + k * hop : warm + k * hop + window])) for k in range(refits)])
+    def refit(k: int) -> None:
+        lo = warm + k * hop
+        fits.append(VorosBacklash(origin="first").fit(u[lo : lo + window], y[lo : lo + window]))
+
+    t, _ = timed(lambda: [refit(k) for k in range(refits)])
     rows.append((f"`VorosBacklash` refit on a sliding {window // 1000} s window every {hop // 1000} s", refits * hop, t, f"play {fits[-1].backlash_:.5f} deg"))
+
+    dense = reversal_dense_rows(n, args.repeat)
 
     load = os.getloadavg()
     print(f"# throughput ({platform.machine()}, {os.cpu_count()} cores, Python {platform.python_version()}; load average {load[0]:.1f})\n")
@@ -295,6 +357,14 @@ def main() -> None:
         print(f"| {name} | {count:,} | {tm.cpu:.3f} | {count / tm.cpu:,.0f} | {count / tm.wall:,.0f} | {note} |")
     print(f"\nlearn_many / filterpy loop: {rate_many / rate_filterpy:,.0f}x; cascade / filterpy loop: {rate_cascade / rate_filterpy:,.0f}x")
     print(f"a week at 1 kHz (604,800,000 samples) by learn_many: {604_800_000 / rate_many:.0f} s of CPU")
+
+    bare_rate = dense[0][1] / dense[0][2].cpu
+    print("\n## input reversing every few samples (leaky random walk + slow sine), same run\n")
+    print("| what | samples | CPU s | samples/s (CPU) | share of the bare loop | estimate reached |")
+    print("|---|---:|---:|---:|---:|---|")
+    for name, count, tm, note in dense:
+        rate = count / tm.cpu
+        print(f"| {name} | {count:,} | {tm.cpu:.3f} | {rate:,.0f} | {100 * rate / bare_rate:.0f} % | {note} |")
 
     if args.csv_rows > 0:
         ensure_csv(args.csv, args.csv_rows)

@@ -3,28 +3,33 @@ r"""Live CAN: a python-can Bus, a Notifier, the raw writer first, then the decod
 ::
 
     Bus --Notifier--> RawCanLog (python-can writer, --raw-log DIR)     first: nothing lost
-                  \-> _SampleListener (DbcDecoder + FramePipeline) -> queue -> iter(CanSource)
+                  \-> _RowListener (DbcDecoder + FramePipeline) -> queue of rows
+                      -> CanSource.iter_chunks: the rows that arrived since the last receive,
+                         as the arrays of one SampleChunk (no Sample objects)
 
-The notifier thread receives and decodes; the consumer iterates Samples in its own thread.
-Replayed logs (:class:`online_backlash.replay.canlog.CanLog`) apply the same rules to blocks of
-frames (:mod:`~online_backlash.drivers.blockpairing`; tested equal), so the same frames give the same samples.
+The notifier thread receives and decodes frame by frame; the consumer takes blocks of samples in
+its own thread. Live, a frame comes at a time, for which the per-frame path costs about 16 us and
+the block path of replay (:class:`online_backlash.replay.canlog.CanLog`) about 300 us a call
+(numpy's fixed costs); the two give the same samples, counters and gaps
+(``tests/test_can_blocks.py``), so a raw log replays to what was seen live.
 """
 
 from __future__ import annotations
 
 import os
 import queue
-from typing import Any, Iterator
+from collections.abc import Iterator
+from typing import Any
 
 import can
 from cantools.database.can import Database
 
+from online_backlash.codecs.dbc import DbcDecoder
+from online_backlash.codecs.pairing import CanCounters, FramePipeline
 from online_backlash.errors import BacklashError, SourceError
-from online_backlash.stream import Sample
+from online_backlash.stream import Row, SampleChunk, rows_to_chunk
 
-from .dbc import DbcDecoder
 from .live import LiveSource
-from .pairing import FramePipeline
 from .rawlog import RawCanLog
 
 _POLL_S = 0.05
@@ -40,36 +45,36 @@ def open_bus(interface: str, channel: Any, bitrate: int | None = None, **config:
         raise SourceError(f"cannot open CAN interface {interface!r} channel {channel!r}: {exc}") from exc
 
 
-class _SampleListener(can.Listener):
-    """Decode in the notifier thread; hand Samples (or the error that stopped it) to the consumer."""
+class _RowListener(can.Listener):
+    """Decode in the notifier thread; hand the checked samples as rows (or the error that stopped it) to the consumer."""
 
     def __init__(self, pipeline: FramePipeline, out: queue.SimpleQueue) -> None:
         self.pipeline = pipeline
         self.out = out
 
     def on_message_received(self, msg: can.Message) -> None:
-        sample = self.pipeline.feed(msg)
-        if sample is not None:
-            self.out.put(sample)
+        row = self.pipeline.feed_row(msg)
+        if row is not None:
+            self.out.put(row)
 
     def on_error(self, exc: Exception) -> None:
         self.out.put(exc)
 
 
 class CanSource(LiveSource):
-    """Samples from a live CAN bus, decoded with a DBC; a Source.
+    """Samples from a live CAN bus, decoded with a DBC; a :class:`~online_backlash.stream.SampleSource`.
 
     Parameters
     ----------
     bus : can.BusABC
         An open bus (see :func:`open_bus`); shut down by :meth:`close` if ``own_bus``.
     dbc, motor_signal, load_signal, motor_cpr, load_cpr, counter_signal, checksum_signal
-        See :class:`~online_backlash.drivers.dbc.DbcDecoder`.
+        See :class:`~online_backlash.codecs.dbc.DbcDecoder`.
     raw_log_dir : path, optional
         Write every frame received here first (:class:`~online_backlash.drivers.rawlog.RawCanLog`).
     raw_format : {"blf", "asc", "log"}
     period_s, max_skew_s, strict
-        See :class:`~online_backlash.drivers.pairing.FramePipeline`.
+        See :class:`~online_backlash.codecs.pairing.FramePipeline`.
     duration_s : float, optional
         Stop iterating after this many seconds.
     timeout_s : float, optional
@@ -112,7 +117,7 @@ class CanSource(LiveSource):
     ) -> None:
         decoder = DbcDecoder(dbc, motor_signal, load_signal, motor_cpr, load_cpr, counter_signal, checksum_signal)
         self.pipeline = FramePipeline(decoder, period_s, max_skew_s, strict)
-        self.counters = self.pipeline.counters
+        self.counters: CanCounters = self.pipeline.counters
         self.bus = bus
         self.own_bus = own_bus
         self.duration_s = duration_s
@@ -120,35 +125,36 @@ class CanSource(LiveSource):
         self.raw_log = RawCanLog(raw_log_dir, raw_format) if raw_log_dir is not None else None
         self._queue: queue.SimpleQueue = queue.SimpleQueue()
         listeners: list[can.Listener] = [self.raw_log] if self.raw_log is not None else []
-        listeners.append(_SampleListener(self.pipeline, self._queue))
+        listeners.append(_RowListener(self.pipeline, self._queue))
         self._notifier = can.Notifier(bus, listeners, timeout=_POLL_S)
         self._stop_requested = False
         self._stopped = False
         self._closed = False
 
-    def _receive(self) -> list[Sample] | None:
-        """Wait for a sample, then take those queued behind it (at most ``max_batch``)."""
+    def _receive(self) -> SampleChunk | None:
+        """Wait for a sample, then take those queued behind it (at most ``max_batch``), as one block."""
         try:
             first = _checked(self._queue.get(timeout=_POLL_S))
         except queue.Empty:
             return None
-        return self._drain([first])
+        return rows_to_chunk(self._drain([first]))
 
     def _where(self) -> str:
         return f"CAN {self.bus.channel_info}"
 
-    def _leftovers(self) -> Iterator[list[Sample]]:
+    def _leftovers(self) -> Iterator[SampleChunk]:
         """After :meth:`stop` (or ``duration_s``), the samples still queued."""
-        while batch := self._drain([]):
-            yield batch
+        while rows := self._drain([]):
+            yield rows_to_chunk(rows)
 
-    def _drain(self, batch: list[Sample]) -> list[Sample]:
-        while len(batch) < self.max_batch:
+    def _drain(self, rows: list[Row]) -> list[Row]:
+        get = self._queue.get_nowait
+        while len(rows) < self.max_batch:
             try:
-                batch.append(_checked(self._queue.get_nowait()))
+                rows.append(_checked(get()))
             except queue.Empty:
                 break
-        return batch
+        return rows
 
     def stop(self) -> None:
         """Stop receiving: stop the notifier, close the raw log, count frames left unpaired."""
@@ -168,8 +174,8 @@ class CanSource(LiveSource):
         self._closed = True
 
 
-def _checked(item: Sample | Exception) -> Sample:
-    """A queued Sample, or the error the notifier thread hit, re-raised here (as a SourceError
+def _checked(item: Row | Exception) -> Row:
+    """A queued row, or the error the notifier thread hit, re-raised here (as a SourceError
     unless it is one of ours already: a strict FrameError, say)."""
     if isinstance(item, BacklashError):
         raise item

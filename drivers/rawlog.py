@@ -11,9 +11,10 @@ numbered ones) and takes its number when rotated or closed. Nothing else is writ
 from __future__ import annotations
 
 import os
+from collections.abc import Iterable
 from datetime import datetime, timezone
 from pathlib import Path
-from typing import BinaryIO, Iterable
+from typing import BinaryIO
 
 import can
 

@@ -1,7 +1,7 @@
 """Live serial: a pyserial port (``serial_for_url``: real ports, ``loop://``, ``socket://``, ...).
 
 Bytes are appended verbatim to the raw capture (``raw_log_dir``) *before* they are parsed, and
-the parser (:mod:`~online_backlash.drivers.serialframes`) resynchronises after garbage. Replaying
+the parser (:mod:`~online_backlash.codecs.serialframes`) resynchronises after garbage. Replaying
 the capture with :class:`online_backlash.replay.serialcapture.SerialCapture` feeds the same
 bytes to the same parser, so it gives the same samples.
 """
@@ -12,12 +12,12 @@ import os
 
 import serial
 
+from online_backlash.codecs.serialframes import make_parser
 from online_backlash.errors import SourceError
-from online_backlash.stream import Sample
+from online_backlash.stream import SampleChunk
 
 from .live import LiveSource
 from .rawlog import RawByteLog
-from .serialframes import make_parser
 
 _POLL_S = 0.05
 
@@ -31,7 +31,7 @@ def open_port(url: str, baudrate: int = 115200) -> serial.SerialBase:
 
 
 class SerialSource(LiveSource):
-    """Samples from a serial port; a Source.
+    """Samples from a serial port; a :class:`~online_backlash.stream.SampleSource`.
 
     Parameters
     ----------
@@ -39,13 +39,13 @@ class SerialSource(LiveSource):
         A URL for :func:`serial.serial_for_url` (``/dev/ttyUSB0``, ``loop://``), or an open port.
     baudrate : int
     serial_format : {"ascii", "binary"}
-        See :mod:`~online_backlash.drivers.serialframes`.
+        See :mod:`~online_backlash.codecs.serialframes`.
     motor_cpr, load_cpr : float, optional
         Counts per revolution (``binary`` only).
     raw_log_dir : path, optional
         Capture every byte received here first (:class:`~online_backlash.drivers.rawlog.RawByteLog`).
     period_s, strict
-        See :class:`~online_backlash.drivers.serialframes.FrameParser`.
+        See :class:`~online_backlash.codecs.serialframes.FrameParser`.
     duration_s : float, optional
         Stop after this many seconds.
     timeout_s : float, optional
@@ -83,16 +83,16 @@ class SerialSource(LiveSource):
         self._stop_requested = False
         self._stopped = False
 
-    def _receive(self) -> list[Sample] | None:
+    def _receive(self) -> SampleChunk | None:
         return self.poll()
 
     def _where(self) -> str:
         return f"serial port {self.port.name!r}"
 
-    def poll(self) -> list[Sample] | None:
+    def poll(self) -> SampleChunk | None:
         """Read what has arrived (waiting at most the port timeout), capture it, parse it.
 
-        Returns the samples completed (possibly none), or None if no byte arrived.
+        Returns the samples completed as one block (possibly empty), or None if no byte arrived.
         """
         try:
             data = self.port.read(max(1, self.port.in_waiting))
@@ -103,7 +103,7 @@ class SerialSource(LiveSource):
         if self.raw_log is not None:
             self.raw_log.write(data)
         self.bytes_read += len(data)
-        return self.parser.feed(data)
+        return self.parser.feed_chunk(data)
 
     def stop(self) -> None:
         """Stop reading; a partial last frame is counted as one corrupt frame."""

@@ -9,9 +9,11 @@ maps them.
 Rows are parsed in blocks by pandas' C parser (the fast path); a block that fails is
 re-read row by row with the :mod:`csv` module to name the exact line. A malformed row, a
 non-finite value or a time that goes backwards raises :class:`LogFormatError` naming the file
-and line, or, with ``skip_bad=True``, is counted in ``counters.corrupt`` and skipped. A time
-step longer than three nominal periods is reported as a gap (``counters.gap_log``) and the next
-sample carries ``after_gap=True``. ``.csv.gz`` files are read transparently.
+and line, or, with ``skip_bad=True``, is counted in ``counters.corrupt`` and skipped. Gaps follow
+the rule of every source (:class:`~online_backlash.codecs.gaps.GapDetector`): a time step longer
+than three nominal periods (given as ``period_s``, or learnt as the median of the first steps) is
+reported as a gap (``counters.gap_log``) and the next sample carries ``after_gap=True``.
+``.csv.gz`` files are read transparently.
 """
 
 from __future__ import annotations
@@ -20,36 +22,24 @@ import csv
 import gzip
 import io
 import math
-import os
 import operator
+import os
+from collections.abc import Iterator
 from itertools import islice, repeat
-from typing import Iterator
+from typing import Any
 
 import numpy as np
 
-from online_backlash.errors import InvalidParameterError, LogFormatError
-from online_backlash.stream import GAP_PERIODS, Gap, Sample, SampleChunk, SampleSource, StreamCounters
+from online_backlash.codecs.gaps import GapDetector
+from online_backlash.errors import LogFormatError
+from online_backlash.stream import SampleChunk, StreamCounters, read_all, rechunk
 
-ROLES = ("time", "motor", "load", "torque")
-_REQUIRED = ("time", "motor", "load")
-_UNITS = ("deg", "rad", "counts")
-
-
-def angle_scale(units: str, cpr: float | None, which: str) -> float:
-    """Degrees per unit of a motor or load column (``which`` names it in errors)."""
-    if units not in _UNITS:
-        raise InvalidParameterError(f"units must be one of {_UNITS}, got {units!r}")
-    if units == "deg":
-        return 1.0
-    if units == "rad":
-        return 180.0 / math.pi
-    if cpr is None or not math.isfinite(cpr) or cpr <= 0:
-        raise InvalidParameterError(f"units='counts' needs a positive {which}_cpr (counts per revolution), got {cpr!r}")
-    return 360.0 / cpr
+from .tabular import REQUIRED as _REQUIRED
+from .tabular import TabularSource, angle_scale, role_names
 
 
-class CsvLog(SampleSource):
-    """A CSV log replayed as a stream of :class:`~online_backlash.stream.Sample`.
+class CsvLog(TabularSource):
+    """A CSV log replayed as a :class:`~online_backlash.stream.SampleSource`.
 
     Parameters
     ----------
@@ -66,14 +56,16 @@ class CsvLog(SampleSource):
     skip_bad : bool
         Count and skip bad rows instead of raising.
     block_rows : int
-        Rows parsed at once (memory stays bounded by it).
+        Rows parsed at once (memory stays bounded by it; the natural block of :meth:`iter_chunks`).
+    period_s : float, optional
+        Nominal sample period, seconds, for gap detection (None: learnt from the first steps).
 
     Attributes
     ----------
     counters : StreamCounters
         ``frames`` counts data rows read; ``frames == samples + corrupt`` at the end.
     nominal_period_s : float or None
-        The median time step of the first block, seconds.
+        The nominal sample period of the gap rule, seconds: ``period_s``, or learnt while reading.
     """
 
     def __init__(
@@ -85,45 +77,24 @@ class CsvLog(SampleSource):
         load_cpr: float | None = None,
         skip_bad: bool = False,
         block_rows: int = 65536,
+        period_s: float | None = None,
     ) -> None:
         self.path = os.fspath(path)
-        unknown = set(columns or {}) - set(ROLES)
-        if unknown:
-            raise InvalidParameterError(f"unknown column roles {sorted(unknown)}; roles are {ROLES}")
-        self.columns = {role: (columns or {}).get(role, role) for role in ROLES}
+        self.columns = role_names(columns)
         self.motor_scale = angle_scale(units, motor_cpr, "motor")
         self.load_scale = angle_scale(units, load_cpr, "load")
         self.skip_bad = skip_bad
         self.block_rows = int(block_rows)
+        self.period_s = GapDetector(None, period_s).period_s  # validated
+        self.nominal_period_s: float | None = period_s
         self.counters = StreamCounters()
-        self.nominal_period_s: float | None = None
         self._file: io.TextIOBase | None = None
-
-    # -- context manager / source protocol -------------------------------------------------
-    def __enter__(self) -> "CsvLog":
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
 
     def close(self) -> None:
         """Close the file, if open."""
         if self._file is not None:
             self._file.close()
             self._file = None
-
-    def __iter__(self) -> Iterator[Sample]:
-        for chunk in self.iter_chunks():
-            torque = chunk.torque_Nm
-            for i in range(len(chunk)):
-                yield Sample(
-                    float(chunk.time_s[i]),
-                    float(chunk.motor_deg[i]),
-                    float(chunk.load_deg[i]),
-                    None if math.isnan(torque[i]) else float(torque[i]),
-                    None,
-                    bool(chunk.after_gap[i]),
-                )
 
     # -- reading ---------------------------------------------------------------------------
     def _open(self) -> io.TextIOBase:
@@ -147,8 +118,12 @@ class CsvLog(SampleSource):
         self._n_columns = len(names)
         return [names.index(self.columns[r]) for r in roles], has_torque
 
-    def iter_chunks(self) -> Iterator[SampleChunk]:
-        """Yield validated blocks of samples (degrees, seconds, N m); the fast path for ``learn_many``."""
+    def iter_chunks(self, max_samples: int | None = None) -> Iterator[SampleChunk]:
+        """Validated blocks of samples (seconds, degrees, N m): one per ``block_rows`` rows read,
+        or of ``max_samples`` each (the last one shorter); the fast path for ``learn_many``."""
+        return rechunk(self._read(), max_samples)
+
+    def _read(self) -> Iterator[SampleChunk]:
         self.close()
         self._file = f = self._open()
         try:
@@ -215,57 +190,6 @@ class CsvLog(SampleSource):
             kept.append(number)
         return np.array(rows, dtype=float).reshape(-1, len(usecols)), np.array(kept, dtype=int)
 
-    def _bad(self, line: int, reason: str) -> None:
-        if not self.skip_bad:
-            raise LogFormatError(self.path, line, reason)
-        self.counters.corrupt += 1
-
-    def _validate(
-        self, values: np.ndarray, numbers: np.ndarray, has_torque: bool, last_time: float
-    ) -> tuple[SampleChunk, float]:
-        """Drop (or raise on) non-finite rows and backward times; mark gaps."""
-        finite = np.all(np.isfinite(values), axis=1)
-        keep = finite.copy()
-        for i in np.flatnonzero(~finite):
-            self._bad(int(numbers[i]), "non-finite value")
-        time = values[:, 0]
-        # a time that goes backwards, relative to the last kept time (the loop only when some does)
-        prev = last_time
-        kept = time[keep]
-        in_order = kept.size == 0 or (kept[0] >= last_time and bool(np.all(np.diff(kept) >= 0)))
-        for i in range(0 if in_order else time.size):
-            if not keep[i]:
-                continue
-            if time[i] < prev:
-                self._bad(int(numbers[i]), f"time goes backwards ({time[i]:g} s after {prev:g} s)")
-                keep[i] = False
-                continue
-            prev = time[i]
-        values = values[keep]
-        time = values[:, 0]
-        dt = np.diff(np.concatenate(([last_time], time))) if time.size else np.empty(0)
-        if self.nominal_period_s is None and time.size > 1:
-            steps = np.diff(time)
-            steps = steps[steps > 0]
-            self.nominal_period_s = float(np.median(steps)) if steps.size else None
-        after_gap = np.zeros(time.size, dtype=bool)
-        if self.nominal_period_s:
-            limit = GAP_PERIODS * self.nominal_period_s
-            for i in np.flatnonzero(np.isfinite(dt) & (dt > limit)):
-                after_gap[i] = True
-                missing = int(round(dt[i] / self.nominal_period_s)) - 1
-                self.counters.report_gap(Gap(float(time[i]), float(dt[i]), missing))
-        self.counters.samples += time.size
-        torque = values[:, 3] if has_torque else np.full(time.size, np.nan)
-        chunk = SampleChunk(
-            time_s=np.ascontiguousarray(time),
-            motor_deg=values[:, 1] * self.motor_scale,
-            load_deg=values[:, 2] * self.load_scale,
-            torque_Nm=np.ascontiguousarray(torque),
-            after_gap=after_gap,
-        )
-        return chunk, (float(time[-1]) if time.size else last_time)
-
 
 def _read_block(text: str, usecols: list[int]) -> np.ndarray:
     """Parse a block of CSV rows (no header) to floats with pandas' C parser, columns in ``usecols`` order.
@@ -280,10 +204,6 @@ def _read_block(text: str, usecols: list[int]) -> np.ndarray:
     return frame[usecols].to_numpy(dtype=float)
 
 
-def read_csv_arrays(path: str | os.PathLike[str], **options) -> SampleChunk:
+def read_csv_arrays(path: str | os.PathLike[str], **options: Any) -> SampleChunk:
     """Read a whole CSV log into one :class:`SampleChunk` (for batch fits of logs that fit in memory)."""
-    with CsvLog(path, **options) as log:
-        chunks = list(log.iter_chunks())
-    if not chunks:
-        raise LogFormatError(os.fspath(path), None, "no data rows")
-    return SampleChunk(*(np.concatenate([getattr(c, f) for c in chunks]) for f in ("time_s", "motor_deg", "load_deg", "torque_Nm", "after_gap")))
+    return read_all(CsvLog(path, **options), path, "no data rows")

@@ -11,13 +11,16 @@ from __future__ import annotations
 
 import os
 import time
+from collections.abc import Iterator
 from pathlib import Path
-from typing import Iterator
 
+from online_backlash.codecs.serialframes import FrameParser, make_parser
 from online_backlash.drivers.rawlog import SERIAL_SUFFIX, raw_log_files
-from online_backlash.drivers.serialframes import FrameParser, make_parser
 from online_backlash.errors import InvalidParameterError, LogFormatError
-from online_backlash.stream import Sample, SampleChunk, SampleSource, StreamCounters, chunked
+from online_backlash.stream import SampleChunk, SampleSource, StreamCounters, rechunk
+
+#: Samples per block of :meth:`SerialCapture.iter_chunks` when no ``max_samples`` is asked for.
+CHUNK_SAMPLES = 65536
 
 
 class SerialCapture(SampleSource):
@@ -30,7 +33,7 @@ class SerialCapture(SampleSource):
     serial_format : {"ascii", "binary"}
         How the bytes are framed (required: a capture is bytes only).
     motor_cpr, load_cpr, period_s, strict
-        See :func:`~online_backlash.drivers.serialframes.make_parser`.
+        See :func:`~online_backlash.codecs.serialframes.make_parser`.
     skip_bad : bool
         Count a truncated last frame as corrupt instead of raising.
     realtime : bool
@@ -62,12 +65,6 @@ class SerialCapture(SampleSource):
         self.realtime = realtime
         self.block_bytes = int(block_bytes)
 
-    def __enter__(self) -> "SerialCapture":
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
-
     def close(self) -> None:
         """Nothing stays open between iterations."""
 
@@ -77,11 +74,15 @@ class SerialCapture(SampleSource):
             return raw_log_files(self.path, [SERIAL_SUFFIX])
         return [Path(self.path)]
 
-    def iter_chunks(self, size: int = 65536) -> Iterator[SampleChunk]:
-        """The samples in :class:`~online_backlash.stream.SampleChunk` blocks (for ``learn_many``)."""
-        return chunked(self, size)
+    def iter_chunks(self, max_samples: int | None = None) -> Iterator[SampleChunk]:
+        """The samples in :class:`~online_backlash.stream.SampleChunk` blocks of ``max_samples``
+        (the last one shorter; None: :data:`CHUNK_SAMPLES`, or, paced, what each read completes)."""
+        if max_samples is None and not self.realtime:
+            max_samples = CHUNK_SAMPLES
+        return rechunk(self._blocks(), max_samples)
 
-    def __iter__(self) -> Iterator[Sample]:
+    def _blocks(self) -> Iterator[SampleChunk]:
+        """Per block of bytes read: the samples it completes."""
         self.parser = parser = make_parser(*self._parser_args)
         self.counters = parser.counters
         pace = _Pacer() if self.realtime else None
@@ -93,10 +94,11 @@ class SerialCapture(SampleSource):
                 raise LogFormatError(path, None, f"cannot open: {exc.strerror or exc}") from exc
             with f:
                 while block := f.read(self.block_bytes):
-                    for sample in parser.feed(block):
-                        if pace is not None:
-                            pace(sample.time_s)
-                        yield sample
+                    chunk = parser.feed_chunk(block)
+                    if pace is not None:
+                        yield from pace.chunks(chunk)
+                    else:
+                        yield chunk
         if parser.finish():
             if not self.skip_bad:
                 raise LogFormatError(files[-1], self.counters.frames, "capture ends inside a frame (truncated)")
@@ -105,7 +107,7 @@ class SerialCapture(SampleSource):
 
 
 class _Pacer:
-    """Sleep so that samples come out at their recorded spacing."""
+    """Sleep so that samples come out at their recorded spacing (seconds)."""
 
     def __init__(self) -> None:
         self._offset: float | None = None
@@ -118,3 +120,9 @@ class _Pacer:
         delay = time_s + self._offset - now
         if delay > 0:
             time.sleep(delay)
+
+    def chunks(self, chunk: SampleChunk) -> Iterator[SampleChunk]:
+        """The samples of ``chunk`` one at a time, each when its time has come."""
+        for i, time_s in enumerate(chunk.time_s.tolist()):
+            self(time_s)
+            yield chunk.slice(i, i + 1)

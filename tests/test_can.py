@@ -9,16 +9,16 @@ import can
 import numpy as np
 import pytest
 
-from online_backlash.drivers.can import CanSource
-from online_backlash.drivers.dbc import RIG_DBC, DbcDecoder, FrameEncoder, resolve_signal
-from online_backlash.drivers.pairing import FramePipeline
-from online_backlash.drivers.rawlog import RawCanLog
-from online_backlash.drivers.simulate import rig_can_frames
-from online_backlash.drivers.unwrap import Unwrapper
-from online_backlash.errors import FrameError, InvalidParameterError, SourceError
 from online_backlash import VorosBacklash
+from online_backlash.codecs.dbc import RIG_DBC, DbcDecoder, FrameEncoder, resolve_signal
+from online_backlash.codecs.pairing import FramePipeline
+from online_backlash.codecs.unwrap import Unwrapper
+from online_backlash.drivers.can import CanSource
+from online_backlash.drivers.rawlog import RawCanLog
+from online_backlash.errors import FrameError, InvalidParameterError, SourceError
 from online_backlash.replay import open_log
 from online_backlash.rig import simulate_rig
+from online_backlash.rig_logs import rig_can_frames
 from online_backlash.stream import SampleSource
 
 SPLIT = ("MotorAngle.Count", "LoadAngle.Count")
@@ -56,7 +56,7 @@ def test_signal_names_are_checked():
 def test_a_file_that_is_not_a_dbc_is_an_invalid_parameter(tmp_path):
     bad = tmp_path / "bad.dbc"
     bad.write_text("BO_ this is not a dbc\n")
-    with pytest.raises(InvalidParameterError, match="bad.dbc"):
+    with pytest.raises(InvalidParameterError, match=r"bad\.dbc"):
         DbcDecoder(bad, *ONE)
 
 
@@ -101,7 +101,7 @@ def test_bad_checksum_wrong_length_and_foreign_ids_are_counted_not_yielded():
     foreign = can.Message(timestamp=T0, arbitration_id=0x7FF, data=b"\x00" * 8)
     error = can.Message(timestamp=T0, arbitration_id=0x100, is_error_frame=True)
     pipe = FramePipeline(dec)
-    out = [pipe.feed(f) for f in frames[:6] + [foreign, error] + frames[6:]]
+    out = [pipe.feed(f) for f in [*frames[:6], foreign, error, *frames[6:]]]
     assert sum(s is not None for s in out) == 8
     c = pipe.counters
     assert (c.frames, c.samples, c.corrupt, c.skipped) == (12, 8, 2, 2)
@@ -266,7 +266,7 @@ def test_a_silent_bus_times_out_and_a_duration_ends_the_stream(tmp_path):
     from online_backlash.errors import SourceTimeoutError
 
     with CanSource(can.Bus(interface="virtual", channel="silent"), RIG_DBC, *ONE, timeout_s=0.2) as source:
-        with pytest.raises(SourceTimeoutError, match="nothing received for 0.2 s on CAN"):
+        with pytest.raises(SourceTimeoutError, match=r"nothing received for 0\.2 s on CAN"):
             next(iter(source))
     with CanSource(can.Bus(interface="virtual", channel="quiet"), RIG_DBC, *ONE, duration_s=0.2) as source:
         assert list(source.iter_chunks()) == []

@@ -1,4 +1,5 @@
-"""The block path of CAN replay (arrays, compiled pairing) equals the per-frame path of live decoding."""
+"""The block paths (CAN frames as arrays with compiled pairing; CSV timestamps in blocks) equal the
+per-frame paths, rule by rule, over generated damaged inputs."""
 
 from __future__ import annotations
 
@@ -7,14 +8,18 @@ import cantools
 import numpy as np
 import pytest
 from crccheck.crc import Crc8SaeJ1850
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 
-from online_backlash.drivers.blockdecode import crc8, crc8_table, signal_values, words
-from online_backlash.drivers.dbc import RIG_DBC, DbcDecoder
-from online_backlash.drivers.pairing import FramePipeline
-from online_backlash.drivers.simulate import rig_can_frames
+from online_backlash.codecs.blockdecode import crc8, crc8_table, signal_values, words
+from online_backlash.codecs.blockpairing import BlockPipeline, make_pipeline
+from online_backlash.codecs.dbc import RIG_DBC, DbcDecoder
+from online_backlash.codecs.gaps import GapDetector
+from online_backlash.codecs.pairing import FramePipeline
 from online_backlash.replay import canlog
 from online_backlash.replay.canlog import CanLog
 from online_backlash.rig import simulate_rig
+from online_backlash.rig_logs import rig_can_frames
 from online_backlash.stream import chunked
 
 SPLIT = ("MotorAngle.Count", "LoadAngle.Count")
@@ -119,12 +124,13 @@ def test_block_path_equals_the_per_frame_path(tmp_path, monkeypatch, signals, op
     assert c.corrupt > 0 and c.skipped > 0 and c.gaps > 0 and (c.unpaired > 0 or signals == ONE)
 
     want = list(chunked(expected, 100))
-    got = list(CanLog(path, RIG_DBC, *signals, **options).iter_chunks(100))
+    got = list(CanLog(path, RIG_DBC, *signals, **options).iter_chunks(max_samples=100))
     assert [len(g) for g in got] == [len(w) for w in want]
     for g, w in zip(got, want):
         for field in ("time_s", "motor_deg", "load_deg", "after_gap"):
             assert np.array_equal(getattr(g, field), getattr(w, field)), field
         assert np.isnan(g.torque_Nm).all()
+        assert [q if q >= 0 else None for q in g.seq.tolist()] == [s.seq for s in w.samples()]  # the rolling counters ride along
 
 
 def test_realtime_and_strict_take_the_per_frame_path(tmp_path):
@@ -132,3 +138,109 @@ def test_realtime_and_strict_take_the_per_frame_path(tmp_path):
     assert log.block_path
     assert not CanLog(tmp_path / "x.blf", RIG_DBC, *SPLIT, realtime=True).block_path
     assert not CanLog(tmp_path / "x.blf", RIG_DBC, *SPLIT, strict=True).block_path
+
+
+# -- every rule, over generated damage ----------------------------------------------------------
+#: name -> (signals, decoder options, pipeline options)
+CONFIGS = {
+    "by-counter": (SPLIT, {}, {}),
+    "by-counter-no-checksum": (SPLIT, {"checksum_signal": None}, {}),  # flips reach counters and counts: jumps, unwrapping
+    "by-time": (SPLIT, {"counter_signal": None}, {"max_skew_s": 2e-4}),
+    "one-message-no-checksum": (ONE, {"checksum_signal": None, "motor_cpr": 16000}, {"period_s": 1e-3}),  # out-of-range counts
+}
+DAMAGE = ("flip", "cut", "pad", "drop", "repeat", "swap", "foreign", "extended", "error", "remote", "silence", "back", "nan")
+
+
+def clean_frames(signals, decoder_options):
+    rec = simulate_rig(duration_s=0.15, rate_hz=1000.0, seed=4)
+    return list(rig_can_frames(rec, DbcDecoder(RIG_DBC, *signals, **decoder_options), T0, skew_s=1e-4))
+
+
+CLEAN = {name: clean_frames(signals, dec) for name, (signals, dec, _) in CONFIGS.items()}
+
+
+def copy(f):
+    return can.Message(timestamp=f.timestamp, arbitration_id=f.arbitration_id, is_extended_id=f.is_extended_id, data=bytearray(f.data))
+
+
+def damage(frames, ops):
+    """A copy of ``frames`` with each ``(index, kind, value)`` applied in turn."""
+    out = [copy(f) for f in frames]
+    for index, kind, value in ops:
+        i = index % len(out)
+        f = out[i]
+        if kind == "flip":
+            f.data[value % len(f.data)] ^= 1 << (value % 8)
+        elif kind in ("cut", "pad"):
+            f.data = f.data[:-1] if kind == "cut" else f.data + b"\0"  # wrong length
+            f.dlc = len(f.data)
+        elif kind == "drop" and len(out) > 1:
+            del out[i]  # a lost frame: a counter jump, an orphan
+        elif kind == "repeat":
+            out.insert(i, copy(f))
+        elif kind == "swap" and i + 1 < len(out):
+            out[i], out[i + 1] = out[i + 1], f
+        elif kind == "foreign":
+            f.arbitration_id = 0x3AB  # not ours
+        elif kind == "extended":
+            f.is_extended_id = True  # our id, other format: not ours
+        elif kind in ("error", "remote"):
+            setattr(f, f"is_{kind}_frame", True)
+        elif kind == "silence":
+            for later in out[i:]:
+                later.timestamp += 1e-4 * (1 + value)  # 1.1 to 26.6 periods: around the gap rule's 3, maybe a whole counter wrap
+        elif kind == "back":
+            f.timestamp -= 1.0  # time goes backwards
+        elif kind == "nan":
+            f.timestamp = float("nan")  # non-finite
+    return out
+
+
+@settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(
+    name=st.sampled_from(sorted(CONFIGS)),
+    ops=st.lists(st.tuples(st.integers(0, 10_000), st.sampled_from(DAMAGE), st.integers(0, 255)), max_size=25),
+    block=st.integers(1, 400),
+)
+def test_every_frame_rule_is_the_same_on_both_paths(name, ops, block):
+    """Checksum, length, foreign and special frames, pairing and orphans, counter jumps, unwrapping,
+    time order, non-finite times and gaps: the block path equals the per-frame path, whatever the damage
+    and wherever the blocks are cut."""
+    signals, decoder_options, options = CONFIGS[name]
+    frames = damage(CLEAN[name], ops)
+    decoder = DbcDecoder(RIG_DBC, *signals, **decoder_options)
+    per_frame = FramePipeline(decoder, **options)
+    expected = [s for s in map(per_frame.feed, frames) if s is not None]
+    per_frame.flush()
+    blocks = make_pipeline(decoder, **options)
+    assert isinstance(blocks, BlockPipeline)
+    got = [s for i in range(0, len(frames), block) for s in blocks.feed_frames(frames[i : i + block]).samples()]
+    blocks.flush()
+    assert got == expected
+    assert blocks.counters.as_dict() == per_frame.counters.as_dict()
+    assert list(blocks.counters.gap_log) == list(per_frame.counters.gap_log)
+    np.testing.assert_equal((blocks.skew_mean_s, blocks.skew_max_s), (per_frame.skew_mean_s, per_frame.skew_max_s))
+    c = blocks.counters
+    assert c.frames == c.skipped + c.corrupt + c.unpaired + blocks.frames_per_sample * c.samples
+    assert c.samples > len(CLEAN[name]) // (2 * blocks.frames_per_sample)  # most frames are still good ones
+
+
+@settings(max_examples=200, deadline=None)
+@given(
+    steps=st.lists(st.one_of(st.just(1e-3), st.floats(0.0, 0.02), st.sampled_from([0.0, 0.05, 1.0])), min_size=0, max_size=80),
+    block=st.integers(1, 30),
+    period_s=st.sampled_from([None, 1e-3, 4e-3]),
+)
+def test_the_gap_rule_on_blocks_of_times_is_the_sample_by_sample_rule(steps, block, period_s):
+    times = np.cumsum([0.0, *steps])
+    one = GapDetector(period_s=period_s)
+    expected = [one.check(t) for t in times.tolist()]
+    blocks = GapDetector(period_s=period_s)
+    flags, gaps = [], []
+    for i in range(0, times.size, block):
+        f, g = blocks.check_times(times[i : i + block])
+        flags += f.tolist()
+        gaps += g
+    assert flags == [g is not None for g in expected]
+    assert gaps == [g for g in expected if g is not None]
+    assert blocks.period_s == one.period_s

@@ -19,10 +19,10 @@ import pytest
 from can.interfaces.virtual import channels
 
 from online_backlash.cli import main
-from online_backlash.drivers.dbc import RIG_DBC, DbcDecoder
-from online_backlash.drivers.simulate import rig_can_frames
+from online_backlash.codecs.dbc import RIG_DBC, DbcDecoder
 from online_backlash.history.store import SCHEMA_VERSION, HistoryStore
 from online_backlash.rig import simulate_rig
+from online_backlash.rig_logs import rig_can_frames
 
 DAY = 86400.0
 T0 = 1.7e9
@@ -288,6 +288,9 @@ def test_demo_replays_the_bundled_wear_series(capsys, tmp_path):
     true_rate = float(re.search(r"^true wear: +([0-9.]+) deg per operating hour", wear, re.M).group(1))
     assert trend == pytest.approx(true_rate, rel=0.15)
     assert re.search(r"^forecast: limit 21 arcmin \(0.3500 deg\) reached in [0-9.]+ operating hours", wear, re.M)
-    assert re.search(r"^ +around 2026-11-\d\d \[2026-11-\d\d, 2026-11-\d\d\] at the recent rate of use", wear, re.M)
+    dates = re.search(r"^ +around (\S+) \[(\S+), (\S+)\] \(UTC\) at the recent rate of use, counted from the last estimate's time", wear, re.M)
+    assert "the demo shifts it by" in wear and "dates are UTC on that shifted clock" in wear
+    today = dt.datetime.now(dt.timezone.utc).date().isoformat()
+    assert today <= dates.group(2) <= dates.group(1) <= dates.group(3)  # ahead of today, not in the past
     png = tmp_path / "wear-demo.png"
     assert f"wear plot:      {png}" in wear and png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"

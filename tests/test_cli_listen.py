@@ -18,11 +18,14 @@ import pytest
 from can.interfaces.virtual import channels
 
 from online_backlash.cli import main
-from online_backlash.drivers.dbc import RIG_DBC, DbcDecoder
-from online_backlash.drivers.simulate import rig_can_frames, rig_serial_records
+from online_backlash.codecs.dbc import RIG_DBC, DbcDecoder
 from online_backlash.rig import simulate_rig
+from online_backlash.rig_logs import rig_can_frames, rig_serial_records
 
-ESTIMATE_KEYS = {"backlash_deg", "backlash_arcmin", "c_left_deg", "c_right_deg", "m_left", "m_right", "samples", "residual_rms_deg", "method", "backlash_std_deg", "n_reversals"}
+ESTIMATE_KEYS = {
+    "backlash_deg", "backlash_arcmin", "c_left_deg", "c_right_deg", "m_left", "m_right",
+    "samples", "residual_rms_deg", "method", "backlash_std_deg", "n_reversals",
+}
 COUNTERS = {"frames", "samples", "corrupt", "skipped", "gaps"}
 
 

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import itertools
+
 import numpy as np
 import pytest
 
@@ -40,7 +42,7 @@ def test_protocol_and_streaming(effect):
     # the same rows from pieces of uneven size, and one sample at a time for a stretch
     e = effect.clone()
     cuts = [0, 1, 7, 500, 501, 1999, u.size]
-    parts = [e.terms(u[a:b], t[a:b], q[a:b]) for a, b in zip(cuts[:-1], cuts[1:])]
+    parts = [e.terms(u[a:b], t[a:b], q[a:b]) for a, b in itertools.pairwise(cuts)]
     np.testing.assert_allclose(np.vstack(parts), whole, rtol=0, atol=1e-12)
     e.reset()
     singles = np.vstack([e.terms(u[i : i + 1], t[i : i + 1], q[i : i + 1]) for i in range(60)])

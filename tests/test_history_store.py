@@ -86,7 +86,7 @@ def test_create_register_commit_read(store_db):
 def test_same_log_returns_the_stored_run(filled):
     with HistoryStore(filled) as store:
         before = snapshot(filled)
-        gearbox, run = store.begin_run("g1", 30.0, "copy-of-day1.csv", "a" * 64, 1.7e9)
+        _, run = store.begin_run("g1", 30.0, "copy-of-day1.csv", "a" * 64, 1.7e9)
         assert run.complete and run.samples_done == 3500 and run.frames == 3500 and run.gaps == 1
         assert snapshot(filled) == before
         _, other = store.begin_run("g1", 30.0, "day2.csv", "b" * 64, 1.7e9 + 86400)
@@ -96,7 +96,7 @@ def test_same_log_returns_the_stored_run(filled):
 
 def test_contradicting_ratio_is_refused_and_nothing_written(filled):
     before = snapshot(filled)
-    with HistoryStore(filled) as store, pytest.raises(HistoryError, match="stored with ratio 30.*--ratio 35"):
+    with HistoryStore(filled) as store, pytest.raises(HistoryError, match=r"stored with ratio 30.*--ratio 35"):
         store.begin_run("g1", 35.0, "day2.csv", "b" * 64, 1.7e9)
     assert snapshot(filled) == before
 
@@ -167,7 +167,7 @@ def test_newer_schema_is_refused_untouched(filled):
 def test_foreign_database_is_refused_untouched(store_db):
     sql(store_db, "CREATE TABLE customers (id INTEGER PRIMARY KEY, name TEXT)", "INSERT INTO customers VALUES (1, 'x')")
     before = snapshot(store_db)
-    with pytest.raises(HistoryError, match="not an online-backlash history store.*customers"):
+    with pytest.raises(HistoryError, match=r"not an online-backlash history store.*customers"):
         HistoryStore(store_db, create=True)
     assert snapshot(store_db) == before
 

@@ -39,7 +39,7 @@ def test_readme_python_example_runs():
     assert blocks, "README has no Python example"
     namespace: dict = {}
     for block in blocks:
-        exec(compile(block, "README.md", "exec"), namespace)  # noqa: S102 - our own README
+        exec(compile(block, "README.md", "exec"), namespace)
     assert abs(namespace["rls"].backlash_ - 0.5) < 0.01
     assert abs(namespace["est"].backlash_ - 1.2) < 1e-6
 

@@ -11,6 +11,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from online_backlash.codecs.gaps import GapDetector
 from online_backlash.errors import InvalidParameterError, LogFormatError
 from online_backlash.replay import CsvLog, open_log, read_csv_arrays
 from online_backlash.stream import Sample
@@ -85,16 +86,34 @@ def test_skip_bad_rows_counts_and_never_yields_them(tmp_path):
 
 
 def test_gap_is_reported_and_marks_next_sample(tmp_path):
-    rows = [f"{i * 0.001:.3f},{i},{i}" for i in range(10)] + [f"{0.05 + i * 0.001:.3f},{i},{i}" for i in range(5)]
+    rows = [f"{i * 0.001:.3f},{i},{i}" for i in range(30)] + [f"{0.07 + i * 0.001:.3f},{i},{i}" for i in range(5)]
     path = write(tmp_path, "time,motor,load\n" + "\n".join(rows) + "\n")
     log = CsvLog(path)
     samples = list(log)
-    assert [s.after_gap for s in samples].index(True) == 10
-    assert log.counters.gaps == 1
+    assert [s.after_gap for s in samples].index(True) == 30
+    assert log.counters.gaps == 1 and log.nominal_period_s == pytest.approx(0.001)
     gap = log.counters.gap_log[0]
-    assert gap.time_s == pytest.approx(0.05)
+    assert gap.time_s == pytest.approx(0.07)
     assert gap.duration_s == pytest.approx(0.041)
     assert gap.missing == 40
+
+
+def test_the_gap_rule_is_the_frame_sources_rule(tmp_path):
+    """The period is learnt from the first steps as for CAN and serial frames (a gap before it is
+    known goes unseen), or given; the gaps are those of GapDetector.check, block size aside."""
+    rows = [f"{i * 0.001:.3f},{i},{i}" for i in range(10)] + [f"{0.05 + i * 0.001:.3f},{i},{i}" for i in range(40)] + ["0.5,0,0", "0.5004,0,0"]
+    path = write(tmp_path, "time,motor,load\n" + "\n".join(rows) + "\n")
+    times = [float(r.split(",")[0]) for r in rows]
+    detector = GapDetector()
+    expected = [detector.check(t) for t in times]
+    for block_rows in (3, 65536):
+        log = CsvLog(path, block_rows=block_rows)
+        assert [s.after_gap for s in log] == [g is not None for g in expected]
+        assert list(log.counters.gap_log) == [g for g in expected if g is not None] and log.counters.gaps == 1
+    given = CsvLog(path, period_s=0.001)
+    assert [i for i, s in enumerate(given) if s.after_gap] == [10, 50]
+    with pytest.raises(InvalidParameterError, match="period_s"):
+        CsvLog(path, period_s=0.0)
 
 
 def test_missing_header_column_and_unknown_role(tmp_path):
@@ -104,7 +123,7 @@ def test_missing_header_column_and_unknown_role(tmp_path):
         CsvLog("x.csv", columns={"speed": "v"})
     with pytest.raises(InvalidParameterError, match="motor_cpr"):
         CsvLog("x.csv", units="counts", load_cpr=10)
-    with pytest.raises(LogFormatError, match="unknown log format '.bin'"):
+    with pytest.raises(LogFormatError, match=r"unknown log format '\.bin'"):
         open_log("x.bin")
 
 
@@ -150,7 +169,7 @@ def test_measured_recordings_load_and_fit_sensibly(name):
 
     chunk = read_csv_arrays(SHARED / name, **DAVINCI)
     assert len(chunk) > 19_000 and not chunk.after_gap.any()
-    est = VorosBacklash().fit(chunk.motor_deg / -35.0, chunk.load_deg)
+    est = VorosBacklash(origin="first").fit(chunk.motor_deg / -35.0, chunk.load_deg)  # encoder zeros are arbitrary, as in the CLI
     # the data README measures 1.6-1.7 deg of total lost motion (gearhead, output side)
     assert 1.4 < est.backlash_ < 2.0
     assert 0.97 < est.m_left_ < 1.03 and 0.97 < est.m_right_ < 1.03

@@ -10,13 +10,13 @@ import numpy as np
 import pytest
 
 from online_backlash import VorosBacklash
+from online_backlash.codecs.serialframes import AsciiParser, BinaryParser, encode_ascii, encode_binary
 from online_backlash.drivers.serial import SerialSource
-from online_backlash.drivers.serialframes import AsciiParser, BinaryParser, encode_ascii, encode_binary
-from online_backlash.drivers.simulate import rig_serial_records
 from online_backlash.errors import FrameError, InvalidParameterError, LogFormatError
 from online_backlash.replay import open_log
 from online_backlash.replay.serialcapture import SerialCapture
 from online_backlash.rig import simulate_rig
+from online_backlash.rig_logs import rig_serial_records
 from online_backlash.stream import SampleSource
 
 CPR = {"motor_cpr": 2**14, "load_cpr": 2**17}
@@ -110,7 +110,8 @@ def run_live(source, payload, write, chunk=997):
     writer.start()
     samples = []
     while source.bytes_read < len(payload):
-        samples += source.poll() or []
+        got = source.poll()
+        samples += got.samples() if got is not None else []
     writer.join()
     source.close()
     return samples
@@ -190,7 +191,7 @@ def test_a_silent_port_times_out_and_a_duration_ends_the_stream():
     from online_backlash.errors import SourceTimeoutError
 
     with SerialSource("loop://", 115200, "ascii", timeout_s=0.2) as source:
-        with pytest.raises(SourceTimeoutError, match="nothing received for 0.2 s on serial port"):
+        with pytest.raises(SourceTimeoutError, match=r"nothing received for 0\.2 s on serial port"):
             next(iter(source))
     with SerialSource("loop://", 115200, "ascii", duration_s=0.2) as source:
         assert list(source) == []

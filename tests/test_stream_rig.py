@@ -2,15 +2,21 @@
 
 from __future__ import annotations
 
+import inspect
 import math
 
 import numpy as np
 import pytest
 
+from online_backlash.drivers.can import CanSource
+from online_backlash.drivers.live import LiveSource
+from online_backlash.drivers.serial import SerialSource
 from online_backlash.errors import InvalidParameterError
-from online_backlash.replay import read_csv_arrays
+from online_backlash.replay import LOG_READERS, CsvLog, open_log, read_csv_arrays
+from online_backlash.replay.canlog import CanLog
+from online_backlash.replay.serialcapture import SerialCapture
 from online_backlash.rig import quantise, simulate_rig
-from online_backlash.stream import Gap, Sample, StreamCounters, chunked, refer_to_load
+from online_backlash.stream import Gap, Sample, SampleSource, StreamCounters, chunked, concat_chunks, rechunk, refer_to_load
 
 
 def test_sample_is_frozen_and_checks_finiteness():
@@ -31,6 +37,51 @@ def test_chunked_keeps_every_sample_in_order():
     assert np.isnan(chunks[0].torque_Nm).all()
     with pytest.raises(InvalidParameterError):
         list(chunked(samples, size=0))
+
+
+def test_the_sequence_numbers_ride_along_in_the_chunks():
+    samples = [Sample(i * 1e-3, float(i), 0.0, None, None if i == 2 else i) for i in range(5)]
+    (chunk,) = chunked(samples)
+    assert chunk.seq.tolist() == [0, 1, -1, 3, 4] and list(chunk.samples()) == samples
+    (plain,) = chunked([Sample(0.0, 1.0, 2.0)])
+    assert plain.seq is None and list(plain.samples()) == [Sample(0.0, 1.0, 2.0)]
+
+
+def test_rechunk_gives_blocks_of_exactly_max_samples_in_order():
+    samples = [Sample(i * 1e-3, float(i), -float(i), None, i, i % 7 == 0) for i in range(50)]
+    pieces = list(chunked(samples, size=3))
+    for max_samples, lengths in ((8, [8] * 6 + [2]), (1, [1] * 50), (100, [50]), (None, [3] * 16 + [2])):
+        got = list(rechunk(iter(pieces), max_samples))
+        assert [len(c) for c in got] == lengths
+        assert [s for c in got for s in c.samples()] == samples
+    joined = concat_chunks(pieces)
+    assert joined.seq.tolist() == list(range(50)) and list(joined.samples()) == samples
+    with pytest.raises(InvalidParameterError):
+        list(rechunk(iter(pieces), 0))
+
+
+SOURCES = [CsvLog, CanLog, SerialCapture, LiveSource, CanSource, SerialSource]
+
+
+@pytest.mark.parametrize("cls", SOURCES + sorted({r for r in LOG_READERS.values() if isinstance(r, type)} - set(SOURCES), key=str))
+def test_every_source_keeps_the_one_contract(cls):
+    """One ``iter_chunks(max_samples=None)`` signature; iteration and the context manager come from SampleSource."""
+    assert issubclass(cls, SampleSource)
+    signature = inspect.signature(cls.iter_chunks)
+    assert list(signature.parameters) == ["self", "max_samples"] and signature.parameters["max_samples"].default is None
+    for name in ("__iter__", "__enter__", "__exit__"):
+        assert getattr(cls, name) is getattr(SampleSource, name), f"{cls.__name__} writes its own {name}"
+
+
+def test_open_log_gives_a_sample_source_whose_chunks_and_samples_agree(tmp_path):
+    path = tmp_path / "run.csv"
+    path.write_text("time,motor,load\n" + "".join(f"{i * 0.001:.3f},{i},{-i}\n" for i in range(20)))
+    log = open_log(path, block_rows=6)
+    assert isinstance(log, SampleSource)
+    with log:
+        assert [len(c) for c in log.iter_chunks()] == [6, 6, 6, 2]
+        assert [len(c) for c in log.iter_chunks(max_samples=8)] == [8, 8, 4]
+        assert [s.motor_deg for s in log] == [float(i) for i in range(20)]
 
 
 def test_counters_report_gaps():

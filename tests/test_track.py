@@ -17,9 +17,9 @@ from online_backlash.errors import HistoryError, LogFormatError
 from online_backlash.history.report import wear_report
 from online_backlash.history.series import bundled_wear_series
 from online_backlash.history.store import HistoryStore
-from online_backlash.history.track import GearboxTracker
 from online_backlash.history.usage import UsageCounter
 from online_backlash.rig import simulate_rig
+from online_backlash.tracking import GearboxTracker, track_series
 
 DAY = 86400.0
 T0 = 1.7e9  # 2023-11-14 22:13:20 UTC: logs carry UNIX times
@@ -286,8 +286,8 @@ def test_interrupted_tracking_on_each_backend_equals_uninterrupted_sqlite(tmp_pa
 def test_the_bundled_wear_series_shows_its_true_wear(tmp_path):
     series = bundled_wear_series()
     with HistoryStore(tmp_path / "w.db", create=True) as store:
-        results = series.track(store)
-        again = series.track(store)
+        results = track_series(series, store)
+        again = track_series(series, store)
         report = wear_report(store, series.gearbox)
     m = series.manifest
     assert len(results) == len(m["logs"]) == 12 and not any(r.already_imported for r in results)

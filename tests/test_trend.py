@@ -65,7 +65,7 @@ def test_crossing_of_the_line_and_of_the_band_edges():
 def test_no_crossing_when_the_trend_does_not_grow():
     x = np.linspace(0, 10, 20)
     trend = fit_trend(x, 0.3 - 0.001 * x + 0.0001 * np.sin(x))
-    crossing, early, late = trend.crossing(0.35)
+    crossing, _, late = trend.crossing(0.35)
     assert math.isinf(crossing) and math.isinf(late)
 
 

@@ -10,13 +10,22 @@ select the active flank, and least squares (batch) or RLS (recursive) fits ``the
 Terms are *causal* and *streaming-consistent*: an effect keeps what history it needs
 (previous angle, time, ...) between calls, so calling :meth:`EffectTerms.terms` once on a whole
 record gives the same rows as calling it on consecutive pieces, or one sample at a time.
+
+Effects are saved by name: :data:`EFFECTS` maps a name to its class, and
+:func:`effect_to_dict` / :func:`effect_from_dict` turn an effect into JSON and back (its
+constructor arguments; the stream history is the estimator's to restore, see
+:meth:`~online_backlash.estimators.BacklashRLS.state_dict`).
 """
 
 from __future__ import annotations
 
-from typing import Protocol, runtime_checkable
+import importlib
+import json
+from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
+
+from .errors import InvalidParameterError
 
 
 @runtime_checkable
@@ -39,3 +48,72 @@ class EffectTerms(Protocol):
 
     def reset(self) -> None:
         """Forget the stream history (start of a new record or after a gap)."""
+
+
+def stream_history(effect: EffectTerms) -> int | None:
+    """Samples of the past an effect's rows depend on (its ``history`` attribute), or None if it
+    does not say.
+
+    An effect that declares ``history`` promises that its stream state after a run of samples
+    since its last reset is fixed by the first of them and the last ``history`` ones (as for
+    :class:`~online_backlash.diagnostics.effects.EffectBase`: a causal window and the first time
+    seen); an estimator saves those and replays them to restore the effect exactly.
+    """
+    h = getattr(effect, "history", None)
+    return None if h is None else int(h)
+
+
+#: The library's effects by their ``name``: ``"module:Class"``, imported on first use (so that
+#: importing this module stays light and the estimators do not import the diagnostics).
+#: :func:`register_effect` adds others.
+EFFECTS: dict[str, str | type] = {
+    "transmission_error": "online_backlash.diagnostics.effects:TransmissionError",
+    "delay": "online_backlash.diagnostics.effects:Delay",
+    "compliance": "online_backlash.diagnostics.effects:Compliance",
+    "drift": "online_backlash.diagnostics.effects:Drift",
+}
+
+
+def register_effect(cls: type, name: str | None = None) -> type:
+    """Register an effect class under ``name`` (default: its ``name`` attribute); returns ``cls``.
+
+    Usable as a class decorator. A saved estimator state names its effects; :func:`effect_from_dict`
+    finds the class here.
+    """
+    EFFECTS[name or cls.name] = cls  # type: ignore[attr-defined]
+    return cls
+
+
+def effect_class(name: str) -> type:
+    """The effect class registered under ``name``; InvalidParameterError if there is none."""
+    entry = EFFECTS.get(name)
+    if entry is None:
+        raise InvalidParameterError(f"no effect named {name!r} is registered; known: {sorted(EFFECTS)}")
+    if isinstance(entry, str):
+        module, _, attr = entry.partition(":")
+        entry = EFFECTS[name] = getattr(importlib.import_module(module), attr)
+    return entry
+
+
+def effect_to_dict(effect: EffectTerms) -> dict[str, Any]:
+    """``{"name", "params"}`` of an effect, JSON-serialisable: its name and constructor arguments.
+
+    The effect must expose ``get_params()`` (as :class:`~online_backlash.diagnostics.effects.EffectBase`
+    does; without it ``params`` is None and the effect can only be passed back by the caller);
+    tuples are saved as lists.
+    """
+    get_params = getattr(effect, "get_params", None)
+    params = None if get_params is None else json.loads(json.dumps(get_params()))
+    return {"name": effect.name, "params": params}
+
+
+def effect_from_dict(d: dict[str, Any]) -> EffectTerms:
+    """The effect saved by :func:`effect_to_dict`: the registered class built with the saved
+    arguments (lists become tuples again), with no stream history."""
+    if d.get("params") is None:
+        raise InvalidParameterError(f"effect {d.get('name')!r} was saved without its parameters (no get_params()); pass it explicitly")
+    params = {k: tuple(v) if isinstance(v, list) else v for k, v in d["params"].items()}
+    effect = effect_class(d["name"])(**params)
+    if not isinstance(effect, EffectTerms):
+        raise InvalidParameterError(f"the class registered as {d['name']!r} does not follow EffectTerms")
+    return effect

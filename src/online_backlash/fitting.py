@@ -1,25 +1,26 @@
 """Fit a recorded log: read it, refer the motor angle to the load side, run an estimator.
 
 The thin layer between the CLI and the estimators: it returns plain results with units in
-their names and never prints.
+their names and never prints. The recursive fit runs the one loop of
+:mod:`online_backlash.pipeline`; the columns of its outputs are declared in
+:mod:`online_backlash.rows`.
 """
 
 from __future__ import annotations
 
 import os
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
-from typing import Any, Callable, Iterable
+from typing import Any
 
 import numpy as np
 
-from .errors import InvalidParameterError, LogFormatError
 from .estimators import BacklashRLS, VorosBacklash
-from .stream import SampleChunk, refer_to_load
+from .pipeline import Pipeline, check_every
+from .rows import ARCMIN_PER_DEG, REPORT_KEYS, TRACE_COLUMNS, EstimateRow, select
+from .stream import SampleChunk
 
-ARCMIN_PER_DEG = 60.0
-
-#: columns of the estimate-over-time trace (``estimate --trace``), in this order
-TRACE_COLUMNS = ("time", "backlash_deg", "backlash_std_deg", "c_left_deg", "c_right_deg", "m_left", "m_right")
+__all__ = ["ARCMIN_PER_DEG", "TRACE_COLUMNS", "BacklashReport", "describe", "fit_batch", "fit_recursive"]
 
 
 @dataclass
@@ -37,7 +38,7 @@ class BacklashReport:
     extra: dict[str, Any] = field(default_factory=dict)
 
     @classmethod
-    def from_estimator(cls, method: str, samples: int, est: Any, **extra: Any) -> "BacklashReport":
+    def from_estimator(cls, method: str, samples: int, est: Any, **extra: Any) -> BacklashReport:
         """The report of a fitted estimator (batch or recursive: the same fitted attributes, degrees)."""
         return cls(
             method=method,
@@ -58,39 +59,16 @@ class BacklashReport:
 
     def as_dict(self) -> dict[str, Any]:
         """The JSON contract of ``online-backlash estimate --json`` (more keys may follow)."""
-        out = {
-            "backlash_deg": self.backlash_deg,
-            "backlash_arcmin": self.backlash_arcmin,
-            "c_left_deg": self.c_left_deg,
-            "c_right_deg": self.c_right_deg,
-            "m_left": self.m_left,
-            "m_right": self.m_right,
-            "samples": self.samples,
-            "residual_rms_deg": self.residual_rms_deg,
-            "method": self.method,
-        }
+        out = select(REPORT_KEYS, {**vars(self), "backlash_arcmin": self.backlash_arcmin})
         out.update(self.extra)
         return out
 
 
 def fit_batch(chunk: SampleChunk, ratio: float, **params: Any) -> tuple[BacklashReport, VorosBacklash]:
     """Fit :class:`VorosBacklash` (eq. 8-14, then the output-error refinement) to a whole log in memory."""
-    u = refer_to_load(chunk.motor_deg, ratio)
-    est = VorosBacklash(**params).fit(u, chunk.load_deg)
-    return BacklashReport.from_estimator("batch", int(len(chunk)), est, n_iter=est.n_iter_), est
-
-
-def trace_point(est: BacklashRLS, time_s: float) -> dict[str, float]:
-    """The current estimate as one trace row (keys :data:`TRACE_COLUMNS`; degrees, load side)."""
-    return {
-        "time": float(time_s),
-        "backlash_deg": est.backlash_,
-        "backlash_std_deg": est.backlash_std_,
-        "c_left_deg": est.c_left_,
-        "c_right_deg": est.c_right_,
-        "m_left": est.m_left_,
-        "m_right": est.m_right_,
-    }
+    u, y = chunk.referred(ratio)
+    est = VorosBacklash(**{"origin": "first", **params}).fit(u, y)  # encoder zeros are arbitrary
+    return BacklashReport.from_estimator("batch", len(chunk), est, n_iter=est.n_iter_), est
 
 
 def fit_recursive(
@@ -98,7 +76,7 @@ def fit_recursive(
     ratio: float,
     *,
     every_s: float = 1.0,
-    trace: Callable[[dict[str, float]], None] | None = None,
+    trace: Callable[[EstimateRow], None] | None = None,
     estimator: BacklashRLS | None = None,
     source: str | os.PathLike[str] = "<stream>",
     **params: Any,
@@ -108,15 +86,17 @@ def fit_recursive(
     Parameters
     ----------
     chunks : iterable of SampleChunk
-        Consecutive blocks, e.g. ``CsvLog(path).iter_chunks()``; ``after_gap`` is passed on.
+        Consecutive blocks, e.g. ``CsvLog(path).iter_chunks()``; ``after_gap``, time and
+        torque are passed on.
     ratio : float
         Gear ratio motor:load (``u = motor_deg / ratio``).
     every_s : float
-        With ``trace``, one row per ``every_s`` seconds of data (log time).
+        With ``trace``, one row per ``every_s`` seconds of data (:class:`~online_backlash.pipeline.DataClock`).
     trace : callable, optional
-        Called with :func:`trace_point` rows: the first sample at or after each tick
-        ``t0 + k every_s`` closes a row with the estimate *before* it, stamped with the time of
-        the last sample learned; a final row closes the log. Ticks inside a gap give one row.
+        Called with an :class:`~online_backlash.rows.EstimateRow` every ``every_s`` seconds of
+        data once the estimator has started (stamped with the time of the last sample learned),
+        and with a final row at the end of the log (:meth:`EstimateRow.trace` gives the
+        columns of ``estimate --trace``).
     estimator : BacklashRLS, optional
         Continue this estimator (e.g. resumed from a saved state) instead of a new one.
     source : str or PathLike
@@ -130,44 +110,15 @@ def fit_recursive(
         ``method="recursive"``; ``extra`` has ``backlash_std_deg`` and ``n_reversals``.
     est : BacklashRLS
     """
-    if not every_s > 0:
-        raise InvalidParameterError(f"every_s must be > 0, got {every_s!r}")
     est = estimator if estimator is not None else BacklashRLS(**params)
-    next_tick: float | None = None
-    last_time: float | None = None
-    rows_since = 0
-    seen = False
-    for chunk in chunks:
-        if not len(chunk):
-            continue
-        seen = True
-        u = refer_to_load(chunk.motor_deg, ratio)
-        t = chunk.time_s
-        if trace is None:
-            est.learn_many(u, chunk.load_deg, chunk.after_gap, time_s=t, torque_Nm=chunk.torque_Nm)
-            continue
-        if next_tick is None:
-            next_tick = float(t[0]) + every_s
-        lo = 0
-        while lo < t.size:
-            hi = int(np.searchsorted(t, next_tick, side="left"))
-            if hi > lo:
-                est.learn_many(u[lo:hi], chunk.load_deg[lo:hi], chunk.after_gap[lo:hi], time_s=t[lo:hi], torque_Nm=chunk.torque_Nm[lo:hi])
-                last_time = float(t[hi - 1])
-                rows_since += hi - lo
-            if hi == t.size:
-                break
-            if rows_since and est.started:
-                trace(trace_point(est, last_time))
-                rows_since = 0
-            while next_tick <= t[hi]:
-                next_tick += every_s
-            lo = hi
-    if not seen:
-        raise LogFormatError(source, None, "no data rows")
-    est.force_start()  # a log shorter than the warm-up: start on what was buffered
-    if trace is not None and (rows_since or last_time is None):
-        trace(trace_point(est, last_time if last_time is not None else float("nan")))
+    check_every(every_s)
+    pipeline = Pipeline(est, ratio, every_s if trace is not None else None)  # rows cost time: only for a trace
+    for step in pipeline.run(chunks, os.fspath(source)):
+        if step.row is not None and trace is not None:
+            trace(step.row)
+    last = pipeline.finish()
+    if last is not None and trace is not None:
+        trace(last)
     report = BacklashReport.from_estimator(
         "recursive", est.n_samples_seen_, est, backlash_std_deg=est.backlash_std_, n_reversals=est.n_reversals_
     )

@@ -67,7 +67,7 @@ class BacklashParams:
         )
 
     @classmethod
-    def from_theta(cls, theta: np.ndarray) -> "BacklashParams":
+    def from_theta(cls, theta: np.ndarray) -> BacklashParams:
         """Eq. (9): ``mL = m1, cL = c1/m1, mR = m2, cR = c2/m2``."""
         m1, c1, m2, c2 = (float(v) for v in theta[:4])
         if m1 == 0 or m2 == 0:

@@ -14,8 +14,8 @@ from __future__ import annotations
 import csv
 import gzip
 import os
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass
-from typing import Callable
 
 import numpy as np
 
@@ -72,6 +72,8 @@ class RigRecording:
         every count) or seconds and encoder counts (``units="counts"``; read back with
         ``motor_cpr=2**motor_bits, load_cpr=2**load_bits``). A ``.gz`` suffix compresses."""
         opener = gzip.open if os.fspath(path).endswith(".gz") else open
+        motor: Iterable[object]
+        load: Iterable[object]
         if units == "deg":
             motor, load = (f"{v:.9f}" for v in self.motor_deg), (f"{v:.9f}" for v in self.load_deg)
         elif units == "counts":
@@ -98,7 +100,7 @@ def rig_motion(
     longer on average, so the shaft creeps forward over many revolutions.
     """
     rng = np.random.default_rng(seed)
-    n = int(round(duration_s * rate_hz))
+    n = round(duration_s * rate_hz)
     t = np.arange(n) / rate_hz
     # direction and speed per segment
     direction = np.empty(n)
@@ -113,8 +115,8 @@ def rig_motion(
     k = max(3, int(0.2 * rate_hz) | 1)
     kernel = 0.5 - 0.5 * np.cos(2 * np.pi * np.arange(k) / (k - 1))
     kernel /= kernel.sum()
-    speed = np.convolve(np.pad(direction, (k // 2, k // 2), mode="edge"), kernel, mode="valid")
-    return t, np.cumsum(speed) / rate_hz
+    smooth_speed = np.convolve(np.pad(direction, (k // 2, k // 2), mode="edge"), kernel, mode="valid")
+    return t, np.cumsum(smooth_speed) / rate_hz
 
 
 def quantise(angle_deg: np.ndarray, bits: int) -> np.ndarray:

@@ -1,10 +1,10 @@
-"""The one sample type that flows from every source into every estimator.
+"""The stream contract: every source of samples, live or recorded, is a :class:`SampleSource`.
 
-A *source* (live CAN or serial adapter, or a recorded log replayed) is an iterable of
-:class:`Sample` that is also a context manager, has ``close()`` and exposes
-:class:`StreamCounters` as ``counters``. Estimators never see a source: the caller refers
-the motor angle to the load side (``u = motor_deg / ratio``) and feeds ``u`` and
-``y = load_deg`` to ``learn_one``/``learn_many``.
+A source yields blocks of samples as :class:`SampleChunk` arrays (:meth:`SampleSource.iter_chunks`,
+the fast path into ``learn_many``) or one :class:`Sample` at a time (iterating it), counts what it
+saw in :class:`StreamCounters` (``counters``), releases its file, bus or port in ``close()`` and is
+a context manager. Estimators never see a source: :meth:`SampleChunk.referred` gives their input
+``u = motor_deg / ratio`` and output ``y = load_deg`` (the one place the ratio is applied).
 
 Units at this edge: time in seconds, angles in degrees (multi-turn, unwrapped),
 torque in newton metres.
@@ -13,14 +13,16 @@ torque in newton metres.
 from __future__ import annotations
 
 import math
-from collections import deque
-from dataclasses import dataclass, field
+import os
 from abc import ABC, abstractmethod
-from typing import Iterable, Iterator, TypeVar
+from collections import deque
+from collections.abc import Iterable, Iterator, Sequence
+from dataclasses import dataclass, field
+from typing import TypeVar
 
 import numpy as np
 
-from .errors import InvalidParameterError
+from .errors import InvalidParameterError, LogFormatError
 
 #: A time step longer than this many nominal sample periods is a gap (every source uses this rule).
 GAP_PERIODS = 3.0
@@ -56,10 +58,8 @@ class Sample:
 
     def is_finite(self) -> bool:
         """True when time and both angles (and the torque, if present) are finite numbers."""
-        values = (self.time_s, self.motor_deg, self.load_deg)
-        if self.torque_Nm is not None:
-            values += (self.torque_Nm,)
-        return all(math.isfinite(v) for v in values)
+        torque = () if self.torque_Nm is None else (self.torque_Nm,)
+        return all(math.isfinite(v) for v in (self.time_s, self.motor_deg, self.load_deg, *torque))
 
 
 @dataclass(frozen=True, slots=True)
@@ -184,6 +184,12 @@ class SampleChunk:
     def __len__(self) -> int:
         return len(self.time_s)
 
+    def slice(self, start: int, stop: int) -> SampleChunk:
+        """Samples ``start`` to ``stop`` (views of the arrays)."""
+        part = slice(start, stop)
+        seq = None if self.seq is None else self.seq[part]
+        return SampleChunk(self.time_s[part], self.motor_deg[part], self.load_deg[part], self.torque_Nm[part], self.after_gap[part], seq)
+
     def referred(self, ratio: float) -> tuple[np.ndarray, np.ndarray]:
         """The estimator's input and output, degrees on the load side: ``(u, y) = (motor_deg / ratio, load_deg)``.
 
@@ -203,25 +209,107 @@ class SampleChunk:
 def chunked(samples: Iterable[Sample], size: int = 65536) -> Iterator[SampleChunk]:
     """Group an iterable of Samples into :class:`SampleChunk` blocks of at most ``size`` samples.
 
-    Memory stays bounded by ``size`` whatever the length of the stream.
+    Memory stays bounded by ``size`` whatever the length of the stream. The sequence numbers ride
+    along (``seq``, -1 where a sample has none) when any sample of the block has one.
     """
-    if size < 1:
-        raise InvalidParameterError(f"chunk size must be >= 1, got {size}")
+    _check_size(size)
     buf: list[Sample] = []
     for s in samples:
         buf.append(s)
         if len(buf) == size:
-            yield _to_chunk(buf)
+            yield samples_to_chunk(buf)
             buf = []
     if buf:
-        yield _to_chunk(buf)
+        yield samples_to_chunk(buf)
 
 
-def _to_chunk(buf: list[Sample]) -> SampleChunk:
+def samples_to_chunk(samples: Sequence[Sample]) -> SampleChunk:
+    """One :class:`SampleChunk` of a list of Samples (the per-frame paths; torque NaN and seq -1 where absent)."""
+    n = len(samples)
+    seq = [s.seq for s in samples]
     return SampleChunk(
-        time_s=np.fromiter((s.time_s for s in buf), float, len(buf)),
-        motor_deg=np.fromiter((s.motor_deg for s in buf), float, len(buf)),
-        load_deg=np.fromiter((s.load_deg for s in buf), float, len(buf)),
-        torque_Nm=np.fromiter((np.nan if s.torque_Nm is None else s.torque_Nm for s in buf), float, len(buf)),
-        after_gap=np.fromiter((s.after_gap for s in buf), bool, len(buf)),
+        time_s=np.fromiter((s.time_s for s in samples), float, n),
+        motor_deg=np.fromiter((s.motor_deg for s in samples), float, n),
+        load_deg=np.fromiter((s.load_deg for s in samples), float, n),
+        torque_Nm=np.fromiter((np.nan if s.torque_Nm is None else s.torque_Nm for s in samples), float, n),
+        after_gap=np.fromiter((s.after_gap for s in samples), bool, n),
+        seq=np.fromiter((-1 if q is None else q for q in seq), np.int64, n) if any(q is not None for q in seq) else None,
     )
+
+
+#: One checked sample as the per-frame codecs produce it: time (s), motor and load angles (deg),
+#: sequence number (None: none), after_gap.
+Row = tuple[float, float, float, "int | None", bool]
+
+
+def rows_to_chunk(rows: Sequence[Row]) -> SampleChunk:
+    """One :class:`SampleChunk` of per-frame rows (torque NaN; ``seq`` -1 where a row has none,
+    None when no row has one): how the per-frame codecs hand on a block without Sample objects."""
+    n = len(rows)
+    time_s, motor, load, seq, after_gap = zip(*rows) if n else ((), (), (), (), ())
+    has_seq = any(q is not None for q in seq)
+    return SampleChunk(
+        np.array(time_s, dtype=float),
+        np.array(motor, dtype=float),
+        np.array(load, dtype=float),
+        np.full(n, np.nan),
+        np.array(after_gap, dtype=bool),
+        seq=np.array([-1 if q is None else q for q in seq], dtype=np.int64) if has_seq else None,
+    )
+
+
+def concat_chunks(chunks: Sequence[SampleChunk]) -> SampleChunk:
+    """The blocks joined into one (``seq`` kept only when every block has it)."""
+    seqs = [c.seq for c in chunks if c.seq is not None]
+
+    def joined(name: str) -> np.ndarray:
+        return np.concatenate([getattr(c, name) for c in chunks])
+
+    seq = np.concatenate(seqs) if len(seqs) == len(chunks) else None
+    return SampleChunk(joined("time_s"), joined("motor_deg"), joined("load_deg"), joined("torque_Nm"), joined("after_gap"), seq)
+
+
+def read_all(source: SampleSource, name: str | os.PathLike[str], empty: str = "no samples") -> SampleChunk:
+    """Every sample of ``source`` in one :class:`SampleChunk` (for batch fits of logs that fit in
+    memory); the source is closed. :class:`~online_backlash.errors.LogFormatError` naming ``name``
+    (reason ``empty``) when it has none."""
+    with source:
+        chunks = list(source.iter_chunks())
+    if not chunks:
+        raise LogFormatError(name, None, empty)
+    return concat_chunks(chunks)
+
+
+def rechunk(chunks: Iterable[SampleChunk], max_samples: int | None) -> Iterator[SampleChunk]:
+    """Blocks of exactly ``max_samples`` (the last one shorter) from blocks of any length, in order.
+
+    ``None`` passes the blocks through as they come (empty ones dropped). Memory stays bounded
+    by ``max_samples`` plus one incoming block.
+    """
+    if max_samples is None:
+        yield from (c for c in chunks if len(c))
+        return
+    _check_size(max_samples)
+    held: list[SampleChunk] = []
+    n_held = 0
+    for chunk in chunks:
+        if not len(chunk):
+            continue
+        held.append(chunk)
+        n_held += len(chunk)
+        if n_held < max_samples:
+            continue
+        joined = concat_chunks(held) if len(held) > 1 else held[0]
+        start = 0
+        while n_held - start >= max_samples:
+            yield joined.slice(start, start + max_samples)
+            start += max_samples
+        held = [joined.slice(start, n_held)] if start < n_held else []
+        n_held -= start
+    if n_held:
+        yield concat_chunks(held) if len(held) > 1 else held[0]
+
+
+def _check_size(size: int) -> None:
+    if size < 1:
+        raise InvalidParameterError(f"chunk size must be >= 1, got {size}")

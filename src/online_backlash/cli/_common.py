@@ -17,7 +17,11 @@ def add_log_options(parser: argparse.ArgumentParser) -> None:
         metavar="MAP",
         help="map the log's column names, e.g. time=time_s,motor=motor_counts,load=spindle_counts[,torque=T]",
     )
-    group.add_argument("--units", choices=("deg", "rad", "counts"), default="deg", help="unit of the motor and load columns")
+    group.add_argument(
+        "--units",
+        choices=("deg", "rad", "rev", "arcmin", "counts"),
+        help="unit of the motor and load columns (default: deg for CSV; a measurement file's channel units)",
+    )
     group.add_argument("--motor-cpr", type=float, help="motor encoder counts per motor revolution (with --units counts)")
     group.add_argument("--load-cpr", type=float, help="load encoder counts per load revolution (with --units counts)")
     group.add_argument("--skip-bad-rows", action="store_true", help="count and skip malformed rows instead of stopping")
@@ -74,7 +78,7 @@ def add_can_decoding_options(parser: argparse.ArgumentParser, required: bool) ->
 
 def can_decoding_options(args: argparse.Namespace) -> dict[str, Any]:
     """Keyword arguments of the CAN sources (``CanSource``, ``CanLog``) from :func:`add_can_decoding_options`."""
-    from ..drivers.dbc import RIG_DBC
+    from ..codecs.dbc import RIG_DBC
 
     def optional(name: str) -> str | None:
         return None if name.lower() == "none" else name

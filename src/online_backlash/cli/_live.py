@@ -5,12 +5,16 @@ from __future__ import annotations
 import argparse
 import signal
 import threading
-from typing import Callable
+from collections.abc import Callable
+from typing import TYPE_CHECKING
 
 from ._common import can_decoding_options
 
+if TYPE_CHECKING:
+    from ..drivers.live import LiveSource
 
-def open_can_source(args: argparse.Namespace):
+
+def open_can_source(args: argparse.Namespace) -> LiveSource:
     """A :class:`~online_backlash.drivers.can.CanSource` from the options of ``listen can``."""
     from ..drivers.can import CanSource, open_bus
 
@@ -28,7 +32,7 @@ def open_can_source(args: argparse.Namespace):
     )
 
 
-def open_serial_source(args: argparse.Namespace):
+def open_serial_source(args: argparse.Namespace) -> LiveSource:
     """A :class:`~online_backlash.drivers.serial.SerialSource` from the options of ``listen serial``."""
     from ..drivers.serial import SerialSource
 
@@ -50,4 +54,8 @@ def on_interrupt(stop: Callable[[], None]) -> Callable[[], None]:
     if threading.current_thread() is not threading.main_thread():
         return lambda: None
     previous = signal.signal(signal.SIGINT, lambda *_: stop())
-    return lambda: signal.signal(signal.SIGINT, previous)
+
+    def undo() -> None:
+        signal.signal(signal.SIGINT, previous)
+
+    return undo

@@ -8,13 +8,12 @@ from __future__ import annotations
 
 import argparse
 import tempfile
+import time
 from importlib import resources
 from pathlib import Path
 
 from ..fitting import describe, fit_batch, fit_recursive
 from ..plotting import plot_characteristic
-from ..replay import read_csv_arrays
-from ..stream import refer_to_load
 from .history import describe_trend
 
 #: The bundled log (made by scripts/make_demo_log.py): 30:1 gearbox, 0.50 deg play, encoder counts.
@@ -40,6 +39,8 @@ def add_subparser(subparsers: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from ..replay import read_csv_arrays  # the readers load only when the demo runs, not for --help
+
     with resources.as_file(resources.files("online_backlash") / "data" / DEMO_LOG) as path:
         chunk = read_csv_arrays(path, **DEMO_OPTIONS)
         report, _ = fit_recursive([chunk], DEMO_RATIO, source=path.name)
@@ -47,8 +48,8 @@ def run(args: argparse.Namespace) -> int:
         print(f"bundled recording: 30:1 gearbox, true play 0.500 deg ({DEMO_LOG})")
         print(describe(report, path.name))
         print(f"batch fit:      {batch.backlash_deg:.4f} deg (the paper's algorithm on the whole log; plotted)")
-    u = refer_to_load(chunk.motor_deg, DEMO_RATIO)
-    plot_characteristic(u, chunk.load_deg, est.predict(u, chunk.load_deg[0]), args.plot, "online-backlash demo: 30:1 gearbox")
+    u, y = chunk.referred(DEMO_RATIO)
+    plot_characteristic(u, y, est.predict(u, y[0]), args.plot, "online-backlash demo: 30:1 gearbox")
     print(f"plot:           {args.plot}")
     wear_demo(args.wear_plot or Path(args.plot).with_name("wear-demo.png"))
     return 0
@@ -57,17 +58,24 @@ def run(args: argparse.Namespace) -> int:
 def wear_demo(plot_path: str | Path) -> None:
     """Replay the bundled wear series into a temporary SQLite history; print trend and forecast; plot."""
     from ..history import HistoryStore, bundled_wear_series, plot_wear, wear_report  # SQLAlchemy, scipy: only here
+    from ..tracking import track_series
 
     series = bundled_wear_series()
     truth = series.manifest
+    shift_s = series.shift_to_end_before(time.time())
     with tempfile.TemporaryDirectory() as folder, HistoryStore(Path(folder) / "wear.db", create=True) as store:
-        series.track(store)
+        track_series(series, store, shift_s=shift_s)
         report = wear_report(store, series.gearbox)
     print()
     print(
         f"wear history:   {len(series.files)} daily logs of gearbox {series.gearbox} (true play "
         f"{truth['logs'][0]['play_deg_first']:.3f} -> {truth['logs'][-1]['play_deg_last']:.3f} deg), "
         f"replayed into a temporary SQLite store: {len(report.estimates)} estimates"
+    )
+    print(
+        f"clock:          the series was recorded {truth['logs'][0]['start'][:10]} .. {truth['logs'][-1]['start'][:10]}; "
+        f"the demo shifts it by {shift_s / 86400:.0f} days so that its last log is the latest one before now; "
+        "dates are UTC on that shifted clock"
     )
     print("\n".join(describe_trend(report)))
     print(

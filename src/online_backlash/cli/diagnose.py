@@ -4,9 +4,8 @@ from __future__ import annotations
 
 import argparse
 
-from ..replay import read_log_arrays
 from ._common import add_can_decoding_options, add_log_options, add_ratio_option, print_json
-from .estimate import log_options
+from .estimate import log_options, write_trace
 
 
 def add_subparser(subparsers: argparse._SubParsersAction) -> None:
@@ -29,6 +28,13 @@ def add_subparser(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("--plot", metavar="FILE.png", help="write the residual before/after plot")
     parser.add_argument("--report", metavar="FILE.md", help="write a Markdown report")
     parser.add_argument("--max-terms", type=int, default=6, help="most terms (named or generic) to add")
+    parser.add_argument(
+        "--trace",
+        metavar="FILE.csv",
+        help="also track the backlash over the log with the named effects found (recursive estimator) and write "
+        "the estimate over time, as estimate --trace does",
+    )
+    parser.add_argument("--every", metavar="S", type=float, default=1.0, help="seconds of data between trace rows")
     add_log_options(parser)
     add_can_decoding_options(parser, required=False)
     parser.add_argument("--serial-format", choices=("ascii", "binary"), help="frame format of a serial capture (.serial)")
@@ -40,9 +46,12 @@ def run(args: argparse.Namespace) -> int:
     from ..diagnostics.loop import diagnose
     from ..diagnostics.plot import plot_diagnosis
     from ..diagnostics.report import markdown_report
+    from ..replay import read_log_arrays
 
     chunk = read_log_arrays(args.log, **log_options(args))
     result = diagnose(chunk, args.ratio, max_terms=args.max_terms)
+    if args.trace:
+        write_trace(args.trace, [chunk], args.ratio, args.every, args.log, effects=result.effects)
     if args.plot:
         plot_diagnosis(result, args.plot)
     text = markdown_report(result, args.log, plot=args.plot)

@@ -4,10 +4,14 @@ from __future__ import annotations
 
 import argparse
 import csv
+import os
+from collections.abc import Iterable
+from typing import Any
 
 from ..errors import InvalidParameterError
-from ..fitting import TRACE_COLUMNS, describe, fit_batch, fit_recursive
-from ..replay import log_suffix, open_log, read_log_arrays
+from ..fitting import BacklashReport, describe, fit_batch, fit_recursive
+from ..rows import TRACE_COLUMNS, EstimateRow
+from ..stream import SampleChunk
 from ._common import add_can_decoding_options, add_log_options, add_ratio_option, can_decoding_options, parse_column_map, print_json
 
 
@@ -22,7 +26,11 @@ def add_subparser(subparsers: argparse._SubParsersAction) -> None:
         ),
         formatter_class=argparse.ArgumentDefaultsHelpFormatter,
     )
-    parser.add_argument("log", help="recorded log: .csv[.gz]; a CAN log (.asc .blf .log .trc ..., with --dbc); a serial capture (.serial, with --serial-format)")
+    parser.add_argument(
+        "log",
+        help="recorded log: .csv[.gz]; a measurement file (.mf4 .mdf .tdms .parquet .arrow, channels by --columns); "
+        "a CAN log (.asc .blf .log .trc ..., with --dbc); a serial capture (.serial, with --serial-format)",
+    )
     add_ratio_option(parser)
     parser.add_argument("--method", choices=("recursive", "batch"), default="recursive", help="estimator")
     parser.add_argument("--json", action="store_true", help="print one JSON object")
@@ -41,10 +49,16 @@ def add_subparser(subparsers: argparse._SubParsersAction) -> None:
 
 def log_options(args: argparse.Namespace) -> dict:
     """Reader options from the log-format arguments (by the log's suffix)."""
+    from ..replay import log_suffix  # the readers (python-can, asammdf) load only when a log is read, not for --help
+    from ..replay.measurement import is_measurement_log
+
     suffix = log_suffix(args.log)
     if suffix == ".serial":
-        return {"serial_format": args.serial_format, "motor_cpr": args.motor_cpr, "load_cpr": args.load_cpr, "skip_bad": args.skip_bad_rows, "realtime": getattr(args, "realtime", False)}
-    if suffix != ".csv":  # a CAN log (or an unknown suffix, which open_log reports)
+        return {
+            "serial_format": args.serial_format, "motor_cpr": args.motor_cpr, "load_cpr": args.load_cpr,
+            "skip_bad": args.skip_bad_rows, "realtime": getattr(args, "realtime", False),
+        }
+    if suffix != ".csv" and not is_measurement_log(args.log):  # a CAN log (or an unknown suffix, which open_log reports)
         counts = {k: None if v is None else int(v) for k, v in (("motor_cpr", args.motor_cpr), ("load_cpr", args.load_cpr))}
         return {**can_decoding_options(args), **counts, "skip_bad": args.skip_bad_rows, "realtime": getattr(args, "realtime", False)}
     return {
@@ -57,6 +71,8 @@ def log_options(args: argparse.Namespace) -> dict:
 
 
 def run(args: argparse.Namespace) -> int:
+    from ..replay import open_log, read_log_arrays
+
     if args.method == "batch":
         if args.trace:
             raise InvalidParameterError("--trace needs --method recursive")
@@ -65,10 +81,7 @@ def run(args: argparse.Namespace) -> int:
         params = {"memory_reversals": args.memory_reversals, "memory_s": args.memory_s, "sample_period_s": args.sample_period}
         with open_log(args.log, **log_options(args)) as log:
             if args.trace:
-                with open(args.trace, "w", newline="") as f:
-                    writer = csv.DictWriter(f, fieldnames=TRACE_COLUMNS)
-                    writer.writeheader()
-                    report, _ = fit_recursive(log.iter_chunks(), args.ratio, every_s=args.every, trace=writer.writerow, source=args.log, **params)
+                report = write_trace(args.trace, log.iter_chunks(), args.ratio, args.every, args.log, **params)
             else:
                 report, _ = fit_recursive(log.iter_chunks(), args.ratio, source=args.log, **params)
     if args.json:
@@ -76,3 +89,18 @@ def run(args: argparse.Namespace) -> int:
     else:
         print(describe(report, args.log))
     return 0
+
+
+def write_trace(
+    path: str | os.PathLike[str], chunks: Iterable[SampleChunk], ratio: float, every_s: float, source: str, **params: Any
+) -> BacklashReport:
+    """Run the recursive fit (the pipeline) and write its rows to ``path`` as CSV (columns ``TRACE_COLUMNS``)."""
+    with open(path, "w", newline="") as f:
+        writer = csv.DictWriter(f, fieldnames=TRACE_COLUMNS)
+        writer.writeheader()
+
+        def write(row: EstimateRow) -> None:
+            writer.writerow(row.trace())
+
+        report, _ = fit_recursive(chunks, ratio, every_s=every_s, trace=write, source=source, **params)
+    return report

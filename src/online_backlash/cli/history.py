@@ -6,25 +6,20 @@ import argparse
 import csv
 import math
 import sys
-
 from typing import TYPE_CHECKING
 
+from ..errors import BacklashError, InvalidParameterError
+from ..rows import HISTORY_CSV_COLUMNS
 from ._common import print_json
 
 if TYPE_CHECKING:
     from ..history.report import WearReport
 
-CSV_COLUMNS = (
-    "time", "time_unix_s", "operating_hours", "load_revolutions", "reversals", "backlash_deg", "backlash_std_deg",
-    "backlash_arcmin", "backlash_std_arcmin", "c_left_deg", "c_right_deg", "m_left", "m_right", "residual_rms_deg",
-    "n_samples", "run_id", "sample_index",
-)
 
-
-def add_db_options(parser: argparse.ArgumentParser) -> None:
+def add_db_options(parser: argparse.ArgumentParser, gearbox_required: bool = True) -> None:
     """``--db`` and ``--gearbox``, shared with ``track``."""
     parser.add_argument("--db", required=True, help="history store: an SQLite file path or postgresql://user@host/dbname")
-    parser.add_argument("--gearbox", required=True, metavar="ID", help="the gearbox's id in the store")
+    parser.add_argument("--gearbox", required=gearbox_required, metavar="ID", help="the gearbox's id in the store")
 
 
 def add_subparser(subparsers: argparse._SubParsersAction) -> None:
@@ -32,14 +27,37 @@ def add_subparser(subparsers: argparse._SubParsersAction) -> None:
         "history",
         help="show a gearbox's wear history, trend and forecast",
         description="Show the stored backlash estimates of one gearbox, the trend against operating hours "
-        "(Theil-Sen, with its confidence band) and when it will cross the limit.",
+        "(Theil-Sen or a Kalman local linear trend, with confidence and prediction bands), when it will cross the "
+        "limit, and its alarm state (ok, warning, alarm, unknown); --check prints it as a Nagios/Icinga plugin line.",
         formatter_class=argparse.ArgumentDefaultsHelpFormatter,
     )
-    add_db_options(parser)
+    add_db_options(parser, gearbox_required=False)
     output = parser.add_mutually_exclusive_group()
     output.add_argument("--json", action="store_true", help="print one JSON object")
     output.add_argument("--csv", action="store_true", help="print the estimates as CSV")
+    output.add_argument(
+        "--check",
+        action="store_true",
+        help="print one line per gearbox in the Nagios/Icinga plugin format and exit 0/1/2/3 (OK/WARNING/CRITICAL/UNKNOWN; "
+        "with --all the worst, in the order OK < WARNING < UNKNOWN < CRITICAL)",
+    )
+    parser.add_argument("--all", action="store_true", help="with --check: every gearbox in the store")
     parser.add_argument("--limit-arcmin", type=float, metavar="X", help="backlash limit for the forecast; without it, the gearbox's stored limit")
+    parser.add_argument("--warn-arcmin", type=float, metavar="X", help="warning level of the play; without it, the gearbox's stored one")
+    parser.add_argument(
+        "--max-age-h",
+        type=float,
+        default=168.0,
+        metavar="H",
+        help="the state is UNKNOWN when the latest observable estimate is older than H calendar hours",
+    )
+    parser.add_argument(
+        "--trend",
+        choices=("theil-sen", "kalman"),
+        default="theil-sen",
+        help="wear trend: Theil-Sen line, or a Kalman local linear trend (level and wear rate, RTS-smoothed, "
+        "corrected for the estimator's lag); see docs/wear-trend.md",
+    )
     parser.add_argument("--plot", metavar="FILE.png", help="also draw the wear plot into this file")
     parser.add_argument("--confidence", type=float, default=0.95, help="confidence of the trend band and forecast interval")
     parser.set_defaults(func=run)
@@ -51,8 +69,12 @@ def run(args: argparse.Namespace) -> int:
     from ..history.report import wear_report
     from ..history.store import HistoryStore
 
+    if args.check:
+        return run_check(args)
+    if args.gearbox is None or args.all:
+        raise InvalidParameterError("give --gearbox ID (--all only goes with --check)")
     with HistoryStore(args.db) as store:
-        report = wear_report(store, args.gearbox, args.limit_arcmin, args.confidence)
+        report = wear_report(store, args.gearbox, **report_options(args))
     if args.plot:
         plot_wear(report, args.plot)
     if args.json:
@@ -66,8 +88,44 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
+def report_options(args: argparse.Namespace) -> dict:
+    """The keyword arguments of ``wear_report`` given on the command line."""
+    return {
+        "limit_arcmin": args.limit_arcmin,
+        "warn_arcmin": args.warn_arcmin,
+        "confidence": args.confidence,
+        "method": args.trend,
+        "max_age_h": args.max_age_h,
+    }
+
+
+def run_check(args: argparse.Namespace) -> int:
+    """``--check``: plugin lines for one gearbox or all; any error is one UNKNOWN line, exit 3."""
+    from ..history.alarms import PLUGIN_STATUS, plugin_line, worst_state
+    from ..history.report import wear_report
+    from ..history.store import HistoryStore
+
+    if (args.gearbox is None) == (not args.all):
+        print("BACKLASH UNKNOWN - give --gearbox ID or --all with --check")
+        return PLUGIN_STATUS["unknown"][1]
+    try:
+        with HistoryStore(args.db) as store:
+            ids = store.gearbox_ids() if args.all else [args.gearbox]
+            reports = [wear_report(store, gearbox_id, **report_options(args)) for gearbox_id in ids]
+    except (BacklashError, OSError) as exc:
+        print(f"BACKLASH UNKNOWN - error: {exc}")
+        return PLUGIN_STATUS["unknown"][1]
+    if not reports:
+        print(f"BACKLASH UNKNOWN - no gearbox in {args.db}")
+        return PLUGIN_STATUS["unknown"][1]
+    for report in reports:
+        status = report.status_dict()
+        print(plugin_line(report.gearbox.id, report.status, report.summary.as_dict()["forecast_hours_to_limit"], status["limit_exceeded_since"]))
+    return PLUGIN_STATUS[worst_state([r.status.state for r in reports])][1]
+
+
 def write_csv(report: WearReport) -> None:
-    writer = csv.DictWriter(sys.stdout, fieldnames=CSV_COLUMNS, extrasaction="ignore", lineterminator="\n")
+    writer = csv.DictWriter(sys.stdout, fieldnames=HISTORY_CSV_COLUMNS, extrasaction="ignore", lineterminator="\n")
     writer.writeheader()
     writer.writerows(report.rows())
 
@@ -80,7 +138,8 @@ def describe(report: WearReport) -> str:
     """The text report: a table of estimates, then trend and forecast."""
     g = report.gearbox
     limit = "none stored" if g.limit_arcmin is None else f"{g.limit_arcmin:g} arcmin"
-    lines = [f"gearbox {g.id}: ratio {g.ratio:g}, limit {limit}, {len(report.estimates)} estimates"]
+    warn = "" if g.warn_arcmin is None else f", warning level {g.warn_arcmin:g} arcmin"
+    lines = [f"gearbox {g.id}: ratio {g.ratio:g}, limit {limit}{warn}, {len(report.estimates)} estimates"]
     header = f"{'time (UTC)':<20} {'op. hours':>10} {'load rev':>10} {'reversals':>9} {'backlash deg':>12} {'std deg':>9} {'arcmin':>8} {'std arcmin':>10}"
     lines += [header, "-" * len(header)]
     for row in report.rows():
@@ -91,6 +150,8 @@ def describe(report: WearReport) -> str:
         )
     lines.append("")
     lines += describe_trend(report)
+    st = report.status_dict()
+    lines.append(f"state: {st['state']} ({st['state_reason']}; checked at {st['checked_at']} by the wall clock, UTC)")
     return "\n".join(lines)
 
 
@@ -101,8 +162,9 @@ def describe_trend(report: WearReport) -> list[str]:
         return ["trend: needs at least 3 estimates at different operating hours"]
     lo, hi = s["trend_deg_per_hour_interval"]
     conf = f"{s['trend_confidence']:.0%}"
+    method = "Kalman local linear trend, lag-corrected" if s["trend_method"] == "kalman" else "Theil-Sen"
     lines = [
-        f"trend: {s['trend_deg_per_hour']:+.4g} deg per operating hour [{lo:+.4g}, {hi:+.4g}] ({conf}), "
+        f"trend: {s['trend_deg_per_hour']:+.4g} deg per operating hour [{lo:+.4g}, {hi:+.4g}] ({conf}, {method}), "
         f"now {s['trend_backlash_deg_now']:.4f} deg on the trend line",
     ]
     if s["trend_deg_per_revolution"] is not None:
@@ -114,6 +176,13 @@ def describe_trend(report: WearReport) -> list[str]:
         return lines
     h, (h_lo, h_hi) = s["forecast_hours_to_limit"], s["forecast_hours_to_limit_interval"]
     limit = f"limit {s['limit_arcmin']:g} arcmin ({s['limit_deg']:.4f} deg)"
+    since = report.status_dict()["limit_exceeded_since"]
+    if since is not None:
+        lines.append(
+            f"alarm: {limit} exceeded since {since} (the estimates' clock, UTC); "
+            f"play now {report.status.play_arcmin:.1f} arcmin"
+        )
+        return lines
     if not math.isfinite(h):
         lines.append(f"forecast: {limit} not reached (the trend does not grow)")
         return lines
@@ -124,5 +193,10 @@ def describe_trend(report: WearReport) -> list[str]:
         lines.append(f"forecast: {limit} reached in {h:.3g} operating hours {interval} from the last estimate")
     if s["forecast_date"] is not None:
         d_lo, d_hi = s["forecast_date_interval"]
-        lines.append(f"          around {s['forecast_date']} [{d_lo}, {d_hi or 'never'}] at the recent rate of use")
+        clock = "on the estimates' clock" if h < 0 else "at the recent rate of use, counted from the last estimate's time"
+        lines.append(f"          around {s['forecast_date']} [{d_lo}, {d_hi or 'never'}] (UTC) {clock}")
+        today = report.status_dict()["checked_at"][:10]
+        if h >= 0 and s["forecast_date"] < today:
+            last = report.rows()[-1]["time"][:10]
+            lines.append(f"          which is before today ({today}): the last estimate is from {last}; track newer logs")
     return lines

@@ -15,7 +15,8 @@ import time
 from typing import Any
 
 from ..errors import LogFormatError, SourceError
-from ..fitting import ARCMIN_PER_DEG, describe, fit_recursive
+from ..fitting import describe, fit_recursive
+from ..rows import EstimateRow, arcmin
 from ._common import add_can_decoding_options, add_ratio_option, print_json
 from ._live import on_interrupt, open_can_source, open_serial_source
 
@@ -75,7 +76,7 @@ def _add_common(parser: argparse.ArgumentParser) -> None:
 
 
 class _StatusLine:
-    """The live status line on stderr, fed by ``fit_recursive``'s trace rows."""
+    """The live status line on stderr, fed by the pipeline's rows (``fit_recursive``'s trace)."""
 
     def __init__(self, counters: Any) -> None:
         self.counters = counters
@@ -83,14 +84,14 @@ class _StatusLine:
         self._last_samples = 0
         self.shown = False
 
-    def __call__(self, row: dict[str, float]) -> None:
+    def __call__(self, row: EstimateRow) -> None:
         now = time.monotonic()
         c = self.counters
         rate = (c.samples - self._last_samples) / max(now - self._last, 1e-9)
         self._last, self._last_samples = now, c.samples
         text = (
-            f"{now - self.start:7.1f} s  backlash {row['backlash_deg'] * ARCMIN_PER_DEG:8.3f}"
-            f" ± {row['backlash_std_deg'] * ARCMIN_PER_DEG:.3f} arcmin  {rate:7.0f} samples/s"
+            f"{now - self.start:7.1f} s  backlash {arcmin(row.backlash_deg):8.3f}"
+            f" ± {arcmin(row.backlash_std_deg):.3f} arcmin  {rate:7.0f} samples/s"
             f"  corrupt {c.corrupt}  gaps {c.gaps}"
         )
         sys.stderr.write("\r" + text + "\x1b[K")

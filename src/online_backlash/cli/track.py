@@ -10,8 +10,9 @@ from __future__ import annotations
 import argparse
 import datetime as dt
 import sys
+from collections.abc import Iterator
 from contextlib import contextmanager
-from typing import TYPE_CHECKING, Iterator
+from typing import TYPE_CHECKING, Any
 
 from ..errors import InvalidParameterError
 from ._common import add_can_decoding_options, add_log_options, add_ratio_option, print_json
@@ -20,7 +21,8 @@ from .estimate import log_options
 from .history import add_db_options
 
 if TYPE_CHECKING:
-    from ..history.track import GearboxTracker, ProgressCallback, TrackResult
+    from ..history.store import HistoryStore
+    from ..tracking import GearboxTracker, ProgressCallback, TrackResult
 
 
 def _unix_time(text: str) -> float:
@@ -55,6 +57,9 @@ def add_subparser(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("--every", type=float, default=60.0, metavar="S", help="seconds of data between estimates")
     parser.add_argument("--limit-arcmin", type=float, metavar="X", help="store this backlash limit with the gearbox")
     parser.add_argument(
+        "--warn-arcmin", type=float, metavar="X", help="store this warning level of the play with the gearbox (not above the limit)"
+    )
+    parser.add_argument(
         "--start",
         type=_unix_time,
         metavar="TIME",
@@ -69,6 +74,12 @@ def add_subparser(subparsers: argparse._SubParsersAction) -> None:
         "more noise); default: BacklashRLS's",
     )
     parser.add_argument("--sample-period", type=float, metavar="S", help="sampling period of a new gearbox's logs, seconds; default: BacklashRLS's (0.001)")
+    parser.add_argument(
+        "--diagnose",
+        action="store_true",
+        help="for a new gearbox: run diagnose on the first log and track the named effects it finds with the backlash "
+        "(a gearbox already tracked keeps the effects stored in its checkpoint)",
+    )
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
     parser.add_argument("--json", action="store_true", help="print one JSON object per log")
     add_log_options(parser)
@@ -96,14 +107,23 @@ def run(args: argparse.Namespace) -> int:
         raise InvalidParameterError("--listen tracks live: give --raw-log DIR and no logs")
     if args.start is not None and len(args.logs) != 1:
         raise InvalidParameterError(f"--start gives the start of one log; {len(args.logs)} logs were given")
+    if args.diagnose and args.listen is not None:
+        raise InvalidParameterError("--diagnose diagnoses the first log: track a log first, then --listen continues with its effects")
     # imported here: SQLAlchemy loads only for this subcommand
+    from ..history.alarms import check_alarm_levels
     from ..history.store import HistoryStore
-    from ..history.track import GearboxTracker
+
+    check_alarm_levels(args.warn_arcmin, args.limit_arcmin)
+    from ..tracking import GearboxTracker
 
     show_progress = not args.quiet and sys.stderr.isatty()
     with HistoryStore(args.db, create=True) as store:
         given = {"memory_reversals": args.memory_reversals, "sample_period_s": args.sample_period}
         params = {name: value for name, value in given.items() if value is not None}
+        if args.diagnose:
+            params.update(_diagnosed_effects(store, args))
+        if args.warn_arcmin is not None or args.limit_arcmin is not None:
+            store.set_alarm_levels(args.gearbox, args.ratio, warn_arcmin=args.warn_arcmin, limit_arcmin=args.limit_arcmin)
         tracker = GearboxTracker(
             store, args.gearbox, args.ratio, every_s=args.every, limit_arcmin=args.limit_arcmin, estimator_params=params
         )
@@ -118,6 +138,20 @@ def run(args: argparse.Namespace) -> int:
                 result = tracker.track_log(path, options, start_unix_s=args.start, progress=progress)
             report(result, args.json)
     return 0
+
+
+def _diagnosed_effects(store: HistoryStore, args: argparse.Namespace) -> dict[str, Any]:
+    """``{"effects": [...]}``: the named effects ``diagnose`` finds in the first log, for a new gearbox
+    (``{}`` for a gearbox with a checkpoint: its estimator carries its effects)."""
+    known = store.find_gearbox(args.gearbox)
+    if known is not None and known.checkpoint is not None:
+        return {}
+    from ..diagnostics.loop import diagnose
+    from ..replay import read_log_arrays
+
+    first = args.logs[0]
+    chunk = read_log_arrays(first, **log_options(argparse.Namespace(**{**vars(args), "log": first})))
+    return {"effects": diagnose(chunk, args.ratio).effects}
 
 
 @contextmanager

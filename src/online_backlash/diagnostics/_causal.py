@@ -41,7 +41,7 @@ class CausalWindow:
             return u, t, q, 0
         past = self._past
         if past is None:  # at rest at the first sample before the record starts
-            past = tuple(np.full(self.history, a[0]) for a in (u, t, q))
+            past = (np.full(self.history, u[0]), np.full(self.history, t[0]), np.full(self.history, q[0]))
         return (np.concatenate((past[0], u)), np.concatenate((past[1], t)), np.concatenate((past[2], q)), self.history)
 
     def keep(self, u: np.ndarray, t: np.ndarray, q: np.ndarray) -> None:

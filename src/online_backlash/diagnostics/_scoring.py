@@ -16,7 +16,7 @@ that are nearly collinear with what the model already has.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -128,6 +128,9 @@ class DetectionData:
     #: leading nuisance columns that are the backlash's own directions, a constant first (not
     #: counted in ``own_share``); the nuisance columns must include a constant
     n_backlash: int = 0
+    #: orthonormal bases (QR) of all nuisance columns and of the non-backlash ones, set in __post_init__
+    base_basis: np.ndarray = field(init=False, repr=False)
+    terms_basis: np.ndarray = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
         ones = np.ones((self.residual_deg.size, 1))
@@ -138,8 +141,8 @@ class DetectionData:
             terms = np.column_stack((ones, self.nuisance[:, self.n_backlash :]))
         else:
             terms = self.nuisance
-        object.__setattr__(self, "_qb", np.linalg.qr(base)[0])
-        object.__setattr__(self, "_qt", np.linalg.qr(terms)[0])
+        object.__setattr__(self, "base_basis", np.linalg.qr(base)[0])
+        object.__setattr__(self, "terms_basis", np.linalg.qr(terms)[0])
 
     def hold(self, columns: np.ndarray) -> np.ndarray:
         """Input-side columns held through the dead band of the current model (see :mod:`.joint`)."""
@@ -149,9 +152,9 @@ class DetectionData:
     def score(self, input_side: bool, columns: np.ndarray) -> Score:
         """:func:`score_columns` of ``columns`` on this residual beyond the nuisance columns
         (held through the dead band when ``input_side``)."""
-        return _score_projected(self.residual_deg, self.hold(columns) if input_side else columns, self._qb, self._qt)
+        return _score_projected(self.residual_deg, self.hold(columns) if input_side else columns, self.base_basis, self.terms_basis)
 
-    def with_nuisance(self, columns: np.ndarray) -> "DetectionData":
+    def with_nuisance(self, columns: np.ndarray) -> DetectionData:
         """The same data with ``columns`` added to the nuisance columns."""
         base = np.ones((self.residual_deg.size, 1)) if self.nuisance is None else self.nuisance
         return replace(self, nuisance=np.column_stack((base, columns)))

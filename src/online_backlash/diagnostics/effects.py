@@ -35,7 +35,8 @@ array([[ 0.,  1.],
 from __future__ import annotations
 
 import inspect
-from typing import Any, Callable, Sequence
+from collections.abc import Callable, Sequence
+from typing import Any
 
 import numpy as np
 
@@ -71,7 +72,7 @@ class EffectBase:
         names = [p for p in inspect.signature(type(self).__init__).parameters if p != "self"]
         return {n: getattr(self, n) for n in names}
 
-    def clone(self) -> "EffectBase":
+    def clone(self) -> EffectBase:
         """A fresh copy with the same settings and no stream history."""
         return type(self)(**self.get_params())
 
@@ -279,7 +280,7 @@ class Delay(EffectBase):
             s = data.score(cls.input_side, cls(k).terms(data.u_deg, data.time_s, data.torque_Nm))
             found.append((s.delta_bic, k, float(s.coef[0]) * k))
         _, k_grid, lag = min(found)
-        effect = cls(max(1, int(round(abs(lag)))), data.sample_period_s)
+        effect = cls(max(1, round(abs(lag))), data.sample_period_s)
         s = data.score(cls.input_side, effect.clone().terms(data.u_deg, data.time_s, data.torque_Nm))
         p = effect.describe(s.coef)
         return Detection(

@@ -100,7 +100,9 @@ class _Projector:
     """Least squares on fixed columns: ``coef(v)`` and the part of ``v`` they leave."""
 
     def __init__(self, columns: np.ndarray) -> None:
-        self.q, self.r = (np.linalg.qr(columns) if columns.shape[1] else (columns, np.empty((0, 0))))
+        self.q: np.ndarray
+        self.r: np.ndarray
+        self.q, self.r = np.linalg.qr(columns) if columns.shape[1] else (columns, np.empty((0, 0)))
 
     def leave(self, v: np.ndarray) -> np.ndarray:
         return v - self.q @ (self.q.T @ v) if self.q.shape[1] else v

@@ -23,14 +23,15 @@ Angles in degrees on the load side, time in seconds.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Any, Sequence
+from typing import Any
 
 import numpy as np
 
 from ..estimators import VorosBacklash
 from ..estimators._validation import check_int, check_real
-from ..stream import SampleChunk, refer_to_load
+from ..stream import SampleChunk
 from ._scoring import BIC_THRESHOLD, MIN_GAIN, Detection, DetectionData
 from .effects import LIBRARY
 from .generic import GENERIC
@@ -163,7 +164,7 @@ class Diagnosis:
             "velocity": (np.gradient(self.u_deg, period), "deg/s"),
         }
         return {
-            name: tuple(profile(r, v, name, unit, bins) for r in (self.residual_before_deg, self.residual_after_deg))
+            name: (profile(self.residual_before_deg, v, name, unit, bins), profile(self.residual_after_deg, v, name, unit, bins))
             for name, (v, unit) in variables.items()
         }
 
@@ -237,11 +238,10 @@ def diagnose(
     check_real("min_gain", min_gain, 0.0, low_open=False)
     check_real("label_ratio", label_ratio, 1.0, low_open=False)
     check_real("floor_ratio", floor_ratio, 1.0, low_open=False)
-    u = np.asarray(refer_to_load(np.asarray(chunk.motor_deg, dtype=float), ratio))
-    y = np.asarray(chunk.load_deg, dtype=float)
+    u, y = (np.asarray(v, dtype=float) for v in chunk.referred(ratio))
     t = np.asarray(chunk.time_s, dtype=float)
     q = np.asarray(chunk.torque_Nm, dtype=float)
-    base = VorosBacklash(refine=True).fit(u, y)
+    base = VorosBacklash(refine=True, origin="first").fit(u, y)  # encoder zeros are arbitrary
     uc, yc = u - base.u_ref_, y - base.y_ref_
     noise = noise_floor(y)
     period = round(float(np.median(np.diff(t))), 12) if t.size > 1 else 1.0  # 0.001, not 0.000999999...
@@ -261,8 +261,8 @@ def diagnose(
         named = _significant([c.detect(data) for c in LIBRARY if c not in taken], bic_threshold, min_gain)
         generic = _significant([c.detect(data) for c in GENERIC if c not in taken], bic_threshold, min_gain)
 
-        def refit(found: Detection) -> JointFit:
-            terms = done + [found.effect]
+        def refit(found: Detection, done: list = done, current: JointFit = current) -> JointFit:
+            terms = [*done, found.effect]
             return fit_guarded(uc, yc, _columns(terms, u, t, q), current.params, _held(terms))
 
         if named is None and generic is None:
@@ -270,10 +270,15 @@ def diagnose(
         # a named effect must do about as well as a flexible generic term in the joint refit
         fit_named = refit(named) if named is not None else None
         fit_generic = refit(generic) if generic is not None else None
-        if fit_named is not None and (fit_generic is None or fit_named.rms_deg**2 <= label_ratio * fit_generic.rms_deg**2):
+        kind: str
+        chosen: Detection
+        fit: JointFit
+        if named is not None and fit_named is not None and (fit_generic is None or fit_named.rms_deg**2 <= label_ratio * fit_generic.rms_deg**2):
             kind, chosen, fit = "effect", named, fit_named
-        else:
+        elif generic is not None and fit_generic is not None:
             kind, chosen, fit = "unexplained", generic, fit_generic
+        else:  # unreachable: one of the two was found above
+            break
         if fit.rms_deg**2 > (1.0 - min_gain) * current.rms_deg**2:
             refused.add(type(chosen.effect))  # the refit does not realise the gain: try the others
             continue
@@ -303,4 +308,5 @@ def diagnose_arrays(
     """:func:`diagnose` on plain arrays (torque optional)."""
     n = len(time_s)
     torque = np.full(n, np.nan) if torque_Nm is None else np.asarray(torque_Nm, dtype=float)
-    return diagnose(SampleChunk(np.asarray(time_s, float), np.asarray(motor_deg, float), np.asarray(load_deg, float), torque, np.zeros(n, bool)), ratio, **options)
+    chunk = SampleChunk(np.asarray(time_s, float), np.asarray(motor_deg, float), np.asarray(load_deg, float), torque, np.zeros(n, bool))
+    return diagnose(chunk, ratio, **options)

@@ -1,6 +1,8 @@
 """Estimators: the paper's batch algorithms and the recursive online estimators."""
 
+from ._base import RecursiveEstimator
+from .backlash_rls import BacklashRLS
 from .batch import VorosBacklash, VorosCascade
-from .recursive import BacklashRLS, CascadeRLS
+from .cascade_rls import CascadeRLS
 
-__all__ = ["BacklashRLS", "CascadeRLS", "VorosBacklash", "VorosCascade"]
+__all__ = ["BacklashRLS", "CascadeRLS", "RecursiveEstimator", "VorosBacklash", "VorosCascade"]

@@ -3,16 +3,19 @@
 Every step works on a flat state vector: a Python list on the interpreted path
 (``learn_one``, the readable reference) and a float64 array on the compiled path
 (``learn_many``: the *same source* compiled by numba). So both paths do the same
-arithmetic in the same order and give the same estimates.
+arithmetic in the same order and give the same estimates. The vectors' fields are declared
+once, by name and size (:mod:`._layout`): :data:`S` (BacklashRLS state), :data:`F` (one flank's
+block in it), :data:`KC` (BacklashRLS constants), :data:`CS` (CascadeRLS scalars, followed by
+the regions of :func:`cascade_offsets`) and :data:`QC` (CascadeRLS constants).
 
 Equation numbers refer to J. Vörös, Automatica 46 (2010) 369-374 (``PAPER.md``).
 
-BacklashRLS state (indices below). Each flank keeps its line *in local coordinates*,
-``y = b + m (u - u_ref)`` with ``u_ref`` the input of the flank's latest update, and its
-information matrix ``R`` (the inverse of the unscaled covariance) for ``[m, b]``. Moving the
-reference is an exact reparametrisation (``b += m d``, ``R <- T^-T R T^-1``), so the regressor
-of eq. (8) on an engaged flank becomes ``[0, 1]`` and the intercept is never an extrapolation
-to a far-away origin.
+BacklashRLS: each flank keeps its line *in local coordinates*, ``y = b + m (u - u_ref)`` with
+``u_ref`` the input of the flank's latest update, and its information matrix ``R`` (the inverse
+of the unscaled covariance) for ``[m, b]``. Moving the reference is an exact
+reparametrisation (``b += m d``, ``R <- T^-T R T^-1``), so the regressor of eq. (8) on an
+engaged flank becomes ``[0, 1]`` and the intercept is never an extrapolation to a far-away
+origin.
 
 The switching functions eq. (12)-(13) are evaluated on the model's own output ``X_HAT``
 (``switching="model"``, the default without effects)
@@ -21,26 +24,107 @@ not on the measured ``x(t-1)``: the *output-error* classification of the batch e
 final refinement. With the measured output, noise and a compliance ramp after each reversal
 (the load creeping up to the flank) put samples that the model sees on a flank into the
 dead band, so the flank's line is fitted without them.
+
+The step is split so that the effects path (:class:`~.backlash_rls.BacklashRLS` with effect
+columns, numpy) runs the same pieces -- :func:`begin_sample`, :func:`select_flank`,
+:func:`forget_counts`, :func:`recenter`, :func:`track_noise`, :func:`close_update` -- and only
+replaces the 2x2 information update of :func:`update_side` by the joint one.
+
+Compiled with ``inline="always"`` (numba inlines the pieces into the loop: on input that
+reverses every few samples a call per piece cost a third of the time) and
+``error_model="numpy"`` (no ZeroDivisionError check per division; the arithmetic is the same).
 """
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 from numba import njit
 
-# ---- BacklashRLS state layout --------------------------------------------------------------
-N_SEEN, HAVE_PREV, U0, Y0, U_PREV, Y_PREV, T_MOTION = range(7)
-LEFT, RIGHT = 7, 16  # offset of each flank's block; also the flank's code in LAST_SIDE
-M, B, UREF, R11, R12, R22, W_COUNT, W_TIME, N_UPD = range(9)  # fields of a flank block
-LAST_SIDE, N_REV, NOISE_VAR, N_RESID, W_EWMA, W_EWMA_SET, T_LAST_REV, W_RATE, X_HAT, HOLD_SIDE = range(25, 35)
-STATE_SIZE = 35  # HOLD_SIDE: the flank the model's output X_HAT rests on (0: unknown, after a start or gap)
+from ._layout import offsets
 
-# ---- BacklashRLS constants ---------------------------------------------------------------------
-K_DT, K_LAM, K_LAM_REV, K_FLOOR_M, K_FLOOR_B, K_MIN_STEP, K_NOISE_WINDOW, K_WEAR_HORIZON, K_ORIGIN_FIRST, K_FREEZE, K_SWITCH_MODEL = range(11)
-N_CONSTS = 11
+
+# ---- BacklashRLS state layout: field sizes, in order ----------------------------------------
+class FlankFields(NamedTuple):
+    """One flank's block of the BacklashRLS state."""
+
+    M: int = 1  # slope
+    B: int = 1  # intercept at UREF (local coordinates)
+    UREF: int = 1  # input of the flank's latest update
+    R11: int = 1  # information matrix of [m, b]
+    R12: int = 1
+    R22: int = 1
+    W_COUNT: int = 1  # forgotten count of updates (for the mean age of the information)
+    W_TIME: int = 1  # forgotten sum of their motion times
+    N_UPD: int = 1  # updates of this flank
+
+
+F, FLANK_SIZE = offsets(FlankFields())
+
+
+class BacklashFields(NamedTuple):
+    """The BacklashRLS state vector."""
+
+    N_SEEN: int = 1  # samples learned
+    HAVE_PREV: int = 1  # 0 at the start and after a gap: no motion is read from the previous sample
+    U0: int = 1  # reference origin of the input
+    Y0: int = 1  # ... and of the output
+    U_PREV: int = 1  # previous input and output (reference-origin coordinates)
+    Y_PREV: int = 1
+    T_MOTION: int = 1  # the motion clock: seconds during which the motor moved
+    LEFT: int = FLANK_SIZE  # the left flank's block (its offset is also its code in LAST_SIDE)
+    RIGHT: int = FLANK_SIZE  # the right flank's block
+    LAST_SIDE: int = 1  # the flank driven last (LEFT, RIGHT or 0)
+    N_REV: int = 1  # changes of the driving flank
+    NOISE_VAR: int = 1  # running variance of the a-priori residuals
+    N_RESID: int = 1  # residuals counted
+    W_EWMA: int = 1  # EWMA of the play at reversals (wear tracker)
+    W_EWMA_SET: int = 1
+    T_LAST_REV: int = 1  # motion time of the last reversal
+    W_RATE: int = 1  # estimated rate of change of the play
+    X_HAT: int = 1  # the model's output, eq. (1)-(3) with the current estimates
+    HOLD_SIDE: int = 1  # the flank X_HAT rests on (0: unknown, after a start or gap)
+
+
+S, STATE_SIZE = offsets(BacklashFields())
+
+
+class BacklashConsts(NamedTuple):
+    """The BacklashRLS constants vector (settings, and FREEZE during the warm-start replay)."""
+
+    DT: int = 1  # sample period, s
+    LAM: int = 1  # forgetting per update
+    LAM_REV: int = 1  # forgetting per reversal
+    FLOOR_M: int = 1  # information floor of the slope
+    FLOOR_B: int = 1  # ... and of the intercept
+    MIN_STEP: int = 1  # input steps no larger than this carry no information
+    NOISE_WINDOW: int = 1  # updates averaged by the noise variance
+    WEAR_HORIZON: int = 1  # time constant of the wear tracker, s of motion
+    ORIGIN_FIRST: int = 1  # 1: the first sample is the reference origin
+    FREEZE: int = 1  # 1: lines held (the information is gathered only)
+    SWITCH_MODEL: int = 1  # 1: eq. (12)-(13) on the model's output X_HAT, 0: on the measured one
+
+
+KC, N_CONSTS = offsets(BacklashConsts())
+
+
+def _make_to_reference(jit):
+    @jit
+    def to_reference(st, origin_first, n_seen, u0, y0, u, y):
+        """Count a sample (field ``n_seen``), take the first one as the reference origin (fields
+        ``u0``, ``y0``) if ``origin_first``, and return ``u``, ``y`` referred to the origin."""
+        if st[n_seen] == 0.0 and origin_first:
+            st[u0] = u
+            st[y0] = y
+        st[n_seen] += 1.0
+        return u - st[u0], y - st[y0]
+
+    return to_reference
 
 
 def _make_backlash_steps(jit):
     """Build the BacklashRLS step functions, compiled by ``jit`` (numba's ``njit`` or the identity)."""
+    to_reference = _make_to_reference(jit)
 
     @jit
     def begin_sample(st, c, u, y):
@@ -49,24 +133,19 @@ def _make_backlash_steps(jit):
         ``du = 0`` means no update can follow (first sample, after a gap, motor still, or a
         step no larger than ``min_step_deg``).
         """
-        if st[N_SEEN] == 0.0 and c[K_ORIGIN_FIRST] != 0.0:
-            st[U0] = u
-            st[Y0] = y
-        st[N_SEEN] += 1.0
-        uc = u - st[U0]
-        yc = y - st[Y0]
-        du = uc - st[U_PREV]
-        y_prev = st[Y_PREV]
-        if st[HAVE_PREV] == 0.0:
+        uc, yc = to_reference(st, c[KC.ORIGIN_FIRST] != 0.0, S.N_SEEN, S.U0, S.Y0, u, y)
+        du = uc - st[S.U_PREV]
+        y_prev = st[S.Y_PREV]
+        if st[S.HAVE_PREV] == 0.0:
             du = 0.0
-            st[X_HAT] = yc  # (re)start the model's output at the measured one
-            st[HOLD_SIDE] = 0.0
-        st[HAVE_PREV] = 1.0
-        st[U_PREV] = uc
-        st[Y_PREV] = yc
+            st[S.X_HAT] = yc  # (re)start the model's output at the measured one
+            st[S.HOLD_SIDE] = 0.0
+        st[S.HAVE_PREV] = 1.0
+        st[S.U_PREV] = uc
+        st[S.Y_PREV] = yc
         if du != 0.0:
-            st[T_MOTION] += c[K_DT]  # the motion clock: seconds during which the motor moved
-        if abs(du) <= c[K_MIN_STEP]:
+            st[S.T_MOTION] += c[KC.DT]  # the motion clock: seconds during which the motor moved
+        if abs(du) <= c[KC.MIN_STEP]:
             du = 0.0
         return uc, yc, du, y_prev
 
@@ -80,75 +159,105 @@ def _make_backlash_steps(jit):
         A flank carries information only while the motor drives into it: the left one
         when ``u`` decreases, the right one when ``u`` increases.
         """
-        if du < 0.0:
-            m = st[LEFT + M]
-            if (st[LEFT + B] + m * (uc - st[LEFT + UREF]) - x_prev) * m <= 0.0:  # eq. (12)
-                return LEFT
-        elif du > 0.0:
-            m = st[RIGHT + M]
-            if (x_prev - st[RIGHT + B] - m * (uc - st[RIGHT + UREF])) * m <= 0.0:  # eq. (13)
-                return RIGHT
-        return 0
+        # both sides evaluated, then one picked: no branch on the direction, which reverses
+        # every few samples on some inputs (a mispredicted branch each time)
+        m_left = st[S.LEFT + F.M]
+        m_right = st[S.RIGHT + F.M]
+        left = (st[S.LEFT + F.B] + m_left * (uc - st[S.LEFT + F.UREF]) - x_prev) * m_left <= 0.0  # eq. (12)
+        right = (x_prev - st[S.RIGHT + F.B] - m_right * (uc - st[S.RIGHT + F.UREF])) * m_right <= 0.0  # eq. (13)
+        return S.LEFT * (du < 0.0 and left) + S.RIGHT * (du > 0.0 and right)
 
     @jit
     def flank_width(st, level):
         """Horizontal distance between the flanks at output ``level``: the play, input units."""
-        u_left = st[LEFT + UREF] + (level - st[LEFT + B]) / st[LEFT + M]
-        u_right = st[RIGHT + UREF] + (level - st[RIGHT + B]) / st[RIGHT + M]
+        u_left = st[S.LEFT + F.UREF] + (level - st[S.LEFT + F.B]) / st[S.LEFT + F.M]
+        u_right = st[S.RIGHT + F.UREF] + (level - st[S.RIGHT + F.B]) / st[S.RIGHT + F.M]
         return u_right - u_left
 
     @jit
     def reversal(st, c, side, level):
         """Count a change of the driving flank; track the wear rate; return the per-reversal forgetting."""
-        last = st[LAST_SIDE]
-        st[LAST_SIDE] = side
+        last = st[S.LAST_SIDE]
+        st[S.LAST_SIDE] = side
         if last == 0.0 or last == side:
             return 1.0
-        st[N_REV] += 1.0
+        st[S.N_REV] += 1.0
         # rate of change of the play: an EWMA of the play with time constant H (seconds of
         # motion) lags a ramp of slope r by r H, so r = (width - ewma) / H
         w = flank_width(st, level)
-        t = st[T_MOTION]
-        horizon = c[K_WEAR_HORIZON]
-        if st[W_EWMA_SET] == 0.0:
-            st[W_EWMA] = w
-            st[W_EWMA_SET] = 1.0
+        t = st[S.T_MOTION]
+        horizon = c[KC.WEAR_HORIZON]
+        if st[S.W_EWMA_SET] == 0.0:
+            st[S.W_EWMA] = w
+            st[S.W_EWMA_SET] = 1.0
         else:
-            a = (t - st[T_LAST_REV]) / horizon
+            a = (t - st[S.T_LAST_REV]) / horizon
             if a > 1.0:
                 a = 1.0
-            st[W_EWMA] += a * (w - st[W_EWMA])
-            st[W_RATE] = (w - st[W_EWMA]) / horizon
-        st[T_LAST_REV] = t
-        return c[K_LAM_REV]
+            st[S.W_EWMA] += a * (w - st[S.W_EWMA])
+            st[S.W_RATE] = (w - st[S.W_EWMA]) / horizon
+        st[S.T_LAST_REV] = t
+        return c[KC.LAM_REV]
+
+    @jit
+    def select_flank(st, c, uc, du, x_measured, level):
+        """The flank this sample updates: ``(side, lam_rev, engaged)``; ``side = 0``: none.
+
+        An engaged flank (eq. 12-13 on ``X_HAT`` or on ``x_measured``, the measured
+        ``x(t-1)``) counts a reversal (:func:`reversal`, at output ``level``), whose forgetting
+        ``lam_rev`` the caller applies before moving the flank's reference to ``uc``. With
+        ``switching="model"``, motion inside the dead band updates the flank last driven at its
+        reference (``engaged`` False).
+        """
+        model = c[KC.SWITCH_MODEL] != 0.0
+        side = engaged_side(st, uc, st[S.X_HAT] if model else x_measured, du)
+        if side == 0:
+            if model and st[S.HOLD_SIDE] != 0.0:  # moving in the dead band
+                return int(st[S.HOLD_SIDE]), 1.0, False
+            return 0, 1.0, False
+        return side, reversal(st, c, side, level), True
+
+    @jit
+    def forget_counts(st, o, lam):
+        """Forget the age bookkeeping of flank ``o`` like its information."""
+        st[o + F.W_COUNT] = lam * st[o + F.W_COUNT]
+        st[o + F.W_TIME] = lam * st[o + F.W_TIME]
 
     @jit
     def forget_side(st, o, lam, floor_m, floor_b):
         """Regularised exponential forgetting of one flank: ``R <- lam R + (1 - lam) R_floor``."""
-        st[o + R11] = lam * st[o + R11] + (1.0 - lam) * floor_m
-        st[o + R12] = lam * st[o + R12]
-        st[o + R22] = lam * st[o + R22] + (1.0 - lam) * floor_b
-        st[o + W_COUNT] = lam * st[o + W_COUNT]
-        st[o + W_TIME] = lam * st[o + W_TIME]
+        st[o + F.R11] = lam * st[o + F.R11] + (1.0 - lam) * floor_m
+        st[o + F.R12] = lam * st[o + F.R12]
+        st[o + F.R22] = lam * st[o + F.R22] + (1.0 - lam) * floor_b
+        forget_counts(st, o, lam)
 
     @jit
     def recenter(st, o, uc):
         """Move the flank's reference to ``uc``: ``b += m d``, ``R <- T^-T R T^-1``; returns ``d``."""
-        d = uc - st[o + UREF]
-        st[o + B] += st[o + M] * d
-        r12 = st[o + R12]
-        r22 = st[o + R22]
-        st[o + R11] = st[o + R11] - 2.0 * d * r12 + d * d * r22
-        st[o + R12] = r12 - d * r22
-        st[o + UREF] = uc
+        d = uc - st[o + F.UREF]
+        st[o + F.B] += st[o + F.M] * d
+        r12 = st[o + F.R12]
+        r22 = st[o + F.R22]
+        st[o + F.R11] = st[o + F.R11] - 2.0 * d * r12 + d * d * r22
+        st[o + F.R12] = r12 - d * r22
+        st[o + F.UREF] = uc
         return d
 
     @jit
     def track_noise(st, c, e):
         """Running variance of the a-priori residuals (window ``noise_window`` updates)."""
-        n = st[N_RESID] + 1.0
-        st[N_RESID] = n
-        st[NOISE_VAR] += (e * e - st[NOISE_VAR]) / min(n, c[K_NOISE_WINDOW])
+        n = st[S.N_RESID] + 1.0
+        st[S.N_RESID] = n
+        st[S.NOISE_VAR] += (e * e - st[S.NOISE_VAR]) / min(n, c[KC.NOISE_WINDOW])
+
+    @jit
+    def close_update(st, o):
+        """Bookkeeping after an update of flank ``o``: age, count, and the model's output on its line."""
+        st[o + F.W_COUNT] += 1.0
+        st[o + F.W_TIME] += st[S.T_MOTION]
+        st[o + F.N_UPD] += 1.0
+        st[S.X_HAT] = st[o + F.B]  # the model's output: on the updated line, at its reference
+        st[S.HOLD_SIDE] = o
 
     @jit
     def update_side(st, c, o, yc):
@@ -158,22 +267,19 @@ def _make_backlash_steps(jit):
         dead band (reference left where the flank was last driven) it is the output-error
         gradient of eq. (1)'s third case: the load rests where the flank left it.
         """
-        forget_side(st, o, c[K_LAM], c[K_FLOOR_M], c[K_FLOOR_B])
-        e = yc - st[o + B]  # a-priori error, eq. (14); the local regressor is [0, 1]
+        if c[KC.LAM] != 1.0:  # lam = 1 would leave R unchanged, bit for bit
+            forget_side(st, o, c[KC.LAM], c[KC.FLOOR_M], c[KC.FLOOR_B])
+        e = yc - st[o + F.B]  # a-priori error, eq. (14); the local regressor is [0, 1]
         track_noise(st, c, e)
-        r11 = st[o + R11]
-        r12 = st[o + R12]
-        r22 = st[o + R22] + 1.0  # R <- R + phi phi^T
-        st[o + R22] = r22
-        if c[K_FREEZE] == 0.0:  # frozen lines: only the information is gathered (warm start)
+        r11 = st[o + F.R11]
+        r12 = st[o + F.R12]
+        r22 = st[o + F.R22] + 1.0  # R <- R + phi phi^T
+        st[o + F.R22] = r22
+        if c[KC.FREEZE] == 0.0:  # frozen lines: only the information is gathered (warm start)
             g = e / (r11 * r22 - r12 * r12)
-            st[o + M] -= r12 * g  # theta += R^-1 phi e, R^-1 phi = [-r12, r11] / det
-            st[o + B] += r11 * g
-        st[o + W_COUNT] += 1.0
-        st[o + W_TIME] += st[T_MOTION]
-        st[o + N_UPD] += 1.0
-        st[X_HAT] = st[o + B]  # the model's output: on the updated line, at its reference
-        st[HOLD_SIDE] = o
+            st[o + F.M] -= r12 * g  # theta += R^-1 phi e, R^-1 phi = [-r12, r11] / det
+            st[o + F.B] += r11 * g
+        close_update(st, o)
 
     @jit
     def step(st, c, u, y):
@@ -181,91 +287,132 @@ def _make_backlash_steps(jit):
         uc, yc, du, y_prev = begin_sample(st, c, u, y)
         if du == 0.0:
             return
-        model = c[K_SWITCH_MODEL] != 0.0
-        side = engaged_side(st, uc, st[X_HAT] if model else y_prev, du)
+        side, lam, engaged = select_flank(st, c, uc, du, y_prev, yc)
         if side == 0:
-            if model and st[HOLD_SIDE] != 0.0:  # moving in the dead band
-                update_side(st, c, int(st[HOLD_SIDE]), yc)
             return
-        lam = reversal(st, c, side, yc)
         if lam != 1.0:
-            forget_side(st, LEFT, lam, c[K_FLOOR_M], c[K_FLOOR_B])
-            forget_side(st, RIGHT, lam, c[K_FLOOR_M], c[K_FLOOR_B])
-        recenter(st, side, uc)
+            forget_side(st, S.LEFT, lam, c[KC.FLOOR_M], c[KC.FLOOR_B])
+            forget_side(st, S.RIGHT, lam, c[KC.FLOOR_M], c[KC.FLOOR_B])
+        if engaged:
+            recenter(st, side, uc)
         update_side(st, c, side, yc)
 
-    return begin_sample, engaged_side, flank_width, reversal, recenter, track_noise, step
+    return begin_sample, select_flank, flank_width, forget_counts, recenter, track_noise, close_update, step
 
 
 def _identity(f):
     return f
 
 
+_JIT = njit(cache=True, inline="always", error_model="numpy")
+
 (
     begin_sample,
-    engaged_side,
+    select_flank,
     flank_width,
-    reversal,
+    forget_counts,
     recenter,
     track_noise,
+    close_update,
     backlash_step,
 ) = _make_backlash_steps(_identity)
-_backlash_step_nb = _make_backlash_steps(njit(cache=True))[-1]
+_backlash_step_nb = _make_backlash_steps(_JIT)[-1]
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def backlash_run(st, c, u, y, after_gap):  # pragma: no cover - compiled
     """``learn_many``'s loop: :func:`backlash_step` over arrays, honouring gaps."""
     for i in range(u.shape[0]):
         if after_gap[i]:
-            st[HAVE_PREV] = 0.0
+            st[S.HAVE_PREV] = 0.0
         _backlash_step_nb(st, c, u[i], y[i])
 
 
 # ---- CascadeRLS state layout -----------------------------------------------------------------
-# scalars, then theta (p), P (p*p, row-major), x_hat history (max(n_a, 2)), y history (n_b),
-# simulated-output history (n_b, the output-error regressor), then for the prediction-error
-# regressor: d x_hat / d [m1, c1, m2, c2] history (4 per x_hat entry) and the filtered
-# gradient psi, a ring of n_b + 1 slots of p (C_PSI_HEAD: the slot of psi(t-1))
-CN_SEEN, CU0, CY0, C_K, C_UPREV, C_F1, C_F2, C_NOISE, C_NRES, C_IDLE, C_LAST, C_NREV, C_PSI_HEAD = range(13)
-C_THETA = 13
-# constants
-Q_LAM, Q_LAM_REV, Q_TRACE_MAX, Q_NOISE_WINDOW, Q_ORIGIN_FIRST, Q_NA, Q_NB, Q_OUTPUT_ERROR, Q_FREEZE, Q_PRED_ERROR = range(10)
+class CascadeFields(NamedTuple):
+    """The CascadeRLS scalars, followed by the regions of :func:`cascade_offsets`."""
+
+    N_SEEN: int = 1  # samples learned
+    U0: int = 1  # reference origin of the input
+    Y0: int = 1  # ... and of the output
+    K: int = 1  # samples since the start or the last gap (capped at 1e9)
+    U_PREV: int = 1  # previous input (reference-origin coordinates)
+    F1: int = 1  # switching functions of t-1, eq. (12)-(13)
+    F2: int = 1
+    NOISE_VAR: int = 1  # running variance of the a-priori residuals
+    N_RES: int = 1  # residuals counted
+    IDLE: int = 1  # samples with the input still
+    LAST: int = 1  # the side engaged last (1 left, 2 right)
+    N_REV: int = 1  # changes of the engaged side
+    PSI_HEAD: int = 1  # slot of psi(t-1) in the ring of filtered gradients
 
 
-def cascade_sizes(n_a: int, n_b: int) -> tuple[int, int, int, int, int]:
-    """``(p, P offset, x_hat offset, y offset, state size)`` of a CascadeRLS state vector."""
-    p = 4 + n_a - 1 + n_b
-    off_p = C_THETA + p
-    off_x = off_p + p * p
-    off_y = off_x + max(n_a, 2)
-    return p, off_p, off_x, off_y, off_y + 2 * n_b + 4 * max(n_a, 2) + p * (n_b + 1)
+CS, CASCADE_SCALARS = offsets(CascadeFields())
 
 
-def _make_cascade_step(jit):
+class CascadeConsts(NamedTuple):
+    """The CascadeRLS constants vector."""
+
+    LAM: int = 1  # forgetting per update
+    LAM_REV: int = 1  # extra forgetting per reversal
+    TRACE_MAX: int = 1  # bound on trace(P)
+    NOISE_WINDOW: int = 1  # updates averaged by the noise variance
+    ORIGIN_FIRST: int = 1  # 1: the first sample is the reference origin
+    NA: int = 1  # n_a
+    NB: int = 1  # n_b
+    OUTPUT_ERROR: int = 1  # 1: the model's simulated output in the regressor
+    FREEZE: int = 1  # 1: theta held (the information is gathered only)
+    PRED_ERROR: int = 1  # 1: recursive prediction-error gradient
+
+
+QC, N_CASCADE_CONSTS = offsets(CascadeConsts())
+
+
+def _make_cascade_offsets(jit):
     @jit
-    def step(st, c, u, y, phi, pphi):
-        """Learn one sample of the cascade, eq. (18)-(24); ``phi``, ``pphi`` are scratch vectors of length p."""
-        na = int(c[Q_NA])
-        nb = int(c[Q_NB])
+    def cascade_offsets(na, nb):
+        """Regions of a CascadeRLS state vector after the scalars :data:`CS`.
+
+        Returns ``(p, op, ox, nx, oy, oyh, osx, opsi, size)``: the number of parameters
+        ``p = 4 + n_a - 1 + n_b`` and the offsets of theta (``CASCADE_SCALARS``, p), P
+        (``op``, p*p row-major), the x_hat history (``ox``, ``nx = max(n_a, 2)``), the y
+        history (``oy``, n_b), the simulated-output history (``oyh``, n_b, the output-error
+        regressor), d x_hat / d [m1, c1, m2, c2] per x_hat entry (``osx``, 4 nx) and the ring
+        of filtered gradients psi (``opsi``, n_b + 1 slots of p), then the total size.
+        """
         p = 4 + na - 1 + nb
-        op = C_THETA + p
+        op = CASCADE_SCALARS + p
         ox = op + p * p
         nx = max(na, 2)
         oy = ox + nx
         oyh = oy + nb
-        osx = oyh + nb  # d x_hat(t-1-i) / d [m1, c1, m2, c2] at osx + 4 i
-        opsi = osx + 4 * nx  # ring of psi vectors
-        oe = c[Q_OUTPUT_ERROR] != 0.0
-        pe = c[Q_PRED_ERROR] != 0.0
-        if st[CN_SEEN] == 0.0 and c[Q_ORIGIN_FIRST] != 0.0:
-            st[CU0] = u
-            st[CY0] = y
-        st[CN_SEEN] += 1.0
-        uc = u - st[CU0]
-        yc = y - st[CY0]
+        osx = oyh + nb
+        opsi = osx + 4 * nx
+        return p, op, ox, nx, oy, oyh, osx, opsi, opsi + p * (nb + 1)
+
+    return cascade_offsets
+
+
+cascade_offsets = _make_cascade_offsets(_identity)
+C_THETA = CASCADE_SCALARS  # theta follows the scalars
+
+
+def _make_cascade_step(jit):
+    offsets_of = _make_cascade_offsets(jit)
+    to_reference = _make_to_reference(jit)
+
+    @jit
+    def step(st, c, u, y, phi, pphi):
+        """Learn one sample of the cascade, eq. (18)-(24); ``phi``, ``pphi`` are scratch vectors of length p."""
+        na = int(c[QC.NA])
+        nb = int(c[QC.NB])
+        # osx + 4 i: d x_hat(t-1-i) / d [m1, c1, m2, c2]; opsi: the ring of psi vectors
+        p, op, ox, nx, oy, oyh, osx, opsi, _ = offsets_of(na, nb)
+        oe = c[QC.OUTPUT_ERROR] != 0.0
+        pe = c[QC.PRED_ERROR] != 0.0
+        uc, yc = to_reference(st, c[QC.ORIGIN_FIRST] != 0.0, CS.N_SEEN, CS.U0, CS.Y0, u, y)
         y_hat = yc  # the model output where no regression runs
-        if st[C_K] == 0.0:
+        if st[CS.K] == 0.0:
             # start, or restart after a gap: the system at rest, x = y B(1) / A(1)
             a_sum = 1.0
             for i in range(1, na):
@@ -281,13 +428,13 @@ def _make_cascade_step(jit):
                 st[oyh + j] = yc
             for i in range(4 * nx + p * (nb + 1)):
                 st[osx + i] = 0.0
-            st[C_UPREV] = uc
-            st[C_IDLE] = 0.0
-        elif st[C_K] >= max(na, nb, 2) and st[C_IDLE] <= na + nb + 1:
+            st[CS.U_PREV] = uc
+            st[CS.IDLE] = 0.0
+        elif st[CS.K] >= max(na, nb, 2) and st[CS.IDLE] <= na + nb + 1:
             # ---- regression on eq. (18)-(19) with the switching functions of t-1 (eq. 23)
-            f1p = st[C_F1]
-            f2p = st[C_F2]
-            u1 = st[C_UPREV]
+            f1p = st[CS.F1]
+            f2p = st[CS.F2]
+            u1 = st[CS.U_PREV]
             phi[0] = u1 * f1p
             phi[1] = f1p
             phi[2] = u1 * f2p
@@ -298,19 +445,19 @@ def _make_cascade_step(jit):
                 # -y(t-1-j); output-error form: the model's own simulated output instead
                 phi[3 + na + j] = -st[oyh + j] if oe else -st[oy + j]
             target = yc - st[ox + 1] * (1.0 - f1p) * (1.0 - f2p)  # eq. (24)
-            lam = c[Q_LAM]
+            lam = c[QC.LAM]
             side = 1.0 if f1p > 0.0 else (2.0 if f2p > 0.0 else 0.0)
             if side != 0.0:
-                if st[C_LAST] != 0.0 and st[C_LAST] != side:
-                    st[C_NREV] += 1.0
-                    lam = lam * c[Q_LAM_REV]
-                st[C_LAST] = side
+                if st[CS.LAST] != 0.0 and st[CS.LAST] != side:
+                    st[CS.N_REV] += 1.0
+                    lam = lam * c[QC.LAM_REV]
+                st[CS.LAST] = side
             # forgetting P <- P / lam, limited so that trace(P) stays <= trace_max (anti-windup)
             tr = 0.0
             for i in range(p):
                 tr += st[op + i * p + i]
-            if tr > lam * c[Q_TRACE_MAX]:
-                lam = tr / c[Q_TRACE_MAX]
+            if tr > lam * c[QC.TRACE_MAX]:
+                lam = tr / c[QC.TRACE_MAX]
                 if lam > 1.0:
                     lam = 1.0
             if lam != 1.0:
@@ -320,9 +467,9 @@ def _make_cascade_step(jit):
             e = target
             for i in range(p):
                 e -= st[C_THETA + i] * phi[i]
-            n = st[C_NRES] + 1.0
-            st[C_NRES] = n
-            st[C_NOISE] += (e * e - st[C_NOISE]) / min(n, c[Q_NOISE_WINDOW])
+            n = st[CS.N_RES] + 1.0
+            st[CS.N_RES] = n
+            st[CS.NOISE_VAR] += (e * e - st[CS.NOISE_VAR]) / min(n, c[QC.NOISE_WINDOW])
             if pe:
                 # recursive prediction-error method: the gain follows the gradient of the model
                 # output, d y_hat / d theta = (A / B) d x_hat / d[m1..c2], (q^-i / B) x_hat,
@@ -335,32 +482,34 @@ def _make_cascade_step(jit):
                         g += st[C_THETA + 3 + i] * st[osx + 4 * i + k]
                     phi[k] = g
                 n_slots = nb + 1
-                head = int(st[C_PSI_HEAD])
+                head = int(st[CS.PSI_HEAD])
                 for j in range(1, nb + 1):  # psi(t) = raw(t) - sum_j b_j psi(t-j)
                     b_j = st[C_THETA + 3 + na + j - 1]
-                    o = opsi + ((head + j - 1) % n_slots) * p
+                    slot = head + j - 1  # (head + j - 1) mod n_slots, without an integer division
+                    if slot >= n_slots:
+                        slot -= n_slots
+                    o = opsi + slot * p
                     for i in range(p):
                         phi[i] -= b_j * st[o + i]
-                head = (head + nb) % n_slots  # the free slot (psi(t-nb-1)) takes psi(t)
-                st[C_PSI_HEAD] = head
+                head += nb  # the free slot (psi(t-nb-1)) takes psi(t)
+                if head >= n_slots:
+                    head -= n_slots
+                st[CS.PSI_HEAD] = head
                 o = opsi + head * p
                 for i in range(p):
                     st[o + i] = phi[i]
-            # P phi as a sum of P's rows (P is symmetric), skipping the zeros of phi: half of
-            # the backlash part of eq. (19) is zero at any time
-            for i in range(p):
-                pphi[i] = 0.0
-            for j in range(p):
-                pj = phi[j]
-                if pj != 0.0:
-                    row = op + j * p
-                    for i in range(p):
-                        pphi[i] += st[row + i] * pj
+            # P phi, one dot product per row, and s = 1 + phi' P phi (a zero of phi adds an exact
+            # zero: the sums are those of the nonzero terms, in the same order)
             s = 1.0
             for i in range(p):
-                s += phi[i] * pphi[i]
+                row = op + i * p
+                acc = 0.0
+                for j in range(p):
+                    acc += st[row + j] * phi[j]
+                pphi[i] = acc
+                s += phi[i] * acc
             inv_s = 1.0 / s
-            if c[Q_FREEZE] == 0.0:  # (warm-start replay: theta held, P gathers the information)
+            if c[QC.FREEZE] == 0.0:  # (warm-start replay: theta held, P gathers the information)
                 for i in range(p):
                     st[C_THETA + i] += pphi[i] * inv_s * e  # gain K = P phi / (1 + phi' P phi)
             for i in range(p):  # P <- P - P phi phi' P / s, exactly symmetric
@@ -373,10 +522,10 @@ def _make_cascade_step(jit):
                 y_hat = yc - target
                 for i in range(p):
                     y_hat += st[C_THETA + i] * phi[i]
-        if uc != st[C_UPREV]:
-            st[C_IDLE] = 0.0
+        if uc != st[CS.U_PREV]:
+            st[CS.IDLE] = 0.0
         else:
-            st[C_IDLE] += 1.0
+            st[CS.IDLE] += 1.0
         # ---- internal variable, eq. (23), with the current estimates
         m1 = st[C_THETA]
         c1 = st[C_THETA + 1]
@@ -406,23 +555,23 @@ def _make_cascade_step(jit):
         if nb > 0:
             st[oy] = yc
             st[oyh] = y_hat
-        st[C_UPREV] = uc
-        st[C_F1] = f1
-        st[C_F2] = f2
-        if st[C_K] < 1e9:
-            st[C_K] += 1.0
+        st[CS.U_PREV] = uc
+        st[CS.F1] = f1
+        st[CS.F2] = f2
+        if st[CS.K] < 1e9:
+            st[CS.K] += 1.0
 
     return step
 
 
 cascade_step = _make_cascade_step(_identity)
-_cascade_step_nb = _make_cascade_step(njit(cache=True))
+_cascade_step_nb = _make_cascade_step(_JIT)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def cascade_run(st, c, u, y, after_gap, phi, pphi):  # pragma: no cover - compiled
     """``learn_many``'s loop for the cascade."""
     for i in range(u.shape[0]):
         if after_gap[i]:
-            st[C_K] = 0.0
+            st[CS.K] = 0.0
         _cascade_step_nb(st, c, u[i], y[i], phi, pphi)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 import numbers
 
 import numpy as np
@@ -40,15 +41,16 @@ def check_int(name: str, value: object, low: int, high: int | None = None) -> in
     """Validate an integer parameter in ``[low, high]``."""
     if isinstance(value, bool) or not isinstance(value, numbers.Integral):
         raise InvalidParameterError(f"{name} must be an int, got {type(value).__name__} {value!r}")
-    if value < low or (high is not None and value > high):
+    v = int(value)
+    if v < low or (high is not None and v > high):
         rng = f">= {low}" if high is None else f"in [{low}, {high}]"
         raise InvalidParameterError(f"{name} must be {rng}, got {value}")
-    return int(value)
+    return v
 
 
 def check_real(name: str, value: object, low: float, *, low_open: bool = True) -> float:
     """Validate a real parameter greater than (or equal to) ``low``."""
-    if isinstance(value, bool) or not isinstance(value, numbers.Real) or not np.isfinite(value):
+    if isinstance(value, bool) or not isinstance(value, numbers.Real) or not math.isfinite(float(value)):
         raise InvalidParameterError(f"{name} must be a finite real number, got {value!r}")
     if value < low or (low_open and value == low):
         op = ">" if low_open else ">="

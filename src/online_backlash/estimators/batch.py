@@ -20,19 +20,20 @@ The paper leaves the stopping rule open; the one used here (``tol`` standard err
 previous estimate, or from an earlier one when the iteration cycles) is described in
 :meth:`_VorosBase._iterate`.
 
-Offsets. Encoders have arbitrary zeros. With ``origin="first"`` (the default) both signals are
-referred to their first sample, ``u - u[0]`` and ``y - y[0]``, so a constant offset on either
-changes no estimate; ``c_left_`` and ``c_right_`` are then the distances, in input units, from
-the starting position to the left and right flanks, and their sum, the play, keeps its
-meaning. With ``origin="zero"`` the data are taken as they are (simulations, the paper's
-examples, where ``x = 0`` at ``u = 0`` is known).
+Offsets. With ``origin="zero"`` (the default) the data are fitted as given: ``c_left_`` and
+``c_right_`` are eq. (1)'s, in the input's own coordinates (simulations, the paper's examples,
+where ``x = 0`` at ``u = 0`` is known). Encoders have arbitrary zeros: with ``origin="first"``
+(what the CLI uses) both signals are referred to their first sample, ``u - u[0]`` and
+``y - y[0]``, so a constant offset on either changes no estimate; ``c_left_`` and ``c_right_``
+are then the distances, in input units, from the starting position to the left and right
+flanks, and their sum, the play, keeps its meaning.
 """
 
 from __future__ import annotations
 
 import warnings
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Callable
 
 import numpy as np
 
@@ -45,7 +46,7 @@ from ..model import (
     simulate_switching,
     switching_functions,
 )
-from ._validation import check_int, check_is_fitted, check_option, check_real, check_pair, check_reverses
+from ._validation import check_int, check_is_fitted, check_option, check_pair, check_real, check_reverses
 
 _ORIGINS = ("first", "zero")
 
@@ -184,10 +185,10 @@ class _VorosBase:
         """
         check_is_fitted(self, "params_")
         check_option("stage", stage, ("final", "equation_error"))
-        p = self.params_ if stage == "final" else self.equation_error_params_
+        p = getattr(self, "params_" if stage == "final" else "equation_error_params_")
         out = {name: float(getattr(p, name)) for name in ("m_left", "c_left", "m_right", "c_right")}
         if hasattr(self, "a_"):
-            a, b = (self.a_, self.b_) if stage == "final" else (self.equation_error_a_, self.equation_error_b_)
+            a, b = (getattr(self, f"{prefix}{k}_") for k in ("a", "b") for prefix in ["" if stage == "final" else "equation_error_"])
             out.update({f"a{i}": float(v) for i, v in enumerate(a[1:], start=2)})
             out.update({f"b{j}": float(v) for j, v in enumerate(b, start=1)})
         return out
@@ -308,10 +309,10 @@ class VorosBacklash(_VorosBase):
     (1.3, 0.5, 2.5, 0.7)
     """
 
-    def __init__(self, max_iter: int = 50, tol: float = 0.1, refine: bool = True, origin: str = "first") -> None:
+    def __init__(self, max_iter: int = 50, tol: float = 0.1, refine: bool = True, origin: str = "zero") -> None:
         super().__init__(max_iter, tol, refine, origin)
 
-    def fit(self, u: np.ndarray, x: np.ndarray) -> "VorosBacklash":
+    def fit(self, u: np.ndarray, x: np.ndarray) -> VorosBacklash:
         """Fit eq. (1) to input ``u`` and output ``x`` (same units, e.g. degrees).
 
         Raises
@@ -325,7 +326,7 @@ class VorosBacklash(_VorosBase):
         uc, xc = self._center(u, x)
         u_t, x_t, x_prev = uc[1:], xc[1:], xc[:-1]
 
-        def step(theta: np.ndarray) -> np.ndarray:
+        def step(theta: np.ndarray) -> _Step:
             # eq. (12)-(13): switching functions from the s-th estimate and the measured x(t-1)
             f1, f2 = switching_functions(u_t, x_prev, BacklashParams.from_theta(theta))
             _check_sides(f1, f2)
@@ -457,7 +458,7 @@ class VorosCascade(_VorosBase):
         max_iter: int = 50,
         tol: float = 0.1,
         refine: bool = True,
-        origin: str = "first",
+        origin: str = "zero",
     ) -> None:
         super().__init__(max_iter, tol, refine, origin)
         self.n_a = n_a
@@ -467,7 +468,7 @@ class VorosCascade(_VorosBase):
         k = self.n_a - 1
         return CascadeParams(BacklashParams.from_theta(theta[:4]), tuple(theta[4 : 4 + k]), tuple(theta[4 + k :]))
 
-    def fit(self, u: np.ndarray, y: np.ndarray) -> "VorosCascade":
+    def fit(self, u: np.ndarray, y: np.ndarray) -> VorosCascade:
         """Fit the cascade to input ``u`` and output ``y``."""
         self._validate_params()
         check_int("n_a", self.n_a, 1)
@@ -479,7 +480,7 @@ class VorosCascade(_VorosBase):
         start_t = max(m, n, 2)
         t = np.arange(start_t, uc.size)
 
-        def step(theta: np.ndarray) -> np.ndarray:
+        def step(theta: np.ndarray) -> _Step:
             params = BacklashParams.from_theta(theta[:4])
             # eq. (23): internal variable and switching functions with the s-th estimate
             x_hat, f1, f2 = simulate_switching(uc, params, 0.0)

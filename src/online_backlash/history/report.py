@@ -4,31 +4,36 @@
 :meth:`WearReport.as_dict` is the JSON of ``online-backlash history --json`` (a contract: keys
 ``gearbox``, ``estimates`` with ``time``, ``backlash_deg``, ``backlash_std_deg``,
 ``operating_hours``, then ``trend_deg_per_hour``, ``forecast_hours_to_limit``,
-``forecast_date``, and more).
+``forecast_date``, ``state`` (:mod:`.alarms`), ``limit_exceeded_since``, and more).
 """
 
 from __future__ import annotations
 
+import time
 from dataclasses import asdict, dataclass
 
 import numpy as np
 
+from ..errors import InvalidParameterError
+from ..rows import ARCMIN_PER_DEG, HISTORY_CSV_COLUMNS, arcmin
+from .alarms import DEFAULT_MAX_AGE_H, AlarmStatus, check_alarm_levels, evaluate_alarm
+from .kalman import estimator_lag_hours
 from .store import Estimate, Gearbox, HistoryStore
 from .trend import WearSummary, iso_time, summarise
 
-ARCMIN_PER_DEG = 60.0
+__all__ = ["ARCMIN_PER_DEG", "HISTORY_CSV_COLUMNS", "WearReport", "estimate_column", "estimate_dict", "wear_report"]
 
 
 def estimate_dict(e: Estimate) -> dict:
-    """An estimate as a flat dict: ISO time, the stored columns, backlash also in arcmin."""
+    """An estimate as a flat dict: ISO time, the stored columns, backlash also in arcmin
+    (every column of ``history --csv``, :data:`~online_backlash.rows.HISTORY_CSV_COLUMNS`)."""
     d = asdict(e)
     d.pop("gearbox_id")
-    std = e.backlash_std_deg
     return {
         "time": iso_time(e.time_unix_s),
         **d,
-        "backlash_arcmin": e.backlash_deg * ARCMIN_PER_DEG,
-        "backlash_std_arcmin": None if std is None else std * ARCMIN_PER_DEG,
+        "backlash_arcmin": arcmin(e.backlash_deg),
+        "backlash_std_arcmin": arcmin(e.backlash_std_deg),
     }
 
 
@@ -36,13 +41,16 @@ def estimate_dict(e: Estimate) -> dict:
 class WearReport:
     """A gearbox, its estimates in order of use, and their trend and forecast.
 
-    ``limit_arcmin`` is the limit the forecast used (given, else the stored one, else None).
+    ``limit_arcmin`` is the limit the forecast used (given, else the stored one, else None);
+    ``status`` the alarm state against it and the warning level (:mod:`.alarms`) at ``now_unix_s``.
     """
 
     gearbox: Gearbox
     estimates: list[Estimate]
     limit_arcmin: float | None
     summary: WearSummary
+    status: AlarmStatus
+    now_unix_s: float
 
     def rows(self) -> list[dict]:
         """The estimates as dicts (see :func:`estimate_dict`)."""
@@ -57,6 +65,20 @@ class WearReport:
             "n_estimates": len(self.estimates),
             "estimates": self.rows(),
             **self.summary.as_dict(),
+            **self.status_dict(),
+        }
+
+    def status_dict(self) -> dict:
+        """``state``, ``state_reason``, ``play_arcmin``, ``warn_arcmin``, ``limit_exceeded_since`` (ISO, UTC), ``checked_at``."""
+        s = self.status
+        return {
+            "state": s.state,
+            "state_reason": s.reason,
+            "play_arcmin": s.play_arcmin,
+            "play_time": iso_time(s.play_time_unix_s),
+            "warn_arcmin": s.warn_arcmin,
+            "limit_exceeded_since": iso_time(s.limit_exceeded_since_unix_s),
+            "checked_at": iso_time(self.now_unix_s),
         }
 
     def column(self, name: str) -> np.ndarray:
@@ -69,25 +91,59 @@ def estimate_column(estimates: list[Estimate], name: str) -> np.ndarray:
     return np.array([np.nan if getattr(e, name) is None else getattr(e, name) for e in estimates], dtype=float)
 
 
+def estimator_lag(gearbox: Gearbox, estimates: list[Estimate]) -> float:
+    """The lag of the gearbox's recursive estimator in operating hours (:func:`.kalman.estimator_lag_hours`).
+
+    The memory settings come from the checkpoint's saved estimator settings (``params``, as
+    ``state_dict`` writes them); the use per reversal from the last estimate. 0 if unknown.
+    """
+    params = ((gearbox.checkpoint or {}).get("estimator") or {}).get("params") or {}
+    last = estimates[-1] if estimates else None
+    per_reversal = last.operating_hours / last.reversals if last is not None and last.reversals > 0 else None
+    return estimator_lag_hours(params.get("memory_reversals"), params.get("memory_s"), per_reversal)
+
+
 def wear_report(
     store: HistoryStore,
     gearbox_id: str,
     limit_arcmin: float | None = None,
     confidence: float = 0.95,
     recent_days: float = 7.0,
+    method: str = "theil-sen",
+    warn_arcmin: float | None = None,
+    now_unix_s: float | None = None,
+    max_age_h: float = DEFAULT_MAX_AGE_H,
 ) -> WearReport:
-    """Read a gearbox's history and fit its trend; forecast ``limit_arcmin`` (or the stored limit).
+    """Read a gearbox's history, fit its trend and find its alarm state.
 
-    Raises HistoryError if the store does not hold ``gearbox_id``.
+    ``limit_arcmin`` and ``warn_arcmin`` override the stored levels; ``method`` is the trend
+    (``theil-sen`` or ``kalman``, see :func:`~online_backlash.history.trend.summarise`);
+    ``now_unix_s`` the present for the state (default: the wall clock) and ``max_age_h`` the age
+    after which an estimate is no longer recent (:mod:`.alarms`). Raises HistoryError if the
+    store does not hold ``gearbox_id``, InvalidParameterError if the levels are invalid.
     """
     gearbox = store.gearbox(gearbox_id)
     estimates = store.estimates(gearbox_id)
     limit = limit_arcmin if limit_arcmin is not None else gearbox.limit_arcmin
-    arrays = {name: estimate_column(estimates, name) for name in ("time_unix_s", "operating_hours", "load_revolutions", "backlash_deg")}
+    warn = warn_arcmin if warn_arcmin is not None else gearbox.warn_arcmin
+    try:
+        check_alarm_levels(warn, limit)
+    except InvalidParameterError as exc:
+        raise InvalidParameterError(
+            f"gearbox {gearbox.id!r} in {store.name}: {exc} (store valid levels with track --warn-arcmin/--limit-arcmin)"
+        ) from exc
+    names = ("time_unix_s", "operating_hours", "load_revolutions", "backlash_deg", "backlash_std_deg")
+    arrays = {name: estimate_column(estimates, name) for name in names}
     summary = summarise(
         **arrays,
         limit_deg=None if limit is None else limit / ARCMIN_PER_DEG,
         confidence=confidence,
         recent_days=recent_days,
+        method=method,
+        lag_hours=estimator_lag(gearbox, estimates),
     )
-    return WearReport(gearbox, estimates, limit, summary)
+    now = time.time() if now_unix_s is None else now_unix_s
+    status = evaluate_alarm(
+        arrays["time_unix_s"], arrays["backlash_deg"], arrays["backlash_std_deg"], warn, limit, now, max_age_h
+    )
+    return WearReport(gearbox, estimates, limit, summary, status, now)

@@ -1,4 +1,4 @@
-"""The multi-day wear series bundled with the package, and replaying it into a history store.
+"""The multi-day wear series bundled with the package (:func:`online_backlash.tracking.track_series` replays it into a store).
 
 ``src/online_backlash/data/wear/`` holds daily logs of one synthetic gearbox wearing and
 ``series.json`` describing them (gearbox id, ratio, limit, reader options, estimator settings
@@ -7,13 +7,12 @@ and the true wear), made by ``scripts/make_wear_series.py``.
 
 from __future__ import annotations
 
+import datetime as dt
 import json
+import math
 from dataclasses import dataclass
 from importlib import resources
 from typing import Any
-
-from .store import HistoryStore
-from .track import GearboxTracker, ProgressCallback, TrackResult
 
 
 @dataclass(frozen=True)
@@ -36,17 +35,16 @@ class WearSeries:
     def gearbox(self) -> str:
         return self.manifest["gearbox"]
 
-    def track(self, store: HistoryStore, progress: ProgressCallback | None = None) -> list[TrackResult]:
-        """Track every log into ``store`` under the series' gearbox id (a log already there adds nothing)."""
-        m = self.manifest
-        tracker = GearboxTracker(
-            store, m["gearbox"], m["ratio"], every_s=m["every_s"], limit_arcmin=m["limit_arcmin"], estimator_params=m["estimator_params"]
-        )
-        results = []
-        for item in self.files:
-            with resources.as_file(item) as path:
-                results.append(tracker.track_log(path, m["log_options"], progress=progress))
-        return results
+    def start_unix_s(self, item: Any) -> float:
+        """Calendar time of the first sample of log ``item`` (one of :attr:`files`), UNIX seconds."""
+        name = getattr(item, "name", str(item))
+        start = next(log["start"] for log in self.manifest["logs"] if log["file"] == name)
+        return dt.datetime.fromisoformat(start).timestamp()
+
+    def shift_to_end_before(self, now_unix_s: float) -> float:
+        """Whole days to move the series by so that its last log starts at most one day before ``now_unix_s``, seconds."""
+        last = self.start_unix_s(self.files[-1])
+        return math.floor((now_unix_s - last) / 86400.0) * 86400.0
 
 
 def bundled_wear_series() -> WearSeries:

@@ -11,7 +11,8 @@ Tables
     ``key``/``value`` pairs: ``application`` (``online-backlash``) and ``schema_version``.
 ``gearboxes``
     One row per gearbox: ``id`` (the user's name for it), ``ratio`` (motor:load), the nominal
-    backlash limit ``limit_arcmin`` (may be NULL), ``created_unix_s``, and the tracker's
+    backlash limit ``limit_arcmin`` and warning level ``warn_arcmin`` (either may be NULL;
+    see :mod:`online_backlash.history.alarms`), ``created_unix_s``, and the tracker's
     ``checkpoint`` (JSON: estimator state and usage counters after the last committed sample)
     with its ``revision`` (incremented by every commit; a commit that finds another revision
     than the one it started from is refused, so two writers cannot interleave one gearbox).
@@ -40,7 +41,7 @@ to ``i + 1``), all in one transaction with the new stamp, so an upgrade that fai
 store as it was (DDL is transactional in both SQLite and PostgreSQL). A store stamped with a
 newer version than this code knows is refused rather than guessed at. To change the schema:
 edit the tables, append a migration from the current version, and increment
-:data:`SCHEMA_VERSION`. Version 1 is the first schema, so there are no migrations yet.
+:data:`SCHEMA_VERSION`. Version 1 is the first schema; version 2 adds ``gearboxes.warn_arcmin``.
 
 Every write that belongs together (estimate rows, the run's resume point and the gearbox's
 checkpoint) is one transaction: a process killed at any instant leaves either all or none of it.
@@ -52,9 +53,10 @@ import json
 import math
 import os
 import time
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Callable, Iterable
+from typing import Any
 
 from sqlalchemy import (
     BigInteger,
@@ -78,15 +80,24 @@ from sqlalchemy.engine import URL, Engine, make_url
 from sqlalchemy.exc import ArgumentError, DBAPIError, SQLAlchemyError
 
 from ..errors import HistoryError
+from ..rows import FIELDS, STORE_KEYS
+from .alarms import check_alarm_levels
 
 APPLICATION = "online-backlash"
 
 #: Version of the schema defined in this module.
-SCHEMA_VERSION = 1
+SCHEMA_VERSION = 2
+
+
+def _add_warn_arcmin(conn: Connection) -> None:
+    """Version 1 -> 2: the gearbox's warning level ``warn_arcmin`` (NULL: none stored)."""
+    column_type = Double().compile(dialect=conn.dialect)
+    conn.exec_driver_sql(f"ALTER TABLE gearboxes ADD COLUMN warn_arcmin {column_type}")
+
 
 #: ``MIGRATIONS[i]`` upgrades a store from schema version ``i`` to ``i + 1``, given a connection
-#: inside the upgrade transaction. Empty while version 1 is the only schema.
-MIGRATIONS: dict[int, Callable[[Connection], None]] = {}
+#: inside the upgrade transaction.
+MIGRATIONS: dict[int, Callable[[Connection], None]] = {1: _add_warn_arcmin}
 
 _SQLITE_MAGIC = b"SQLite format 3\x00"
 
@@ -108,6 +119,7 @@ gearboxes_table = Table(
     Column("created_unix_s", Double, nullable=False),
     Column("checkpoint", Text),
     Column("revision", Integer, nullable=False, default=0),
+    Column("warn_arcmin", Double),
 )
 
 runs_table = Table(
@@ -130,25 +142,17 @@ runs_table = Table(
     UniqueConstraint("gearbox_id", "log_sha256", name="uq_runs_gearbox_log"),
 )
 
+#: SQL type of each kind of estimate column (online_backlash.rows.RowField.kind).
+_SQL_TYPES: dict[type, Any] = {float: Double, int: BigInteger}
+
 estimates_table = Table(
     "estimates",
     metadata,
     Column("id", Integer, primary_key=True, autoincrement=True),
     Column("gearbox_id", String(200), ForeignKey("gearboxes.id"), nullable=False, index=True),
     Column("run_id", Integer, ForeignKey("runs.id"), nullable=False),
-    Column("sample_index", BigInteger, nullable=False),
-    Column("time_unix_s", Double, nullable=False),
-    Column("backlash_deg", Double, nullable=False),
-    Column("backlash_std_deg", Double),
-    Column("c_left_deg", Double),
-    Column("c_right_deg", Double),
-    Column("m_left", Double),
-    Column("m_right", Double),
-    Column("residual_rms_deg", Double),
-    Column("n_samples", BigInteger, nullable=False),
-    Column("operating_hours", Double, nullable=False),
-    Column("load_revolutions", Double, nullable=False),
-    Column("reversals", BigInteger, nullable=False),
+    # the estimate's columns, declared once in online_backlash.rows
+    *(Column(FIELDS[k].name, _SQL_TYPES[FIELDS[k].kind], nullable=FIELDS[k].nullable) for k in STORE_KEYS),
     UniqueConstraint("run_id", "sample_index", name="uq_estimates_run_sample"),
 )
 
@@ -158,7 +162,10 @@ ESTIMATE_FIELDS = tuple(c.name for c in estimates_table.columns if c.name != "id
 
 @dataclass(frozen=True)
 class Gearbox:
-    """A stored gearbox; ``checkpoint`` is the tracker state (a dict) or None before the first commit."""
+    """A stored gearbox; ``checkpoint`` is the tracker state (a dict) or None before the first commit.
+
+    ``limit_arcmin`` and ``warn_arcmin`` are the alarm levels of the play, arcmin (None: not stored).
+    """
 
     id: str
     ratio: float
@@ -166,6 +173,7 @@ class Gearbox:
     created_unix_s: float
     checkpoint: dict | None
     revision: int
+    warn_arcmin: float | None = None
 
 
 @dataclass(frozen=True)
@@ -231,7 +239,7 @@ def resolve_url(db: str | os.PathLike[str]) -> URL:
 
 
 def _describe(url: URL) -> str:
-    return url.database if url.get_backend_name() == "sqlite" else url.render_as_string(hide_password=True)
+    return (url.database or "") if url.get_backend_name() == "sqlite" else url.render_as_string(hide_password=True)
 
 
 def _sqlite_file(url: URL) -> Path | None:
@@ -264,7 +272,7 @@ class HistoryStore:
     >>> path = os.path.join(tempfile.mkdtemp(), "wear.db")
     >>> with HistoryStore(path, create=True) as store:
     ...     store.schema_version
-    1
+    2
     """
 
     def __init__(self, db: str | os.PathLike[str], create: bool = False) -> None:
@@ -357,7 +365,10 @@ class HistoryStore:
         if self._sqlite:
             with self._connect() as conn:
                 # a persistent property of the file; must run outside a transaction
-                conn.connection.dbapi_connection.execute("PRAGMA journal_mode=WAL")
+                sqlite_connection = conn.connection.dbapi_connection
+                if sqlite_connection is None:
+                    raise HistoryError(f"cannot open history store {self.name}: the SQLite connection is closed")
+                sqlite_connection.execute("PRAGMA journal_mode=WAL")
         try:
             with self._connect(write=True) as conn, conn.begin():
                 if "meta" in inspect(conn).get_table_names():
@@ -389,7 +400,7 @@ class HistoryStore:
         """Release the connections."""
         self.engine.dispose()
 
-    def __enter__(self) -> "HistoryStore":
+    def __enter__(self) -> HistoryStore:
         return self
 
     def __exit__(self, *exc: object) -> None:
@@ -454,33 +465,16 @@ class HistoryStore:
         ``limit_arcmin`` replaces the stored limit. With a ``log_sha256`` already stored for this
         gearbox the existing run is returned (complete: nothing to do; running: resume it).
         """
-        if not isinstance(ratio, (int, float)) or not math.isfinite(ratio) or ratio == 0:
-            raise HistoryError(f"ratio must be a finite non-zero number, got {ratio!r}")
         now = time.time()
         with self._connect(write=True) as conn, conn.begin():
-            gearbox = _get_gearbox(conn, gearbox_id)
-            if gearbox is None:
-                conn.execute(
-                    gearboxes_table.insert().values(
-                        id=gearbox_id, ratio=float(ratio), limit_arcmin=limit_arcmin, created_unix_s=now, revision=0
-                    )
-                )
-            elif not math.isclose(gearbox.ratio, ratio, rel_tol=1e-9):
-                raise HistoryError(
-                    f"gearbox {gearbox_id!r} is stored with ratio {gearbox.ratio:g}; --ratio {ratio:g} contradicts it "
-                    "(use another gearbox id for another gearbox)"
-                )
-            elif limit_arcmin is not None and limit_arcmin != gearbox.limit_arcmin:
-                conn.execute(
-                    update(gearboxes_table).where(gearboxes_table.c.id == gearbox_id).values(limit_arcmin=limit_arcmin)
-                )
+            gearbox = _register_gearbox(conn, gearbox_id, ratio, now, limit_arcmin=limit_arcmin)
             run_row = None
             if log_sha256 is not None:
                 run_row = conn.execute(
                     select(runs_table).where(runs_table.c.gearbox_id == gearbox_id, runs_table.c.log_sha256 == log_sha256)
                 ).first()
             if run_row is None:
-                run_id = conn.execute(
+                run_row = conn.execute(
                     runs_table.insert().values(
                         gearbox_id=gearbox_id,
                         source=source[:1000],
@@ -494,11 +488,22 @@ class HistoryStore:
                         corrupt=0,
                         skipped=0,
                         gaps=0,
-                    )
-                ).inserted_primary_key[0]
-                run_row = conn.execute(select(runs_table).where(runs_table.c.id == run_id)).one()
-            gearbox = _get_gearbox(conn, gearbox_id)
+                    ).returning(*runs_table.c)
+                ).one()
         return gearbox, Run(**run_row._mapping)
+
+    def set_alarm_levels(
+        self, gearbox_id: str, ratio: float, warn_arcmin: float | None = None, limit_arcmin: float | None = None
+    ) -> Gearbox:
+        """Store the gearbox's warning level and limit (arcmin), registering it with ``ratio`` if new.
+
+        A level given as None keeps the stored one. The levels are checked together with the
+        stored ones (:func:`~online_backlash.history.alarms.check_alarm_levels`: positive,
+        finite, warning not above the limit); InvalidParameterError and nothing written if not.
+        Returns the stored gearbox.
+        """
+        with self._connect(write=True) as conn, conn.begin():
+            return _register_gearbox(conn, gearbox_id, ratio, time.time(), warn_arcmin=warn_arcmin, limit_arcmin=limit_arcmin)
 
     def commit(
         self,
@@ -546,7 +551,7 @@ class HistoryStore:
                 )
             if rows:
                 conn.execute(estimates_table.insert(), rows)
-            new_gearbox = _get_gearbox(conn, gearbox.id)
+            new_gearbox = _require_gearbox(conn, gearbox.id)
             new_run = Run(**conn.execute(select(runs_table).where(runs_table.c.id == run.id)).one()._mapping)
         return new_gearbox, new_run
 
@@ -554,6 +559,34 @@ class HistoryStore:
 def _finite_or_none(value: Any) -> Any:
     """NaN and infinities are stored as NULL (SQLite does so anyway; PostgreSQL would keep NaN)."""
     return None if isinstance(value, float) and not math.isfinite(value) else value
+
+
+def _register_gearbox(conn: Connection, gearbox_id: str, ratio: float, now: float, **levels: float | None) -> Gearbox:
+    """Insert the gearbox if new, else check its ratio; store the given (non-None) alarm levels."""
+    if not isinstance(ratio, (int, float)) or not math.isfinite(ratio) or ratio == 0:
+        raise HistoryError(f"ratio must be a finite non-zero number, got {ratio!r}")
+    given = {name: value for name, value in levels.items() if value is not None}
+    gearbox = _get_gearbox(conn, gearbox_id)
+    stored = {} if gearbox is None else {"warn_arcmin": gearbox.warn_arcmin, "limit_arcmin": gearbox.limit_arcmin}
+    check_alarm_levels(**{**stored, **given})
+    if gearbox is None:
+        conn.execute(gearboxes_table.insert().values(id=gearbox_id, ratio=float(ratio), created_unix_s=now, revision=0, **given))
+    elif not math.isclose(gearbox.ratio, ratio, rel_tol=1e-9):
+        raise HistoryError(
+            f"gearbox {gearbox_id!r} is stored with ratio {gearbox.ratio:g}; --ratio {ratio:g} contradicts it "
+            "(use another gearbox id for another gearbox)"
+        )
+    elif any(stored[name] != value for name, value in given.items()):
+        conn.execute(update(gearboxes_table).where(gearboxes_table.c.id == gearbox_id).values(**given))
+    return _require_gearbox(conn, gearbox_id)
+
+
+def _require_gearbox(conn: Connection, gearbox_id: str) -> Gearbox:
+    """The stored gearbox, which must exist (it was just written in this transaction)."""
+    gearbox = _get_gearbox(conn, gearbox_id)
+    if gearbox is None:
+        raise HistoryError(f"gearbox {gearbox_id!r} vanished from the history store during the transaction")
+    return gearbox
 
 
 def _get_gearbox(conn: Connection, gearbox_id: str) -> Gearbox | None:

@@ -17,9 +17,18 @@ the scatter of the MAD; see ``tests/test_trend.py``). Both assume independent es
 consecutive estimates of a recursive estimator are correlated, so read the band as a lower
 bound on the uncertainty.
 
+The band above is a *confidence* band of the line: where the line is, not where the next
+estimate falls. The *prediction* band (:meth:`WearTrend.prediction_band`) widens it by the
+scatter of the estimates about the line, ``z * 1.4826 MAD`` combined in quadrature with each
+edge's distance from the line; it is the band the estimates should mostly fall in.
+
 The forecast is where the line meets the limit, with the interval where the band does
-(``high`` first, ``low`` last), in operating hours and, at the recent rate of use
-(:func:`usage_hours_per_day`), in calendar time.
+(``high`` first, ``low`` last), in operating hours and in calendar time: ahead of the last
+estimate at the recent rate of use (:func:`usage_hours_per_day`); before it (a trend that has
+already crossed) read off the estimates' own clock, never extrapolated backwards.
+
+``summarise(..., method="kalman")`` fits the local linear trend of :mod:`.kalman` instead
+(same interface: ``line``, ``band``, ``prediction_band``, ``crossing``, ``slope``).
 """
 
 from __future__ import annotations
@@ -32,10 +41,14 @@ import numpy as np
 from scipy import stats
 
 from ..errors import InvalidParameterError
+from .kalman import KalmanTrend, fit_kalman_trend
 
 #: Above this many estimates the trend is fitted to medians of consecutive groups (Theil-Sen
 #: compares all pairs, so memory grows with the square of the count).
 MAX_TREND_POINTS = 1000
+
+#: The trend methods of :func:`summarise`.
+TREND_METHODS = ("theil-sen", "kalman")
 
 
 @dataclass(frozen=True)
@@ -54,6 +67,8 @@ class WearTrend:
         Confidence of both intervals (0.95: 95 %).
     n_points : int
         Estimates fitted (or groups of them, see :data:`MAX_TREND_POINTS`).
+    residual_std_deg : float
+        Scatter of the estimates about the line (1.4826 MAD of the residuals), degrees.
     """
 
     slope: float
@@ -64,6 +79,12 @@ class WearTrend:
     level_halfwidth_deg: float
     confidence: float
     n_points: int
+    residual_std_deg: float = 0.0
+    method = "theil-sen"
+
+    def parameters(self) -> dict:
+        """The fitted numbers as a JSON-ready dict."""
+        return asdict(self)
 
     def line(self, x: np.ndarray | float) -> np.ndarray | float:
         """The trend at ``x``, degrees."""
@@ -75,6 +96,13 @@ class WearTrend:
         a, b = self.slope_low * dx, self.slope_high * dx
         e = self.level_halfwidth_deg
         return self.center_deg - e + np.minimum(a, b), self.center_deg + e + np.maximum(a, b)
+
+    def prediction_band(self, x: np.ndarray | float) -> tuple[np.ndarray, np.ndarray]:
+        """Where a new estimate at ``x`` falls (module docstring), degrees."""
+        low, high = self.band(x)
+        line = self.line(x)
+        scatter = float(stats.t.ppf(0.5 + self.confidence / 2, max(self.n_points - 2, 1))) * self.residual_std_deg
+        return line - np.hypot(line - low, scatter), line + np.hypot(high - line, scatter)
 
     def crossing(self, limit_deg: float) -> tuple[float, float, float]:
         """``x`` where the line, the band's upper edge and its lower edge reach ``limit_deg``.
@@ -142,6 +170,7 @@ def fit_trend(x: np.ndarray, backlash_deg: np.ndarray, confidence: float = 0.95)
         level_halfwidth_deg=z * 1.2533 * sigma / math.sqrt(x.size),
         confidence=confidence,
         n_points=int(x.size),
+        residual_std_deg=sigma,
     )
 
 
@@ -195,17 +224,32 @@ class WearForecast:
 
 
 def forecast(
-    trend: WearTrend, limit_deg: float, last_hours: float, last_time_unix_s: float, usage_per_day: float | None
+    trend: Trend,
+    limit_deg: float,
+    last_hours: float,
+    last_time_unix_s: float,
+    usage_per_day: float | None,
+    history: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> WearForecast:
-    """Forecast the crossing of ``limit_deg`` from the trend against operating hours."""
+    """Forecast the crossing of ``limit_deg`` from the trend against operating hours.
+
+    A crossing after the last estimate is dated at ``usage_per_day``; one before it (or at it)
+    on the estimates' own clock, interpolated in ``history`` = ``(operating_hours,
+    time_unix_s)`` of the estimates (no date without it).
+    """
     hours = [x - last_hours for x in trend.crossing(limit_deg)]
 
     def date(h: float) -> float | None:
-        if not math.isfinite(h) or not usage_per_day or usage_per_day <= 0:
+        if not math.isfinite(h):
+            return None
+        if h <= 0:
+            return None if history is None else float(np.interp(last_hours + h, *history))
+        if not usage_per_day or usage_per_day <= 0:
             return None
         return last_time_unix_s + h / usage_per_day * 86400.0
 
-    return WearForecast(limit_deg, *hours, usage_per_day, *(date(h) for h in hours))
+    now, low, high = hours
+    return WearForecast(limit_deg, now, low, high, usage_per_day, date(now), date(low), date(high))
 
 
 def iso_time(unix_s: float | None) -> str | None:
@@ -225,7 +269,7 @@ def iso_date(unix_s: float | None) -> str | None:
 class WearSummary:
     """Trend against operating hours and load revolutions, and the forecast (if a limit is known)."""
 
-    per_hour: WearTrend | None
+    per_hour: Trend | None
     per_revolution: WearTrend | None
     forecast: WearForecast | None
     usage_hours_per_day: float | None
@@ -236,12 +280,13 @@ class WearSummary:
         """Flat JSON-ready keys: ``trend_deg_per_hour``, ``forecast_hours_to_limit``, ``forecast_date``, ..."""
         h, r, f = self.per_hour, self.per_revolution, self.forecast
         return {
+            "trend_method": h.method if h else None,
             "trend_deg_per_hour": h.slope if h else None,
             "trend_deg_per_hour_interval": [h.slope_low, h.slope_high] if h else None,
             "trend_deg_per_revolution": r.slope if r else None,
             "trend_deg_per_revolution_interval": [r.slope_low, r.slope_high] if r else None,
             "trend_confidence": h.confidence if h else None,
-            "trend_backlash_deg_now": float(h.line(self.last_hours)) if h else None,
+            "trend_backlash_deg_now": float(h.line(self.last_hours)) if h and self.last_hours is not None else None,
             "limit_deg": f.limit_deg if f else None,
             "limit_arcmin": f.limit_deg * 60.0 if f else None,
             "forecast_hours_to_limit": f.hours_to_limit if f else None,
@@ -249,7 +294,7 @@ class WearSummary:
             "usage_hours_per_day": self.usage_hours_per_day,
             "forecast_date": iso_date(f.date_unix_s) if f else None,
             "forecast_date_interval": [iso_date(f.date_low_unix_s), iso_date(f.date_high_unix_s)] if f else None,
-            "trend_per_hour": asdict(h) if h else None,
+            "trend_per_hour": h.parameters() if h else None,
         }
 
 
@@ -261,19 +306,40 @@ def summarise(
     limit_deg: float | None = None,
     confidence: float = 0.95,
     recent_days: float = 7.0,
+    backlash_std_deg: np.ndarray | None = None,
+    method: str = "theil-sen",
+    lag_hours: float = 0.0,
 ) -> WearSummary:
-    """Trends against hours and revolutions, and the forecast of ``limit_deg`` (degrees) if given."""
+    """Trends against hours and revolutions, and the forecast of ``limit_deg`` (degrees) if given.
+
+    ``method`` picks the trend against hours: ``"theil-sen"`` (:func:`fit_trend`) or
+    ``"kalman"`` (:func:`~online_backlash.history.kalman.fit_kalman_trend`, which needs
+    ``backlash_std_deg`` and corrects for the estimator's ``lag_hours``). The trend against
+    revolutions is Theil-Sen.
+    """
+    if method not in TREND_METHODS:
+        raise InvalidParameterError(f"trend method must be one of {', '.join(TREND_METHODS)}, got {method!r}")
+    if limit_deg is not None and (not math.isfinite(limit_deg) or limit_deg <= 0):
+        raise InvalidParameterError(f"the limit must be a positive angle, got {limit_deg!r} deg")
     t = np.asarray(time_unix_s, dtype=float)
     hours = np.asarray(operating_hours, dtype=float)
-    per_hour = fit_trend(hours, backlash_deg, confidence)
+    per_hour: Trend | None
+    if method == "kalman":
+        std = np.full(hours.shape, np.nan) if backlash_std_deg is None else backlash_std_deg
+        per_hour = fit_kalman_trend(hours, backlash_deg, std, lag_hours, confidence)
+    else:
+        per_hour = fit_trend(hours, backlash_deg, confidence)
     per_rev = fit_trend(load_revolutions, backlash_deg, confidence)
     last = int(np.argmax(hours)) if hours.size else None
     last_hours = None if last is None else float(hours[last])
     last_time = None if last is None else float(t[last])
     usage = usage_hours_per_day(t, hours, recent_days)
     result = None
-    if limit_deg is not None and (not math.isfinite(limit_deg) or limit_deg <= 0):
-        raise InvalidParameterError(f"the limit must be a positive angle, got {limit_deg!r} deg")
-    if per_hour is not None and limit_deg is not None:
-        result = forecast(per_hour, limit_deg, last_hours, last_time, usage)
+    if per_hour is not None and limit_deg is not None and last_hours is not None and last_time is not None:
+        dated = np.isfinite(hours) & np.isfinite(t)
+        result = forecast(per_hour, limit_deg, last_hours, last_time, usage, (hours[dated], t[dated]))
     return WearSummary(per_hour, per_rev, result, usage, last_hours, last_time)
+
+
+#: A wear trend: Theil-Sen or the Kalman local linear trend (same interface).
+Trend = WearTrend | KalmanTrend

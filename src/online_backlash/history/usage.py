@@ -23,7 +23,6 @@ import numpy as np
 from numba import njit
 
 from ..errors import InvalidParameterError
-from ..estimators._validation import check_real
 
 # state vector layout (float64 so that one array carries it through numba)
 _HAS_PREV, _PREV_T, _ANCHOR, _DIRECTION, _LAST_PROGRESS_T, _OPERATING_S, _TRAVEL_DEG, _REVERSALS = range(8)
@@ -103,8 +102,10 @@ class UsageCounter:
 
     def update(self, time_s: np.ndarray, u_deg: np.ndarray, after_gap: np.ndarray | None = None) -> None:
         """Count a block of samples: times (s), load-side angles (deg), gap flags."""
-        check_real("reversal_deg", self.reversal_deg, 0.0)
-        check_real("idle_after_s", self.idle_after_s, 0.0)
+        for name in ("reversal_deg", "idle_after_s"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or not value > 0 or not np.isfinite(value):
+                raise InvalidParameterError(f"{name} must be a finite real number > 0, got {value!r}")
         time_s = np.ascontiguousarray(time_s, dtype=float)
         u_deg = np.ascontiguousarray(u_deg, dtype=float)
         gaps = np.zeros(time_s.size, dtype=bool) if after_gap is None else np.ascontiguousarray(after_gap, dtype=bool)
@@ -134,7 +135,7 @@ class UsageCounter:
         return {"reversal_deg": self.reversal_deg, "idle_after_s": self.idle_after_s, "state": dict(zip(_STATE_NAMES, values))}
 
     @classmethod
-    def from_state(cls, d: dict) -> "UsageCounter":
+    def from_state(cls, d: dict) -> UsageCounter:
         """Rebuild a counter saved by :meth:`state_dict`."""
         counter = cls(d["reversal_deg"], d["idle_after_s"])
         counter._state = np.array([-np.inf if d["state"][k] is None else d["state"][k] for k in _STATE_NAMES], dtype=float)

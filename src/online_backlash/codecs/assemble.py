@@ -1,4 +1,4 @@
-"""The last checks before a Sample leaves any source: finite values, time order, gaps.
+"""The last checks before a sample leaves any source: finite values, time order, gaps.
 
 Shared by the CAN pipeline and the serial parsers so that every adapter applies the same rules:
 a non-finite value or a time that goes backwards makes the frame(s) corrupt (never yielded), and
@@ -11,13 +11,13 @@ from __future__ import annotations
 import math
 
 from online_backlash.errors import FrameError
-from online_backlash.stream import Sample, StreamCounters
+from online_backlash.stream import Row, StreamCounters
 
 from .gaps import GapDetector
 
 
 class SampleAssembler:
-    """Turn checked readings into Samples, counting into ``counters``.
+    """Check readings and count them into ``counters``.
 
     Parameters
     ----------
@@ -37,21 +37,28 @@ class SampleAssembler:
         self.gaps = GapDetector(counter_modulus, period_s)
         self._last_time = -math.inf
 
-    def make(self, time_s: float, motor_deg: float, load_deg: float, seq: int | None, n_frames: int = 1) -> Sample | None:
-        """The Sample of these readings (degrees, seconds), or None if it is corrupt (``n_frames`` counted)."""
+    def accept(self, time_s: float, motor_deg: float, load_deg: float, seq: int | None, n_frames: int = 1) -> bool | None:
+        """Check one sample (seconds, degrees): None if it is corrupt (``n_frames`` counted), else
+        whether a gap precedes it (``after_gap``); the sample is then counted."""
         if not (math.isfinite(time_s) and math.isfinite(motor_deg) and math.isfinite(load_deg)):
-            return self._corrupt("non-finite value", n_frames)
+            self._corrupt("non-finite value", n_frames)
+            return None
         if time_s < self._last_time:
-            return self._corrupt(f"time goes backwards ({time_s!r} s after {self._last_time!r} s)", n_frames)
+            self._corrupt(f"time goes backwards ({time_s!r} s after {self._last_time!r} s)", n_frames)
+            return None
         self._last_time = time_s
         gap = self.gaps.check(time_s, seq)
         if gap is not None:
             self.counters.report_gap(gap)
         self.counters.samples += 1
-        return Sample(time_s, motor_deg, load_deg, None, seq, gap is not None)
+        return gap is not None
+
+    def row(self, time_s: float, motor_deg: float, load_deg: float, seq: int | None, n_frames: int = 1) -> Row | None:
+        """The checked sample of these readings (degrees, seconds) as a row, or None if it is corrupt (see :meth:`accept`)."""
+        after_gap = self.accept(time_s, motor_deg, load_deg, seq, n_frames)
+        return None if after_gap is None else (time_s, motor_deg, load_deg, seq, after_gap)
 
     def _corrupt(self, reason: str, n_frames: int) -> None:
         if self.strict:
             raise FrameError(reason)
         self.counters.corrupt += n_frames
-        return None

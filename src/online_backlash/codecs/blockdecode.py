@@ -1,4 +1,4 @@
-"""The checks and decoding of :meth:`DbcDecoder.decode <online_backlash.drivers.dbc.DbcDecoder.decode>`
+"""The checks and decoding of :meth:`DbcDecoder.decode <online_backlash.codecs.dbc.DbcDecoder.decode>`
 on a block of CAN frames held in numpy arrays (the fast replay path).
 
 The DBC is still read by cantools: every signal is cut from the data bytes with cantools' own
@@ -18,8 +18,10 @@ otherwise the caller uses the per-frame path.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
+import can
 import numpy as np
 from cantools.database.can import Message, Signal
 from cantools.database.utils import start_bit
@@ -32,7 +34,7 @@ OK, CORRUPT, SKIPPED = 0, 1, 2
 MAX_BYTES = 8
 
 
-def crc8_table(crc: type = Crc8SaeJ1850) -> np.ndarray:
+def crc8_table(crc: type[Crc8SaeJ1850] = Crc8SaeJ1850) -> np.ndarray:
     """The 256-entry table of a non-reflected 8-bit CRC, generated from crccheck's ``calc``.
 
     ``table[x]`` is the register after feeding byte ``x`` to a zero register, i.e. crccheck's
@@ -80,6 +82,19 @@ def words(rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return padded.view("<u8")[:, 0], padded.view(">u8")[:, 0].astype(np.uint64)
 
 
+def frame_arrays(frames: Sequence[can.Message]) -> tuple[np.ndarray, tuple[np.ndarray, ...]]:
+    """Timestamps (seconds), and the arguments of :meth:`BlockDecoder.decode`, of a block of frames."""
+    n = len(frames)
+    ids = np.fromiter([m.arbitration_id for m in frames], np.int64, n)
+    extended = np.fromiter([m.is_extended_id for m in frames], np.bool_, n)
+    special = np.fromiter([m.is_error_frame or m.is_remote_frame for m in frames], np.bool_, n)
+    time_s = np.fromiter([m.timestamp for m in frames], np.float64, n)
+    data = [m.data for m in frames]
+    lengths = np.fromiter(map(len, data), np.int64, n)
+    offsets = np.cumsum(lengths) - lengths
+    return time_s, (ids, extended, special, lengths, offsets, np.frombuffer(b"".join(data), np.uint8))
+
+
 @dataclass
 class DecodedBlock:
     """Per frame of a block: ``status`` (OK/CORRUPT/SKIPPED), ``role`` (MOTOR/LOAD/BOTH, 0 if not OK),
@@ -93,7 +108,7 @@ class DecodedBlock:
 
 
 class BlockDecoder:
-    """Decode blocks of frames for a :class:`~online_backlash.drivers.dbc.DbcDecoder` (same checks, same values).
+    """Decode blocks of frames for a :class:`~online_backlash.codecs.dbc.DbcDecoder` (same checks, same values).
 
     Attributes
     ----------
@@ -105,8 +120,8 @@ class BlockDecoder:
     def __init__(self, decoder: DbcDecoder) -> None:
         self.decoder = decoder
         self._entries = []
-        for frame_id, layout in decoder._layouts.items():
-            message: Message = decoder._messages[frame_id]
+        for frame_id, layout in decoder.layouts.items():
+            message: Message = decoder.messages[frame_id]
             wanted = {}
             if layout.role & MOTOR:
                 wanted["motor"] = (message.get_signal_by_name(decoder.motor.signal), decoder.motor.counts_per_rev)
@@ -115,9 +130,8 @@ class BlockDecoder:
             counter = message.get_signal_by_name(layout.counter) if layout.counter else None
             self._entries.append((frame_id, message.is_extended_frame, layout, wanted, counter))
         signals = [s for *_, wanted, c in self._entries for s in [v[0] for v in wanted.values()] + ([c] if c else [])]
-        self.supported = all(decoder._messages[fid].length <= MAX_BYTES and not decoder._messages[fid].is_multiplexed() for fid in decoder._layouts) and not any(
-            s.is_float for s in signals
-        )
+        messages = decoder.messages.values()
+        self.supported = all(m.length <= MAX_BYTES and not m.is_multiplexed() for m in messages) and not any(s.is_float for s in signals)
 
     def decode(self, ids: np.ndarray, extended: np.ndarray, special: np.ndarray, lengths: np.ndarray, offsets: np.ndarray, data: np.ndarray) -> DecodedBlock:
         """Check and decode ``n`` frames: arbitration ids, extended-id flags, error-or-remote flags,

@@ -2,7 +2,7 @@
 
 One :class:`FramePipeline` is fed every frame seen live (from a Notifier) and, frame by frame,
 in paced or strict replay; fast replay applies the same rules to blocks of frames
-(:mod:`~online_backlash.drivers.blockpairing`, tested equal), so the same frames give the same
+(:mod:`~online_backlash.codecs.blockpairing`, tested equal), so the same frames give the same
 samples live and replayed.
 
 Pairing (when motor and load come in two messages): by rolling counter when the messages have
@@ -18,19 +18,25 @@ A Sample's ``seq`` is the rolling counter of its frame(s) (None without counters
 Every frame ends in exactly one counter, so at the end (after :meth:`FramePipeline.flush`)::
 
     frames == skipped + corrupt + unpaired + frames_per_sample * samples
+
+Both pipelines are :class:`CanPipeline`: blocks of frames in, a :class:`~online_backlash.stream.SampleChunk`
+out (:meth:`CanPipeline.feed_frames`); :func:`~online_backlash.codecs.blockpairing.make_pipeline`
+picks the block path where it applies.
 """
 
 from __future__ import annotations
 
+from abc import ABC, abstractmethod
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import can
 
 from online_backlash.errors import FrameError, InvalidParameterError
-from online_backlash.stream import Sample, StreamCounters
+from online_backlash.stream import Row, Sample, SampleChunk, StreamCounters, rows_to_chunk
 
-from .dbc import BOTH, MOTOR, DbcDecoder, DecodedFrame
 from .assemble import SampleAssembler
+from .dbc import BOTH, MOTOR, DbcDecoder, DecodedFrame
 from .unwrap import Unwrapper
 
 
@@ -46,7 +52,52 @@ class CanCounters(StreamCounters):
         return out
 
 
-class FramePipeline:
+class CanPipeline(ABC):
+    """What the per-frame and the block pipeline share: CAN frames in, samples and counters out.
+
+    Attributes
+    ----------
+    counters : CanCounters
+    frames_per_sample : int
+        1 (one message carries both angles) or 2.
+    skew_mean_s, skew_max_s : float
+        Mean and largest absolute time between the frames of a pair, seconds (0 for one message).
+    """
+
+    def __init__(self, decoder: DbcDecoder, max_skew_s: float) -> None:
+        if not max_skew_s >= 0:
+            raise InvalidParameterError(f"max_skew_s must be >= 0, got {max_skew_s!r}")
+        self.decoder = decoder
+        self.max_skew_s = float(max_skew_s)
+        self.counters = CanCounters()
+        self.frames_per_sample = 2 if decoder.paired else 1
+
+    def feed_frames(self, frames: Sequence[can.Message]) -> SampleChunk:
+        """Count ``frames`` and decode them (:meth:`decode_frames`)."""
+        self.counters.frames += len(frames)
+        return self.decode_frames(frames)
+
+    @abstractmethod
+    def decode_frames(self, frames: Sequence[can.Message]) -> SampleChunk:
+        """The samples these frames complete; the frames are already counted in ``counters.frames``
+        (live, the notifier thread counts every frame as it arrives)."""
+
+    @abstractmethod
+    def flush(self) -> None:
+        """End of stream: count the frames still waiting for a partner as unpaired."""
+
+    @property
+    @abstractmethod
+    def skew_mean_s(self) -> float:
+        """Mean absolute time between the frames of a pair, seconds."""
+
+    @property
+    @abstractmethod
+    def skew_max_s(self) -> float:
+        """Largest absolute time between the frames of a pair, seconds."""
+
+
+class FramePipeline(CanPipeline):
     """Feed CAN messages, get Samples (degrees, multi-turn; seconds of the frame timestamps).
 
     Parameters
@@ -61,15 +112,12 @@ class FramePipeline:
 
     Attributes
     ----------
-    counters : CanCounters
-    frames_per_sample : int
-        1 (one message carries both angles) or 2.
-    skew_mean_s, skew_max_s : float
-        Mean and largest absolute time between the frames of a pair (0 for one message).
+    counters, frames_per_sample, skew_mean_s, skew_max_s
+        See :class:`CanPipeline`.
 
     Examples
     --------
-    >>> from online_backlash.drivers.dbc import RIG_DBC, DbcDecoder, FrameEncoder
+    >>> from online_backlash.codecs.dbc import RIG_DBC, DbcDecoder, FrameEncoder
     >>> pipe = FramePipeline(DbcDecoder(RIG_DBC, "MotorAngle.Count", "LoadAngle.Count"))
     >>> motor, load = FrameEncoder(pipe.decoder).frames(12.5, motor_count=4096, load_count=32768, counter=3)
     >>> pipe.feed(motor) is None  # waits for its partner
@@ -81,26 +129,43 @@ class FramePipeline:
     """
 
     def __init__(self, decoder: DbcDecoder, period_s: float | None = None, max_skew_s: float = 1e-3, strict: bool = False) -> None:
-        if not max_skew_s >= 0:
-            raise InvalidParameterError(f"max_skew_s must be >= 0, got {max_skew_s!r}")
-        self.decoder = decoder
-        self.max_skew_s = max_skew_s
+        super().__init__(decoder, max_skew_s)
         self.strict = strict
-        self.counters = CanCounters()
-        self.frames_per_sample = 2 if decoder.paired else 1
-        self.skew_mean_s = 0.0
-        self.skew_max_s = 0.0
+        self._skew_mean_s = 0.0
+        self._skew_max_s = 0.0
         self._n_pairs = 0
         self._pending: list[DecodedFrame | None] = [None, None]  # [motor, load]
-        self._assemble = SampleAssembler(self.counters, decoder.counter_modulus, period_s, strict).make
+        self._assemble = SampleAssembler(self.counters, decoder.counter_modulus, period_s, strict).row
         self._motor_turns = Unwrapper(decoder.motor.counts_per_rev)
         self._load_turns = Unwrapper(decoder.load.counts_per_rev)
         self._motor_scale = decoder.motor.deg_per_count
         self._load_scale = decoder.load.deg_per_count
 
+    @property
+    def skew_mean_s(self) -> float:
+        return self._skew_mean_s
+
+    @property
+    def skew_max_s(self) -> float:
+        return self._skew_max_s
+
     def feed(self, msg: can.Message) -> Sample | None:
         """Account for one frame; return the Sample it completes, if any."""
+        row = self.feed_row(msg)
+        return None if row is None else Sample(row[0], row[1], row[2], None, row[3], row[4])
+
+    def feed_row(self, msg: can.Message) -> Row | None:
+        """:meth:`feed`, the sample as a row ``(time_s, motor_deg, load_deg, seq, after_gap)``
+        (no Sample object; :func:`~online_backlash.stream.rows_to_chunk` makes a block of rows)."""
         self.counters.frames += 1
+        return self._decode(msg)
+
+    def decode_frames(self, frames: Sequence[can.Message]) -> SampleChunk:
+        decode = self._decode
+        return rows_to_chunk([r for r in map(decode, frames) if r is not None])
+
+    def _decode(self, msg: can.Message) -> Row | None:
+        """The sample ``msg`` completes, if any, as a row (the frame is counted by the caller)."""
         try:
             frame = self.decoder.decode(msg)
         except FrameError:
@@ -134,11 +199,11 @@ class FramePipeline:
         self.counters.unpaired += sum(p is not None for p in self._pending)
         self._pending = [None, None]
 
-    def _complete(self, time_s: float, counter: int | None, motor_count: int, load_count: int, skew_s: float) -> Sample | None:
+    def _complete(self, time_s: float, counter: int | None, motor_count: int, load_count: int, skew_s: float) -> Row | None:
         if self.frames_per_sample == 2:
             self._n_pairs += 1
-            self.skew_mean_s += (abs(skew_s) - self.skew_mean_s) / self._n_pairs
-            self.skew_max_s = max(self.skew_max_s, abs(skew_s))
+            self._skew_mean_s += (abs(skew_s) - self._skew_mean_s) / self._n_pairs
+            self._skew_max_s = max(self._skew_max_s, abs(skew_s))
         return self._assemble(
             time_s,
             self._motor_turns(motor_count) * self._motor_scale,

@@ -15,8 +15,10 @@
     frame boundary: after garbage the parser resynchronises at the next zero. Gaps are found
     from ``seq`` jumps and time steps.
 
-A parser is fed whatever bytes arrive (:meth:`FrameParser.feed`) and returns the complete
-samples; a partial frame waits for the next call. Every delimited record is a frame:
+A parser is fed whatever bytes arrive and returns the complete samples, as one
+:class:`~online_backlash.stream.SampleChunk` (:meth:`FrameParser.feed_chunk`, what the sources
+use) or as :class:`~online_backlash.stream.Sample` objects (:meth:`FrameParser.feed`); a partial
+frame waits for the next call. Every delimited record is a frame:
 ``frames == samples + corrupt`` once :meth:`FrameParser.finish` has accounted for the tail.
 """
 
@@ -28,10 +30,13 @@ from cobs import cobs
 from crccheck.crc import Crc16CcittFalse
 
 from online_backlash.errors import FrameError, InvalidParameterError
-from online_backlash.stream import Sample, StreamCounters
+from online_backlash.stream import Row, Sample, SampleChunk, StreamCounters, rows_to_chunk
 
 from .assemble import SampleAssembler
 from .unwrap import Unwrapper
+
+#: What a record parses to: time (s), motor and load angles (deg), sequence number (None: none).
+Reading = tuple[float, float, float, "int | None"]
 
 SERIAL_FORMATS = ("ascii", "binary")
 _BINARY = struct.Struct("<HQii")
@@ -73,7 +78,7 @@ class FrameParser:
     def __init__(self, period_s: float | None = None, strict: bool = False) -> None:
         self.strict = strict
         self.counters = StreamCounters()
-        self._assemble = SampleAssembler(self.counters, self.counter_modulus, period_s, strict).make
+        self._row = SampleAssembler(self.counters, self.counter_modulus, period_s, strict).row
         self._buf = bytearray()
         self._discarding = False
 
@@ -84,9 +89,15 @@ class FrameParser:
 
     def feed(self, data: bytes) -> list[Sample]:
         """Parse ``data`` (appended to what is pending); return the samples completed."""
+        return list(self.feed_chunk(data).samples())
+
+    def feed_chunk(self, data: bytes) -> SampleChunk:
+        """Parse ``data`` (appended to what is pending); return the samples completed as one block
+        (seconds, degrees; ``seq`` where the format has one)."""
         buf = self._buf
         buf += data
-        out: list[Sample] = []
+        rows: list[Row] = []
+        row = self._row
         pos = 0
         delim = self.delimiter
         while True:
@@ -98,9 +109,9 @@ class FrameParser:
             if self._discarding:  # the rest of an over-long record, already counted
                 self._discarding = False
                 continue
-            sample = self._record(record)
-            if sample is not None:
-                out.append(sample)
+            reading = self._record(record)
+            if reading is not None and (checked := row(*reading)) is not None:
+                rows.append(checked)
         del buf[:pos]
         if len(buf) > self.max_frame_bytes:  # garbage with no delimiter: one corrupt frame
             if not self._discarding:
@@ -108,7 +119,7 @@ class FrameParser:
                 self._count_corrupt(f"no frame delimiter in {len(buf)} bytes")
                 self._discarding = True
             buf.clear()
-        return out
+        return rows_to_chunk(rows)
 
     def finish(self) -> bytes:
         """End of stream: return the bytes of the incomplete last frame (empty if none) and forget them."""
@@ -117,7 +128,8 @@ class FrameParser:
         self._discarding = False
         return tail
 
-    def _record(self, record: bytes) -> Sample | None:
+    def _record(self, record: bytes) -> Reading | None:
+        """The reading of one delimited record, or None (empty, or corrupt and counted)."""
         record = self._strip(record)
         if not record:
             return None
@@ -136,7 +148,8 @@ class FrameParser:
     def _strip(self, record: bytes) -> bytes:
         return record
 
-    def _parse(self, record: bytes) -> Sample | None:
+    def _parse(self, record: bytes) -> Reading:
+        """The reading of a non-empty record; raises FrameError if it is damaged."""
         raise NotImplementedError
 
 
@@ -157,7 +170,7 @@ class AsciiParser(FrameParser):
     def _strip(self, record: bytes) -> bytes:
         return record.strip()
 
-    def _parse(self, record: bytes) -> Sample | None:
+    def _parse(self, record: bytes) -> Reading:
         fields = record.split(b",")
         if len(fields) != 3:
             raise FrameError(f"expected 3 comma-separated fields, got {len(fields)}")
@@ -165,7 +178,7 @@ class AsciiParser(FrameParser):
             time_s, motor_deg, load_deg = (float(f) for f in fields)
         except ValueError:
             raise FrameError(f"not a number in {record[:40]!r}") from None
-        return self._assemble(time_s, motor_deg, load_deg, None)
+        return time_s, motor_deg, load_deg, None
 
 
 class BinaryParser(FrameParser):
@@ -182,16 +195,13 @@ class BinaryParser(FrameParser):
     counter_modulus = 2**16
 
     def __init__(self, motor_cpr: float | None = None, load_cpr: float | None = None, period_s: float | None = None, strict: bool = False) -> None:
-        for name, cpr in (("motor_cpr", motor_cpr), ("load_cpr", load_cpr)):
-            if cpr is None or not cpr > 0:
-                raise InvalidParameterError(f"the binary serial format needs {name} (counts per revolution > 0), got {cpr!r}")
+        self._motor_scale = 360.0 / require_cpr("motor_cpr", motor_cpr)
+        self._load_scale = 360.0 / require_cpr("load_cpr", load_cpr)
         super().__init__(period_s, strict)
-        self._motor_scale = 360.0 / motor_cpr
-        self._load_scale = 360.0 / load_cpr
         self._motor_turns = Unwrapper(2**32)
         self._load_turns = Unwrapper(2**32)
 
-    def _parse(self, record: bytes) -> Sample | None:
+    def _parse(self, record: bytes) -> Reading:
         try:
             body = cobs.decode(record)
         except cobs.DecodeError as exc:
@@ -202,15 +212,19 @@ class BinaryParser(FrameParser):
         if Crc16CcittFalse.calc(payload) != _CRC.unpack_from(body, _BINARY.size)[0]:
             raise FrameError("bad CRC")
         seq, time_us, motor, load = _BINARY.unpack(payload)
-        return self._assemble(
-            time_us * 1e-6,
-            self._motor_turns(motor) * self._motor_scale,
-            self._load_turns(load) * self._load_scale,
-            seq,
-        )
+        return time_us * 1e-6, self._motor_turns(motor) * self._motor_scale, self._load_turns(load) * self._load_scale, seq
 
 
-def make_parser(serial_format: str, motor_cpr: float | None = None, load_cpr: float | None = None, period_s: float | None = None, strict: bool = False) -> FrameParser:
+def require_cpr(name: str, cpr: float | None) -> float:
+    """``cpr`` (counts per revolution of the binary format's ``name`` encoder) if positive, else InvalidParameterError."""
+    if cpr is None or not cpr > 0:
+        raise InvalidParameterError(f"the binary serial format needs {name} (counts per revolution > 0), got {cpr!r}")
+    return cpr
+
+
+def make_parser(
+    serial_format: str, motor_cpr: float | None = None, load_cpr: float | None = None, period_s: float | None = None, strict: bool = False
+) -> FrameParser:
     """The parser of ``serial_format`` (``ascii`` or ``binary``)."""
     if serial_format == "ascii":
         return AsciiParser(period_s, strict)

@@ -1,28 +1,31 @@
-"""The rules of :class:`~online_backlash.drivers.pairing.FramePipeline` on decoded blocks of frames, compiled.
+"""The rules of :class:`~online_backlash.codecs.pairing.FramePipeline` on decoded blocks of frames, compiled.
 
-For replay, frames come in blocks (:mod:`~online_backlash.drivers.blockdecode`); this module
-pairs them, unwraps the counts (:class:`~online_backlash.drivers.unwrap.Unwrapper`), applies
-:class:`~online_backlash.drivers.assemble.SampleAssembler`'s checks and
-:class:`~online_backlash.drivers.gaps.GapDetector`'s rule in one numba loop whose state carries
+Frames come in blocks (1,024 frames read from a log) and are decoded into arrays (:mod:`~online_backlash.codecs.blockdecode`); this module
+pairs them, unwraps the counts (:class:`~online_backlash.codecs.unwrap.Unwrapper`), applies
+:class:`~online_backlash.codecs.assemble.SampleAssembler`'s checks and
+:class:`~online_backlash.codecs.gaps.GapDetector`'s rule in one numba loop whose state carries
 over from block to block, so the samples, counters, gaps and pair skew are those of the per-frame
-path, bit for bit (``tests/test_can_blocks.py`` compares them). The live source keeps the
-per-frame path (one frame at a time, low latency).
+path, bit for bit (``tests/test_can_blocks.py`` compares them over generated damaged inputs).
+Strict decoding (raise at the corrupt frame), paced replay and DBCs the block decoder does not
+support take the per-frame path (:func:`make_pipeline` chooses).
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 
+import can
 import numpy as np
 from numba import njit
 
 from online_backlash.errors import InvalidParameterError
-from online_backlash.stream import GAP_PERIODS, Gap
+from online_backlash.stream import GAP_PERIODS, Gap, SampleChunk
 
-from .blockdecode import OK, DecodedBlock
+from .blockdecode import CORRUPT, OK, SKIPPED, BlockDecoder, DecodedBlock, frame_arrays
 from .dbc import BOTH, MOTOR, DbcDecoder
 from .gaps import GapDetector
-from .pairing import CanCounters
+from .pairing import CanPipeline, FramePipeline
 
 # integer state: pending frame [motor, load] (has, counter, count); unwrapper [motor, load] (has, last, total);
 # gap detector (has last, last counter, steps learnt, period known); pairs counted
@@ -165,32 +168,33 @@ def _pair_block(
     return n_samples, n_gaps, corrupt, unpaired
 
 
-class BlockPipeline:
-    """:class:`~online_backlash.drivers.pairing.FramePipeline` (non-strict) for decoded blocks.
+class BlockPipeline(CanPipeline):
+    """:class:`~online_backlash.codecs.pairing.FramePipeline` (non-strict) for blocks of frames.
+
+    The frames are checked and decoded by :class:`~online_backlash.codecs.blockdecode.BlockDecoder`
+    (arrays, vectorised) and paired, unwrapped, checked and gap-tested by one compiled loop.
 
     Parameters
     ----------
     decoder : DbcDecoder
+        Must be one :attr:`BlockDecoder.supported <online_backlash.codecs.blockdecode.BlockDecoder.supported>`
+        handles (see :func:`make_pipeline`).
     period_s, max_skew_s
         As for FramePipeline.
 
     Attributes
     ----------
     counters : CanCounters
-        ``samples``, ``corrupt`` (from the sample checks), ``unpaired`` and ``gaps`` are counted
-        here; the caller counts ``frames`` and the decoder's ``corrupt`` and ``skipped``.
     frames_per_sample : int
     skew_mean_s, skew_max_s : float
     """
 
     def __init__(self, decoder: DbcDecoder, period_s: float | None = None, max_skew_s: float = 1e-3) -> None:
-        if not max_skew_s >= 0:
-            raise InvalidParameterError(f"max_skew_s must be >= 0, got {max_skew_s!r}")
+        super().__init__(decoder, max_skew_s)
         gaps = GapDetector(decoder.counter_modulus, period_s)  # validates, and holds the rule's settings
-        self.decoder = decoder
-        self.max_skew_s = float(max_skew_s)
-        self.counters = CanCounters()
-        self.frames_per_sample = 2 if decoder.paired else 1
+        self.blocks = BlockDecoder(decoder)
+        if not self.blocks.supported:
+            raise InvalidParameterError("this DBC needs the per-frame path (a message over 8 bytes, multiplexed, or a float signal)")
         self._modulus = gaps.counter_modulus or 0
         self._ist = np.zeros(_N_INT, dtype=np.int64)
         self._fst = np.zeros(_N_FLOAT, dtype=np.float64)
@@ -208,8 +212,16 @@ class BlockPipeline:
     def skew_max_s(self) -> float:
         return float(self._fst[_SKEW_MAX])
 
-    def feed(self, block: DecodedBlock, time_s: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """The samples completed by this block: time (s), motor and load (deg), seq (-1: none), after_gap."""
+    def decode_frames(self, frames: Sequence[can.Message]) -> SampleChunk:
+        time_s, arrays = frame_arrays(frames)
+        return self.decode_block(self.blocks.decode(*arrays), time_s)
+
+    def decode_block(self, block: DecodedBlock, time_s: np.ndarray) -> SampleChunk:
+        """The samples completed by a decoded block (frame times in seconds): counts ``corrupt``
+        and ``skipped`` frames, then pairs, unwraps, checks and finds gaps."""
+        c = self.counters
+        c.corrupt += int(np.count_nonzero(block.status == CORRUPT))
+        c.skipped += int(np.count_nonzero(block.status == SKIPPED))
         n = time_s.shape[0]
         out = (np.empty(n), np.empty(n), np.empty(n), np.empty(n, dtype=np.int64), np.empty(n, dtype=np.bool_))
         gaps = (np.empty(n), np.empty(n), np.empty(n, dtype=np.int64))
@@ -220,15 +232,24 @@ class BlockPipeline:
             dec.motor.deg_per_count, dec.load.deg_per_count, self._modulus, GAP_PERIODS,
             self._ist, self._fst, self._steps, *out, *gaps,
         )  # fmt: skip
-        c = self.counters
         c.samples += n_samples
         c.corrupt += corrupt
         c.unpaired += unpaired
         for t, dt, missing in zip(*(g[:n_gaps].tolist() for g in gaps)):
             c.report_gap(Gap(t, dt, missing))
-        return tuple(a[:n_samples] for a in out)
+        time, motor, load, seq, after_gap = (a[:n_samples] for a in out)
+        return SampleChunk(time, motor, load, np.full(n_samples, np.nan), after_gap, seq=seq)
 
     def flush(self) -> None:
-        """End of stream: the frames still waiting for a partner are unpaired."""
         self.counters.unpaired += int(self._ist[_P_HAS] + self._ist[_P_HAS + 1])
         self._ist[_P_HAS : _P_HAS + 2] = 0
+
+
+def make_pipeline(
+    decoder: DbcDecoder, period_s: float | None = None, max_skew_s: float = 1e-3, strict: bool = False, per_frame: bool = False
+) -> FramePipeline | BlockPipeline:
+    """The block pipeline where it applies, else the per-frame one (``strict``, ``per_frame``, or a
+    DBC the block decoder does not support); both give the same samples and counters."""
+    if strict or per_frame or not BlockDecoder(decoder).supported:
+        return FramePipeline(decoder, period_s, max_skew_s, strict)
+    return BlockPipeline(decoder, period_s, max_skew_s)

@@ -28,7 +28,7 @@ class Unwrapper:
     [14, 15, 16, 17, 16, 15]
     """
 
-    __slots__ = ("modulus", "_half", "_last", "_total")
+    __slots__ = ("_half", "_last", "_total", "modulus")
 
     def __init__(self, modulus: int) -> None:
         if not isinstance(modulus, int) or modulus < 2:

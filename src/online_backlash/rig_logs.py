@@ -1,21 +1,21 @@
 """A simulated rig (:func:`online_backlash.rig.simulate_rig`) as CAN frames or serial bytes.
 
 For tests, benchmarks and demos of the adapters without hardware: the frames and bytes are
-exactly what :class:`~online_backlash.drivers.dbc.DbcDecoder` and the serial parsers read.
+exactly what :class:`~online_backlash.codecs.dbc.DbcDecoder` and the serial parsers read.
 """
 
 from __future__ import annotations
 
 import os
-from typing import Any, Iterator
+from collections.abc import Iterator
+from typing import Any
 
 import can
 import numpy as np
 
-from online_backlash.rig import RigRecording, simulate_rig
-
-from .dbc import RIG_DBC, DbcDecoder, FrameEncoder, counts_of
-from .serialframes import encode_ascii, encode_binary
+from .codecs.dbc import RIG_DBC, DbcDecoder, FrameEncoder, counts_of
+from .codecs.serialframes import encode_ascii, encode_binary, require_cpr
+from .rig import RigRecording, simulate_rig
 
 
 def rig_can_frames(rec: RigRecording, decoder: DbcDecoder, start_s: float = 0.0, skew_s: float = 0.0) -> Iterator[can.Message]:
@@ -33,12 +33,12 @@ def rig_can_frames(rec: RigRecording, decoder: DbcDecoder, start_s: float = 0.0,
 def rig_serial_records(rec: RigRecording, serial_format: str, motor_cpr: float | None = None, load_cpr: float | None = None) -> Iterator[bytes]:
     """One ``ascii`` line or ``binary`` frame per sample (counts per revolution for ``binary``)."""
     if serial_format == "ascii":
-        for t, m, l in zip(rec.time_s.tolist(), rec.motor_deg.tolist(), rec.load_deg.tolist()):
-            yield encode_ascii(t, m, l)
+        for t, m, y in zip(rec.time_s.tolist(), rec.motor_deg.tolist(), rec.load_deg.tolist()):
+            yield encode_ascii(t, m, y)
         return
     time_us = np.rint(rec.time_s * 1e6).astype(np.int64).tolist()
-    motor = np.rint(rec.motor_deg / (360.0 / motor_cpr)).astype(np.int64).tolist()
-    load = np.rint(rec.load_deg / (360.0 / load_cpr)).astype(np.int64).tolist()
+    motor = np.rint(rec.motor_deg / (360.0 / require_cpr("motor_cpr", motor_cpr))).astype(np.int64).tolist()
+    load = np.rint(rec.load_deg / (360.0 / require_cpr("load_cpr", load_cpr))).astype(np.int64).tolist()
     for i in range(len(time_us)):
         yield encode_binary(i, time_us[i], motor[i], load[i])
 

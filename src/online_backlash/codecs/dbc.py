@@ -2,7 +2,7 @@
 
 The motor and load angles are two signals of a DBC (``Message.Signal``, or a bare signal name
 that is unique in the database). They may sit in one message (one frame per sample) or in two
-(paired by :mod:`~online_backlash.drivers.pairing`). Each message of ours may carry:
+(paired by :mod:`~online_backlash.codecs.pairing`). Each message of ours may carry:
 
 - a rolling counter (signal ``counter_signal``, default ``Counter``) for pairing and gap detection;
 - a checksum (signal ``checksum_signal``, default ``Checksum``): one byte-aligned 8-bit signal holding
@@ -19,9 +19,10 @@ frames of ours with a wrong length, a bad checksum or a count out of range are *
 from __future__ import annotations
 
 import os
+from collections.abc import Sequence
 from dataclasses import dataclass
-from importlib import resources
-from typing import Sequence
+from pathlib import Path
+from typing import cast
 
 import can
 import cantools
@@ -32,7 +33,7 @@ from crccheck.crc import Crc8SaeJ1850
 from online_backlash.errors import FrameError, InvalidParameterError
 
 #: The example DBC shipped with the package (``RigAngles``; ``MotorAngle`` + ``LoadAngle``).
-RIG_DBC = resources.files("online_backlash.drivers") / "rig.dbc"
+RIG_DBC = Path(__file__).with_name("rig.dbc")
 
 MOTOR, LOAD, BOTH = 1, 2, 3
 
@@ -42,7 +43,7 @@ def load_dbc(dbc: str | os.PathLike[str] | Database) -> Database:
     if isinstance(dbc, Database):
         return dbc
     try:
-        return cantools.database.load_file(os.fspath(dbc), database_format="dbc")
+        return cast(Database, cantools.database.load_file(os.fspath(dbc), database_format="dbc"))
     except OSError:
         raise
     except Exception as exc:  # cantools raises parser-specific types; all mean "not a usable DBC"
@@ -92,7 +93,7 @@ def resolve_signal(db: Database, spec: str, counts_per_rev: int | None = None) -
     message, signal = matches[0]
     if counts_per_rev is None:
         if signal.maximum is not None:
-            counts_per_rev = int(round((signal.maximum - signal.offset) / signal.scale)) + 1
+            counts_per_rev = round((signal.maximum - signal.offset) / signal.scale) + 1
         else:
             counts_per_rev = 2**signal.length
     if not isinstance(counts_per_rev, int) or counts_per_rev < 2:
@@ -101,8 +102,22 @@ def resolve_signal(db: Database, spec: str, counts_per_rev: int | None = None) -
 
 
 @dataclass(frozen=True)
-class _Layout:
-    """What to check in one of our messages."""
+class MessageLayout:
+    """What to check in one of our messages.
+
+    Attributes
+    ----------
+    role : int
+        MOTOR, LOAD or BOTH: the angle(s) the message carries.
+    length : int
+        Data bytes the message must have.
+    counter : str or None
+        Name of its rolling counter signal (None: none).
+    counter_modulus : int or None
+        Wrap of that counter (``2**bits``).
+    checksum_byte : int or None
+        Index of the byte that holds the CRC-8 of the others (None: no checksum).
+    """
 
     role: int
     length: int
@@ -113,13 +128,13 @@ class _Layout:
 
 @dataclass(slots=True)
 class DecodedFrame:
-    """One frame of ours, checked: counts are raw (single-turn) encoder counts."""
+    """One frame of ours, checked: counts are raw (single-turn) encoder counts (0 for an angle the frame does not carry)."""
 
     time_s: float
     role: int
     counter: int | None
-    motor_count: int | None
-    load_count: int | None
+    motor_count: int
+    load_count: int
 
 
 def _checksum_byte(message: Message, name: str) -> int | None:
@@ -164,6 +179,10 @@ class DbcDecoder:
         True when the two angles come in two messages that must be paired.
     counter_modulus : int or None
         Wrap of the rolling counter (the same in both messages), or None without counters.
+    layouts : dict of int to MessageLayout
+        Per frame id of our messages: what is checked.
+    messages : dict of int to cantools Message
+        Per frame id: our messages in the DBC.
     """
 
     def __init__(
@@ -181,16 +200,16 @@ class DbcDecoder:
         self.load = resolve_signal(self.db, load_signal, load_cpr)
         self.paired = self.motor.message.frame_id != self.load.message.frame_id
         roles = [(self.motor.message, MOTOR), (self.load.message, LOAD)] if self.paired else [(self.motor.message, BOTH)]
-        self._layouts: dict[int, _Layout] = {}
+        self.layouts: dict[int, MessageLayout] = {}
         for message, role in roles:
             modulus = _counter_modulus(message, counter_signal)
             checksum = _checksum_byte(message, checksum_signal) if checksum_signal else None
-            self._layouts[message.frame_id] = _Layout(role, message.length, counter_signal if modulus else None, modulus, checksum)
-        moduli = {lay.counter_modulus for lay in self._layouts.values()}
+            self.layouts[message.frame_id] = MessageLayout(role, message.length, counter_signal if modulus else None, modulus, checksum)
+        moduli = {lay.counter_modulus for lay in self.layouts.values()}
         self.counter_modulus = moduli.pop() if len(moduli) == 1 else None
-        self._messages = {m.frame_id: m for m, _ in roles}
+        self.messages: dict[int, Message] = {m.frame_id: m for m, _ in roles}
         # hot path of decode(): one lookup per frame
-        self._by_id = {fid: (m.is_extended_frame, self._layouts[fid], m.decode_simple) for fid, m in self._messages.items()}
+        self._by_id = {fid: (m.is_extended_frame, self.layouts[fid], m.decode_simple) for fid, m in self.messages.items()}
         self._motor_name, self._motor_cpr = self.motor.signal, self.motor.counts_per_rev
         self._load_name, self._load_cpr = self.load.signal, self.load.counts_per_rev
 
@@ -206,17 +225,17 @@ class DbcDecoder:
         i = layout.checksum_byte
         if i is not None and Crc8SaeJ1850.calc(data[:i] + data[i + 1 :]) != data[i]:
             raise FrameError(f"frame 0x{msg.arbitration_id:X}: bad checksum")
-        values = decode(data, False, False)
-        motor = load = None
+        values = decode(bytes(data), False, False)  # integer signals, unscaled: ints
+        motor = load = 0
         if layout.role & MOTOR:
-            motor = values[self._motor_name]
+            motor = cast(int, values[self._motor_name])
             if motor >= self._motor_cpr or motor < 0:
                 raise FrameError(f"frame 0x{msg.arbitration_id:X}: motor count {motor} out of range")
         if layout.role & LOAD:
-            load = values[self._load_name]
+            load = cast(int, values[self._load_name])
             if load >= self._load_cpr or load < 0:
                 raise FrameError(f"frame 0x{msg.arbitration_id:X}: load count {load} out of range")
-        return DecodedFrame(msg.timestamp, layout.role, values[layout.counter] if layout.counter else None, motor, load)
+        return DecodedFrame(msg.timestamp, layout.role, cast(int, values[layout.counter]) if layout.counter else None, motor, load)
 
 
 class FrameEncoder:
@@ -232,14 +251,14 @@ class FrameEncoder:
     def frames(self, time_s: float, motor_count: int, load_count: int, counter: int = 0) -> list[can.Message]:
         dec = self.decoder
         out = []
-        for frame_id, layout in dec._layouts.items():
-            message = dec._messages[frame_id]
+        for frame_id, layout in dec.layouts.items():
+            message = dec.messages[frame_id]
             values = {s.name: 0 for s in message.signals}
             if layout.role & MOTOR:
                 values[dec.motor.signal] = motor_count % dec.motor.counts_per_rev
             if layout.role & LOAD:
                 values[dec.load.signal] = load_count % dec.load.counts_per_rev
-            if layout.counter:
+            if layout.counter and layout.counter_modulus:
                 values[layout.counter] = counter % layout.counter_modulus
             data = bytearray(message.encode(values, scaling=False, strict=False))
             if layout.checksum_byte is not None:
@@ -249,6 +268,6 @@ class FrameEncoder:
         return out
 
 
-def counts_of(angle_deg: Sequence[float] | float, signal: EncoderSignal) -> np.ndarray:
+def counts_of(angle_deg: Sequence[float] | np.ndarray | float, signal: EncoderSignal) -> np.ndarray:
     """Encoder counts (rounded, not wrapped) of angles in degrees, for feeding :class:`FrameEncoder` from a simulation."""
     return np.rint(np.asarray(angle_deg) / signal.deg_per_count).astype(np.int64)

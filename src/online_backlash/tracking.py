@@ -1,12 +1,12 @@
-"""Feed a gearbox's recursive estimator from logs and checkpoint it, with its estimates, in the store.
+"""Track a gearbox: run its logs through the pipeline and checkpoint it, with its estimates, in the store.
 
-One gearbox has one estimator (:class:`~online_backlash.estimators.recursive.BacklashRLS`,
-the recursive form of Vörös 2013) and one :class:`~online_backlash.history.usage.UsageCounter`
-for its whole life: every log continues from the state the previous one left, so the estimate
-follows the wear. Each log is a *run* of the store, keyed by the SHA-256 of the file.
+One gearbox has one :class:`~online_backlash.pipeline.Pipeline` (its estimator,
+:class:`~online_backlash.estimators.BacklashRLS`, the recursive form of Vörös 2013, and its data
+clock) and one :class:`~online_backlash.history.usage.UsageCounter` for its whole life: every
+log continues from the state the previous one left, so the estimate follows the wear. Each log is a *run* of the store, keyed by the SHA-256 of the file.
 
 Every ``every_s`` seconds of data an estimate is appended, and in the same transaction the
-tracker state (estimator, usage counters, data clock) becomes the gearbox's checkpoint and the
+tracker state (estimator, with its effects by name; usage counters; data clock) becomes the gearbox's checkpoint and the
 run's resume point (``samples_done``) moves on. A process killed at any instant therefore
 leaves a consistent store; run again on the same log, it skips the samples the checkpoint
 already holds and continues, so the history ends the same as an uninterrupted run: no
@@ -16,6 +16,9 @@ Calendar time of a sample: ``start_unix_s + (time_s - first time_s)`` when a sta
 the time column itself when it holds UNIX times (at least :data:`UNIX_TIME_MIN`); otherwise
 the log file's modification time is taken as its start. The first run of a log fixes it
 (``runs.started_unix_s``); a resumed run keeps it.
+
+This module sits above :mod:`online_backlash.history` (which only stores rows) and below the
+CLI: it is where readers, estimators and the store meet.
 """
 
 from __future__ import annotations
@@ -24,19 +27,22 @@ import hashlib
 import math
 import os
 import time
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
+from importlib import resources
 from itertools import chain
-from typing import Any, Callable, Iterable, Iterator
+from typing import Any
 
-import numpy as np
-
-from ..errors import HistoryError, InvalidParameterError, LogFormatError, NotFittedError
-from ..estimators._validation import check_real
-from ..estimators.recursive import BacklashRLS
-from ..replay import open_log
-from ..stream import SampleChunk, refer_to_load
-from .store import Gearbox, HistoryStore, Run
-from .usage import UsageCounter
+from .effect_terms import effect_to_dict
+from .errors import HistoryError, InvalidParameterError, LogFormatError
+from .estimators import BacklashRLS
+from .history.series import WearSeries
+from .history.store import Gearbox, HistoryStore, Run
+from .history.usage import UsageCounter
+from .pipeline import DataClock, Pipeline, check_every, tail
+from .replay import open_log
+from .rows import STORE_COLUMNS, EstimateRow, select
+from .stream import SampleChunk, SampleSource, refer_to_load
 
 #: Times at or above this (2001-09-09) are read as UNIX seconds.
 UNIX_TIME_MIN = 1.0e9
@@ -174,7 +180,7 @@ class GearboxTracker:
                 progress=progress,
             )
 
-    def track_source(self, source: Any, label: str, progress: ProgressCallback | None = None) -> TrackResult:
+    def track_source(self, source: SampleSource, label: str, progress: ProgressCallback | None = None) -> TrackResult:
         """Feed a live source (``online_backlash.drivers``' CanSource, SerialSource) until it ends.
 
         A live stream cannot be read again, so it has no key: each call is a new run that
@@ -185,7 +191,7 @@ class GearboxTracker:
 
         Parameters
         ----------
-        source : Source
+        source : SampleSource
             A live source: ``iter_chunks()`` yields what has arrived, ``counters`` counts it.
         label : str
             Description stored with the run, e.g. ``can socketcan can0``.
@@ -234,7 +240,8 @@ class GearboxTracker:
             result.already_imported = True
             result.counters = {k: getattr(run, k) for k in _COUNTERS}
             return result
-        clock = run.started_unix_s - first_time_s  # a resumed run keeps its first clock
+        # a resumed run keeps its first clock (begin_run stored it; it is None only in a foreign store)
+        clock = (run.started_unix_s if run.started_unix_s is not None else first_time_s + offset) - first_time_s
         gearbox, run, state, ended = self._feed(gearbox, run, chain([first], chunks), clock, result, progress)
         done = result.resumed_from + result.samples_fed
         result.counters = counters() if counters is not None else {k: done if k == "samples" else 0 for k in _COUNTERS}
@@ -248,14 +255,15 @@ class GearboxTracker:
             return
         saved = gearbox.checkpoint["estimator"]["params"]
         for name, value in self.estimator_params.items():
-            if saved.get(name) != value:
+            given = [effect_to_dict(e) for e in value or []] if name == "effects" else value
+            if saved.get(name) != given:
                 raise HistoryError(
-                    f"gearbox {gearbox.id!r} is tracked with {name}={saved.get(name)!r}; {name}={value!r} would change "
+                    f"gearbox {gearbox.id!r} is tracked with {name}={saved.get(name)!r}; {name}={given!r} would change "
                     "its estimator (use another gearbox id to start afresh)"
                 )
 
     def _validate(self) -> None:
-        check_real("every_s", self.every_s, 0.0)
+        check_every(self.every_s)
         try:
             refer_to_load(0.0, self.ratio)
         except InvalidParameterError as exc:
@@ -269,13 +277,13 @@ class GearboxTracker:
         clock: float,
         result: TrackResult,
         progress: ProgressCallback | None,
-    ) -> tuple[Gearbox, Run, "TrackerState", float | None]:
+    ) -> tuple[Gearbox, Run, TrackerState, float | None]:
         """Skip what the run already committed, learn the rest, commit at every estimate.
 
         Returns the latest gearbox and run records, the state after the last sample and the
         calendar time of the last sample (None if every sample was skipped).
         """
-        state = TrackerState.load(gearbox.checkpoint, self.estimator_params, self.usage_params)
+        state = TrackerState.load(gearbox.checkpoint, self.ratio, self.every_s, self.estimator_params, self.usage_params)
         if run.samples_done == 0 or (gearbox.checkpoint or {}).get("run_id") != run.id:
             state.mark_gap()  # the log does not continue the samples the state saw last
         skip = run.samples_done
@@ -287,29 +295,30 @@ class GearboxTracker:
                 skip -= len(chunk)
                 continue
             if skip:
-                chunk, skip = _tail(chunk, skip), 0
-            u = refer_to_load(chunk.motor_deg, self.ratio)
-            fed = 0
-            for end, due in state.learn(chunk.time_s, u, chunk.load_deg, chunk.after_gap, self.every_s):
-                done += end - fed
-                result.samples_fed += end - fed
-                fed = end
-                row = state.estimate_row(done, clock + float(chunk.time_s[end - 1])) if due else None
-                if row is not None:
+                chunk, skip = tail(chunk, skip), 0
+            for step in state.pipeline.feed(chunk):
+                state.usage.update(step.chunk.time_s, step.u_deg, step.chunk.after_gap)
+                done += len(step.chunk)
+                result.samples_fed += len(step.chunk)
+                if step.row is not None:
+                    row = state.store_row(step.row, done, clock + step.row.time_s)
                     gearbox, run = self.store.commit(gearbox, run, done, state.checkpoint(run.id), [row])
                     result.estimates_added += 1
                     result.last_estimate = row
                 if progress is not None:
-                    progress(result.samples_fed, state.backlash_deg())
+                    progress(result.samples_fed, current_backlash_deg(state.pipeline.estimator))
         return gearbox, run, state, ended
 
 
 _COUNTERS = ("frames", "samples", "corrupt", "skipped", "gaps")
 
 
-def _tail(chunk: SampleChunk, start: int) -> SampleChunk:
-    """The samples of ``chunk`` from index ``start`` on."""
-    return SampleChunk(chunk.time_s[start:], chunk.motor_deg[start:], chunk.load_deg[start:], chunk.torque_Nm[start:], chunk.after_gap[start:])
+def current_backlash_deg(estimator: Any) -> float | None:
+    """The estimator's current play, degrees, or None before it has one (for progress displays)."""
+    if not estimator.started:
+        return None
+    value = float(estimator.backlash_)
+    return value if math.isfinite(value) else None
 
 
 class TrackerState:
@@ -317,115 +326,80 @@ class TrackerState:
 
     Attributes
     ----------
-    estimator : BacklashRLS
-        The gearbox's recursive estimator.
+    pipeline : Pipeline
+        The gearbox's estimator (:class:`BacklashRLS`) and data clock
+        (:class:`~online_backlash.pipeline.DataClock`: seconds of data seen, steps across gaps
+        and between logs excluded, and when the next estimate is due).
     usage : UsageCounter
         Operating time, load revolutions and reversals since new.
-    data_ns : int
-        Nanoseconds of data seen (steps across gaps and between logs excluded). Each step is
-        rounded to a whole nanosecond and summed as an integer, so the sum does not depend on
-        how the stream was cut into blocks (a resumed run, a live stream, a replay of it).
-    next_estimate_ns : int or None
-        ``data_ns`` at which the next estimate is due.
-    prev_time_s : float or None
-        Time of the last sample of the current log (None at the start of a log).
     """
 
-    def __init__(self, estimator: BacklashRLS, usage: UsageCounter, data_ns: int = 0,
-                 next_estimate_ns: int | None = None, prev_time_s: float | None = None) -> None:
-        self.estimator = estimator
+    def __init__(self, pipeline: Pipeline, usage: UsageCounter) -> None:
+        self.pipeline = pipeline
         self.usage = usage
-        self.data_ns = data_ns
-        self.next_estimate_ns = next_estimate_ns
-        self.prev_time_s = prev_time_s
 
     @classmethod
-    def load(cls, checkpoint: dict | None, estimator_params: dict | None = None, usage_params: dict | None = None) -> "TrackerState":
-        """The state saved in a gearbox's checkpoint, or a new one (with these parameters) if None."""
+    def load(
+        cls,
+        checkpoint: dict | None,
+        ratio: float,
+        every_s: float,
+        estimator_params: dict | None = None,
+        usage_params: dict | None = None,
+    ) -> TrackerState:
+        """The state saved in a gearbox's checkpoint, or a new one (with these parameters) if None.
+
+        A saved estimator's effects are rebuilt by :meth:`BacklashRLS.from_state` from their
+        names and parameters (:data:`online_backlash.effect_terms.EFFECTS`), stream history
+        included, so a resumed run continues them exactly.
+        """
         if checkpoint is None:
-            return cls(BacklashRLS(**(estimator_params or {})), UsageCounter(**(usage_params or {})))
+            return cls(Pipeline(BacklashRLS(**(estimator_params or {})), ratio, every_s), UsageCounter(**(usage_params or {})))
         if checkpoint.get("format") != CHECKPOINT_FORMAT:
             raise HistoryError(f"checkpoint format {checkpoint.get('format')!r} is not {CHECKPOINT_FORMAT}; upgrade online-backlash")
-        return cls(
-            BacklashRLS.from_state(checkpoint["estimator"]),
-            UsageCounter.from_state(checkpoint["usage"]),
-            checkpoint["data_ns"],
-            checkpoint["next_estimate_ns"],
-            checkpoint["prev_time_s"],
-        )
+        estimator = BacklashRLS.from_state(checkpoint["estimator"])
+        clock = DataClock.from_state(every_s, checkpoint)
+        return cls(Pipeline(estimator, ratio, every_s, clock), UsageCounter.from_state(checkpoint["usage"]))
 
     def checkpoint(self, run_id: int | None = None) -> dict:
         """The state as a JSON-serialisable dict, noting the run whose sample it saw last."""
         return {
             "format": CHECKPOINT_FORMAT,
             "run_id": run_id,
-            "estimator": self.estimator.state_dict(),
+            "estimator": self.pipeline.estimator.state_dict(),
             "usage": self.usage.state_dict(),
-            "data_ns": self.data_ns,
-            "next_estimate_ns": self.next_estimate_ns,
-            "prev_time_s": self.prev_time_s,
+            **self.pipeline.clock.state_dict(),
         }
 
     def mark_gap(self) -> None:
         """The next sample does not continue the last one."""
-        self.estimator.mark_gap()
+        self.pipeline.mark_gap()
         self.usage.mark_gap()
-        self.prev_time_s = None
 
-    def learn(self, time_s: np.ndarray, u_deg: np.ndarray, y_deg: np.ndarray, after_gap: np.ndarray,
-              every_s: float) -> Iterator[tuple[int, bool]]:
-        """Learn a chunk block by block; yield ``(end, due)`` after each block.
-
-        A block ends at the sample where ``data_ns`` reaches ``next_estimate_ns`` (``due`` is
-        True: an estimate belongs there) or at the end of the chunk.
-        """
-        every_ns = max(1, round(every_s * 1e9))
-        if self.next_estimate_ns is None:
-            self.next_estimate_ns = self.data_ns + every_ns
-        previous = np.concatenate(([np.nan if self.prev_time_s is None else self.prev_time_s], time_s[:-1]))
-        step = time_s - previous
-        step[after_gap | ~(step > 0.0)] = 0.0  # NaN (start of a segment) and a clock that went back count nothing
-        data_ns = self.data_ns + np.cumsum(np.rint(step * 1e9).astype(np.int64))
-        n, pos = time_s.size, 0
-        while pos < n:
-            reach = pos + int(np.searchsorted(data_ns[pos:], self.next_estimate_ns, side="left"))
-            due = reach < n
-            end = reach + 1 if due else n
-            self.estimator.learn_many(u_deg[pos:end], y_deg[pos:end], after_gap=after_gap[pos:end])
-            self.usage.update(time_s[pos:end], u_deg[pos:end], after_gap[pos:end])
-            self.data_ns = int(data_ns[end - 1])
-            self.prev_time_s = float(time_s[end - 1])
-            while due and self.next_estimate_ns <= self.data_ns:
-                self.next_estimate_ns += every_ns
-            yield end, due
-            pos = end
-
-    def backlash_deg(self) -> float | None:
-        """The current estimate of the play, degrees, or None before the estimator has one."""
-        try:
-            value = float(self.estimator.backlash_)
-        except NotFittedError:
-            return None
-        return value if math.isfinite(value) else None
-
-    def estimate_row(self, sample_index: int, time_unix_s: float) -> dict | None:
-        """The estimate to store now (columns of ``estimates``), or None before there is one."""
-        backlash = self.backlash_deg()
-        if backlash is None:
-            return None
-        est = self.estimator
-        return {
-            "sample_index": sample_index,
-            "time_unix_s": time_unix_s,
-            "backlash_deg": backlash,
-            "backlash_std_deg": float(est.backlash_std_),
-            "c_left_deg": float(est.c_left_),
-            "c_right_deg": float(est.c_right_),
-            "m_left": float(est.m_left_),
-            "m_right": float(est.m_right_),
-            "residual_rms_deg": float(getattr(est, "residual_rms_", math.nan)),
-            "n_samples": int(est.n_samples_seen_),
+    def store_row(self, row: EstimateRow, sample_index: int, time_unix_s: float) -> dict[str, Any]:
+        """An estimate as a row of the store's ``estimates`` table (:data:`~online_backlash.rows.STORE_COLUMNS`)."""
+        usage = {
             "operating_hours": self.usage.operating_hours,
             "load_revolutions": self.usage.load_revolutions,
             "reversals": self.usage.reversals,
         }
+        return select(STORE_COLUMNS, {**row.values(), **usage, "sample_index": sample_index, "time_unix_s": time_unix_s})
+
+
+def track_series(
+    series: WearSeries, store: HistoryStore, progress: ProgressCallback | None = None, shift_s: float = 0.0
+) -> list[TrackResult]:
+    """Track every log of a wear series into ``store`` under its gearbox id (a log already there adds nothing).
+
+    ``shift_s`` moves the series' clock (each log starts at its manifest ``start`` plus ``shift_s``).
+    """
+    m = series.manifest
+    tracker = GearboxTracker(
+        store, m["gearbox"], m["ratio"], every_s=m["every_s"], limit_arcmin=m["limit_arcmin"], estimator_params=m["estimator_params"]
+    )
+    results = []
+    for item in series.files:
+        with resources.as_file(item) as path:
+            start = series.start_unix_s(item) + shift_s if shift_s else None
+            results.append(tracker.track_log(path, m["log_options"], start_unix_s=start, progress=progress))
+    return results

@@ -1,0 +1,248 @@
+"""ASAM MDF measurement files (``.mf4``, ``.mdf``; CANape, INCA, dSPACE recorders) as a sample source.
+
+Channels are found by name (``columns={"motor": "EncMotor", "load": "EncLoad"}``; ``NAME@GROUP``
+picks one of several channels of one name). The motor channel's group sets the time base: its
+master channel (or the channel mapped to ``time``). Channels of other groups, recorded at other
+rates, are interpolated linearly onto it; motor samples outside their recorded span are counted
+in ``counters.skipped``. asammdf applies each channel's conversion; the channel's unit decides
+its scale (:func:`~online_backlash.replay.tabular.channel_scales`: angle units to degrees, counts
+with ``motor_cpr``/``load_cpr``), unless ``units=`` overrides it.
+
+The file is read through a plain file object (no memory map) in fragments of about
+``fragment_bytes``, so memory stays flat whatever the file's length. A file asammdf cannot read
+raises :class:`~online_backlash.errors.LogFormatError` naming the file (and the channel).
+
+An MDF file that holds CAN bus logging (``CAN_DataFrame`` channels, as python-can and bus
+loggers write) is a CAN log: :func:`is_bus_logging` tells them apart.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Iterator
+from typing import IO, Any
+
+import numpy as np
+
+from online_backlash.errors import LogFormatError
+from online_backlash.stream import SampleChunk, StreamCounters
+
+from .tabular import ChannelInfo, MeasurementLog, Resampler, channel_scales, missing_channel, open_with
+
+#: One fragment of a channel: time (s), values, unit string.
+_Fragment = tuple[np.ndarray, np.ndarray, str]
+#: Channel names of ASAM MDF bus logging (CAN frames recorded as such).
+BUS_LOGGING_CHANNELS = ("CAN_DataFrame", "CANFD_DataFrame")
+
+
+def _open_mdf(path: str) -> tuple[Any, IO[bytes]]:
+    """asammdf's MDF over a plain file object (flat memory: no memory map); errors name the file."""
+    from asammdf import MDF  # imported on use: asammdf is heavy
+
+    return open_with(path, "MDF", MDF, _release_half_built)
+
+
+def _release_half_built(exc: BaseException) -> None:
+    """Close what asammdf (8.x) leaves open when opening a damaged file fails.
+
+    Its reader object is then half built: its ``__del__`` raises on missing attributes and its
+    temporary file stays open (a ResourceWarning). Found in the failing frames, the object gets
+    its temporary file closed and is marked closed, so that its ``__del__`` does nothing.
+    """
+    tb = exc.__traceback__
+    while tb is not None:
+        obj = tb.tb_frame.f_locals.get("self")
+        if obj is not None and hasattr(obj, "_tempfile") and callable(getattr(obj, "close", None)):
+            temporary = getattr(obj, "_tempfile", None)
+            if temporary is not None:
+                temporary.close()
+            obj._closed = True
+        tb = tb.tb_next
+
+
+def is_bus_logging(path: str | os.PathLike[str]) -> bool:
+    """True when the MDF file records CAN frames (bus logging), not measured signals."""
+    mdf, stream = _open_mdf(os.fspath(path))
+    try:
+        return any(name.split(".")[0] in BUS_LOGGING_CHANNELS for name in mdf.channels_db)
+    finally:
+        mdf.close()
+        stream.close()
+
+
+class MdfLog(MeasurementLog):
+    """An ASAM MDF (3 or 4) measurement file replayed as a stream of samples.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The file (``.mf4``, ``.mdf``).
+    columns : dict, optional
+        Role -> channel name for ``motor``, ``load``, ``torque`` (optional) and ``time``
+        (optional: default the motor group's master channel).
+    units : str, optional
+        Overrides the motor and load channels' units (``deg``, ``rad``, ``rev``, ``counts``, ...).
+    motor_cpr, load_cpr : float, optional
+        Counts per revolution of channels in encoder counts.
+    skip_bad : bool
+        Count and skip non-finite or out-of-order samples instead of raising.
+    fragment_bytes : int
+        Size hint of the blocks read from the file (memory stays bounded by it).
+
+    Attributes
+    ----------
+    counters : StreamCounters
+        ``frames`` counts records of the motor's group read; ``frames == samples + corrupt + skipped``.
+    nominal_period_s : float or None
+        The median time step of the first block, seconds.
+    """
+
+    def __init__(
+        self,
+        path: str | os.PathLike[str],
+        columns: dict[str, str] | None = None,
+        units: str | None = None,
+        motor_cpr: float | None = None,
+        load_cpr: float | None = None,
+        skip_bad: bool = False,
+        fragment_bytes: int = 4 << 20,
+    ) -> None:
+        super().__init__(path, columns, units, motor_cpr, load_cpr, skip_bad)
+        self.fragment_bytes = int(fragment_bytes)
+        self._mdf: Any = None
+
+    def _open(self) -> tuple[Any, ...]:
+        self._mdf, stream = _open_mdf(self.path)
+        self._mdf.configure(read_fragment_size=self.fragment_bytes)
+        return self._mdf, stream
+
+    # -- channels --------------------------------------------------------------------------
+    def _locate(self, role: str) -> tuple[int, int] | None:
+        """(group, index) of the channel mapped to ``role``; None for an absent optional torque."""
+        name = self.columns[role]
+        base, at, group = name.rpartition("@")
+        if at and group.isdigit():
+            name = base
+        found = self._mdf.channels_db.get(name, ())
+        if at and group.isdigit():
+            found = tuple(entry for entry in found if entry[0] == int(group))
+        if not found:
+            if role == "torque" and "torque" not in self.mapped:
+                return None
+            raise missing_channel(self.path, role, self.columns[role], self._mdf.channels_db)
+        if len(found) > 1:
+            groups = sorted(g for g, _ in found)
+            raise LogFormatError(self.path, None, f"channel {name!r} for {role} is in several groups {groups}; name one as {name}@GROUP")
+        return found[0]
+
+    def _fragments(self, role: str, where: tuple[int, int]) -> Iterator[_Fragment]:
+        """(time_s, values, unit) per file fragment of one channel; asammdf's errors name the file and channel."""
+        signals = self._mdf.iter_get(group=where[0], index=where[1])
+        while True:
+            try:
+                signal = next(signals)
+            except StopIteration:
+                return
+            except Exception as exc:  # a damaged data block
+                raise LogFormatError(self.path, None, f"cannot read {role} channel {self.columns[role]!r} ({type(exc).__name__}: {exc})") from exc
+            values = signal.samples
+            if values.dtype.kind not in "biuf":
+                raise LogFormatError(self.path, None, f"{role} channel {self.columns[role]!r} holds {values.dtype} values, not numbers")
+            yield np.asarray(signal.timestamps, dtype=float), values.astype(float, copy=False), signal.unit
+
+    def _read(self) -> Iterator[SampleChunk]:
+        self.counters = StreamCounters()
+        where = {r: self._locate(r) for r in ("motor", "load", "torque")}
+        if ("time" in self.mapped):
+            where["time"] = self._locate("time")
+        present = [r for r in ("time", "motor", "load", "torque") if where.get(r) is not None]
+        motor_group = where["motor"][0]  # type: ignore[index]
+        aligned = [r for r in present if where[r][0] == motor_group]  # type: ignore[index]
+        streams = {r: self._fragments(r, where[r]) for r in aligned}  # type: ignore[arg-type]
+        foreign = {r: Resampler(((t, v) for t, v, _ in self._fragments(r, where[r])), self.path, self.columns[r]) for r in present if r not in aligned}  # type: ignore[arg-type]
+        units: dict[str, str | None] = {}
+        scales: tuple[float, float, float, float] | None = None
+        has_torque = "torque" in present
+        row = 0
+        last_time = -np.inf
+        for blocks in self._records(streams):
+            master, motor, unit = blocks["motor"]  # type: ignore[misc]  # _records ends at the motor's end
+            units["motor"] = unit
+            columns = {"motor": motor}
+            for r in aligned:
+                if r != "motor":
+                    block = blocks[r]
+                    if block is None or len(block[1]) != len(motor):
+                        raise LogFormatError(self.path, row, f"{r} channel {self.columns[r]!r} has fewer records than the motor channel")
+                    columns[r], units[r] = block[1], block[2]
+            time = columns.pop("time", master)
+            if "time" not in self.mapped:
+                units["time"] = None
+            inside = np.ones(time.size, bool)
+            for r, resampler in foreign.items():
+                columns[r], ok = resampler.at(time)
+                inside &= ok
+                units.setdefault(r, self._unit_of(where[r]))  # type: ignore[arg-type]
+            if scales is None:
+                scales = channel_scales(self.path, self.columns, units, self.units, self.motor_cpr, self.load_cpr)
+            self.counters.frames += time.size
+            self.counters.skipped += int(np.count_nonzero(~inside))
+            arrays = [time if scales[0] == 1.0 else time * scales[0], columns["motor"], columns["load"]]
+            if has_torque:
+                arrays.append(columns["torque"] * scales[3])
+            numbers = np.arange(row, row + time.size)
+            row += time.size
+            if not inside.all():
+                arrays, numbers = [a[inside] for a in arrays], numbers[inside]
+            chunk, last_time = self._validate_columns(arrays, numbers, last_time, scales[1:3])
+            if len(chunk):
+                yield chunk
+
+    @staticmethod
+    def _records(streams: dict[str, Iterator[_Fragment]]) -> Iterator[dict[str, _Fragment | None]]:
+        """One fragment of each channel of the motor's group at a time, until the motor's end."""
+        while True:
+            blocks = {r: next(s, None) for r, s in streams.items()}
+            if blocks["motor"] is None:
+                return
+            yield blocks
+
+    def _unit_of(self, where: tuple[int, int]) -> str | None:
+        channel = self._mdf.groups[where[0]].channels[where[1]]
+        return getattr(channel, "unit", None)
+
+
+def describe(path: str | os.PathLike[str]) -> list[ChannelInfo]:
+    """Every channel of an MDF file with its group, unit, sample count and rate (``inspect``)."""
+    path = os.fspath(path)
+    mdf, stream = _open_mdf(path)
+    try:
+        infos = []
+        for g, group in enumerate(mdf.groups):
+            records = int(group.channel_group.cycles_nr)
+            rate = _group_rate(mdf, g, records)
+            for channel in group.channels:
+                dtype = f"{_DATA_TYPES.get(channel.data_type, 'bytes')}{channel.bit_count}"
+                infos.append(ChannelInfo(channel.name, dtype, records, g, channel.unit or "", rate))
+        return infos
+    except LogFormatError:
+        raise
+    except Exception as exc:
+        raise LogFormatError(path, None, f"not a readable MDF file ({type(exc).__name__}: {exc})") from exc
+    finally:
+        mdf.close()
+        stream.close()
+
+
+#: MDF4 channel data types (little/big endian) -> numpy-like kind names, for ``inspect``.
+_DATA_TYPES = {0: "uint", 1: "uint", 2: "int", 3: "int", 4: "float", 5: "float"}
+
+
+def _group_rate(mdf: Any, group: int, records: int) -> float | None:
+    """Sampling rate of a channel group from its master channel's first two samples, Hz."""
+    if records < 2:
+        return None
+    master = mdf.get_master(group, record_offset=0, record_count=min(records, 1000))
+    steps = np.diff(np.asarray(master, dtype=float))
+    steps = steps[steps > 0]
+    return float(f"{1.0 / np.median(steps):.6g}") if steps.size else None

@@ -1,0 +1,197 @@
+"""Parquet and Arrow IPC (Feather v2) tables as a sample source.
+
+Columns are named as in CSV logs (``time``, ``motor``, ``load``, optional ``torque``; ``columns=``
+maps other names). A ``timestamp`` or ``duration`` time column is converted to seconds; numeric
+columns are read as floats (a null is a non-finite value). A column's unit is taken from its
+field metadata key ``unit`` where present (else degrees, seconds, N m), and ``units=`` overrides
+the angles' units (:func:`~online_backlash.replay.tabular.channel_scales`).
+
+Parquet files stream by batches of ``block_rows`` (``ParquetFile.iter_batches``); Arrow IPC
+files (``.arrow``, ``.feather``, ``.ipc``) by their record batches, memory-mapped. A file
+pyarrow cannot read raises :class:`~online_backlash.errors.LogFormatError` naming the file
+(and the row of the batch that failed).
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Iterator
+from typing import Any
+
+import numpy as np
+
+from online_backlash.errors import LogFormatError
+from online_backlash.stream import SampleChunk, StreamCounters
+
+from .tabular import ROLES, ChannelInfo, MeasurementLog, channel_scales, missing_channel
+
+#: Suffixes read as Arrow IPC files rather than Parquet.
+ARROW_SUFFIXES = (".arrow", ".feather", ".ipc")
+
+
+class _Table:
+    """One open Parquet or Arrow IPC file: its schema and its batches (pyarrow errors name the file)."""
+
+    def __init__(self, path: str) -> None:
+        import pyarrow as pa
+        import pyarrow.parquet as pq
+
+        self.path = path
+        self._arrow = os.path.splitext(path.lower())[1] in ARROW_SUFFIXES
+        try:
+            if self._arrow:
+                self._source = pa.memory_map(path, "r")
+                self._reader: Any = pa.ipc.open_file(self._source)
+            else:
+                self._source = open(path, "rb")
+                # unbuffered column reads, decoded on this thread: memory stays one row group (+ the batch)
+                self._reader = pq.ParquetFile(self._source, pre_buffer=False, buffer_size=1 << 20)
+            self.schema = self._reader.schema_arrow if not self._arrow else self._reader.schema
+        except OSError as exc:
+            if isinstance(exc, FileNotFoundError) or not os.path.isfile(path):
+                raise LogFormatError(path, None, f"cannot open: {exc.strerror or exc}") from exc
+            self.close()
+            raise LogFormatError(path, None, f"not a readable {'Arrow' if self._arrow else 'Parquet'} file ({exc})") from exc
+        except Exception as exc:  # pyarrow.ArrowInvalid and friends
+            self.close()
+            raise LogFormatError(path, None, f"not a readable {'Arrow' if self._arrow else 'Parquet'} file ({type(exc).__name__}: {exc})") from exc
+
+    @property
+    def rows(self) -> int:
+        if self._arrow:
+            return sum(self._reader.get_batch(i).num_rows for i in range(self._reader.num_record_batches))
+        return int(self._reader.metadata.num_rows)
+
+    def batches(self, names: list[str], block_rows: int) -> Iterator[Any]:
+        """Record batches of the named columns, at most ``block_rows`` rows each."""
+        row = 0
+        try:
+            if self._arrow:
+                for i in range(self._reader.num_record_batches):
+                    batch = self._reader.get_batch(i).select(names)
+                    for start in range(0, batch.num_rows, block_rows):
+                        part = batch.slice(start, block_rows)
+                        row += part.num_rows
+                        yield part
+            else:
+                for batch in self._reader.iter_batches(batch_size=block_rows, columns=names, use_threads=False):
+                    row += batch.num_rows
+                    yield batch
+        except (OSError, Exception) as exc:  # a damaged page or batch
+            if isinstance(exc, LogFormatError):
+                raise
+            raise LogFormatError(self.path, row, f"cannot read the rows after this one ({type(exc).__name__}: {exc})") from exc
+
+    def close(self) -> None:
+        source = getattr(self, "_source", None)
+        if source is not None:
+            source.close()
+
+
+def _unit(field: Any) -> str | None:
+    meta = field.metadata or {}
+    for key in (b"unit", b"units", b"unit_string"):
+        if key in meta:
+            return meta[key].decode("utf-8", "replace")
+    return None
+
+
+def _as_float(column: Any, role: str, name: str, path: str, row: int, origin: list[int]) -> np.ndarray:
+    """A column as float64 (null -> NaN); a timestamp or duration in seconds.
+
+    A timestamp counts from ``origin[0]`` (set to the first one seen: float64 seconds since 1970
+    would keep only about 0.2 us), in the column's own integer ticks until then.
+    """
+    import pyarrow as pa
+
+    kind = column.type
+    if pa.types.is_timestamp(kind) or pa.types.is_duration(kind):
+        per_second = {"s": 1, "ms": 1e3, "us": 1e6, "ns": 1e9}[kind.unit]
+        ticks = column.cast(pa.int64()).to_numpy(zero_copy_only=False)
+        if pa.types.is_timestamp(kind):
+            if not origin and len(ticks) and np.isfinite(ticks[0]):
+                origin.append(int(ticks[0]))
+            ticks = ticks - (origin[0] if origin else 0)
+        return ticks.astype(float) / per_second
+    if not (pa.types.is_integer(kind) or pa.types.is_floating(kind) or pa.types.is_boolean(kind)):
+        raise LogFormatError(path, row, f"{role} column {name!r} holds {kind} values, not numbers")
+    if column.null_count:
+        column = column.cast(pa.float64()).fill_null(float("nan"))
+    return column.to_numpy(zero_copy_only=False).astype(float, copy=False)
+
+
+class ParquetLog(MeasurementLog):
+    """A Parquet or Arrow IPC table replayed as a stream of samples.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        ``.parquet`` (or ``.pq``), ``.arrow``, ``.feather``, ``.ipc``.
+    columns : dict, optional
+        Role -> column name for ``time``, ``motor``, ``load`` and ``torque`` (optional).
+    units : str, optional
+        Overrides the motor and load columns' units (default: field metadata ``unit``, else degrees).
+    motor_cpr, load_cpr : float, optional
+        Counts per revolution of columns in encoder counts.
+    skip_bad : bool
+        Count and skip rows with non-finite values or a time that goes backwards instead of raising.
+    block_rows : int
+        Rows read at once (memory stays bounded by it).
+
+    Attributes
+    ----------
+    counters : StreamCounters
+        ``frames`` counts rows read; ``frames == samples + corrupt``.
+    nominal_period_s : float or None
+        The median time step of the first block, seconds.
+    """
+
+    _table: _Table
+
+    def _open(self) -> tuple[Any, ...]:
+        self._table = _Table(self.path)
+        return (self._table,)
+
+    def _read(self) -> Iterator[SampleChunk]:
+        self.counters = StreamCounters()
+        table = self._table
+        names = table.schema.names
+        roles = []
+        for role in ROLES:
+            if self.columns[role] in names:
+                roles.append(role)
+            elif role != "torque" or role in self.mapped:
+                raise missing_channel(self.path, role, self.columns[role], names, kind="column")
+        fields = {r: table.schema.field(self.columns[r]) for r in roles}
+        units = {r: _unit(fields[r]) for r in roles}
+        scales = channel_scales(self.path, self.columns, units, self.units, self.motor_cpr, self.load_cpr)
+        has_torque = "torque" in roles
+        last_time = -np.inf
+        for row, arrays in self._arrays(table, roles):
+            if scales[0] != 1.0:
+                arrays[0] = arrays[0] * scales[0]
+            if has_torque and scales[3] != 1.0:
+                arrays[3] = arrays[3] * scales[3]
+            size = arrays[0].size
+            self.counters.frames += size
+            chunk, last_time = self._validate_columns(arrays, np.arange(row, row + size), last_time, scales[1:3])
+            if len(chunk):
+                yield chunk
+
+    def _arrays(self, table: _Table, roles: list[str]) -> Iterator[tuple[int, list[np.ndarray]]]:
+        """(first row, float arrays in ``roles`` order) per batch."""
+        row = 0
+        origin: list[int] = []  # the first timestamp, for a timestamp time column
+        for batch in table.batches([self.columns[r] for r in roles], self.block_rows):
+            yield row, [_as_float(batch.column(i), r, self.columns[r], self.path, row, origin) for i, r in enumerate(roles)]
+            row += batch.num_rows
+
+
+def describe(path: str | os.PathLike[str]) -> list[ChannelInfo]:
+    """Every column of a Parquet or Arrow file with its type, row count and unit metadata (``inspect``)."""
+    table = _Table(os.fspath(path))
+    try:
+        rows = table.rows
+        return [ChannelInfo(field.name, str(field.type), rows, None, _unit(field)) for field in table.schema]
+    finally:
+        table.close()

@@ -1,0 +1,117 @@
+"""Gap detection: the one rule of every source (CAN and serial frames, live and replayed, and CSV rows).
+
+A gap is reported when a rolling counter skips values, or when a time step is longer than
+:data:`~online_backlash.stream.GAP_PERIODS` nominal periods (:func:`step_is_gap`; the samples
+missing in it: :func:`missing_in_step`). The nominal period is given, or learnt as the median of
+the first ``learn_steps`` steps without a counter jump; until it is known, only counter jumps are
+gaps. :class:`GapDetector` applies the rule sample by sample (:meth:`GapDetector.check`) or to a
+block of timestamps without counters (:meth:`GapDetector.check_times`, CSV rows; tested equal).
+The compiled pairing loop of CAN replay (:mod:`~online_backlash.codecs.blockpairing`) applies the
+same rule inside numba and is held equal to the per-frame path by ``tests/test_can_blocks.py``.
+"""
+
+from __future__ import annotations
+
+import statistics
+
+import numpy as np
+
+from online_backlash.errors import InvalidParameterError
+from online_backlash.stream import GAP_PERIODS, Gap
+
+
+def step_is_gap(dt: float | np.ndarray, period_s: float) -> bool | np.ndarray:
+    """True where a time step ``dt`` (seconds) is longer than ``GAP_PERIODS`` nominal periods."""
+    return dt > GAP_PERIODS * period_s
+
+
+def missing_in_step(dt: float, period_s: float) -> int:
+    """Samples missing in a step of ``dt`` seconds at a nominal period of ``period_s`` (rounded half to even)."""
+    return round(dt / period_s) - 1
+
+
+class GapDetector:
+    """Decide, sample by sample, whether samples are missing before this one.
+
+    Parameters
+    ----------
+    counter_modulus : int or None
+        The rolling counter wraps at this value (16 for a 4-bit counter); None when the
+        source has no counter (gaps are then found from time steps only).
+    period_s : float or None
+        Nominal sample period, seconds; None to learn it from the first ``learn_steps`` steps.
+    learn_steps : int
+        Steps used to learn the period.
+
+    Examples
+    --------
+    >>> gaps = GapDetector(period_s=0.001)
+    >>> [gaps.check(t) for t in (0.0, 0.001, 0.002)]
+    [None, None, None]
+    >>> gaps.check(0.010)
+    Gap(time_s=0.01, duration_s=0.008, missing=7)
+    """
+
+    def __init__(self, counter_modulus: int | None = None, period_s: float | None = None, learn_steps: int = 16) -> None:
+        if counter_modulus is not None and counter_modulus < 2:
+            raise InvalidParameterError(f"counter_modulus must be >= 2 or None, got {counter_modulus!r}")
+        if period_s is not None and not period_s > 0:
+            raise InvalidParameterError(f"period_s must be positive or None, got {period_s!r}")
+        self.counter_modulus = counter_modulus
+        self.period_s = period_s
+        self.learn_steps = int(learn_steps)
+        self._steps: list[float] = []
+        self._last_time: float | None = None
+        self._last_counter: int | None = None
+
+    def check(self, time_s: float, counter: int | None = None) -> Gap | None:
+        """Register the next sample (time in seconds); return the gap before it, if any."""
+        last_time, last_counter = self._last_time, self._last_counter
+        self._last_time, self._last_counter = time_s, counter
+        if last_time is None:
+            return None
+        dt = time_s - last_time
+        missing = 0
+        if self.counter_modulus is not None and counter is not None and last_counter is not None:
+            missing = (counter - last_counter - 1) % self.counter_modulus
+        if self.period_s is None:
+            if missing == 0:
+                self._learn([dt])
+            return Gap(time_s, dt, missing) if missing else None
+        if missing or step_is_gap(dt, self.period_s):
+            return Gap(time_s, dt, max(missing, missing_in_step(dt, self.period_s)))
+        return None
+
+    def check_times(self, time_s: np.ndarray) -> tuple[np.ndarray, list[Gap]]:
+        """:meth:`check` for a block of timestamps (seconds) without counters.
+
+        Returns ``after_gap`` (True where a gap precedes the sample) and the gaps, in order.
+        """
+        n = time_s.shape[0]
+        after_gap = np.zeros(n, dtype=bool)
+        if n == 0:
+            return after_gap, []
+        previous = np.empty(n)
+        previous[0] = np.nan if self._last_time is None else self._last_time
+        previous[1:] = time_s[:-1]
+        dt = time_s - previous
+        first = 0 if self._last_time is not None else 1
+        self._last_time, self._last_counter = float(time_s[-1]), None
+        while self.period_s is None and first < n:
+            take = min(self.learn_steps - len(self._steps), n - first)
+            self._learn(dt[first : first + take].tolist())
+            first += take
+        if self.period_s is None or first >= n:
+            return after_gap, []
+        index = first + np.flatnonzero(step_is_gap(dt[first:], self.period_s))
+        after_gap[index] = True
+        period = self.period_s
+        return after_gap, [Gap(t, d, missing_in_step(d, period)) for t, d in zip(time_s[index].tolist(), dt[index].tolist())]
+
+    def _learn(self, steps: list[float]) -> None:
+        """Take steps (seconds) towards the learnt period: the median of the first ``learn_steps`` (again if not positive)."""
+        self._steps.extend(steps)
+        if len(self._steps) == self.learn_steps:
+            median = statistics.median(self._steps)
+            self.period_s = median if median > 0 else None
+            self._steps.clear()

@@ -1,0 +1,560 @@
+"""The declared base of the recursive (online) estimators, river style: ``learn_one`` / ``learn_many``.
+
+:class:`RecursiveEstimator` holds the parameters every recursive estimator shares, the warm-up
+buffer, the dispatch of ``learn_one`` (interpreted) and ``learn_many`` (compiled), gaps, the
+saved state and ``clone``; an estimator fills in the hooks it declares abstract (its own
+parameters, warm fit, start, the two learning paths, its attributes). All state is created in
+:meth:`RecursiveEstimator.reset` (called by ``__init__``); the parameters are validated on the
+first ``learn_one`` / ``learn_many`` (scikit-learn style).
+
+Start: the paper's batch algorithm fitted on the first stretch of data that reverses (a *warm
+start*), or a saved state (:meth:`~RecursiveEstimator.state_dict` /
+:meth:`~RecursiveEstimator.from_state`). Samples buffered during the warm-up are then replayed
+with the parameters held at the batch estimate, which gathers their information (covariance,
+residual variance, reversals): none is lost or counted twice, and a few slow, coarsely quantised
+first samples cannot override the fit of the whole buffer.
+
+Units: ``u`` and ``y`` share one unit (degrees, load side, in this package); times in seconds;
+torque in N m.
+"""
+
+from __future__ import annotations
+
+import copy
+import inspect
+import itertools
+import math
+import warnings
+from abc import ABC, abstractmethod
+from collections.abc import Callable, Sequence
+from typing import Any, Generic, TypeVar
+
+import numpy as np
+
+from ..effect_terms import EffectTerms
+from ..errors import ConvergenceWarning, InvalidParameterError, NotExcitedError, NotFittedError
+from ._effect_stream import EffectStream, check_effects, effects_from_records
+from ._validation import check_int, check_option, check_real
+
+_STARTS = ("batch", "cold")
+_ORIGINS = ("first", "zero")
+_WARM_ATTEMPTS = 4  # batch attempts (at 1x..4x warm_start_samples) before a cold start
+#: 3: effects saved by name and parameters, with the samples that restore their history
+#: (2, still read: effects by name only; 2 added the model's output X_HAT to the BacklashRLS state)
+STATE_FORMAT = 3
+_READ_FORMATS = (2, 3)
+_BUFFER_KEYS = ("u", "y", "gap", "time", "torque")
+
+T = TypeVar("T")
+
+
+def memory_factors(memory_s: float | None, memory_reversals: float | None, sample_period_s: float) -> tuple[float, float]:
+    """Forgetting factors per update and per reversal: ``exp(-dt / memory_s)``, ``exp(-1 / memory_reversals)``."""
+    lam = 1.0 if memory_s is None else math.exp(-sample_period_s / memory_s)
+    lam_rev = 1.0 if memory_reversals is None else math.exp(-1.0 / memory_reversals)
+    return lam, lam_rev
+
+
+def finite(name: str, value: float) -> float:
+    """``value`` as a float; InvalidParameterError if it is not finite (NaN never reaches an estimator)."""
+    v = float(value)
+    if not math.isfinite(v):
+        raise InvalidParameterError(f"{name} must be finite, got {value!r}")
+    return v
+
+
+def finite_array(name: str, value: Any) -> np.ndarray:
+    """``value`` as a contiguous float array; InvalidParameterError naming the first non-finite index."""
+    arr = np.ascontiguousarray(value, dtype=float)
+    # a finite sum (one pass, no temporary) proves every value finite; else look closer
+    if not math.isfinite(float(np.sum(arr))) and not np.all(np.isfinite(arr)):
+        raise InvalidParameterError(f"{name} has non-finite values, first at index {int(np.flatnonzero(~np.isfinite(arr))[0])}")
+    return arr
+
+
+class StateField(Generic[T]):
+    """A fitted attribute that reads one named field of the compiled state vector.
+
+    The field's offset comes from the estimator class's ``_layout`` (:mod:`._layout`), so one
+    declaration serves estimators whose state vectors differ; reading it before the estimator
+    has started raises NotFittedError.
+    """
+
+    def __init__(self, field: str, cast: Callable[[float], T], doc: str) -> None:
+        self.field = field
+        self.cast = cast
+        self.__doc__ = doc
+
+    def __set_name__(self, owner: type, name: str) -> None:
+        self.name = name
+
+    def __get__(self, obj: RecursiveEstimator | None, owner: Any) -> Any:
+        if obj is None:
+            return self
+        obj._check_started()
+        return self.cast(obj._st[getattr(owner._layout, self.field)])
+
+
+class RecursiveEstimator(ABC):
+    """Warm-up buffer, learn_one/learn_many dispatch, gaps, saved state and clone.
+
+    Parameters shared by every recursive estimator (see :class:`~.backlash_rls.BacklashRLS`):
+    ``memory_s``, ``memory_reversals``, ``sample_period_s``, ``start``, ``warm_start_samples``,
+    ``origin``, ``noise_window``. A subclass stores its own parameters in ``__init__``, then
+    passes the shared ones to this ``__init__`` (which calls :meth:`reset`), and declares
+    ``_layout`` and ``_consts`` (offsets of its state and constants vectors, with fields
+    ``N_SEEN``, ``U0``, ``Y0``, ``NOISE_VAR``, ``N_REV`` and ``FREEZE``).
+    """
+
+    memory_s: float | None
+    memory_reversals: float | None
+    sample_period_s: float
+    start: str
+    warm_start_samples: int
+    origin: str
+    noise_window: int
+    effects: Sequence[EffectTerms] | None = None
+    _layout: Any
+    _consts: Any
+
+    u_ref_ = StateField("U0", float, 'Reference origin of the input (first input with ``origin="first"``, else 0).')
+    y_ref_ = StateField("Y0", float, "Reference origin of the output.")
+    noise_var_ = StateField("NOISE_VAR", float, "Online estimate of the output noise variance, output units squared.")
+    n_reversals_ = StateField("N_REV", int, "Reversals of the input seen so far.")
+
+    def __init__(
+        self,
+        memory_s: float | None,
+        memory_reversals: float | None,
+        sample_period_s: float,
+        start: str,
+        warm_start_samples: int,
+        origin: str,
+        noise_window: int,
+    ) -> None:
+        """Store the shared parameters (after the subclass stored its own) and :meth:`reset`."""
+        self.memory_s = memory_s
+        self.memory_reversals = memory_reversals
+        self.sample_period_s = sample_period_s
+        self.start = start
+        self.warm_start_samples = warm_start_samples
+        self.origin = origin
+        self.noise_window = noise_window
+        self.reset()
+
+    # -- hooks -----------------------------------------------------------------------------------
+    @abstractmethod
+    def _validate(self) -> None:
+        """Check the estimator's own parameters (after :meth:`_validate_common`)."""
+
+    @abstractmethod
+    def _warm_fit(self, uc: np.ndarray, yc: np.ndarray, terms: np.ndarray) -> tuple[Any, int]:
+        """The batch fit on the buffer (reference-origin coordinates): ``(start values, n_iter)``."""
+
+    @abstractmethod
+    def _cold_params(self, u: np.ndarray | None, y: np.ndarray | None) -> Any:
+        """Start values without a batch fit (``start="cold"``, or the warm start failed)."""
+
+    @abstractmethod
+    def _constants(self) -> list[float]:
+        """The constants vector of the kernels, from the parameters."""
+
+    @abstractmethod
+    def _initial_state(self, start: Any) -> list[float]:
+        """The state vector at the start, from start values."""
+
+    @abstractmethod
+    def _learn_py(self, u: float, y: float, t: float, q: float) -> None:
+        """One sample by the interpreted step (the readable reference)."""
+
+    @abstractmethod
+    def _learn_arrays(self, u: np.ndarray, y: np.ndarray, gap: np.ndarray, t: np.ndarray | None, q: np.ndarray | None) -> None:
+        """Consecutive samples by the compiled loop; the same estimates as :meth:`_learn_py`
+        (time ``t`` and torque ``q`` are given where there are effects, else None)."""
+
+    @abstractmethod
+    def _gap_now(self) -> None:
+        """The next sample is not read as motion from the previous one."""
+
+    @property
+    @abstractmethod
+    def theta_(self) -> np.ndarray:
+        """The parameter vector of the paper (reference-origin coordinates)."""
+
+    @property
+    @abstractmethod
+    def c_left_(self) -> float:
+        """Distance to the left flank, input units."""
+
+    @property
+    @abstractmethod
+    def c_right_(self) -> float:
+        """Distance to the right flank, input units."""
+
+    @property
+    @abstractmethod
+    def backlash_(self) -> float:
+        """The play, input units."""
+
+    @property
+    @abstractmethod
+    def backlash_std_(self) -> float:
+        """Standard error of ``backlash_``, input units."""
+
+    @abstractmethod
+    def predict_one(self, u: float) -> float:
+        """One-step-ahead output."""
+
+    # -- parameters and state --------------------------------------------------------------------
+    def get_params(self) -> dict[str, Any]:
+        """The constructor arguments (river's parameters, read from the ``__init__`` signature)."""
+        names = [p for p in inspect.signature(type(self).__init__).parameters if p != "self"]
+        return {name: getattr(self, name) for name in names}
+
+    def clone(self) -> RecursiveEstimator:
+        """A fresh, unfitted estimator with the same settings (river's ``clone``); effects are
+        copied fresh (same parameters, no stream history)."""
+        params = self.get_params()
+        if params.get("effects"):
+            params["effects"] = [_fresh(e) for e in params["effects"]]
+        return type(self)(**params)
+
+    def reset(self) -> None:
+        """Forget everything learned: the state after ``__init__`` (parameters kept)."""
+        self._validated = False
+        self._started = False
+        self._st: list[float] = []
+        self._c: list[float] = []
+        self._c_arr = np.empty(0)
+        self._fx = EffectStream(list(self.effects or []))  # checked with the parameters
+        self._pending_gap = False
+        self._buf: dict[str, list] = {k: [] for k in _BUFFER_KEYS}
+        self._next_attempt = self.warm_start_samples
+        self._attempts = 0
+        self.warm_start_: dict[str, Any] = {}
+        self._reset_own()
+
+    @abstractmethod
+    def _reset_own(self) -> None:
+        """Create the estimator's own state beside the shared one."""
+
+    def _validate_common(self) -> None:
+        if self.memory_s is not None:
+            check_real("memory_s", self.memory_s, 0.0)
+        if self.memory_reversals is not None:
+            check_real("memory_reversals", self.memory_reversals, 0.0)
+        check_real("sample_period_s", self.sample_period_s, 0.0)
+        check_option("start", self.start, _STARTS)
+        check_option("origin", self.origin, _ORIGINS)
+        check_int("warm_start_samples", self.warm_start_samples, 8)
+        check_int("noise_window", self.noise_window, 1)
+
+    def _ensure_valid(self) -> None:
+        """Validate the parameters on the first call that learns (a cold start begins then)."""
+        if self._validated:
+            return
+        self._validate_common()
+        self._validate()
+        check_effects(self._fx.effects)
+        self._validated = True
+        if self.start == "cold" and not self._started:
+            self._begin(self._cold_params(None, None))
+
+    def _begin(self, start: Any) -> None:
+        """Set the constants and the state from start values, and start."""
+        self._c = self._constants()
+        self._c_arr = np.asarray(self._c)
+        self._st = self._initial_state(start)
+        self._started = True
+
+    # -- public learning API ---------------------------------------------------------------------
+    def mark_gap(self) -> None:
+        """The source saw a gap: the next sample is not read as motion from the previous one."""
+        self._ensure_valid()
+        if self._started:
+            self._gap_now()
+        else:
+            self._pending_gap = True
+
+    def learn_one(self, u: float, y: float, *, time_s: float | None = None, torque_Nm: float | None = None) -> None:
+        """Learn one sample: input ``u`` (motor angle referred to the load side) and output ``y`` (load angle).
+
+        ``time_s`` (s) and ``torque_Nm`` (N m) are passed to the effects (if any); without
+        ``time_s`` the time is ``n_samples_seen_ * sample_period_s``.
+
+        Raises
+        ------
+        InvalidParameterError
+            If ``u`` or ``y`` is not finite (NaN is never absorbed).
+        """
+        self._ensure_valid()
+        u, y = finite("u", u), finite("y", y)
+        t = self._time(time_s)
+        q = math.nan if torque_Nm is None else float(torque_Nm)
+        if not self._started:
+            self._buffer([u], [y], [self._pending_gap], [t], [q])
+            self._pending_gap = False
+            if len(self._buf["u"]) >= self._next_attempt:
+                self._try_start(compiled=False)
+            return
+        self._learn_py(u, y, t, q)
+
+    def learn_many(
+        self,
+        u: np.ndarray,
+        y: np.ndarray,
+        after_gap: np.ndarray | None = None,
+        *,
+        time_s: np.ndarray | None = None,
+        torque_Nm: np.ndarray | None = None,
+    ) -> None:
+        """Learn consecutive samples (arrays); the same estimates as a loop of :meth:`learn_one`.
+
+        ``after_gap[i]`` True means samples are missing just before ``i`` (as :meth:`mark_gap`).
+        Runs compiled (numba) where the estimator has a compiled loop.
+
+        Raises
+        ------
+        InvalidParameterError
+            If the arrays differ in shape or ``u`` or ``y`` has a non-finite value.
+        """
+        self._ensure_valid()
+        u = finite_array("u", u)
+        y = finite_array("y", y)
+        if u.ndim != 1 or u.shape != y.shape:
+            raise InvalidParameterError(f"u and y must be 1-D arrays of equal length, got shapes {u.shape} and {y.shape}")
+        n = u.size
+        gap = np.zeros(n, dtype=bool) if after_gap is None else np.ascontiguousarray(after_gap, dtype=bool)
+        if gap.shape != u.shape:
+            raise InvalidParameterError(f"after_gap must be as long as u, got {gap.size} and {n}")
+        if n and self._pending_gap:
+            gap = gap.copy()
+            gap[0] = True
+            self._pending_gap = False
+        n0 = self._n_seen_total()
+        time: np.ndarray | None = None if time_s is None else np.ascontiguousarray(time_s, dtype=float)
+        torque: np.ndarray | None = None if torque_Nm is None else np.ascontiguousarray(torque_Nm, dtype=float)
+
+        def times(lo: int, hi: int) -> tuple[np.ndarray, np.ndarray]:
+            """Time (default: ``n_samples_seen_ * sample_period_s``) and torque (default: NaN) of
+            samples ``lo:hi``, made only where the buffer or the effects need them."""
+            t = (n0 + np.arange(lo, hi, dtype=float)) * self.sample_period_s if time is None else time[lo:hi]
+            return t, np.full(hi - lo, np.nan) if torque is None else torque[lo:hi]
+
+        i = 0
+        while not self._started and i < n:
+            take = min(n - i, self._next_attempt - len(self._buf["u"]))
+            sl = slice(i, i + take)
+            t, q = times(i, i + take)
+            self._buffer(u[sl].tolist(), y[sl].tolist(), gap[sl].tolist(), t.tolist(), q.tolist())
+            i += take
+            if len(self._buf["u"]) >= self._next_attempt:
+                self._try_start(compiled=True)
+        if i < n:
+            if self._fx.effects:
+                self._learn_arrays(u[i:], y[i:], gap[i:], *times(i, n))
+            else:
+                self._learn_arrays(u[i:], y[i:], gap[i:], None, None)
+
+    def force_start(self) -> None:
+        """Run the warm start now on the samples buffered so far (e.g. at the end of a short log).
+
+        Raises
+        ------
+        NotExcitedError
+            When the buffered data do not excite both flanks.
+        """
+        self._ensure_valid()
+        if self._started:
+            return
+        if len(self._buf["u"]) < 8:
+            raise NotExcitedError(f"only {len(self._buf['u'])} samples buffered; need at least 8 to start")
+        self._try_start(compiled=True, fallback=False)
+
+    # -- warm start ------------------------------------------------------------------------------
+    def _n_seen_total(self) -> int:
+        return int(self._st[self._layout.N_SEEN]) if self._started else len(self._buf["u"])
+
+    def _time(self, time_s: float | None) -> float:
+        return self._n_seen_total() * self.sample_period_s if time_s is None else float(time_s)
+
+    def _buffer(self, u: list, y: list, gap: list, t: list, q: list) -> None:
+        for key, values in zip(_BUFFER_KEYS, (u, y, gap, t, q)):
+            self._buf[key].extend(values)
+
+    def _origin_of(self, u: np.ndarray, y: np.ndarray) -> tuple[float, float]:
+        return (float(u[0]), float(y[0])) if self.origin == "first" else (0.0, 0.0)
+
+    def _try_start(self, compiled: bool, fallback: bool = True) -> None:
+        """Fit the paper's batch algorithm to the buffer, start from it and learn the buffer recursively."""
+        u, y, t, q = (np.asarray(self._buf[k], dtype=float) for k in ("u", "y", "time", "torque"))
+        u0, y0 = self._origin_of(u, y)
+        # the longest gap-free stretch of the buffer
+        cuts = [0, *np.flatnonzero(np.asarray(self._buf["gap"][1:])) + 1, u.size]
+        lo, hi = max(itertools.pairwise(cuts), key=lambda ab: ab[1] - ab[0])
+        self._attempts += 1
+        terms = self._fx.terms(u[lo:hi], t[lo:hi], q[lo:hi])
+        self._fx.reset()  # the replay computes the terms again from the buffer's start
+        start: Any
+        try:
+            with warnings.catch_warnings(record=True) as caught:
+                warnings.simplefilter("always", ConvergenceWarning)
+                start, n_iter = self._warm_fit(u[lo:hi] - u0, y[lo:hi] - y0, terms)
+            self.warm_start_ = {
+                "method": "batch",
+                "samples": int(hi - lo),
+                "n_iter": n_iter,
+                "converged": not any(issubclass(w.category, ConvergenceWarning) for w in caught),
+            }
+        except (NotExcitedError, InvalidParameterError) as exc:
+            if not fallback:
+                raise NotExcitedError(f"warm start failed on {hi - lo} buffered samples: {exc}") from exc
+            if self._attempts < _WARM_ATTEMPTS:
+                self._next_attempt += self.warm_start_samples
+                return
+            start = self._cold_params(u[lo:hi] - u0, y[lo:hi] - y0)
+            self.warm_start_ = {"method": "cold", "samples": 0, "reason": str(exc)}
+        self._begin(start)
+        buf = self._buf
+        self._buf = {k: [] for k in buf}
+        self._replay(buf, compiled)
+
+    def _replay(self, buf: dict[str, list], compiled: bool) -> None:
+        """Learn the buffered samples (by the path of the call that triggered the start) with the
+        parameters held at the warm start: the replay only gathers their information (the
+        covariance, residual variance, reversals), so a few early samples cannot override the
+        fit of the whole buffer."""
+        self._set_freeze(True)
+        try:
+            if compiled:
+                u, y, gap, t, q = (np.asarray(buf[k], dtype=bool if k == "gap" else float) for k in _BUFFER_KEYS)
+                self._learn_arrays(u, y, gap, *((t, q) if self._fx.effects else (None, None)))
+            else:
+                for u, y, gap, t, q in zip(*(buf[k] for k in _BUFFER_KEYS)):
+                    if gap:
+                        self._gap_now()
+                    self._learn_py(u, y, t, q)
+        finally:
+            self._set_freeze(False)
+
+    def _set_freeze(self, freeze: bool) -> None:
+        self._c[self._consts.FREEZE] = 1.0 if freeze else 0.0
+        self._c_arr = np.asarray(self._c)
+
+    # -- saved state -----------------------------------------------------------------------------
+    @abstractmethod
+    def _extra_state(self) -> dict[str, Any]:
+        """The estimator's own state beside the state vector, JSON types."""
+
+    @abstractmethod
+    def _restore_extra(self, d: dict[str, Any]) -> None:
+        """Restore what :meth:`_extra_state` saved."""
+
+    def state_dict(self) -> dict[str, Any]:
+        """Settings, reference origin and learned state as plain JSON-serialisable types.
+
+        Effects are saved by name and parameters (:data:`online_backlash.effect_terms.EFFECTS`),
+        with the samples that restore their stream history, so :meth:`from_state` rebuilds them.
+        """
+        self._ensure_valid()
+        params = self.get_params()
+        if "effects" in params:
+            params["effects"] = self._fx.state_dict()["effects"]
+        d: dict[str, Any] = {
+            "estimator": type(self).__name__,
+            "format": STATE_FORMAT,
+            "params": params,
+            "started": self._started,
+            "warm_start": dict(self.warm_start_),
+        }
+        if self._started:
+            d["origin"] = {"u_ref": self.u_ref_, "y_ref": self.y_ref_}
+            d["state"] = [float(v) for v in self._st]
+            d.update(self._extra_state())
+            if self._fx.effects:
+                d["effects_stream"] = self._fx.state_dict()
+        else:
+            # NaN (no torque) is not JSON: saved as None
+            d["buffer"] = {k: [bool(v) if k == "gap" else (float(v) if math.isfinite(v) else None) for v in vals] for k, vals in self._buf.items()}
+            d["pending_gap"] = self._pending_gap
+            d["next_attempt"] = self._next_attempt
+            d["attempts"] = self._attempts
+        return d
+
+    @classmethod
+    def from_state(cls, d: dict[str, Any], effects: Sequence[EffectTerms] | None = None) -> RecursiveEstimator:
+        """Rebuild an estimator saved by :meth:`state_dict` (after a restart, without re-learning).
+
+        Effects are rebuilt from the registry by name, or taken from ``effects`` (whose names
+        must match the saved ones).
+        """
+        if d.get("estimator") != cls.__name__ or d.get("format") not in _READ_FORMATS:
+            raise InvalidParameterError(
+                f"not a saved {cls.__name__} state (format {STATE_FORMAT}): estimator={d.get('estimator')!r}, format={d.get('format')!r}"
+            )
+        params = dict(d["params"])
+        if "effects" in params:
+            params["effects"] = effects_from_records(params["effects"] or [], effects)
+        elif effects:
+            raise InvalidParameterError(f"a saved {cls.__name__} takes no effects")
+        est = cls(**params)
+        est._ensure_valid()
+        est.warm_start_ = dict(d.get("warm_start", {}))
+        if d["started"]:
+            est._begin(est._cold_params(None, None))
+            est._st = [float(v) for v in d["state"]]
+            est._restore_extra(d)
+            if "effects_stream" in d:
+                est._fx.restore(d["effects_stream"])
+        else:
+            est._started = False
+            est._buf = {k: [math.nan if v is None else v for v in vals] for k, vals in d["buffer"].items()}
+            est._pending_gap = bool(d["pending_gap"])
+            est._next_attempt = int(d["next_attempt"])
+            est._attempts = int(d["attempts"])
+        return est
+
+    # -- fitted attributes -----------------------------------------------------------------------
+    @property
+    def started(self) -> bool:
+        """True once the estimator has started (warm start done, cold start, or resumed state)."""
+        return self._started
+
+    def _check_started(self) -> None:
+        if not self._started:
+            raise NotFittedError(
+                f"this {type(self).__name__} has not started yet: it is buffering the warm start "
+                f"(warm_start_samples={self.warm_start_samples}); learn more samples or call force_start()"
+            )
+
+    @property
+    def n_samples_seen_(self) -> int:
+        """Samples learned so far (including those buffered for the warm start)."""
+        if not self._validated:
+            raise NotFittedError(f"this {type(self).__name__} has seen no sample yet")
+        return self._n_seen_total()
+
+    @property
+    def residual_rms_(self) -> float:
+        """``sqrt(noise_var_)``, output units."""
+        return math.sqrt(self.noise_var_)
+
+    @property
+    def m_left_(self) -> float:
+        """Slope of the left flank, eq. (1)."""
+        return float(self.theta_[0])
+
+    @property
+    def m_right_(self) -> float:
+        """Slope of the right flank, eq. (1)."""
+        return float(self.theta_[2])
+
+
+def _fresh(effect: EffectTerms) -> EffectTerms:
+    """A copy of ``effect`` with no stream history (its ``clone()`` if it has one)."""
+    clone = getattr(effect, "clone", None)
+    if clone is not None:
+        return clone()
+    fresh = copy.deepcopy(effect)
+    fresh.reset()
+    return fresh

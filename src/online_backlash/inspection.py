@@ -1,0 +1,178 @@
+"""What a recorded file holds, for ``online-backlash inspect``: columns, channels or CAN IDs.
+
+:func:`inspect_file` lists a CSV's or Parquet/Arrow table's columns (type, rows), an MDF file's
+channels (group, unit, rate, samples), a TDMS file's ``group/channel`` s (unit, length, rate),
+or the CAN IDs seen in a CAN log with their counts, rates and (with a DBC) message names, so a
+user with 400 channels finds the two to map with ``--columns``. Nothing is printed here.
+
+Examples
+--------
+>>> import tempfile, os
+>>> folder = tempfile.mkdtemp()
+>>> path = os.path.join(folder, "run.csv")
+>>> with open(path, "w") as f:
+...     _ = f.write("time,motor,load\\n0,0,0\\n0.001,0.1,0\\n")
+>>> summary = inspect_file(path)
+>>> summary.kind, [(c.name, c.dtype, c.samples) for c in summary.channels]
+('csv', [('time', 'float64', 2), ('motor', 'float64', 2), ('load', 'int64', 2)])
+"""
+
+from __future__ import annotations
+
+import csv
+import fnmatch
+import gzip
+import io
+import os
+from collections import Counter
+from dataclasses import asdict, dataclass, field, replace
+from typing import Any
+
+from .errors import LogFormatError
+from .replay.measurement import MEASUREMENT_READERS, is_measurement_log
+from .replay.paths import file_suffix
+from .replay.tabular import ChannelInfo
+
+__all__ = ["CanIdInfo", "ChannelInfo", "FileSummary", "inspect_file"]
+
+
+@dataclass(frozen=True)
+class CanIdInfo:
+    """One CAN ID seen in a log: ``frames`` frames at ``rate_hz`` (None for a single frame), DBC ``message`` name if known."""
+
+    can_id: int
+    extended: bool
+    frames: int
+    rate_hz: float | None = None
+    message: str | None = None
+
+    @property
+    def label(self) -> str:
+        """The ID as written in DBCs and candump: ``0x123`` or ``0x18FF0001x`` (extended)."""
+        return f"0x{self.can_id:08X}x" if self.extended else f"0x{self.can_id:03X}"
+
+
+@dataclass
+class FileSummary:
+    """What :func:`inspect_file` found in ``path`` (a file of format ``kind``)."""
+
+    path: str
+    kind: str
+    channels: list[ChannelInfo] = field(default_factory=list)
+    can_ids: list[CanIdInfo] = field(default_factory=list)
+    frames: int | None = None
+
+    def matching(self, pattern: str | None) -> FileSummary:
+        """The summary restricted to names matching a shell pattern (``*enc*``), case-insensitive; a plain word matches as a substring."""
+        if not pattern:
+            return self
+        glob = pattern.lower() if any(ch in pattern for ch in "*?[") else f"*{pattern.lower()}*"
+        return replace(
+            self,
+            channels=[c for c in self.channels if fnmatch.fnmatchcase(c.name.lower(), glob)],
+            can_ids=[i for i in self.can_ids if fnmatch.fnmatchcase(f"{i.label} {i.message or ''}".lower(), glob)],
+        )
+
+    def as_dict(self) -> dict[str, Any]:
+        """A JSON-ready dict: ``path``, ``kind``, ``channels`` or ``can_ids`` (and ``frames`` for CAN logs)."""
+        out: dict[str, Any] = {"path": self.path, "kind": self.kind}
+        if self.kind == "can":
+            out["frames"] = self.frames
+            out["can_ids"] = [{**asdict(i), "id": i.label} for i in self.can_ids]
+        else:
+            out["channels"] = [asdict(c) for c in self.channels]
+        return out
+
+
+def inspect_file(path: str | os.PathLike[str], dbc: str | os.PathLike[str] | None = None) -> FileSummary:
+    """List what the file at ``path`` holds (its format chosen as :func:`~online_backlash.replay.open_log` does).
+
+    ``dbc`` names the CAN IDs of a CAN log. Raises LogFormatError for a file that cannot be read
+    or a format with nothing to list (a raw serial capture).
+    """
+    path = os.fspath(path)
+    if not os.path.isfile(path):
+        raise LogFormatError(path, None, "no such file" if not os.path.exists(path) else "not a file: inspect one file")
+    suffix = file_suffix(path)
+    if suffix == ".csv":
+        return FileSummary(path, "csv", _csv_columns(path))
+    if is_measurement_log(path):
+        if suffix in (".mf4", ".mdf"):
+            from .replay.mdf import describe as mdf_channels
+
+            return FileSummary(path, "mdf", mdf_channels(path))
+        if suffix == ".tdms":
+            from .replay.tdms import describe as tdms_channels
+
+            return FileSummary(path, "tdms", tdms_channels(path))
+        from .replay.parquet import ARROW_SUFFIXES
+        from .replay.parquet import describe as table_columns
+
+        return FileSummary(path, "arrow" if suffix in ARROW_SUFFIXES else "parquet", table_columns(path))
+    from .replay.canlog import CAN_LOG_SUFFIXES
+
+    if suffix in CAN_LOG_SUFFIXES:
+        return _can_ids(path, dbc)
+    known = sorted({".csv", *MEASUREMENT_READERS, *CAN_LOG_SUFFIXES})
+    raise LogFormatError(path, None, f"inspect reads {', '.join(known)} files, not {suffix or 'files without a suffix'!r}")
+
+
+def _csv_columns(path: str, sample_rows: int = 10000) -> list[ChannelInfo]:
+    """The header's columns, each with the type pandas infers from the first rows and the file's data row count."""
+    import pandas as pd
+
+    def opener() -> io.TextIOBase:
+        if path.lower().endswith(".gz"):
+            return io.TextIOWrapper(gzip.open(path, "rb"), encoding="utf-8", newline="")
+        return open(path, encoding="utf-8", newline="")
+
+    try:
+        with opener() as f:
+            header = next(csv.reader([f.readline()]), [])
+            rows = sum(1 for line in f if line.strip())
+        with opener() as f:
+            head = pd.read_csv(f, nrows=sample_rows)
+    except (OSError, UnicodeDecodeError, EOFError, ValueError, pd.errors.ParserError) as exc:
+        raise LogFormatError(path, None, f"cannot read as CSV ({type(exc).__name__}: {exc})") from exc
+    if not [h for h in header if h.strip()]:
+        raise LogFormatError(path, 1, "empty file: expected a header row naming the columns")
+    dtypes = {str(k): str(v) if pd.api.types.is_numeric_dtype(v) else "string" for k, v in head.dtypes.items()}
+    return [ChannelInfo(name.strip(), dtypes.get(name, "object"), rows) for name in header]
+
+
+def _can_ids(path: str, dbc: str | os.PathLike[str] | None) -> FileSummary:
+    """Frames per CAN ID of a python-can log, with the DBC's message names."""
+    import can
+
+    names = _dbc_names(dbc) if dbc is not None else {}
+    counts: Counter[tuple[int, bool]] = Counter()
+    first: dict[tuple[int, bool], float] = {}
+    last: dict[tuple[int, bool], float] = {}
+    index = 0
+    try:
+        with can.LogReader(path) as reader:
+            for index, message in enumerate(reader):  # noqa: B007 (index names the failing frame)
+                if message.is_error_frame:
+                    continue
+                key = (message.arbitration_id, message.is_extended_id)
+                counts[key] += 1
+                first.setdefault(key, message.timestamp)
+                last[key] = message.timestamp
+    except Exception as exc:  # every python-can reader fails its own way on a damaged file
+        raise LogFormatError(path, index, f"cannot read the CAN log ({type(exc).__name__}: {exc})") from exc
+    ids = []
+    for (can_id, extended), n in sorted(counts.items()):
+        span = last[(can_id, extended)] - first[(can_id, extended)]
+        rate = float(f"{(n - 1) / span:.6g}") if n > 1 and span > 0 else None
+        ids.append(CanIdInfo(can_id, extended, n, rate, names.get((can_id, extended))))
+    return FileSummary(path, "can", can_ids=ids, frames=sum(counts.values()))
+
+
+def _dbc_names(dbc: str | os.PathLike[str]) -> dict[tuple[int, bool], str]:
+    import cantools
+
+    try:
+        database = cantools.database.load_file(os.fspath(dbc))
+    except Exception as exc:  # cantools raises its own parse errors and OSErrors
+        raise LogFormatError(dbc, None, f"cannot load the DBC ({type(exc).__name__}: {exc})") from exc
+    return {(m.frame_id, m.is_extended_frame): m.name for m in getattr(database, "messages", [])}

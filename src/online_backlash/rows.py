@@ -1,0 +1,188 @@
+"""The estimate row, declared once: every column of every output that carries an estimate.
+
+An estimate leaves the library in four shapes, and each is a contract (README; tests check
+them): the JSON of ``online-backlash estimate --json``, the CSV of ``estimate --trace``, the
+``estimates`` table of the wear-history store and the CSV of ``history --csv``. Each column is
+declared here once, in :data:`FIELDS` (name, type, unit, meaning); each output is a named
+selection of them (:data:`REPORT_KEYS`, :data:`TRACE_COLUMNS`, :data:`STORE_COLUMNS`,
+:data:`HISTORY_CSV_COLUMNS`), checked against the table when this module loads. New columns
+are added here; names are never changed.
+
+:class:`EstimateRow` is what the pipeline (:mod:`online_backlash.pipeline`) emits every N
+seconds of data: the recursive estimator's current estimate, stamped with the time of the
+last sample learned. Angles are degrees on the load side, times seconds.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass
+from typing import Any
+
+#: Arc minutes per degree.
+ARCMIN_PER_DEG = 60.0
+
+
+@dataclass(frozen=True)
+class RowField:
+    """One column of an estimate output.
+
+    Attributes
+    ----------
+    key : str
+        Unique key in :data:`FIELDS`.
+    name : str
+        The column name or JSON key (two fields may share a name in different outputs:
+        ``time`` is seconds in the trace and an ISO 8601 string in ``history --csv``).
+    kind : type
+        ``float``, ``int`` or ``str``.
+    unit : str
+        Unit ("" for a pure number).
+    doc : str
+        Meaning.
+    nullable : bool
+        May be missing (None / NULL / NaN) in a stored row.
+    """
+
+    key: str
+    name: str
+    kind: type
+    unit: str
+    doc: str
+    nullable: bool = False
+
+
+def _field(key: str, kind: type, unit: str, doc: str, nullable: bool = False, name: str | None = None) -> RowField:
+    return RowField(key, name or key, kind, unit, doc, nullable)
+
+
+#: Every column, by key.
+FIELDS: dict[str, RowField] = {
+    f.key: f
+    for f in (
+        _field("time_s", float, "s", "time of the last sample learned, on the source's clock", name="time"),
+        _field("time_iso", str, "", "time_unix_s as ISO 8601 (UTC)", name="time"),
+        _field("time_unix_s", float, "s", "calendar time of the last sample learned, UNIX seconds (UTC)"),
+        _field("sample_index", int, "", "samples of this run (log or live session) learned when the estimate was taken"),
+        _field("run_id", int, "", "the run (one log or live session) the estimate was taken in"),
+        _field("samples", int, "", "samples the estimator learned from this log"),
+        _field("n_samples", int, "", "samples the estimator learned since the gearbox was new"),
+        _field("method", str, "", "'recursive' (BacklashRLS) or 'batch' (VorosBacklash)"),
+        _field("backlash_deg", float, "deg", "total play c_left + c_right at the current output level (eq. 1)"),
+        _field("backlash_arcmin", float, "arcmin", "backlash_deg in arc minutes"),
+        _field("backlash_std_deg", float, "deg", "standard error of backlash_deg", nullable=True),
+        _field("backlash_std_arcmin", float, "arcmin", "backlash_std_deg in arc minutes", nullable=True),
+        _field("c_left_deg", float, "deg", "distance from the reference point to the left flank (eq. 1: c_L)", nullable=True),
+        _field("c_right_deg", float, "deg", "distance from the reference point to the right flank (eq. 1: c_R)", nullable=True),
+        _field("m_left", float, "", "slope of the left flank (eq. 1: m_L)", nullable=True),
+        _field("m_right", float, "", "slope of the right flank (eq. 1: m_R)", nullable=True),
+        _field("residual_rms_deg", float, "deg", "RMS of the one-step residual (eq. 14)", nullable=True),
+        _field("n_reversals", int, "", "reversals of the input the estimator saw", nullable=True),
+        _field("operating_hours", float, "h", "operating time since the gearbox was new (UsageCounter)"),
+        _field("load_revolutions", float, "rev", "load shaft travel since the gearbox was new (UsageCounter)"),
+        _field("reversals", int, "", "reversals since the gearbox was new (UsageCounter)"),
+    )
+}
+
+
+def _view(*keys: str) -> tuple[str, ...]:
+    """The column names of an output, from field keys (an unknown key fails at import)."""
+    return tuple(FIELDS[k].name for k in keys)
+
+
+#: Keys of ``estimate --json`` (and ``listen --json``), in this order; more may follow.
+REPORT_KEYS = _view(
+    "backlash_deg", "backlash_arcmin", "c_left_deg", "c_right_deg", "m_left", "m_right", "samples", "residual_rms_deg", "method"
+)
+#: Columns of the estimate-over-time trace (``estimate --trace``), in this order.
+TRACE_COLUMNS = _view("time_s", "backlash_deg", "backlash_std_deg", "c_left_deg", "c_right_deg", "m_left", "m_right")
+#: Columns of the store's ``estimates`` table that a tracker writes (besides ``gearbox_id``, ``run_id``), in table order.
+STORE_KEYS = (
+    "sample_index", "time_unix_s", "backlash_deg", "backlash_std_deg", "c_left_deg", "c_right_deg", "m_left", "m_right",
+    "residual_rms_deg", "n_samples", "operating_hours", "load_revolutions", "reversals",
+)
+STORE_COLUMNS = _view(*STORE_KEYS)
+#: Columns of ``history --csv``, in this order.
+HISTORY_CSV_COLUMNS = _view(
+    "time_iso", "time_unix_s", "operating_hours", "load_revolutions", "reversals", "backlash_deg", "backlash_std_deg",
+    "backlash_arcmin", "backlash_std_arcmin", "c_left_deg", "c_right_deg", "m_left", "m_right", "residual_rms_deg",
+    "n_samples", "run_id", "sample_index",
+)
+
+
+def arcmin(value_deg: float | None) -> float | None:
+    """Degrees to arc minutes (None stays None)."""
+    return None if value_deg is None else value_deg * ARCMIN_PER_DEG
+
+
+def select(columns: Iterable[str], values: Mapping[str, Any]) -> dict[str, Any]:
+    """``values`` restricted to ``columns``, in their order (a missing column raises KeyError)."""
+    return {name: values[name] for name in columns}
+
+
+@dataclass(frozen=True)
+class EstimateRow:
+    """The recursive estimator's estimate at one instant (see :data:`FIELDS` for each column).
+
+    ``time_s`` is the time of the last sample learned (the source's clock, seconds); angles in
+    degrees on the load side.
+    """
+
+    time_s: float
+    n_samples: int
+    backlash_deg: float
+    backlash_std_deg: float
+    c_left_deg: float
+    c_right_deg: float
+    m_left: float
+    m_right: float
+    residual_rms_deg: float
+    n_reversals: int
+
+    @classmethod
+    def from_estimator(cls, est: Any, time_s: float) -> EstimateRow | None:
+        """The current estimate of a started recursive estimator, or None while it has none.
+
+        ``est`` has the fitted attributes of :class:`~online_backlash.estimators.BacklashRLS`
+        (``started``, ``backlash_``, ``backlash_std_``, ``c_left_``, ``c_right_``, ``m_left_``,
+        ``m_right_``, ``residual_rms_``, ``n_samples_seen_``, ``n_reversals_``).
+        """
+        if not est.started:
+            return None
+        backlash = float(est.backlash_)
+        if not math.isfinite(backlash):
+            return None
+        return cls(
+            time_s=float(time_s),
+            n_samples=int(est.n_samples_seen_),
+            backlash_deg=backlash,
+            backlash_std_deg=float(est.backlash_std_),
+            c_left_deg=float(est.c_left_),
+            c_right_deg=float(est.c_right_),
+            m_left=float(est.m_left_),
+            m_right=float(est.m_right_),
+            residual_rms_deg=float(est.residual_rms_),
+            n_reversals=int(est.n_reversals_),
+        )
+
+    def values(self) -> dict[str, Any]:
+        """Every column this row knows, by column name (``time`` is ``time_s``)."""
+        return {
+            FIELDS["time_s"].name: self.time_s,
+            "n_samples": self.n_samples,
+            "backlash_deg": self.backlash_deg,
+            "backlash_arcmin": self.backlash_deg * ARCMIN_PER_DEG,
+            "backlash_std_deg": self.backlash_std_deg,
+            "backlash_std_arcmin": self.backlash_std_deg * ARCMIN_PER_DEG,
+            "c_left_deg": self.c_left_deg,
+            "c_right_deg": self.c_right_deg,
+            "m_left": self.m_left,
+            "m_right": self.m_right,
+            "residual_rms_deg": self.residual_rms_deg,
+            "n_reversals": self.n_reversals,
+        }
+
+    def trace(self) -> dict[str, float]:
+        """The row of ``estimate --trace`` (:data:`TRACE_COLUMNS`)."""
+        return select(TRACE_COLUMNS, self.values())

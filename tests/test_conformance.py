@@ -1,0 +1,192 @@
+"""One conformance suite for every recursive estimator (river's ``check_estimator`` habit).
+
+Each case is a factory of a configured estimator and the data it learns: BacklashRLS alone,
+BacklashRLS with effects (a delay, whose columns need a window of past samples, and a drift,
+which keeps the first time seen: both must survive a saved state), and CascadeRLS. Every
+estimator on :class:`~online_backlash.estimators.RecursiveEstimator` must pass all of it:
+
+* ``learn_many`` in chunks (edges before, inside and after the warm-up, with gaps) gives the
+  estimates of a ``learn_one`` loop with ``mark_gap``;
+* ``clone()`` is a fresh estimator with the same parameters that learns the same estimates;
+* the state saved as JSON, during the warm-up or after the start, continues bit for bit, and
+  effects come back by name (no effect objects passed);
+* a gap is not read as motion; a still input neither moves the estimate nor winds up the
+  covariance; a non-finite sample is refused with InvalidParameterError and changes nothing.
+"""
+
+from __future__ import annotations
+
+import itertools
+import json
+import math
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+import pytest
+
+from online_backlash import BacklashRLS, CascadeRLS
+from online_backlash.diagnostics.effects import Delay, Drift
+from online_backlash.errors import InvalidParameterError
+from online_backlash.estimators import RecursiveEstimator
+from online_backlash.model import BacklashParams, simulate_cascade
+from online_backlash.rig import simulate_rig
+
+
+@dataclass(frozen=True)
+class Case:
+    make: Callable[[], RecursiveEstimator]
+    u: np.ndarray
+    y: np.ndarray
+    time_s: np.ndarray
+    warm: int  # warm_start_samples of the estimator made
+    still_steps: int  # samples of the still input in the idle check
+
+
+def _rig_case(make: Callable[[], RecursiveEstimator], warm: int) -> Case:
+    rec = simulate_rig(duration_s=16.0, play_deg=0.5, seed=4)
+    return Case(make, rec.motor_deg / rec.ratio, rec.load_deg, rec.time_s, warm, 200_000)
+
+
+def _cascade_case() -> Case:
+    rng = np.random.default_rng(3)
+    u = rng.uniform(-1, 1, 2500)
+    y, _ = simulate_cascade(u, BacklashParams(1.3, 0.6, 2.0, 0.7), [0.5], [-0.2, 0.35])
+    y = y + rng.normal(0, np.std(y) / 25, y.size)
+    make = lambda: CascadeRLS(origin="zero", warm_start_samples=400, memory_s=0.5, memory_reversals=50)  # noqa: E731
+    return Case(make, u, y, np.arange(u.size) * 1e-3, 400, 50_000)
+
+
+CASES = {
+    "BacklashRLS": lambda: _rig_case(lambda: BacklashRLS(warm_start_samples=3000, memory_s=2.0), 3000),
+    "BacklashRLS+effects": lambda: _rig_case(
+        lambda: BacklashRLS(warm_start_samples=3000, memory_s=2.0, effects=[Delay(lag_step_samples=3), Drift(1, 30.0)]), 3000
+    ),
+    "CascadeRLS": _cascade_case,
+}
+
+
+@pytest.fixture(scope="module", params=sorted(CASES))
+def case(request) -> Case:
+    return CASES[request.param]()
+
+
+def _snapshot(est: RecursiveEstimator) -> np.ndarray:
+    extra = est.beta_ if isinstance(est, BacklashRLS) else np.empty(0)
+    fitted = [est.backlash_, est.backlash_std_, est.noise_var_, est.n_reversals_, est.n_samples_seen_]
+    return np.concatenate((est.theta_, est.P_.ravel(), fitted, extra))
+
+
+def _learn_many(est: RecursiveEstimator, case: Case, lo: int, hi: int, gap: np.ndarray | None = None) -> None:
+    est.learn_many(case.u[lo:hi], case.y[lo:hi], None if gap is None else gap[lo:hi], time_s=case.time_s[lo:hi])
+
+
+def _edges(n: int, warm: int) -> list[int]:
+    """Chunk edges before, at, inside and after the warm-up."""
+    cuts = sorted({1, warm // 2, warm - 1, warm, warm + 1, warm + 7, n // 2, n - 3})
+    return [0, *cuts, n]
+
+
+def _state(est: RecursiveEstimator) -> dict:
+    return json.loads(json.dumps(est.state_dict(), allow_nan=False))
+
+
+def test_learn_many_in_chunks_equals_a_learn_one_loop(case):
+    n = case.u.size
+    gap = np.zeros(n, dtype=bool)
+    gap[[case.warm // 3, case.warm + 500, n - 200]] = True
+    one = case.make()
+    for i in range(n):
+        if gap[i]:
+            one.mark_gap()
+        one.learn_one(case.u[i], case.y[i], time_s=case.time_s[i])
+    many = case.make()
+    edges = _edges(n, case.warm)
+    for lo, hi in itertools.pairwise(edges):
+        _learn_many(many, case, lo, hi, gap)
+    assert one.started and many.started and one.warm_start_["method"] == "batch"
+    np.testing.assert_allclose(_snapshot(many), _snapshot(one), rtol=1e-12, atol=1e-15)
+
+
+def test_clone_is_a_fresh_estimator_with_the_same_parameters(case):
+    est = case.make()
+    _learn_many(est, case, 0, case.u.size)
+    twin = est.clone()
+    assert type(twin) is type(est) and not twin.started
+    params, twin_params = est.get_params(), twin.get_params()
+    effects, twin_effects = params.pop("effects", None) or [], twin_params.pop("effects", None) or []
+    assert twin_params == params
+    assert [repr(e) for e in twin_effects] == [repr(e) for e in effects]
+    assert all(a is not b for a, b in zip(twin_effects, effects))
+    _learn_many(twin, case, 0, case.u.size)
+    np.testing.assert_array_equal(_snapshot(twin), _snapshot(est))
+
+
+@pytest.mark.parametrize("where", ["warm-up", "after-start"])
+def test_a_json_saved_state_continues_bit_for_bit(case, where):
+    n = case.u.size
+    split = case.warm // 2 if where == "warm-up" else case.u.size - 1234
+    whole = case.make()
+    _learn_many(whole, case, 0, n)
+    part = case.make()
+    _learn_many(part, case, 0, split)
+    resumed = type(part).from_state(_state(part))  # effects (if any) come back by name
+    assert resumed.started == (where == "after-start")
+    _learn_many(resumed, case, split, n)
+    np.testing.assert_array_equal(_snapshot(resumed), _snapshot(whole))
+    assert _state(resumed) == _state(whole)
+
+
+def test_a_saved_state_is_refused_by_another_estimator(case):
+    est = case.make()
+    other = CascadeRLS if isinstance(est, BacklashRLS) else BacklashRLS
+    with pytest.raises(InvalidParameterError, match=type(est).__name__):
+        other.from_state(_state(est))
+
+
+def test_a_gap_is_not_read_as_motion(case):
+    k = case.u.size - 2000  # started
+    est = case.make()
+    _learn_many(est, case, 0, k)
+    far_u, far_y = case.u[k - 1] + 50.0, case.y[k - 1] + 50.3  # a jump that no flank explains
+    blind = type(est).from_state(_state(est))
+    blind.learn_one(far_u, far_y, time_s=case.time_s[k])
+    assert not np.array_equal(blind.theta_, est.theta_)  # read as motion, the jump is learned
+    before = est.theta_
+    flagged = type(est).from_state(_state(est))
+    flagged.learn_many(np.array([far_u]), np.array([far_y]), np.array([True]), time_s=case.time_s[k : k + 1])
+    est.mark_gap()
+    est.learn_one(far_u, far_y, time_s=case.time_s[k])
+    np.testing.assert_array_equal(est.theta_, before)
+    np.testing.assert_array_equal(flagged.theta_, before)
+    assert est.n_samples_seen_ == flagged.n_samples_seen_ == k + 1
+
+
+def test_a_still_input_neither_moves_the_estimate_nor_winds_up(case):
+    est = case.make()
+    _learn_many(est, case, 0, case.u.size)
+
+    def still(m: int) -> None:
+        t = est.n_samples_seen_ * 1e-3 + np.arange(m) * 1e-3
+        est.learn_many(np.full(m, case.u[-1]), np.full(m, case.y[-1]), time_s=t)
+
+    still(100)  # longer than any estimator's memory of the motion (the cascade's n_a + n_b + 1 samples)
+    theta, trace = est.theta_, float(np.trace(est.P_))
+    still(case.still_steps)  # minutes: with forgetting per update on it, P would grow by e^100
+    np.testing.assert_array_equal(est.theta_, theta)
+    assert np.all(np.isfinite(est.P_)) and float(np.trace(est.P_)) <= 1.01 * trace
+
+
+@pytest.mark.parametrize("bad", [math.nan, math.inf, -math.inf])
+def test_non_finite_input_is_refused_and_changes_nothing(case, bad):
+    est = case.make()
+    _learn_many(est, case, 0, case.warm + 100)
+    saved = _state(est)
+    for u, y in ((bad, 0.0), (0.0, bad)):
+        with pytest.raises(InvalidParameterError, match="finite"):
+            est.learn_one(u, y)
+    u, y = case.u[:50].copy(), case.y[:50].copy()
+    y[17] = bad
+    with pytest.raises(InvalidParameterError, match="index 17"):
+        est.learn_many(u, y, time_s=case.time_s[:50])
+    assert _state(est) == saved

@@ -1,0 +1,144 @@
+"""Parquet and Arrow IPC tables, written by pyarrow in the tests, replayed as sample streams."""
+
+from __future__ import annotations
+
+import json
+import re
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.feather as feather
+import pyarrow.parquet as pq
+import pytest
+from hypothesis import given
+from hypothesis import strategies as st
+from measurement_cases import FUZZ, assert_same_estimate_as_csv, check_damaged_file, damaged, read_all, rig_recording
+
+from online_backlash.cli import main
+from online_backlash.errors import LogFormatError
+from online_backlash.replay import open_log
+from online_backlash.replay.parquet import ParquetLog
+
+MAP = {"time": "t", "motor": "m", "load": "l"}
+
+
+def small_table(n=200):
+    t = np.arange(n) * 1e-3
+    return pa.table({"t": t, "m": 30 * np.sin(t), "l": np.sin(t), "other": np.zeros(n)})
+
+
+@pytest.fixture
+def small(tmp_path):
+    path = tmp_path / "small.parquet"
+    pq.write_table(small_table(), path, row_group_size=64)
+    return path
+
+
+@pytest.mark.parametrize("suffix", [".parquet", ".arrow"])
+def test_estimate_equals_the_csv_of_the_same_recording(capsys, tmp_path, suffix):
+    rec = rig_recording()
+    table = pa.table({"time": rec.time_s, "motor": rec.motor_deg, "load": rec.load_deg})
+    path = tmp_path / f"rig{suffix}"
+    if suffix == ".arrow":
+        feather.write_feather(table, path, chunksize=5000)
+    else:
+        pq.write_table(table, path, row_group_size=7000)
+    assert_same_estimate_as_csv(capsys, tmp_path, rec, path)
+
+
+def test_round_trip_in_blocks_with_counters(small):
+    with ParquetLog(small, columns=MAP, block_rows=50) as log:
+        chunks = list(log.iter_chunks(max_samples=40))
+        counters = log.counters
+    assert max(len(c) for c in chunks) <= 40
+    time = np.concatenate([c.time_s for c in chunks])
+    np.testing.assert_allclose(time, np.arange(200) * 1e-3)
+    np.testing.assert_allclose(np.concatenate([c.motor_deg for c in chunks]), 30 * np.sin(time))
+    assert counters.frames == counters.samples == 200 and counters.corrupt == 0
+
+
+def test_timestamp_time_integer_counts_and_unit_metadata(tmp_path):
+    n = 100
+    stamps = pa.array(np.datetime64("2026-01-01T00:00:00") + np.arange(n) * np.timedelta64(2, "ms"), pa.timestamp("ms"))
+    schema = pa.schema(
+        [
+            pa.field("ts", pa.timestamp("ms")),
+            pa.field("enc_m", pa.int32(), metadata={"unit": "counts"}),
+            pa.field("enc_l", pa.float32(), metadata={"unit": "rad"}),
+        ]
+    )
+    table = pa.table([stamps, pa.array(np.arange(n, dtype=np.int32)), pa.array(np.full(n, np.pi / 2, np.float32))], schema=schema)
+    path = tmp_path / "typed.parquet"
+    pq.write_table(table, path)
+    values, _ = read_all(path, columns={"time": "ts", "motor": "enc_m", "load": "enc_l"}, motor_cpr=360)
+    np.testing.assert_allclose(np.diff(values[:, 0]), 2e-3)
+    np.testing.assert_allclose(values[:, 1], np.arange(n))
+    np.testing.assert_allclose(values[:, 2], 90.0, rtol=1e-6)
+    with pytest.raises(LogFormatError, match=r"motor channel 'enc_m' is in encoder counts"):
+        read_all(path, columns={"time": "ts", "motor": "enc_m", "load": "enc_l"})
+
+
+def test_missing_column_and_a_text_column(small, tmp_path):
+    with pytest.raises(LogFormatError, match=r"small\.parquet: no column 'moter' for motor \(closest: \['other'"):
+        read_all(small, columns={**MAP, "motor": "moter"})
+    path = tmp_path / "text.parquet"
+    pq.write_table(pa.table({"time": [0.0, 1.0], "motor": ["a", "b"], "load": [0.0, 1.0]}), path)
+    with pytest.raises(LogFormatError, match=r"text\.parquet:0: motor column 'motor' holds string values"):
+        read_all(path)
+
+
+def test_nulls_nan_and_backward_time_raise_or_are_counted(tmp_path):
+    t = np.arange(50) * 1e-3
+    t[30] = 0.0
+    load = pa.array([None if i == 12 else float(i) for i in range(50)])
+    motor = np.zeros(50)
+    motor[20] = np.inf
+    path = tmp_path / "bad.parquet"
+    pq.write_table(pa.table({"time": t, "motor": motor, "load": load}), path)
+    with pytest.raises(LogFormatError, match=r"bad\.parquet:12: non-finite value in load 'load'"):
+        read_all(path)
+    values, counters = read_all(path, skip_bad=True)
+    assert counters.corrupt == 3 and values.shape[0] == 47 and counters.frames == 50
+    assert np.all(np.isfinite(values[:, :3])) and np.all(np.diff(values[:, 0]) >= 0)
+
+
+@pytest.mark.parametrize("suffix", [".parquet", ".feather"])
+def test_a_truncated_file_is_a_log_format_error(tmp_path, suffix):
+    path = tmp_path / f"whole{suffix}"
+    (feather.write_feather if suffix == ".feather" else pq.write_table)(small_table(), path)
+    data = path.read_bytes()
+    for cut in (0, 7, len(data) // 2, len(data) - 3):
+        cut_path = tmp_path / f"cut{cut}{suffix}"
+        cut_path.write_bytes(data[:cut])
+        with pytest.raises(LogFormatError, match=str(cut_path)):
+            read_all(cut_path, columns=MAP)
+
+
+def test_open_log_picks_the_reader_by_suffix(small, tmp_path):
+    with open_log(small, columns=MAP) as log:
+        assert isinstance(log, ParquetLog)
+
+
+@pytest.mark.parametrize("suffix", [".parquet", ".arrow"])
+@FUZZ
+@given(data=st.data())
+def test_fuzz_bit_flips_and_truncation(tmp_path, suffix, data):
+    path = tmp_path / f"good{suffix}"
+    if not path.exists():
+        (feather.write_feather if suffix == ".arrow" else pq.write_table)(small_table(), path)
+    fuzz = tmp_path / f"fuzz{suffix}"
+    fuzz.write_bytes(damaged(path.read_bytes(), data.draw))
+    check_damaged_file(fuzz, columns=MAP)
+
+
+def test_track_and_diagnose_read_a_parquet_log(capsys, tmp_path):
+    rec = rig_recording()
+    path = tmp_path / "rig.parquet"
+    pq.write_table(pa.table({"t_s": rec.time_s, "enc_motor": rec.motor_deg, "enc_load": rec.load_deg}), path)
+    mapping = ["--columns", "time=t_s,motor=enc_motor,load=enc_load"]
+    assert main(["diagnose", str(path), "--ratio", "30", *mapping, "--json"]) == 0, capsys.readouterr().err
+    diagnosis = json.loads(capsys.readouterr().out)
+    assert diagnosis["samples"] == rec.time_s.size and abs(diagnosis["backlash_before_deg"] - 0.5) < 0.02
+    argv = ["track", str(path), "--ratio", "30", "--db", str(tmp_path / "wear.db"), "--gearbox", "gb1", "--every", "5", "--quiet", *mapping]
+    assert main(argv) == 0, capsys.readouterr().err
+    assert re.match(rf"gb1: {re.escape(str(path))}: {rec.time_s.size} samples, [1-9][0-9]* estimates added; backlash 0\.(49|50)", capsys.readouterr().out)
