@@ -3,7 +3,8 @@
 CAN frames go through python-can's own writers, rotated by :class:`can.SizedRotatingLogger`;
 serial bytes are appended verbatim. File names are ``<kind>-<UTC start>-<index>.<suffix>``
 (e.g. ``can-20261122T172650_123456Z-0000.blf``), so sorting the names of one directory gives
-the time order, and concatenating the files gives exactly the frames (CAN) or bytes (serial)
+the time order (:mod:`online_backlash.codecs.rawfiles` states the naming, which replay reads
+too), and concatenating the files gives exactly the frames (CAN) or bytes (serial)
 received. The file being written is ``<kind>-<UTC start>-active.<suffix>`` (it sorts after the
 numbered ones) and takes its number when rotated or closed. Nothing else is written there.
 """
@@ -11,27 +12,20 @@ numbered ones) and takes its number when rotated or closed. Nothing else is writ
 from __future__ import annotations
 
 import os
-from collections.abc import Iterable
 from datetime import datetime, timezone
 from pathlib import Path
 from typing import BinaryIO
 
 import can
 
+from online_backlash.codecs.rawfiles import SERIAL_SUFFIX, raw_log_files
 from online_backlash.errors import InvalidParameterError, SourceError
 
 CAN_RAW_FORMATS = ("blf", "asc", "log")
-SERIAL_SUFFIX = ".serial"
 
 
 def _start_stamp() -> str:
     return datetime.now(timezone.utc).strftime("%Y%m%dT%H%M%S_%fZ")
-
-
-def raw_log_files(directory: str | os.PathLike[str], suffixes: Iterable[str]) -> list[Path]:
-    """The capture files in ``directory`` with one of ``suffixes``, in time (= name) order."""
-    wanted = tuple(s.lower() for s in suffixes)
-    return sorted(p for p in Path(directory).iterdir() if p.is_file() and p.name.lower().endswith(wanted))
 
 
 class RawCanLog(can.Listener):

@@ -31,7 +31,7 @@ from cantools.database.can import Database
 from online_backlash.codecs.blockpairing import BlockPipeline, make_pipeline
 from online_backlash.codecs.dbc import DbcDecoder
 from online_backlash.codecs.pairing import CanCounters, FramePipeline
-from online_backlash.drivers.rawlog import raw_log_files
+from online_backlash.codecs.rawfiles import raw_log_files
 from online_backlash.errors import InvalidParameterError, LogFormatError
 from online_backlash.stream import SampleChunk, SampleSource, rechunk
 

@@ -14,8 +14,8 @@ import time
 from collections.abc import Iterator
 from pathlib import Path
 
+from online_backlash.codecs.rawfiles import SERIAL_SUFFIX, raw_log_files
 from online_backlash.codecs.serialframes import FrameParser, make_parser
-from online_backlash.drivers.rawlog import SERIAL_SUFFIX, raw_log_files
 from online_backlash.errors import InvalidParameterError, LogFormatError
 from online_backlash.stream import SampleChunk, SampleSource, StreamCounters, rechunk
 

@@ -219,9 +219,27 @@ def test_track_diagnose_keeps_the_effects_in_the_checkpoint(te_logs, tmp_path, c
 # -- who may import whom -------------------------------------------------------------------------
 
 
-def _imports(path: Path) -> set[str]:
-    """The online_backlash modules a source file imports (relative imports resolved)."""
-    package = ".".join(("online_backlash", *path.relative_to(PACKAGE).parent.parts))
+def _package_files() -> dict[str, list[Path]]:
+    """Installed package name -> its source files; ``drivers/`` and ``replay/`` are mapped into
+    ``online_backlash`` from the repository's top level, so they are walked from their own paths."""
+    import online_backlash.drivers
+    import online_backlash.replay
+
+    roots = {"online_backlash": PACKAGE}
+    roots.update({p.__name__: Path(p.__path__[0]).resolve() for p in (online_backlash.drivers, online_backlash.replay)})
+    files: dict[str, list[Path]] = {}
+    for name, root in roots.items():
+        for path in sorted(root.rglob("*.py")):
+            parts = path.relative_to(root).parent.parts
+            files.setdefault(".".join((name, *parts)), []).append(path)
+    return files
+
+
+FILES = _package_files()
+
+
+def _imports(package: str, path: Path) -> set[str]:
+    """The online_backlash modules a source file of ``package`` imports (relative imports resolved)."""
     out = set()
     for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
         if isinstance(node, ast.ImportFrom):
@@ -238,15 +256,48 @@ def _refers_to(imported: set[str], packages: tuple[str, ...]) -> list[str]:
     return sorted(m for m in imported if any(m == p or m.startswith(p + ".") for p in packages))
 
 
-def test_history_imports_no_reader_no_estimator_and_the_library_never_the_cli():
-    above_history = ("estimators", "replay", "drivers", "codecs", "pipeline", "tracking", "fitting", "cli", "diagnostics")
-    for path in sorted((PACKAGE / "history").glob("*.py")):
-        bad = _refers_to(_imports(path), tuple(f"online_backlash.{p}" for p in above_history))
-        assert not bad, f"{path.name} imports {bad}"
-    for path in sorted(PACKAGE.rglob("*.py")):
-        if "cli" in path.relative_to(PACKAGE).parts:
+def _layer_imports(layer: str) -> list[tuple[Path, set[str]]]:
+    """Every file of ``online_backlash.<layer>`` (a sub-package, or a module) with what it imports."""
+    name = f"online_backlash.{layer}"
+    found = [(path, _imports(pkg, path)) for pkg, paths in FILES.items() if pkg == name or pkg.startswith(name + ".") for path in paths]
+    module = PACKAGE / f"{layer}.py"
+    if module.exists():
+        found.append((module, _imports("online_backlash", module)))
+    assert found, f"no files for {name}"
+    return found
+
+
+#: docs/architecture.md, "Who may import whom": layer -> what it never imports
+NEVER_IMPORTS = {
+    "history": ("estimators", "replay", "drivers", "codecs", "pipeline", "tracking", "fitting", "diagnostics", "cli"),
+    "codecs": ("replay", "drivers", "estimators", "pipeline", "tracking", "history", "diagnostics", "fitting", "cli"),
+    "replay": ("drivers", "estimators", "pipeline", "tracking", "history", "diagnostics", "fitting", "cli"),
+    "drivers": ("replay", "estimators", "pipeline", "tracking", "history", "diagnostics", "fitting", "cli"),
+    "estimators": ("replay", "drivers", "codecs", "pipeline", "tracking", "history", "fitting", "cli"),
+    "stream": ("replay", "drivers", "codecs", "estimators", "pipeline", "tracking", "history", "diagnostics", "cli"),
+    "pipeline": ("replay", "drivers", "codecs", "tracking", "history", "cli"),
+    "rows": ("replay", "drivers", "codecs", "estimators", "pipeline", "tracking", "history", "diagnostics", "cli"),
+}
+
+
+@pytest.mark.parametrize("layer", sorted(NEVER_IMPORTS))
+def test_who_may_import_whom(layer):
+    forbidden = tuple(f"online_backlash.{p}" for p in NEVER_IMPORTS[layer])
+    for path, imported in _layer_imports(layer):
+        bad = _refers_to(imported, forbidden)
+        assert not bad, f"{path} ({layer}) imports {bad}"
+
+
+def test_the_library_never_imports_the_cli():
+    for package, paths in FILES.items():
+        if package == "online_backlash.cli" or package.startswith("online_backlash.cli."):
             continue
-        assert not _refers_to(_imports(path), ("online_backlash.cli",)), f"{path} imports the CLI"
+        for path in paths:
+            assert not _refers_to(_imports(package, path), ("online_backlash.cli",)), f"{path} imports the CLI"
+
+
+def test_the_import_rules_see_every_layer():
+    assert {"online_backlash.drivers", "online_backlash.replay", "online_backlash.codecs", "online_backlash.history"} <= set(FILES)
 
 
 def test_the_pipeline_modules_never_print():

@@ -6,7 +6,7 @@ import argparse
 import signal
 import threading
 from collections.abc import Callable
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 from ._common import can_decoding_options
 
@@ -19,34 +19,26 @@ def open_can_source(args: argparse.Namespace) -> LiveSource:
     from ..drivers.can import CanSource, open_bus
 
     bus = open_bus(args.interface, args.channel, args.bitrate)
-    return CanSource(
-        bus,
-        **can_decoding_options(args),
-        motor_cpr=args.motor_cpr,
-        load_cpr=args.load_cpr,
-        raw_log_dir=args.raw_log,
-        raw_format=args.raw_format,
-        period_s=args.period,
-        duration_s=args.duration,
-        timeout_s=args.timeout,
-    )
+    return CanSource(bus, **can_decoding_options(args), raw_format=args.raw_format, **_live_options(args))
 
 
 def open_serial_source(args: argparse.Namespace) -> LiveSource:
     """A :class:`~online_backlash.drivers.serial.SerialSource` from the options of ``listen serial``."""
     from ..drivers.serial import SerialSource
 
-    return SerialSource(
-        args.port,
-        args.baud,
-        args.serial_format,
-        motor_cpr=args.motor_cpr,
-        load_cpr=args.load_cpr,
-        raw_log_dir=args.raw_log,
-        period_s=args.period,
-        duration_s=args.duration,
-        timeout_s=args.timeout,
-    )
+    return SerialSource(args.port, args.baud, args.serial_format, **_live_options(args))
+
+
+def _live_options(args: argparse.Namespace) -> dict[str, Any]:
+    """The options every live source takes: counts per revolution, raw capture, period, duration, timeout."""
+    return {
+        "motor_cpr": args.motor_cpr,
+        "load_cpr": args.load_cpr,
+        "raw_log_dir": args.raw_log,
+        "period_s": args.period,
+        "duration_s": args.duration,
+        "timeout_s": args.timeout,
+    }
 
 
 def on_interrupt(stop: Callable[[], None]) -> Callable[[], None]:
