@@ -68,7 +68,7 @@ class CanSource(LiveSource):
     ----------
     bus : can.BusABC
         An open bus (see :func:`open_bus`); shut down by :meth:`close` if ``own_bus``.
-    dbc, motor_signal, load_signal, motor_cpr, load_cpr, counter_signal, checksum_signal
+    dbc, motor_signal, load_signal, motor_cpr, load_cpr, counter_signal, checksum_signal, units, wrap_deg
         See :class:`~online_backlash.codecs.dbc.DbcDecoder`.
     raw_log_dir : path, optional
         Write every frame received here first (:class:`~online_backlash.drivers.rawlog.RawCanLog`).
@@ -114,8 +114,10 @@ class CanSource(LiveSource):
         duration_s: float | None = None,
         timeout_s: float | None = None,
         own_bus: bool = True,
+        units: str | None = None,
+        wrap_deg: float | None = None,
     ) -> None:
-        decoder = DbcDecoder(dbc, motor_signal, load_signal, motor_cpr, load_cpr, counter_signal, checksum_signal)
+        decoder = DbcDecoder(dbc, motor_signal, load_signal, motor_cpr, load_cpr, counter_signal, checksum_signal, units, wrap_deg)
         self.pipeline = FramePipeline(decoder, period_s, max_skew_s, strict)
         self.counters: CanCounters = self.pipeline.counters
         self.bus = bus

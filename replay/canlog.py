@@ -53,7 +53,7 @@ class CanLog(SampleSource):
     path : path
         A ``.asc``, ``.blf``, ``.log`` (candump), ``.trc``, ``.db`` or ``.mf4`` file (``.gz`` too),
         or a directory whose CAN log files are read in name order (a ``--raw-log`` directory).
-    dbc, motor_signal, load_signal, motor_cpr, load_cpr, counter_signal, checksum_signal
+    dbc, motor_signal, load_signal, motor_cpr, load_cpr, counter_signal, checksum_signal, units, wrap_deg
         See :class:`~online_backlash.codecs.dbc.DbcDecoder`.
     period_s, max_skew_s, strict
         See :class:`~online_backlash.codecs.pairing.FramePipeline`.
@@ -88,11 +88,13 @@ class CanLog(SampleSource):
         strict: bool = False,
         skip_bad: bool = False,
         realtime: bool = False,
+        units: str | None = None,
+        wrap_deg: float | None = None,
     ) -> None:
         if dbc is None or motor_signal is None or load_signal is None:
             raise InvalidParameterError("a CAN log needs dbc, motor_signal and load_signal (--dbc, --motor-signal, --load-signal)")
         self.path = os.fspath(path)
-        self.decoder = DbcDecoder(dbc, motor_signal, load_signal, motor_cpr, load_cpr, counter_signal, checksum_signal)
+        self.decoder = DbcDecoder(dbc, motor_signal, load_signal, motor_cpr, load_cpr, counter_signal, checksum_signal, units, wrap_deg)
         self._pipeline_args = (period_s, max_skew_s, strict, realtime)
         self.skip_bad = skip_bad
         self.realtime = realtime

@@ -23,26 +23,13 @@ from typing import IO, Any
 import numpy as np
 
 from online_backlash.codecs.gaps import GapDetector
+from online_backlash.codecs.units import ANGLE_UNITS, COUNT_UNITS
 from online_backlash.errors import InvalidParameterError, LogFormatError
 from online_backlash.stream import SampleChunk, SampleSource, StreamCounters, rechunk
 
 ROLES = ("time", "motor", "load", "torque")
 REQUIRED = ("time", "motor", "load")
 
-#: Angle units (compared in lower case) -> degrees per unit.
-ANGLE_UNITS = {
-    "deg": 1.0,
-    "°": 1.0,
-    "degree": 1.0,
-    "degrees": 1.0,
-    "rad": 180.0 / math.pi,
-    "rev": 360.0,
-    "turn": 360.0,
-    "turns": 360.0,
-    "arcmin": 1.0 / 60.0,
-}
-#: Unit strings of an encoder count (needs counts per revolution).
-COUNT_UNITS = frozenset({"counts", "count", "cnt", "inc", "", "-"})
 #: Time units -> seconds per unit.
 TIME_UNITS = {"s": 1.0, "sec": 1.0, "": 1.0, "ms": 1e-3, "us": 1e-6, "µs": 1e-6, "ns": 1e-9}
 #: Torque units -> N m per unit.

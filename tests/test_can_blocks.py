@@ -141,22 +141,37 @@ def test_realtime_and_strict_take_the_per_frame_path(tmp_path):
 
 
 # -- every rule, over generated damage ----------------------------------------------------------
-#: name -> (signals, decoder options, pipeline options)
+#: Angles with a DBC scale, offset, sign and unit (big- and little-endian), with a counter and a checksum.
+SCALED_DBC = cantools.database.load_string(
+    """VERSION ""
+BU_: RIG
+BO_ 1 Scaled: 8 RIG
+ SG_ Motor : 7|24@0- (0.01,-5) [-83891.08|83881.07] "deg" RIG
+ SG_ Load : 24|20@1- (0.000244140625,0.5) [-127.5|128.5] "rev" RIG
+ SG_ Counter : 44|4@1+ (1,0) [0|15] "" RIG
+ SG_ Checksum : 56|8@1+ (1,0) [0|255] "" RIG
+""",
+    database_format="dbc",
+)
+SCALED = ("Scaled.Motor", "Scaled.Load")
+#: name -> (dbc, signals, decoder options, pipeline options)
 CONFIGS = {
-    "by-counter": (SPLIT, {}, {}),
-    "by-counter-no-checksum": (SPLIT, {"checksum_signal": None}, {}),  # flips reach counters and counts: jumps, unwrapping
-    "by-time": (SPLIT, {"counter_signal": None}, {"max_skew_s": 2e-4}),
-    "one-message-no-checksum": (ONE, {"checksum_signal": None, "motor_cpr": 16000}, {"period_s": 1e-3}),  # out-of-range counts
+    "by-counter": (RIG_DBC, SPLIT, {}, {}),
+    "by-counter-no-checksum": (RIG_DBC, SPLIT, {"checksum_signal": None}, {}),  # flips reach counters and counts: jumps, unwrapping
+    "by-time": (RIG_DBC, SPLIT, {"counter_signal": None}, {"max_skew_s": 2e-4}),
+    "one-message-no-checksum": (RIG_DBC, ONE, {"checksum_signal": None, "motor_cpr": 16000}, {"period_s": 1e-3}),  # out-of-range counts
+    "scaled-multi-turn": (SCALED_DBC, SCALED, {"checksum_signal": None}, {}),  # flips reach scaled, signed values
+    "scaled-wrapping": (SCALED_DBC, SCALED, {"wrap_deg": 360.0}, {}),  # angles unwrapped at 360 deg
 }
 DAMAGE = ("flip", "cut", "pad", "drop", "repeat", "swap", "foreign", "extended", "error", "remote", "silence", "back", "nan")
 
 
-def clean_frames(signals, decoder_options):
+def clean_frames(dbc, signals, decoder_options):
     rec = simulate_rig(duration_s=0.15, rate_hz=1000.0, seed=4)
-    return list(rig_can_frames(rec, DbcDecoder(RIG_DBC, *signals, **decoder_options), T0, skew_s=1e-4))
+    return list(rig_can_frames(rec, DbcDecoder(dbc, *signals, **decoder_options), T0, skew_s=1e-4))
 
 
-CLEAN = {name: clean_frames(signals, dec) for name, (signals, dec, _) in CONFIGS.items()}
+CLEAN = {name: clean_frames(dbc, signals, dec) for name, (dbc, signals, dec, _) in CONFIGS.items()}
 
 
 def copy(f):
@@ -206,9 +221,9 @@ def test_every_frame_rule_is_the_same_on_both_paths(name, ops, block):
     """Checksum, length, foreign and special frames, pairing and orphans, counter jumps, unwrapping,
     time order, non-finite times and gaps: the block path equals the per-frame path, whatever the damage
     and wherever the blocks are cut."""
-    signals, decoder_options, options = CONFIGS[name]
+    dbc, signals, decoder_options, options = CONFIGS[name]
     frames = damage(CLEAN[name], ops)
-    decoder = DbcDecoder(RIG_DBC, *signals, **decoder_options)
+    decoder = DbcDecoder(dbc, *signals, **decoder_options)
     per_frame = FramePipeline(decoder, **options)
     expected = [s for s in map(per_frame.feed, frames) if s is not None]
     per_frame.flush()

@@ -9,15 +9,15 @@ their names and never prints. The recursive fit runs the one loop of
 from __future__ import annotations
 
 import os
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
 from .estimators import BacklashRLS, VorosBacklash
-from .pipeline import Pipeline, check_every
-from .rows import ARCMIN_PER_DEG, REPORT_KEYS, TRACE_COLUMNS, EstimateRow, select
+from .pipeline import GapPolicy, GapTally, Pipeline, check_every
+from .rows import ARCMIN_PER_DEG, REPORT_KEYS, TRACE_COLUMNS, EstimateRow, describe_counts, select, source_counts
 from .stream import SampleChunk
 
 __all__ = ["ARCMIN_PER_DEG", "TRACE_COLUMNS", "BacklashReport", "describe", "fit_batch", "fit_recursive"]
@@ -63,12 +63,18 @@ class BacklashReport:
         out.update(self.extra)
         return out
 
+    def add_counters(self, counts: Mapping[str, int]) -> BacklashReport:
+        """Carry the source's counters (:data:`~online_backlash.rows.COUNTER_KEYS`; ``samples`` stays
+        the samples fitted) in ``extra``, hence in :meth:`as_dict` and :func:`describe`; returns self."""
+        self.extra.update({k: v for k, v in source_counts(counts).items() if k != "samples"})
+        return self
+
 
 def fit_batch(chunk: SampleChunk, ratio: float, **params: Any) -> tuple[BacklashReport, VorosBacklash]:
     """Fit :class:`VorosBacklash` (eq. 8-14, then the output-error refinement) to a whole log in memory."""
     u, y = chunk.referred(ratio)
     est = VorosBacklash(**{"origin": "first", **params}).fit(u, y)  # encoder zeros are arbitrary
-    return BacklashReport.from_estimator("batch", len(chunk), est, n_iter=est.n_iter_), est
+    return BacklashReport.from_estimator("batch", len(chunk), est, n_iter=est.n_iter_, **GapTally.of_chunk(chunk).values()), est
 
 
 def fit_recursive(
@@ -79,6 +85,7 @@ def fit_recursive(
     trace: Callable[[EstimateRow], None] | None = None,
     estimator: BacklashRLS | None = None,
     source: str | os.PathLike[str] = "<stream>",
+    gap_policy: GapPolicy | None = None,
     **params: Any,
 ) -> tuple[BacklashReport, BacklashRLS]:
     """Stream a log through :class:`BacklashRLS` chunk by chunk (memory stays flat).
@@ -101,18 +108,22 @@ def fit_recursive(
         Continue this estimator (e.g. resumed from a saved state) instead of a new one.
     source : str or PathLike
         Names the log in errors.
+    gap_policy : GapPolicy, optional
+        Which gaps the estimator is carried across (default :class:`~online_backlash.pipeline.GapPolicy`).
     **params
         Settings of a new :class:`BacklashRLS`.
 
     Returns
     -------
     report : BacklashReport
-        ``method="recursive"``; ``extra`` has ``backlash_std_deg`` and ``n_reversals``.
+        ``method="recursive"``; ``extra`` has ``backlash_std_deg``, ``n_reversals``, the gap
+        figures (:data:`~online_backlash.rows.GAP_KEYS`) and, where the start failed, ``warm_start``
+        (how the estimator started and why).
     est : BacklashRLS
     """
     est = estimator if estimator is not None else BacklashRLS(**params)
     check_every(every_s)
-    pipeline = Pipeline(est, ratio, every_s if trace is not None else None)  # rows cost time: only for a trace
+    pipeline = Pipeline(est, ratio, every_s if trace is not None else None, gap_policy=gap_policy)  # rows cost time: only for a trace
     for step in pipeline.run(chunks, os.fspath(source)):
         if step.row is not None and trace is not None:
             trace(step.row)
@@ -120,8 +131,11 @@ def fit_recursive(
     if last is not None and trace is not None:
         trace(last)
     report = BacklashReport.from_estimator(
-        "recursive", est.n_samples_seen_, est, backlash_std_deg=est.backlash_std_, n_reversals=est.n_reversals_
+        "recursive", est.n_samples_seen_, est, backlash_std_deg=est.backlash_std_, n_reversals=est.n_reversals_,
+        **pipeline.gap_tally.values(),
     )
+    if est.warm_start_.get("method") == "cold":
+        report.extra["warm_start"] = dict(est.warm_start_)
     return report, est
 
 
@@ -141,4 +155,10 @@ def describe(report: BacklashReport, source: str | os.PathLike[str] | None = Non
     std = report.extra.get("backlash_std_deg")
     if std is not None and np.isfinite(std):
         lines.insert(3 if source is None else 4, f"  std error:    {std:.5f} deg")
+    counts = describe_counts(report.as_dict())
+    if counts:
+        lines.append(f"source:         {counts}")
+    warm = report.extra.get("warm_start")
+    if warm is not None:
+        lines.append(f"warm start:     failed, cold start ({warm.get('reason', 'no reason given')})")
     return "\n".join(lines)

@@ -30,7 +30,7 @@ from typing import Any
 import numpy as np
 
 from .errors import InvalidParameterError, LogFormatError
-from .rows import EstimateRow
+from .rows import GAP_KEYS, EstimateRow
 from .stream import SampleChunk, refer_to_load
 
 
@@ -139,6 +139,77 @@ def tail(chunk: SampleChunk, start: int) -> SampleChunk:
     return _block(chunk, start, len(chunk))
 
 
+#: Default longest gap bridged, seconds: 100 nominal periods of a 1 kHz log (a lost frame, a USB
+#: adapter's stall); a longer gap restarts the estimator's reading of the motion.
+BRIDGE_S = 0.1
+#: Default largest step of either angle across a bridged gap, degrees on the load side: more than
+#: a shaft travels in BRIDGE_S at rig speeds (tens of deg/s), so a larger step is a jump in the data
+#: (an encoder re-zeroed, another log) and restarts.
+JUMP_DEG = 5.0
+
+
+@dataclass(frozen=True)
+class GapPolicy:
+    """Which gaps the estimator is carried across (*bridged*) and which restart its reading of the motion.
+
+    A gap (``after_gap`` of a sample) is *short* when the time step across it is at most
+    ``bridge_s`` seconds (and positive), and a *jump* when the referred motor angle ``u`` or the
+    load angle ``y`` changes by more than ``jump_deg`` degrees across it. A short gap without a
+    jump is bridged: the estimator keeps its state (warm-up buffer, flank, covariance) and learns
+    the sample after the gap from the one before it, as one longer step. A long gap, a jump, or a
+    gap before the first sample after :meth:`Pipeline.mark_gap` is passed on as ``after_gap``.
+    ``bridge_s=0`` bridges nothing (every gap restarts, the behaviour before bridging).
+    """
+
+    bridge_s: float = BRIDGE_S
+    jump_deg: float = JUMP_DEG
+
+    def __post_init__(self) -> None:
+        for name in ("bridge_s", "jump_deg"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) or value < 0:
+                raise InvalidParameterError(f"{name} must be a finite number >= 0, got {value!r}")
+
+    def bridged(self, dt_s: np.ndarray, du_deg: np.ndarray, dy_deg: np.ndarray) -> np.ndarray:
+        """True where a gap with time step ``dt_s`` (s) and angle steps ``du_deg``, ``dy_deg`` (deg) is bridged
+        (NaN steps, i.e. no sample before the gap, are never bridged)."""
+        with np.errstate(invalid="ignore"):
+            return (dt_s > 0.0) & (dt_s <= self.bridge_s) & (np.abs(du_deg) <= self.jump_deg) & (np.abs(dy_deg) <= self.jump_deg)
+
+
+@dataclass
+class GapTally:
+    """The gaps a stream had: count, longest and total time step across them (seconds), and how many were bridged."""
+
+    gaps: int = 0
+    longest_s: float = 0.0
+    total_s: float = 0.0
+    bridged: int = 0
+
+    def add(self, dt_s: np.ndarray, bridged: np.ndarray) -> None:
+        """Count gaps with time steps ``dt_s`` (s; NaN where the step is unknown) and their bridged flags."""
+        known = dt_s[np.isfinite(dt_s)]
+        self.gaps += int(dt_s.size)
+        self.bridged += int(np.count_nonzero(bridged))
+        if known.size:
+            self.longest_s = max(self.longest_s, float(known.max()))
+            self.total_s += float(known.sum())
+
+    def values(self) -> dict[str, float | int]:
+        """The gap figures of a result (:data:`~online_backlash.rows.GAP_KEYS`)."""
+        return dict(zip(GAP_KEYS, (self.longest_s, self.total_s, self.bridged)))
+
+    @classmethod
+    def of_chunk(cls, chunk: SampleChunk) -> GapTally:
+        """The gaps of one whole log in memory (no gap bridged: a batch fit reads no motion across them)."""
+        tally = cls()
+        index = np.flatnonzero(chunk.after_gap[1:]) + 1
+        tally.add(chunk.time_s[index] - chunk.time_s[index - 1], np.zeros(index.size, dtype=bool))
+        if chunk.after_gap.size and chunk.after_gap[0]:
+            tally.add(np.array([np.nan]), np.zeros(1, dtype=bool))
+        return tally
+
+
 class Pipeline:
     """Feed chunks of samples to a recursive estimator and emit a row every ``every_s`` seconds of data.
 
@@ -153,6 +224,9 @@ class Pipeline:
         Seconds of data between rows (None: no rows but the one :meth:`finish` gives).
     clock : DataClock, optional
         Continue this clock (e.g. from a checkpoint) instead of a new one.
+    gap_policy : GapPolicy, optional
+        Which gaps are bridged (default: :class:`GapPolicy` with ``BRIDGE_S``, ``JUMP_DEG``).
+        The gaps seen are tallied in ``gap_tally`` (:class:`GapTally`).
 
     Examples
     --------
@@ -167,28 +241,58 @@ class Pipeline:
     0.5
     """
 
-    def __init__(self, estimator: Any, ratio: float, every_s: float | None = 1.0, clock: DataClock | None = None) -> None:
+    def __init__(
+        self,
+        estimator: Any,
+        ratio: float,
+        every_s: float | None = 1.0,
+        clock: DataClock | None = None,
+        gap_policy: GapPolicy | None = None,
+    ) -> None:
         refer_to_load(0.0, ratio)  # validates the ratio now, not at the first chunk
         self.estimator = estimator
         self.ratio = ratio
         self.clock = clock if clock is not None else DataClock(every_s)
+        self.gap_policy = gap_policy if gap_policy is not None else GapPolicy()
+        self.gap_tally = GapTally()
         self.samples = 0
         self.samples_since_row = 0
         self.last_time_s: float | None = None
+        self._last_uy: tuple[float, float] | None = None  # referred angles of the last sample of the segment (deg)
 
     def mark_gap(self) -> None:
-        """The next sample does not continue the last one (a new log, a resumed run)."""
+        """The next sample does not continue the last one (a new log, a resumed run): never bridged."""
         self.estimator.mark_gap()
         self.clock.mark_gap()
+        self._last_uy = None
+
+    def _restarts(self, chunk: SampleChunk, u: np.ndarray, y: np.ndarray) -> np.ndarray:
+        """The chunk's ``after_gap`` without the gaps :attr:`gap_policy` bridges; tallies every gap."""
+        index = np.flatnonzero(chunk.after_gap)
+        if not index.size:
+            return chunk.after_gap
+        last = (np.nan, np.nan, np.nan) if self._last_uy is None or self.last_time_s is None else (self.last_time_s, *self._last_uy)
+        dt, du, dy = (x[index] - np.concatenate(([x0], x[:-1]))[index] for x, x0 in zip((chunk.time_s, u, y), last))
+        bridged = self.gap_policy.bridged(dt, du, dy)
+        self.gap_tally.add(dt, bridged)
+        restarts = chunk.after_gap.copy()
+        restarts[index[bridged]] = False
+        return restarts
 
     def feed(self, chunk: SampleChunk) -> Iterator[PipelineStep]:
-        """Learn one chunk, block by block; yield a :class:`PipelineStep` after each block."""
+        """Learn one chunk, block by block; yield a :class:`PipelineStep` after each block.
+
+        Gaps that :attr:`gap_policy` bridges reach the estimator as ordinary steps; the data
+        clock counts no time across any gap.
+        """
         if not len(chunk):
             return
         u, y = chunk.referred(self.ratio)
+        restarts = self._restarts(chunk, u, y)
+        self._last_uy = (float(u[-1]), float(y[-1]))
         for start, end, due in self.clock.blocks(chunk.time_s, chunk.after_gap):
             block = _block(chunk, start, end)
-            self.estimator.learn_many(u[start:end], y[start:end], block.after_gap, time_s=block.time_s, torque_Nm=block.torque_Nm)
+            self.estimator.learn_many(u[start:end], y[start:end], restarts[start:end], time_s=block.time_s, torque_Nm=block.torque_Nm)
             self.samples += end - start
             self.samples_since_row += end - start
             self.last_time_s = float(block.time_s[-1])

@@ -82,6 +82,14 @@ FIELDS: dict[str, RowField] = {
         _field("operating_hours", float, "h", "operating time since the gearbox was new (UsageCounter)"),
         _field("load_revolutions", float, "rev", "load shaft travel since the gearbox was new (UsageCounter)"),
         _field("reversals", int, "", "reversals since the gearbox was new (UsageCounter)"),
+        _field("frames", int, "", "raw units the source read: CAN frames, serial frames, data rows of a table"),
+        _field("corrupt", int, "", "frames or rows rejected as damaged (bad CRC, unparsable, non-finite; bad rows under --skip-bad-rows)"),
+        _field("skipped", int, "", "frames that are not ours (other traffic on a shared bus)"),
+        _field("gaps", int, "", "gaps the source reported (counter jumps, steps longer than GAP_PERIODS nominal periods)"),
+        _field("unpaired", int, "", "valid frames whose partner (motor or load) never came; 0 for sources of whole samples"),
+        _field("gap_longest_s", float, "s", "the longest gap: time step across it, from the sample before to the sample after"),
+        _field("gap_total_s", float, "s", "sum of the time steps across every gap"),
+        _field("gaps_bridged", int, "", "short gaps the estimator was carried across (state kept; Pipeline's GapPolicy)"),
     )
 }
 
@@ -109,6 +117,30 @@ HISTORY_CSV_COLUMNS = _view(
     "backlash_arcmin", "backlash_std_arcmin", "c_left_deg", "c_right_deg", "m_left", "m_right", "residual_rms_deg",
     "n_samples", "run_id", "sample_index",
 )
+
+
+#: The source's counters in every result (``estimate --json``, ``track``, ``diagnose``), in this order.
+COUNTER_KEYS = _view("frames", "samples", "corrupt", "skipped", "gaps", "unpaired")
+#: The gap figures in every result, in this order (besides the count ``gaps``).
+GAP_KEYS = _view("gap_longest_s", "gap_total_s", "gaps_bridged")
+
+
+def source_counts(counts: Mapping[str, int]) -> dict[str, int]:
+    """A source's counters as :data:`COUNTER_KEYS` (a key the source does not count, e.g.
+    ``unpaired`` of a CSV log, is 0)."""
+    return {name: int(counts.get(name, 0)) for name in COUNTER_KEYS}
+
+
+def describe_counts(values: Mapping[str, Any]) -> str:
+    """The non-zero counters and gap figures of a result as one line (``""`` when all are zero),
+    e.g. ``frames 60000, samples 59990, corrupt 10, gaps 2 (longest 0.005 s, total 0.009 s)``."""
+    parts = [f"{name} {values[name]}" for name in COUNTER_KEYS if values.get(name)]
+    if values.get("gaps"):
+        figures = [f"longest {values.get('gap_longest_s', 0.0):.3f} s", f"total {values.get('gap_total_s', 0.0):.3f} s"]
+        if values.get("gaps_bridged"):
+            figures.append(f"{values['gaps_bridged']} bridged")
+        parts = [p + f" ({', '.join(figures)})" if p.startswith("gaps ") else p for p in parts]
+    return ", ".join(parts)
 
 
 def arcmin(value_deg: float | None) -> float | None:

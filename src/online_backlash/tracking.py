@@ -41,7 +41,7 @@ from .history.store import Gearbox, HistoryStore, Run
 from .history.usage import UsageCounter
 from .pipeline import DataClock, Pipeline, check_every, tail
 from .replay import open_log
-from .rows import STORE_COLUMNS, EstimateRow, select
+from .rows import STORE_COLUMNS, EstimateRow, select, source_counts
 from .stream import SampleChunk, SampleSource, refer_to_load
 
 #: Times at or above this (2001-09-09) are read as UNIX seconds.
@@ -52,6 +52,8 @@ CHECKPOINT_FORMAT = 1
 
 #: ``progress(samples_fed, backlash_deg or None)``, called after every block.
 ProgressCallback = Callable[[int, "float | None"], None]
+#: ``on_row(row, time_unix_s)``, called after each estimate is committed.
+RowCallback = Callable[[EstimateRow, float], None]
 
 
 def file_sha256(path: str | os.PathLike[str], block_bytes: int = 1 << 20) -> str:
@@ -180,7 +182,9 @@ class GearboxTracker:
                 progress=progress,
             )
 
-    def track_source(self, source: SampleSource, label: str, progress: ProgressCallback | None = None) -> TrackResult:
+    def track_source(
+        self, source: SampleSource, label: str, progress: ProgressCallback | None = None, on_row: RowCallback | None = None
+    ) -> TrackResult:
         """Feed a live source (``online_backlash.drivers``' CanSource, SerialSource) until it ends.
 
         A live stream cannot be read again, so it has no key: each call is a new run that
@@ -195,8 +199,10 @@ class GearboxTracker:
             A live source: ``iter_chunks()`` yields what has arrived, ``counters`` counts it.
         label : str
             Description stored with the run, e.g. ``can socketcan can0``.
+        on_row : callable, optional
+            ``on_row(row, time_unix_s)`` after each estimate is committed (e.g. to publish it).
         """
-        return self.track_chunks(source.iter_chunks(), label, counters=lambda: source.counters.as_dict(), progress=progress)
+        return self.track_chunks(source.iter_chunks(), label, counters=lambda: source.counters.as_dict(), progress=progress, on_row=on_row)
 
     def track_chunks(
         self,
@@ -206,6 +212,7 @@ class GearboxTracker:
         clock_offset: Callable[[float], float] | None = None,
         counters: Callable[[], dict] | None = None,
         progress: ProgressCallback | None = None,
+        on_row: RowCallback | None = None,
     ) -> TrackResult:
         """Feed a stream of sample chunks as one run (the engine under :meth:`track_log`).
 
@@ -225,6 +232,8 @@ class GearboxTracker:
             Returns the source's counters at the end (default: only ``samples``).
         progress : callable, optional
             ``progress(samples_fed, backlash_deg or None)`` after every block.
+        on_row : callable, optional
+            ``on_row(row, time_unix_s)`` with each :class:`~online_backlash.rows.EstimateRow` once committed.
         """
         self._validate()
         chunks = iter(chunks)
@@ -242,9 +251,10 @@ class GearboxTracker:
             return result
         # a resumed run keeps its first clock (begin_run stored it; it is None only in a foreign store)
         clock = (run.started_unix_s if run.started_unix_s is not None else first_time_s + offset) - first_time_s
-        gearbox, run, state, ended = self._feed(gearbox, run, chain([first], chunks), clock, result, progress)
+        gearbox, run, state, ended = self._feed(gearbox, run, chain([first], chunks), clock, result, progress, on_row)
         done = result.resumed_from + result.samples_fed
-        result.counters = counters() if counters is not None else {k: done if k == "samples" else 0 for k in _COUNTERS}
+        counts = counters() if counters is not None else {k: done if k == "samples" else 0 for k in _COUNTERS}
+        result.counters = {**source_counts(counts), **state.pipeline.gap_tally.values()}
         self.store.commit(gearbox, run, done, state.checkpoint(run.id), counters=result.counters, ended_unix_s=ended)
         return result
 
@@ -277,6 +287,7 @@ class GearboxTracker:
         clock: float,
         result: TrackResult,
         progress: ProgressCallback | None,
+        on_row: RowCallback | None = None,
     ) -> tuple[Gearbox, Run, TrackerState, float | None]:
         """Skip what the run already committed, learn the rest, commit at every estimate.
 
@@ -305,6 +316,8 @@ class GearboxTracker:
                     gearbox, run = self.store.commit(gearbox, run, done, state.checkpoint(run.id), [row])
                     result.estimates_added += 1
                     result.last_estimate = row
+                    if on_row is not None:
+                        on_row(step.row, row["time_unix_s"])
                 if progress is not None:
                     progress(result.samples_fed, current_backlash_deg(state.pipeline.estimator))
         return gearbox, run, state, ended

@@ -20,7 +20,7 @@ def add_log_options(parser: argparse.ArgumentParser) -> None:
     group.add_argument(
         "--units",
         choices=("deg", "rad", "rev", "arcmin", "counts"),
-        help="unit of the motor and load columns (default: deg for CSV; a measurement file's channel units)",
+        help="unit of the motor and load columns or DBC signals (default: deg for CSV; a measurement file's channel units; the DBC signals' units)",
     )
     group.add_argument("--motor-cpr", type=float, help="motor encoder counts per motor revolution (with --units counts)")
     group.add_argument("--load-cpr", type=float, help="load encoder counts per load revolution (with --units counts)")
@@ -70,8 +70,11 @@ def add_can_decoding_options(parser: argparse.ArgumentParser, required: bool) ->
     """``--dbc F --motor-signal S --load-signal S``: how CAN frames carry the two angles."""
     group = parser.add_argument_group("CAN decoding")
     group.add_argument("--dbc", required=required, metavar="FILE", help="DBC describing the frames; 'rig' for the example rig.dbc shipped with the package")
-    group.add_argument("--motor-signal", required=required, metavar="MSG.SIGNAL", help="motor encoder counts, e.g. MotorAngle.Count")
-    group.add_argument("--load-signal", required=required, metavar="MSG.SIGNAL", help="load encoder counts, e.g. LoadAngle.Count")
+    group.add_argument("--motor-signal", required=required, metavar="MSG.SIGNAL", help="motor angle (counts, deg, rad...), e.g. MotorAngle.Count")
+    group.add_argument("--load-signal", required=required, metavar="MSG.SIGNAL", help="load angle (counts, deg, rad...), e.g. LoadAngle.Count")
+    group.add_argument(
+        "--wrap-deg", type=_positive_float, metavar="DEG", help="angle signals (deg, rad...) wrap every DEG degrees, e.g. 360; default: multi-turn as given"
+    )
     group.add_argument("--counter-signal", default="Counter", metavar="NAME", help="rolling counter signal in those messages ('none': pair by time)")
     group.add_argument("--checksum-signal", default="Checksum", metavar="NAME", help="CRC-8/SAE-J1850 checksum byte in those messages ('none': no check)")
 
@@ -89,4 +92,16 @@ def can_decoding_options(args: argparse.Namespace) -> dict[str, Any]:
         "load_signal": args.load_signal,
         "counter_signal": optional(args.counter_signal),
         "checksum_signal": optional(args.checksum_signal),
+        "units": getattr(args, "units", None),
+        "wrap_deg": args.wrap_deg,
     }
+
+
+def _positive_float(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        value = math.nan
+    if not (math.isfinite(value) and value > 0):
+        raise argparse.ArgumentTypeError(f"expected a positive number, got {text!r}")
+    return value

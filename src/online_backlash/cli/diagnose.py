@@ -4,8 +4,10 @@ from __future__ import annotations
 
 import argparse
 
+from ..pipeline import GapTally
+from ..rows import describe_counts, source_counts
 from ._common import add_can_decoding_options, add_log_options, add_ratio_option, print_json
-from .estimate import log_options, write_trace
+from .estimate import read_counted, write_trace
 
 
 def add_subparser(subparsers: argparse._SubParsersAction) -> None:
@@ -46,9 +48,9 @@ def run(args: argparse.Namespace) -> int:
     from ..diagnostics.loop import diagnose
     from ..diagnostics.plot import plot_diagnosis
     from ..diagnostics.report import markdown_report
-    from ..replay import read_log_arrays
 
-    chunk = read_log_arrays(args.log, **log_options(args))
+    chunk, source = read_counted(args)
+    counts = {**source_counts(source.counters.as_dict()), **GapTally.of_chunk(chunk).values()}
     result = diagnose(chunk, args.ratio, max_terms=args.max_terms)
     if args.trace:
         write_trace(args.trace, [chunk], args.ratio, args.every, args.log, effects=result.effects)
@@ -59,7 +61,9 @@ def run(args: argparse.Namespace) -> int:
         with open(args.report, "w", encoding="utf-8") as f:
             f.write(text + "\n")
     if args.json:
-        print_json(result.as_dict())
+        print_json({**result.as_dict(), **counts})
     else:
         print(text)
+        if describe_counts(counts):
+            print(f"source: {describe_counts(counts)}")
     return 0

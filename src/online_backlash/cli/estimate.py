@@ -10,8 +10,9 @@ from typing import Any
 
 from ..errors import InvalidParameterError
 from ..fitting import BacklashReport, describe, fit_batch, fit_recursive
+from ..pipeline import BRIDGE_S, JUMP_DEG, GapPolicy
 from ..rows import TRACE_COLUMNS, EstimateRow
-from ..stream import SampleChunk
+from ..stream import SampleChunk, SampleSource, read_all
 from ._common import add_can_decoding_options, add_log_options, add_ratio_option, can_decoding_options, parse_column_map, print_json
 
 
@@ -40,6 +41,18 @@ def add_subparser(subparsers: argparse._SubParsersAction) -> None:
     group.add_argument("--memory-reversals", type=float, default=10.0, help="memory of the estimator, in reversals")
     group.add_argument("--memory-s", type=float, help="memory in seconds of motion (instead of / besides reversals)")
     group.add_argument("--sample-period", type=float, default=0.001, help="sampling period of the log, seconds")
+    group.add_argument(
+        "--bridge-s", type=float, default=BRIDGE_S,
+        help="longest gap (seconds) the estimator is carried across, keeping its state; 0: every gap restarts it",
+    )
+    group.add_argument(
+        "--jump-deg", type=float, default=JUMP_DEG,
+        help="a step of either angle (deg, load side) larger than this across a gap is a jump in the data and restarts",
+    )
+    parser.add_argument(
+        "--period", type=float, metavar="S",
+        help="nominal sample period for gap detection (CSV, CAN log, serial capture), as given to listen/track; learnt if not given",
+    )
     add_log_options(parser)
     add_can_decoding_options(parser, required=False)
     parser.add_argument("--serial-format", choices=("ascii", "binary"), help="frame format of a serial capture (.serial)")
@@ -53,37 +66,55 @@ def log_options(args: argparse.Namespace) -> dict:
     from ..replay.measurement import is_measurement_log
 
     suffix = log_suffix(args.log)
+    period = getattr(args, "period", None)
+    timing = {} if period is None else {"period_s": period}  # measurement files take their time base from the file
     if suffix == ".serial":
         return {
             "serial_format": args.serial_format, "motor_cpr": args.motor_cpr, "load_cpr": args.load_cpr,
-            "skip_bad": args.skip_bad_rows, "realtime": getattr(args, "realtime", False),
+            "skip_bad": args.skip_bad_rows, "realtime": getattr(args, "realtime", False), **timing,
         }
     if suffix != ".csv" and not is_measurement_log(args.log):  # a CAN log (or an unknown suffix, which open_log reports)
         counts = {k: None if v is None else int(v) for k, v in (("motor_cpr", args.motor_cpr), ("load_cpr", args.load_cpr))}
-        return {**can_decoding_options(args), **counts, "skip_bad": args.skip_bad_rows, "realtime": getattr(args, "realtime", False)}
+        return {
+            **can_decoding_options(args), **counts, "skip_bad": args.skip_bad_rows, "realtime": getattr(args, "realtime", False), **timing,
+        }
     return {
         "columns": parse_column_map(args.columns),
         "units": args.units,
         "motor_cpr": args.motor_cpr,
         "load_cpr": args.load_cpr,
         "skip_bad": args.skip_bad_rows,
+        **(timing if suffix == ".csv" else {}),
     }
 
 
+def read_counted(args: argparse.Namespace) -> tuple[SampleChunk, SampleSource]:
+    """The whole log of ``args.log`` in memory (for batch fits) and its closed source, whose ``counters`` are final."""
+    from ..replay import open_log
+
+    source = open_log(args.log, **log_options(args))
+    return read_all(source, args.log), source
+
+
 def run(args: argparse.Namespace) -> int:
-    from ..replay import open_log, read_log_arrays
+    from ..replay import open_log
 
     if args.method == "batch":
         if args.trace:
             raise InvalidParameterError("--trace needs --method recursive")
-        report, _ = fit_batch(read_log_arrays(args.log, **log_options(args)), args.ratio)
+        chunk, source = read_counted(args)
+        report, _ = fit_batch(chunk, args.ratio)
     else:
-        params = {"memory_reversals": args.memory_reversals, "memory_s": args.memory_s, "sample_period_s": args.sample_period}
-        with open_log(args.log, **log_options(args)) as log:
+        params = {
+            "memory_reversals": args.memory_reversals, "memory_s": args.memory_s, "sample_period_s": args.sample_period,
+            "gap_policy": GapPolicy(args.bridge_s, args.jump_deg),
+        }
+        with open_log(args.log, **log_options(args)) as source:
             if args.trace:
-                report = write_trace(args.trace, log.iter_chunks(), args.ratio, args.every, args.log, **params)
+                report = write_trace(args.trace, source.iter_chunks(), args.ratio, args.every, args.log, **params)
             else:
-                report, _ = fit_recursive(log.iter_chunks(), args.ratio, source=args.log, **params)
+                report, _ = fit_recursive(source.iter_chunks(), args.ratio, source=args.log, **params)
+    report.add_counters(source.counters.as_dict())
     if args.json:
         print_json(report.as_dict())
     else:

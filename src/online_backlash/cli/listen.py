@@ -4,7 +4,8 @@ Every frame or byte received is written to ``--raw-log DIR`` before it is decode
 ``online-backlash estimate DIR`` (the whole directory, or one of its files) gives the same
 result later. A status line on stderr shows the estimate with its standard error, samples/s,
 corrupt frames and gaps; the summary comes when ``--duration`` is reached or on Ctrl-C (with ``--json``: one JSON object on
-stdout, the keys of ``estimate --json`` plus the source's counters).
+stdout, the keys of ``estimate --json`` plus the source's counters). With ``--mqtt
+mqtt://HOST:PORT/PREFIX --gearbox ID`` every estimate is also published (:mod:`online_backlash.publish`).
 """
 
 from __future__ import annotations
@@ -19,6 +20,7 @@ from ..fitting import describe, fit_recursive
 from ..rows import EstimateRow, arcmin
 from ._common import add_can_decoding_options, add_ratio_option, print_json
 from ._live import on_interrupt, open_can_source, open_serial_source
+from ._mqtt import add_listen_mqtt_options, mqtt_publisher, mqtt_summary_line, row_sink
 
 
 def add_subparser(subparsers: argparse._SubParsersAction) -> None:
@@ -73,6 +75,7 @@ def _add_common(parser: argparse.ArgumentParser) -> None:
     group.add_argument("--memory-reversals", type=float, default=10.0, help="memory of the estimator, in reversals")
     group.add_argument("--memory-s", type=float, help="memory in seconds of motion (instead of / besides reversals)")
     group.add_argument("--sample-period", type=float, default=0.001, help="sampling period, seconds")
+    add_listen_mqtt_options(parser)
 
 
 class _StatusLine:
@@ -107,11 +110,14 @@ def run(args: argparse.Namespace) -> int:
     label = f"{args.source_kind} {getattr(args, 'channel', None) or getattr(args, 'port', '')}"
     params = {"memory_reversals": args.memory_reversals, "memory_s": args.memory_s, "sample_period_s": args.sample_period}
     started = time.monotonic()
-    with args.open_source(args) as source:
+    every_s = args.status_every if args.every is None else args.every
+    with mqtt_publisher(args.mqtt, args.gearbox, args.warn_arcmin, args.limit_arcmin) as publisher, args.open_source(args) as source:
         status = _StatusLine(source.counters)
         undo = on_interrupt(source.request_stop)
         try:
-            report, _ = fit_recursive(source.iter_chunks(), args.ratio, every_s=args.status_every, trace=status, source=label, **params)
+            report, _ = fit_recursive(
+                source.iter_chunks(), args.ratio, every_s=every_s, trace=row_sink(publisher, status), source=label, **params
+            )
         except LogFormatError as exc:
             if source.counters.samples:
                 raise
@@ -127,11 +133,15 @@ def run(args: argparse.Namespace) -> int:
     if pipeline is not None and pipeline.frames_per_sample == 2:
         summary["pair_skew_mean_s"] = pipeline.skew_mean_s
         summary["pair_skew_max_s"] = pipeline.skew_max_s
+    if publisher is not None:
+        summary.update(publisher.counts())
     if args.json:
         print_json(summary)
     else:
         print(describe(report, label))
         print(f"received:       {_counts(source.counters.as_dict())} in {summary['duration_s']:.1f} s; raw log in {args.raw_log}")
+        if publisher is not None:
+            print(mqtt_summary_line(publisher))
     return 0
 
 

@@ -15,14 +15,16 @@ from contextlib import contextmanager
 from typing import TYPE_CHECKING, Any
 
 from ..errors import InvalidParameterError
+from ..rows import describe_counts
 from ._common import add_can_decoding_options, add_log_options, add_ratio_option, print_json
 from ._live import on_interrupt, open_can_source, open_serial_source
+from ._mqtt import add_mqtt_option, mqtt_publisher, mqtt_summary_line
 from .estimate import log_options
 from .history import add_db_options
 
 if TYPE_CHECKING:
     from ..history.store import HistoryStore
-    from ..tracking import GearboxTracker, ProgressCallback, TrackResult
+    from ..tracking import GearboxTracker, ProgressCallback, RowCallback, TrackResult
 
 
 def _unix_time(text: str) -> float:
@@ -97,6 +99,7 @@ def add_subparser(subparsers: argparse._SubParsersAction) -> None:
     live.add_argument("--duration", type=float, metavar="S", help="stop after S seconds; without it, at Ctrl-C")
     live.add_argument("--timeout", type=float, metavar="S", help="fail when nothing arrives for S seconds")
     live.add_argument("--period", type=float, metavar="S", help="nominal sample period for gap detection; learnt if not given")
+    add_mqtt_option(live)
     parser.set_defaults(func=run)
 
 
@@ -105,6 +108,8 @@ def run(args: argparse.Namespace) -> int:
         raise InvalidParameterError("give the logs to track, or --listen can|serial to track live")
     if args.listen is not None and (args.logs or args.raw_log is None):
         raise InvalidParameterError("--listen tracks live: give --raw-log DIR and no logs")
+    if args.mqtt is not None and args.listen is None:
+        raise InvalidParameterError("--mqtt publishes live estimates: use it with --listen")
     if args.start is not None and len(args.logs) != 1:
         raise InvalidParameterError(f"--start gives the start of one log; {len(args.logs)} logs were given")
     if args.diagnose and args.listen is not None:
@@ -128,9 +133,16 @@ def run(args: argparse.Namespace) -> int:
             store, args.gearbox, args.ratio, every_s=args.every, limit_arcmin=args.limit_arcmin, estimator_params=params
         )
         if args.listen is not None:
-            with _progress_bar(f"{args.listen} live", show_progress) as progress:
-                result = _track_live(tracker, args, progress)
+            known = store.find_gearbox(args.gearbox)
+            levels = (known.warn_arcmin, known.limit_arcmin) if known is not None else (args.warn_arcmin, args.limit_arcmin)
+            with mqtt_publisher(args.mqtt, args.gearbox, *levels) as publisher:
+                with _progress_bar(f"{args.listen} live", show_progress) as progress:
+                    result = _track_live(tracker, args, progress, None if publisher is None else publisher.publish)
+                if publisher is not None:
+                    result.counters.update(publisher.counts())
             report(result, args.json)
+            if publisher is not None and not args.json:
+                print(mqtt_summary_line(publisher))
             return 0
         for path in args.logs:
             options = log_options(argparse.Namespace(**{**vars(args), "log": path}))
@@ -169,8 +181,11 @@ def _progress_bar(label: str, show: bool) -> Iterator[ProgressCallback]:
         yield progress
 
 
-def _track_live(tracker: GearboxTracker, args: argparse.Namespace, progress: ProgressCallback) -> TrackResult:
-    """Open the live source as ``listen`` does and track it until it ends (duration, Ctrl-C, timeout)."""
+def _track_live(
+    tracker: GearboxTracker, args: argparse.Namespace, progress: ProgressCallback, on_row: RowCallback | None = None
+) -> TrackResult:
+    """Open the live source as ``listen`` does and track it until it ends (duration, Ctrl-C, timeout);
+    ``on_row(row, time_unix_s)`` gets each estimate stored (``--mqtt`` publishes it)."""
     if args.listen == "can":
         cprs = {k: None if getattr(args, k) is None else int(getattr(args, k)) for k in ("motor_cpr", "load_cpr")}
         source_args, label = argparse.Namespace(**{**vars(args), **cprs}), f"can {args.interface} {args.channel}"
@@ -180,7 +195,7 @@ def _track_live(tracker: GearboxTracker, args: argparse.Namespace, progress: Pro
     with open_source(source_args) as source:
         undo = on_interrupt(source.request_stop)
         try:
-            return tracker.track_source(source, label, progress=progress)
+            return tracker.track_source(source, label, progress=progress, on_row=on_row)
         finally:
             undo()
 
@@ -201,4 +216,5 @@ def report(result: TrackResult, as_json: bool) -> None:
         line += (
             f"; backlash {last['backlash_deg']:.4f} deg (std {std:.4f}) after {last['operating_hours']:.3f} operating hours"
         )
-    print(line)
+    counts = describe_counts(result.counters)
+    print(line if not counts else f"{line}\n  source: {counts}")

@@ -11,6 +11,7 @@ readers (:mod:`online_backlash.replay`) both apply to the bytes and frames they 
     assemble.py      the last checks before a sample leaves any source (finite, time order, gaps)
     gaps.py          the one gap rule (counter jumps, steps longer than GAP_PERIODS periods)
     unwrap.py        single-turn encoder counts to multi-turn counts
+    units.py         angle and count unit strings (DBC signals and measurement channels)
 
 Nothing here opens a bus, a port or a file, and nothing here imports an estimator.
 """

@@ -98,7 +98,7 @@ def frame_arrays(frames: Sequence[can.Message]) -> tuple[np.ndarray, tuple[np.nd
 @dataclass
 class DecodedBlock:
     """Per frame of a block: ``status`` (OK/CORRUPT/SKIPPED), ``role`` (MOTOR/LOAD/BOTH, 0 if not OK),
-    ``counter`` (-1 without one), ``motor`` and ``load`` (raw single-turn counts, 0 where absent)."""
+    ``counter`` (-1 without one), ``motor`` and ``load`` (raw signal values, 0 where absent)."""
 
     status: np.ndarray
     role: np.ndarray
@@ -124,9 +124,9 @@ class BlockDecoder:
             message: Message = decoder.messages[frame_id]
             wanted = {}
             if layout.role & MOTOR:
-                wanted["motor"] = (message.get_signal_by_name(decoder.motor.signal), decoder.motor.counts_per_rev)
+                wanted["motor"] = (message.get_signal_by_name(decoder.motor.signal), decoder.motor.raw_range())
             if layout.role & LOAD:
-                wanted["load"] = (message.get_signal_by_name(decoder.load.signal), decoder.load.counts_per_rev)
+                wanted["load"] = (message.get_signal_by_name(decoder.load.signal), decoder.load.raw_range())
             counter = message.get_signal_by_name(layout.counter) if layout.counter else None
             self._entries.append((frame_id, message.is_extended_frame, layout, wanted, counter))
         signals = [s for *_, wanted, c in self._entries for s in [v[0] for v in wanted.values()] + ([c] if c else [])]
@@ -152,9 +152,10 @@ class BlockDecoder:
             if i is not None:
                 good &= crc8(np.delete(rows, i, axis=1)) == rows[:, i]
             le, be = words(rows)
-            for name, (signal, cpr) in wanted.items():
+            for name, (signal, valid) in wanted.items():
                 values = signal_values(le, be, signal)
-                good &= (values >= 0) & (values < cpr)
+                if valid is not None:  # DbcDecoder's range check of a count
+                    good &= (values >= valid[0]) & (values < valid[1])
                 (motor if name == "motor" else load)[index] = values
             if counter_signal is not None:
                 counter[index] = signal_values(le, be, counter_signal)

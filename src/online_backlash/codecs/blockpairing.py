@@ -20,7 +20,7 @@ import numpy as np
 from numba import njit
 
 from online_backlash.errors import InvalidParameterError
-from online_backlash.stream import GAP_PERIODS, Gap, SampleChunk
+from online_backlash.stream import Gap, SampleChunk
 
 from .blockdecode import CORRUPT, OK, SKIPPED, BlockDecoder, DecodedBlock, frame_arrays
 from .dbc import BOTH, MOTOR, DbcDecoder
@@ -40,8 +40,8 @@ _N_FLOAT = 7
 
 @njit(cache=True)
 def _unwrap(ist, k, count, modulus):  # pragma: no cover - compiled
-    """Unwrapper.__call__ for encoder k (0 motor, 1 load)."""
-    if ist[_U_HAS + k] == 0:
+    """Unwrapper.__call__ for encoder k (0 motor, 1 load); modulus 0: multi-turn, unchanged (Unwrapper(None))."""
+    if ist[_U_HAS + k] == 0 or modulus == 0:
         ist[_U_HAS + k] = 1
         ist[_U_TOTAL + k] = count
     else:
@@ -66,7 +66,7 @@ def _median(values):  # pragma: no cover - compiled
 @njit(cache=True)
 def _pair_block(
     status, role, counter, motor, load, time_s,
-    paired, max_skew_s, motor_cpr, load_cpr, motor_scale, load_scale, modulus, gap_periods,
+    paired, max_skew_s, motor_cpr, load_cpr, motor_scale, load_scale, motor_offset, load_offset, modulus, gap_periods,
     ist, fst, steps,
     out_time, out_motor, out_load, out_seq, out_gap, gap_time, gap_dt, gap_missing,
 ):  # pragma: no cover - compiled
@@ -117,8 +117,8 @@ def _pair_block(
             fst[_SKEW_MEAN] += (abs(skew) - fst[_SKEW_MEAN]) / ist[_N_PAIRS]
             if abs(skew) > fst[_SKEW_MAX]:
                 fst[_SKEW_MAX] = abs(skew)
-        motor_deg = _unwrap(ist, 0, motor_count, motor_cpr) * motor_scale
-        load_deg = _unwrap(ist, 1, load_count, load_cpr) * load_scale
+        motor_deg = _unwrap(ist, 0, motor_count, motor_cpr) * motor_scale + motor_offset  # EncoderSignal.degrees
+        load_deg = _unwrap(ist, 1, load_count, load_cpr) * load_scale + load_offset
         # SampleAssembler.make
         if not (np.isfinite(sample_t) and np.isfinite(motor_deg) and np.isfinite(load_deg)):
             corrupt += frames_per_sample
@@ -142,7 +142,7 @@ def _pair_block(
                     steps[ist[_G_STEPS]] = dt
                     ist[_G_STEPS] += 1
                     if ist[_G_STEPS] == learn_steps:
-                        median = _median(steps)
+                        median = _median(steps) if modulus == 0 else np.mean(steps)  # GapDetector._learn
                         if median > 0:
                             fst[_G_PERIOD] = median
                             ist[_G_KNOWN] = 1
@@ -196,6 +196,7 @@ class BlockPipeline(CanPipeline):
         if not self.blocks.supported:
             raise InvalidParameterError("this DBC needs the per-frame path (a message over 8 bytes, multiplexed, or a float signal)")
         self._modulus = gaps.counter_modulus or 0
+        self._gap_periods = gaps.gap_periods
         self._ist = np.zeros(_N_INT, dtype=np.int64)
         self._fst = np.zeros(_N_FLOAT, dtype=np.float64)
         self._fst[_A_LAST] = -math.inf
@@ -228,8 +229,8 @@ class BlockPipeline(CanPipeline):
         dec = self.decoder
         n_samples, n_gaps, corrupt, unpaired = _pair_block(
             block.status, block.role, block.counter, block.motor, block.load, time_s,
-            dec.paired, self.max_skew_s, dec.motor.counts_per_rev, dec.load.counts_per_rev,
-            dec.motor.deg_per_count, dec.load.deg_per_count, self._modulus, GAP_PERIODS,
+            dec.paired, self.max_skew_s, dec.motor.modulus or 0, dec.load.modulus or 0,
+            dec.motor.deg_per_raw, dec.load.deg_per_raw, dec.motor.offset_deg, dec.load.offset_deg, self._modulus, self._gap_periods,
             self._ist, self._fst, self._steps, *out, *gaps,
         )  # fmt: skip
         c.samples += n_samples

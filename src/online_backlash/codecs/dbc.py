@@ -1,4 +1,4 @@
-"""CAN frames to encoder counts with cantools, from a DBC file.
+"""CAN frames to checked raw angle values with cantools, from a DBC file.
 
 The motor and load angles are two signals of a DBC (``Message.Signal``, or a bare signal name
 that is unique in the database). They may sit in one message (one frame per sample) or in two
@@ -8,9 +8,12 @@ that is unique in the database). They may sit in one message (one frame per samp
 - a checksum (signal ``checksum_signal``, default ``Checksum``): one byte-aligned 8-bit signal holding
   CRC-8/SAE-J1850 (:class:`crccheck.crc.Crc8SaeJ1850`) of the other data bytes in order.
 
-Counts per revolution of each encoder come from the DBC (the signal's raw maximum + 1, or
-``2**length`` when it has no maximum) unless given; the counts wrap at that value (single-turn
-absolute encoders) and are unwrapped downstream.
+A signal's unit string decides what it is (:mod:`~online_backlash.codecs.units`): an angle
+(``deg``, ``rad``, ``rev``, ``arcmin``, ... any case) is scaled to degrees with the DBC's scale and
+offset and is multi-turn as given (unless ``wrap_deg`` says it wraps); an encoder count (``counts``,
+``cnt``, ``inc``, ``""``, ``-`` with scale 1) wraps at its counts per revolution (the DBC's raw range,
+or ``2**length``, unless given; single-turn absolute encoders) and is unwrapped downstream. Any other
+unit stops with an error naming the signal; ``units`` overrides the DBC's unit.
 
 Frames whose ID is not one of our messages (or that are error or remote frames) are *not ours*;
 frames of ours with a wrong length, a bad checksum or a count out of range are *corrupt*.
@@ -18,6 +21,7 @@ frames of ours with a wrong length, a bad checksum or a count out of range are *
 
 from __future__ import annotations
 
+import math
 import os
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -27,10 +31,12 @@ from typing import cast
 import can
 import cantools
 import numpy as np
-from cantools.database.can import Database, Message
+from cantools.database.can import Database, Message, Signal
 from crccheck.crc import Crc8SaeJ1850
 
 from online_backlash.errors import FrameError, InvalidParameterError
+
+from .units import ANGLE_UNITS, COUNT_UNITS, unit_key
 
 #: The example DBC shipped with the package (``RigAngles``; ``MotorAngle`` + ``LoadAngle``).
 RIG_DBC = Path(__file__).with_name("rig.dbc")
@@ -52,30 +58,65 @@ def load_dbc(dbc: str | os.PathLike[str] | Database) -> Database:
 
 @dataclass(frozen=True)
 class EncoderSignal:
-    """One encoder angle in a DBC: where it is and how to scale it.
+    """One angle signal of a DBC: where it is, and how its raw value becomes degrees.
+
+    The decoders read raw integer values (cantools ``scaling=False``); a sample's angle is
+    ``unwrapped_raw * deg_per_raw + offset_deg`` degrees.
 
     Attributes
     ----------
     message : cantools Message
     signal : str
         Signal name within the message.
-    counts_per_rev : int
-        Counts per revolution; counts wrap at this value.
-    deg_per_count : float
-        ``360 / counts_per_rev``.
+    unit : str
+        The unit that decided the kind (the DBC's, or the ``units`` override).
+    is_count : bool
+        True for an encoder count (unit ``counts``, ``cnt``, ``inc``, ``""``, ``-`` with scale 1):
+        raw counts, wrapping at ``counts_per_rev``, checked to lie in ``[low, low + counts_per_rev)``.
+        False for an angle (``deg``, ``rad``, ``rev``, ...): the DBC's scale and offset converted
+        to degrees, multi-turn as given unless a wrap was asked for.
+    modulus : int or None
+        Where the raw value wraps (counts per revolution of a count, ``wrap_deg / deg_per_raw``
+        of a wrapping angle); None: multi-turn, not unwrapped.
+    deg_per_raw : float
+        Degrees per raw value (``360 / counts_per_rev``, or the DBC scale times the unit's degrees).
+    offset_deg : float
+        Degrees added after scaling (the DBC offset of an angle; 0 for a count).
+    low : int
+        Smallest valid raw count of a count signal (0 unsigned, ``-counts_per_rev // 2`` signed).
     """
 
     message: Message
     signal: str
-    counts_per_rev: int
+    modulus: int | None
+    deg_per_raw: float
+    offset_deg: float = 0.0
+    unit: str = "counts"
+    is_count: bool = True
+    low: int = 0
+
+    @property
+    def counts_per_rev(self) -> int | None:
+        """Raw values per wrap (None for a multi-turn angle)."""
+        return self.modulus
 
     @property
     def deg_per_count(self) -> float:
-        return 360.0 / self.counts_per_rev
+        """Degrees per raw value (:attr:`deg_per_raw`)."""
+        return self.deg_per_raw
+
+    def raw_range(self) -> tuple[int, int] | None:
+        """``(low, high)``: the valid raw values ``low <= v < high`` of a count; None (no check) for an angle."""
+        if not self.is_count or self.modulus is None:
+            return None
+        return self.low, self.low + self.modulus
+
+    def degrees(self, unwrapped: float) -> float:
+        """Degrees of an unwrapped raw value."""
+        return unwrapped * self.deg_per_raw + self.offset_deg
 
 
-def resolve_signal(db: Database, spec: str, counts_per_rev: int | None = None) -> EncoderSignal:
-    """Find signal ``spec`` (``Message.Signal`` or a unique bare name) in ``db``."""
+def _find_signal(db: Database, spec: str) -> tuple[Message, Signal]:
     if not isinstance(spec, str) or not spec:
         raise InvalidParameterError(f"signal must be a name like 'Message.Signal', got {spec!r}")
     msg_name, dot, sig_name = spec.rpartition(".")
@@ -90,15 +131,67 @@ def resolve_signal(db: Database, spec: str, counts_per_rev: int | None = None) -
         raise InvalidParameterError(f"signal {spec!r} is not in the DBC; signals: {known}")
     if len(matches) > 1:
         raise InvalidParameterError(f"signal {spec!r} is ambiguous; use one of {[f'{m.name}.{s.name}' for m, s in matches]}")
-    message, signal = matches[0]
+    return matches[0]
+
+
+def resolve_signal(
+    db: Database, spec: str, counts_per_rev: int | None = None, units: str | None = None, wrap_deg: float | None = None
+) -> EncoderSignal:
+    """Find signal ``spec`` (``Message.Signal`` or a unique bare name) in ``db`` and decide its kind by its unit.
+
+    Parameters
+    ----------
+    counts_per_rev : int, optional
+        Of a count signal; default from the DBC (raw range ``max - min + 1``, else ``2**length``).
+    units : str, optional
+        Replaces the DBC's unit string (e.g. ``counts`` for a signal whose unit says nothing).
+    wrap_deg : float, optional
+        An angle signal wraps every ``wrap_deg`` degrees (e.g. 360 for a single-turn angle) and is
+        unwrapped; default: multi-turn as given. Ignored for counts.
+    """
+    message, signal = _find_signal(db, spec)
+    name = f"{message.name}.{signal.name}"
+    unit = (signal.unit or "") if units is None else units
+    key = unit_key(unit)
+    scale, offset = float(signal.scale), float(signal.offset)
+    counts_override = units is not None and key in COUNT_UNITS
+    if key in COUNT_UNITS and (counts_override or scale == 1.0):
+        return _count_signal(message, signal, name, unit, counts_per_rev)
+    if key not in ANGLE_UNITS:
+        what = f"unit {unit!r} with scale {signal.scale}" if key in COUNT_UNITS else f"unit {unit!r}"
+        raise InvalidParameterError(
+            f"signal {name} has {what}: not an angle ({', '.join(sorted(ANGLE_UNITS))}) nor an encoder count "
+            "(counts, cnt, inc, '' or '-' with scale 1); say what it is with --units"
+        )
+    deg_per_raw = scale * ANGLE_UNITS[key]
+    modulus = None
+    if wrap_deg is not None:
+        if not (isinstance(wrap_deg, (int, float)) and math.isfinite(wrap_deg) and wrap_deg > 0):
+            raise InvalidParameterError(f"wrap_deg of {name} must be a positive number of degrees, got {wrap_deg!r}")
+        ratio = wrap_deg / abs(deg_per_raw)
+        modulus = round(ratio)
+        if modulus < 2 or abs(ratio - modulus) > 1e-6 * ratio:
+            raise InvalidParameterError(f"signal {name}: a wrap of {wrap_deg} deg is not a whole number of raw steps of {abs(deg_per_raw)} deg")
+    return EncoderSignal(message, signal.name, modulus, deg_per_raw, offset * ANGLE_UNITS[key], unit, is_count=False)
+
+
+def _count_signal(message: Message, signal: Signal, name: str, unit: str, counts_per_rev: int | None) -> EncoderSignal:
+    low = 0
+    lowest, highest = signal.minimum, signal.maximum
     if counts_per_rev is None:
-        if signal.maximum is not None:
-            counts_per_rev = round((signal.maximum - signal.offset) / signal.scale) + 1
+        if lowest is not None and highest is not None and lowest < 0 < highest:
+            low = round((lowest - signal.offset) / signal.scale)
+            counts_per_rev = round((highest - lowest) / signal.scale) + 1
+        elif highest:  # a range [0|0] says nothing
+            counts_per_rev = round((highest - signal.offset) / signal.scale) + 1
         else:
             counts_per_rev = 2**signal.length
+            low = -(2 ** (signal.length - 1)) if signal.is_signed else 0
+    elif signal.is_signed and isinstance(counts_per_rev, int):
+        low = -(counts_per_rev // 2)
     if not isinstance(counts_per_rev, int) or counts_per_rev < 2:
-        raise InvalidParameterError(f"counts per revolution of {spec!r} must be an integer >= 2, got {counts_per_rev!r}")
-    return EncoderSignal(message, signal.name, counts_per_rev)
+        raise InvalidParameterError(f"counts per revolution of {name} must be an integer >= 2, got {counts_per_rev!r}")
+    return EncoderSignal(message, signal.name, counts_per_rev, 360.0 / counts_per_rev, 0.0, unit, is_count=True, low=low)
 
 
 @dataclass(frozen=True)
@@ -128,7 +221,7 @@ class MessageLayout:
 
 @dataclass(slots=True)
 class DecodedFrame:
-    """One frame of ours, checked: counts are raw (single-turn) encoder counts (0 for an angle the frame does not carry)."""
+    """One frame of ours, checked: raw signal values (unscaled, not unwrapped; 0 for an angle the frame does not carry)."""
 
     time_s: float
     role: int
@@ -168,9 +261,16 @@ class DbcDecoder:
     motor_signal, load_signal : str
         ``Message.Signal`` of the motor and load encoder counts.
     motor_cpr, load_cpr : int, optional
-        Counts per revolution; default from the DBC (signal maximum + 1, else ``2**length``).
+        Counts per revolution of a count signal; default from the DBC (raw range, else ``2**length``).
     counter_signal, checksum_signal : str or None
         Names of the rolling counter and checksum signals within our messages (None: not used).
+    units : str, optional
+        Replaces the unit strings of both angle signals (see :func:`resolve_signal`).
+    wrap_deg : float, optional
+        Angle signals (not counts) wrap every ``wrap_deg`` degrees; default: multi-turn as given.
+
+    A signal of a multiplexed message is read from the frames whose multiplexer selects it; the
+    other frames of that message are not ours (skipped).
 
     Attributes
     ----------
@@ -194,11 +294,17 @@ class DbcDecoder:
         load_cpr: int | None = None,
         counter_signal: str | None = "Counter",
         checksum_signal: str | None = "Checksum",
+        units: str | None = None,
+        wrap_deg: float | None = None,
     ) -> None:
         self.db = load_dbc(dbc)
-        self.motor = resolve_signal(self.db, motor_signal, motor_cpr)
-        self.load = resolve_signal(self.db, load_signal, load_cpr)
+        self.motor = resolve_signal(self.db, motor_signal, motor_cpr, units, wrap_deg)
+        self.load = resolve_signal(self.db, load_signal, load_cpr, units, wrap_deg)
         self.paired = self.motor.message.frame_id != self.load.message.frame_id
+        if not self.paired and self.motor.message.is_multiplexed():
+            motor_ids, load_ids = (self.motor.message.get_signal_by_name(e.signal).multiplexer_ids for e in (self.motor, self.load))
+            if motor_ids is not None and load_ids is not None and not set(motor_ids) & set(load_ids):
+                raise InvalidParameterError(f"{motor_signal} and {load_signal} are never in the same frame of multiplexed message {self.motor.message.name}")
         roles = [(self.motor.message, MOTOR), (self.load.message, LOAD)] if self.paired else [(self.motor.message, BOTH)]
         self.layouts: dict[int, MessageLayout] = {}
         for message, role in roles:
@@ -210,8 +316,8 @@ class DbcDecoder:
         self.messages: dict[int, Message] = {m.frame_id: m for m, _ in roles}
         # hot path of decode(): one lookup per frame
         self._by_id = {fid: (m.is_extended_frame, self.layouts[fid], m.decode_simple) for fid, m in self.messages.items()}
-        self._motor_name, self._motor_cpr = self.motor.signal, self.motor.counts_per_rev
-        self._load_name, self._load_cpr = self.load.signal, self.load.counts_per_rev
+        self._motor_name, self._motor_range = self.motor.signal, self.motor.raw_range()
+        self._load_name, self._load_range = self.load.signal, self.load.raw_range()
 
     def decode(self, msg: can.Message) -> DecodedFrame | None:
         """The checked content of ``msg``, None if it is not ours; raises FrameError if it is corrupt."""
@@ -228,14 +334,21 @@ class DbcDecoder:
         values = decode(bytes(data), False, False)  # integer signals, unscaled: ints
         motor = load = 0
         if layout.role & MOTOR:
+            if self._motor_name not in values:  # a multiplexed frame that does not carry it
+                return None
             motor = cast(int, values[self._motor_name])
-            if motor >= self._motor_cpr or motor < 0:
-                raise FrameError(f"frame 0x{msg.arbitration_id:X}: motor count {motor} out of range")
+            _check_range(msg, "motor", motor, self._motor_range)
         if layout.role & LOAD:
+            if self._load_name not in values:
+                return None
             load = cast(int, values[self._load_name])
-            if load >= self._load_cpr or load < 0:
-                raise FrameError(f"frame 0x{msg.arbitration_id:X}: load count {load} out of range")
+            _check_range(msg, "load", load, self._load_range)
         return DecodedFrame(msg.timestamp, layout.role, cast(int, values[layout.counter]) if layout.counter else None, motor, load)
+
+
+def _check_range(msg: can.Message, which: str, value: int, valid: tuple[int, int] | None) -> None:
+    if valid is not None and not valid[0] <= value < valid[1]:
+        raise FrameError(f"frame 0x{msg.arbitration_id:X}: {which} count {value} out of range")
 
 
 class FrameEncoder:
@@ -255,19 +368,26 @@ class FrameEncoder:
             message = dec.messages[frame_id]
             values = {s.name: 0 for s in message.signals}
             if layout.role & MOTOR:
-                values[dec.motor.signal] = motor_count % dec.motor.counts_per_rev
+                values[dec.motor.signal] = _wrapped(motor_count, dec.motor)
             if layout.role & LOAD:
-                values[dec.load.signal] = load_count % dec.load.counts_per_rev
+                values[dec.load.signal] = _wrapped(load_count, dec.load)
             if layout.counter and layout.counter_modulus:
                 values[layout.counter] = counter % layout.counter_modulus
             data = bytearray(message.encode(values, scaling=False, strict=False))
             if layout.checksum_byte is not None:
                 i = layout.checksum_byte
                 data[i] = Crc8SaeJ1850.calc(bytes(data[:i] + data[i + 1 :]))
-            out.append(can.Message(timestamp=time_s, arbitration_id=frame_id, is_extended_id=message.is_extended_frame, data=data))
+            out.append(can.Message(timestamp=time_s, arbitration_id=frame_id, is_extended_id=message.is_extended_frame, is_fd=message.is_fd, data=data))
         return out
 
 
+def _wrapped(raw: int, signal: EncoderSignal) -> int:
+    """A raw value brought into the signal's wrap (``[low, low + modulus)``), unchanged for a multi-turn angle."""
+    if signal.modulus is None:
+        return raw
+    return (raw - signal.low) % signal.modulus + signal.low
+
+
 def counts_of(angle_deg: Sequence[float] | np.ndarray | float, signal: EncoderSignal) -> np.ndarray:
-    """Encoder counts (rounded, not wrapped) of angles in degrees, for feeding :class:`FrameEncoder` from a simulation."""
-    return np.rint(np.asarray(angle_deg) / signal.deg_per_count).astype(np.int64)
+    """Raw values (rounded, not wrapped) of angles in degrees, for feeding :class:`FrameEncoder` from a simulation."""
+    return np.rint((np.asarray(angle_deg) - signal.offset_deg) / signal.deg_per_raw).astype(np.int64)

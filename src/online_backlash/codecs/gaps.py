@@ -2,9 +2,15 @@
 
 A gap is reported when a rolling counter skips values, or when a time step is longer than
 :data:`~online_backlash.stream.GAP_PERIODS` nominal periods (:func:`step_is_gap`; the samples
-missing in it: :func:`missing_in_step`). The nominal period is given, or learnt as the median of
-the first ``learn_steps`` steps without a counter jump; until it is known, only counter jumps are
-gaps. :class:`GapDetector` applies the rule sample by sample (:meth:`GapDetector.check`) or to a
+missing in it: :func:`missing_in_step`). The nominal period is given, or learnt from the first
+``learn_steps`` steps without a counter jump (their median; with a counter, their mean, which host
+timestamps bunched in bursts do not bias); until it is known, only counter jumps are gaps.
+
+Bursts are not gaps: a host-timestamped adapter delivers frames in bunches of 1-5 ms, so the
+timestamps stall and then leap while the counter runs on. Where the counter is continuous, a time
+step is a gap only when it is longer than :func:`gap_periods` nominal periods: half the counter's
+cycle, and never fewer than ``GAP_PERIODS`` (a loss of a whole cycle of frames, which the counter
+cannot show, still shows in the time). :class:`GapDetector` applies the rule sample by sample (:meth:`GapDetector.check`) or to a
 block of timestamps without counters (:meth:`GapDetector.check_times`, CSV rows; tested equal).
 The compiled pairing loop of CAN replay (:mod:`~online_backlash.codecs.blockpairing`) applies the
 same rule inside numba and is held equal to the per-frame path by ``tests/test_can_blocks.py``.
@@ -20,9 +26,20 @@ from online_backlash.errors import InvalidParameterError
 from online_backlash.stream import GAP_PERIODS, Gap
 
 
-def step_is_gap(dt: float | np.ndarray, period_s: float) -> bool | np.ndarray:
-    """True where a time step ``dt`` (seconds) is longer than ``GAP_PERIODS`` nominal periods."""
-    return dt > GAP_PERIODS * period_s
+def step_is_gap(dt: float | np.ndarray, period_s: float, periods: float = GAP_PERIODS) -> bool | np.ndarray:
+    """True where a time step ``dt`` (seconds) is longer than ``periods`` nominal periods (default ``GAP_PERIODS``)."""
+    return dt > periods * period_s
+
+
+def gap_periods(counter_modulus: int | None) -> float:
+    """Nominal periods a time step must exceed to be a gap: ``GAP_PERIODS`` without a counter; with a
+    counter wrapping at ``counter_modulus``, half its cycle plus one (at least ``GAP_PERIODS``), so
+    that bursts of bunched timestamps are not gaps while a lost whole cycle still is.
+
+    >>> gap_periods(None), gap_periods(4), gap_periods(16)
+    (3.0, 3.0, 8.5)
+    """
+    return GAP_PERIODS if counter_modulus is None else max(GAP_PERIODS, (counter_modulus + 1) / 2)
 
 
 def missing_in_step(dt: float, period_s: float) -> int:
@@ -59,6 +76,7 @@ class GapDetector:
             raise InvalidParameterError(f"period_s must be positive or None, got {period_s!r}")
         self.counter_modulus = counter_modulus
         self.period_s = period_s
+        self.gap_periods = gap_periods(counter_modulus)
         self.learn_steps = int(learn_steps)
         self._steps: list[float] = []
         self._last_time: float | None = None
@@ -78,7 +96,7 @@ class GapDetector:
             if missing == 0:
                 self._learn([dt])
             return Gap(time_s, dt, missing) if missing else None
-        if missing or step_is_gap(dt, self.period_s):
+        if missing or step_is_gap(dt, self.period_s, self.gap_periods):
             return Gap(time_s, dt, max(missing, missing_in_step(dt, self.period_s)))
         return None
 
@@ -103,15 +121,16 @@ class GapDetector:
             first += take
         if self.period_s is None or first >= n:
             return after_gap, []
-        index = first + np.flatnonzero(step_is_gap(dt[first:], self.period_s))
+        index = first + np.flatnonzero(step_is_gap(dt[first:], self.period_s, self.gap_periods))
         after_gap[index] = True
         period = self.period_s
         return after_gap, [Gap(t, d, missing_in_step(d, period)) for t, d in zip(time_s[index].tolist(), dt[index].tolist())]
 
     def _learn(self, steps: list[float]) -> None:
-        """Take steps (seconds) towards the learnt period: the median of the first ``learn_steps`` (again if not positive)."""
+        """Take steps (seconds) towards the learnt period: the median of the first ``learn_steps``, or with a
+        counter their mean (again if not positive)."""
         self._steps.extend(steps)
         if len(self._steps) == self.learn_steps:
-            median = statistics.median(self._steps)
-            self.period_s = median if median > 0 else None
+            period = statistics.median(self._steps) if self.counter_modulus is None else statistics.fmean(self._steps)
+            self.period_s = period if period > 0 else None
             self._steps.clear()

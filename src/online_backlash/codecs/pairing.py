@@ -136,10 +136,10 @@ class FramePipeline(CanPipeline):
         self._n_pairs = 0
         self._pending: list[DecodedFrame | None] = [None, None]  # [motor, load]
         self._assemble = SampleAssembler(self.counters, decoder.counter_modulus, period_s, strict).row
-        self._motor_turns = Unwrapper(decoder.motor.counts_per_rev)
-        self._load_turns = Unwrapper(decoder.load.counts_per_rev)
-        self._motor_scale = decoder.motor.deg_per_count
-        self._load_scale = decoder.load.deg_per_count
+        self._motor_turns = Unwrapper(decoder.motor.modulus)
+        self._load_turns = Unwrapper(decoder.load.modulus)
+        self._motor_deg = decoder.motor.degrees
+        self._load_deg = decoder.load.degrees
 
     @property
     def skew_mean_s(self) -> float:
@@ -206,8 +206,8 @@ class FramePipeline(CanPipeline):
             self._skew_max_s = max(self._skew_max_s, abs(skew_s))
         return self._assemble(
             time_s,
-            self._motor_turns(motor_count) * self._motor_scale,
-            self._load_turns(load_count) * self._load_scale,
+            self._motor_deg(self._motor_turns(motor_count)),
+            self._load_deg(self._load_turns(load_count)),
             counter,
             self.frames_per_sample,
         )

@@ -55,6 +55,17 @@ def memory_factors(memory_s: float | None, memory_reversals: float | None, sampl
     return lam, lam_rev
 
 
+def _failure_reason(exc: Exception, n_gaps: int, stretch: int, buffered: int) -> str:
+    """Why a warm start failed: the batch fit's reason, led by the gaps when they cut the buffer
+    (the fit sees only the longest gap-free stretch, ``stretch`` of ``buffered`` samples)."""
+    if not n_gaps:
+        return str(exc)
+    return (
+        f"{n_gaps} gaps in the data cut the {buffered} buffered samples into stretches of at most {stretch}, "
+        f"too short to fit (on the longest: {exc})"
+    )
+
+
 def finite(name: str, value: float) -> float:
     """``value`` as a float; InvalidParameterError if it is not finite (NaN never reaches an estimator)."""
     v = float(value)
@@ -407,13 +418,14 @@ class RecursiveEstimator(ABC):
                 "converged": not any(issubclass(w.category, ConvergenceWarning) for w in caught),
             }
         except (NotExcitedError, InvalidParameterError) as exc:
+            reason = _failure_reason(exc, len(cuts) - 2, hi - lo, u.size)
             if not fallback:
-                raise NotExcitedError(f"warm start failed on {hi - lo} buffered samples: {exc}") from exc
+                raise NotExcitedError(f"warm start failed on {hi - lo} buffered samples: {reason}") from exc
             if self._attempts < _WARM_ATTEMPTS:
                 self._next_attempt += self.warm_start_samples
                 return
             start = self._cold_params(u[lo:hi] - u0, y[lo:hi] - y0)
-            self.warm_start_ = {"method": "cold", "samples": 0, "reason": str(exc)}
+            self.warm_start_ = {"method": "cold", "samples": 0, "reason": reason, "gaps": len(cuts) - 2}
         self._begin(start)
         buf = self._buf
         self._buf = {k: [] for k in buf}

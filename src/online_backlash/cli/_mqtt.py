@@ -1,0 +1,75 @@
+"""``--mqtt mqtt://HOST:PORT/PREFIX`` for ``listen`` and ``track --listen``: options and the publisher."""
+
+from __future__ import annotations
+
+import argparse
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from typing import TYPE_CHECKING
+
+from ..errors import InvalidParameterError
+
+if TYPE_CHECKING:
+    from ..publish import MqttPublisher
+    from ..rows import EstimateRow
+
+MQTT_HELP = (
+    "publish every estimate as JSON to PREFIX/GEARBOX/estimate and the alarm state, retained, to PREFIX/GEARBOX/state "
+    "(a broker that goes away is reconnected to; estimates meanwhile are dropped and counted)"
+)
+
+
+def add_mqtt_option(parser: argparse.ArgumentParser | argparse._ArgumentGroup) -> None:
+    """``--mqtt URL`` (``track`` has ``--gearbox``, ``--every`` and the alarm levels already)."""
+    parser.add_argument("--mqtt", metavar="URL", help=MQTT_HELP)
+
+
+def add_listen_mqtt_options(parser: argparse.ArgumentParser) -> None:
+    """``--mqtt`` with what ``listen`` needs besides: the gearbox id, the interval and the alarm levels."""
+    group = parser.add_argument_group("MQTT")
+    add_mqtt_option(group)
+    group.add_argument("--gearbox", metavar="ID", help="the gearbox's id in the topics (required with --mqtt)")
+    group.add_argument("--every", type=float, metavar="S", help="seconds of data between published estimates; default: --status-every")
+    group.add_argument("--warn-arcmin", type=float, metavar="X", help="warning level of the play, for the published state")
+    group.add_argument("--limit-arcmin", type=float, metavar="X", help="limit of the play, for the published state (without: unknown)")
+
+
+@contextmanager
+def mqtt_publisher(
+    url: str | None, gearbox_id: str | None, warn_arcmin: float | None, limit_arcmin: float | None
+) -> Iterator[MqttPublisher | None]:
+    """The running publisher for ``--mqtt URL`` (None without ``--mqtt``), closed at the end."""
+    if url is None:
+        yield None
+        return
+    if not gearbox_id:
+        raise InvalidParameterError("--mqtt publishes under the gearbox's id: give --gearbox ID")
+    from ..publish import MqttPublisher
+
+    with MqttPublisher(url, gearbox_id, warn_arcmin, limit_arcmin) as publisher:
+        yield publisher
+
+
+def row_sink(publisher: MqttPublisher | None, then: Callable[[EstimateRow], None]) -> Callable[[EstimateRow], None]:
+    """A pipeline trace callback: publish the row (placing a device clock at now, once), then ``then(row)``."""
+    if publisher is None:
+        return then
+    from ..publish import unix_time_of
+
+    offset: list[float | None] = [None]
+
+    def sink(row: EstimateRow) -> None:
+        time_unix_s, offset[0] = unix_time_of(row.time_s, offset[0])
+        publisher.publish(row, time_unix_s)
+        then(row)
+
+    return sink
+
+
+def mqtt_summary_line(publisher: MqttPublisher) -> str:
+    """The summary's MQTT line: published, dropped, connections."""
+    c = publisher.counts()
+    return (
+        f"mqtt:           {c['mqtt_published']} estimates published, {c['mqtt_dropped']} dropped while the broker was away, "
+        f"{c['mqtt_connections']} connections to {publisher.target.host}:{publisher.target.port}"
+    )
