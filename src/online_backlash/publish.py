@@ -27,7 +27,6 @@ import datetime as dt
 import json
 import math
 import threading
-import time
 import uuid
 from dataclasses import dataclass
 from typing import Any
@@ -38,6 +37,7 @@ import numpy as np
 from .errors import InvalidParameterError
 from .history.alarms import AlarmStatus, check_alarm_levels, evaluate_alarm
 from .rows import ARCMIN_PER_DEG, REPORT_KEYS, EstimateRow, select
+from .stream import live_clock_offset
 
 #: Default MQTT port (unencrypted).
 DEFAULT_PORT = 1883
@@ -274,10 +274,8 @@ def unix_time_of(time_s: float, offset_s: float | None) -> tuple[float, float]:
     """``(time_unix_s, offset_s)`` of a live sample time: UNIX times stay, a device clock is placed
     so that its first estimate is now (as :class:`~online_backlash.tracking.GearboxTracker` places
     a live run). Pass the returned offset back with the next time."""
-    from .tracking import UNIX_TIME_MIN
-
     if offset_s is None:
-        offset_s = 0.0 if time_s >= UNIX_TIME_MIN else time.time() - time_s
+        offset_s = live_clock_offset(time_s)
     return time_s + offset_s, offset_s
 
 

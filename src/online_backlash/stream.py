@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import math
 import os
+import time
 from abc import ABC, abstractmethod
 from collections import deque
 from collections.abc import Iterable, Iterator, Sequence
@@ -23,6 +24,16 @@ from typing import TypeVar
 import numpy as np
 
 from .errors import InvalidParameterError, LogFormatError
+
+#: A sample time of at least this many seconds is a UNIX time (2001-09-09 on); smaller ones are a device clock.
+UNIX_TIME_MIN = 1.0e9
+
+
+def live_clock_offset(first_time_s: float) -> float:
+    """Seconds to add to a live source's times to get UNIX time: 0 for UNIX times (at least
+    :data:`UNIX_TIME_MIN`), else the device clock is placed so that its first sample is now."""
+    return 0.0 if first_time_s >= UNIX_TIME_MIN else time.time() - first_time_s
+
 
 #: A time step longer than this many nominal sample periods is a gap (every source uses this rule).
 GAP_PERIODS = 3.0

@@ -26,7 +26,6 @@ from __future__ import annotations
 import hashlib
 import math
 import os
-import time
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from importlib import resources
@@ -42,10 +41,9 @@ from .history.usage import UsageCounter
 from .pipeline import DataClock, Pipeline, check_every, tail
 from .replay import open_log
 from .rows import STORE_COLUMNS, EstimateRow, select, source_counts
-from .stream import SampleChunk, SampleSource, refer_to_load
+from .stream import UNIX_TIME_MIN, SampleChunk, SampleSource, live_clock_offset, refer_to_load
 
 #: Times at or above this (2001-09-09) are read as UNIX seconds.
-UNIX_TIME_MIN = 1.0e9
 
 #: Version of the checkpoint's layout (inside the store's ``gearboxes.checkpoint``).
 CHECKPOINT_FORMAT = 1
@@ -72,10 +70,6 @@ def log_clock_offset(path: str | os.PathLike[str], first_time_s: float, start_un
     if first_time_s >= UNIX_TIME_MIN:
         return 0.0
     return os.stat(path).st_mtime - first_time_s
-
-
-def _default_clock_offset(first_time_s: float) -> float:
-    return 0.0 if first_time_s >= UNIX_TIME_MIN else time.time() - first_time_s
 
 
 @dataclass
@@ -241,7 +235,7 @@ class GearboxTracker:
         if first is None:
             raise LogFormatError(source, None, "no data rows")
         first_time_s = float(first.time_s[0])
-        offset = clock_offset(first_time_s) if clock_offset is not None else _default_clock_offset(first_time_s)
+        offset = clock_offset(first_time_s) if clock_offset is not None else live_clock_offset(first_time_s)
         self._check_estimator_params(self.store.find_gearbox(self.gearbox_id))
         gearbox, run = self.store.begin_run(self.gearbox_id, self.ratio, source, key, first_time_s + offset, self.limit_arcmin)
         result = TrackResult(self.gearbox_id, run.id, source, resumed_from=run.samples_done)
