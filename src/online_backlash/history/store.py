@@ -52,6 +52,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import sqlite3
 import time
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
@@ -368,7 +369,7 @@ class HistoryStore:
                 sqlite_connection = conn.connection.dbapi_connection
                 if sqlite_connection is None:
                     raise HistoryError(f"cannot open history store {self.name}: the SQLite connection is closed")
-                sqlite_connection.execute("PRAGMA journal_mode=WAL")
+                _switch_to_wal(sqlite_connection)
         try:
             with self._connect(write=True) as conn, conn.begin():
                 if "meta" in inspect(conn).get_table_names():
@@ -554,6 +555,28 @@ class HistoryStore:
             new_gearbox = _require_gearbox(conn, gearbox.id)
             new_run = Run(**conn.execute(select(runs_table).where(runs_table.c.id == run.id)).one()._mapping)
         return new_gearbox, new_run
+
+
+def _switch_to_wal(sqlite_connection: Any, timeout_s: float = 30.0) -> None:
+    """Put a new SQLite store in WAL mode (a persistent property of the file).
+
+    Several processes may create one store at once, and SQLite answers "database is locked" to a
+    journal-mode switch at once, without calling the busy handler, while another creator holds the
+    file. So the switch is retried every 10 ms until the file is in WAL mode (by this creator or
+    another) or ``timeout_s`` (the connections' busy timeout) has passed.
+    """
+    deadline = time.monotonic() + timeout_s
+    while _journal_mode(sqlite_connection) != "wal":
+        try:
+            sqlite_connection.execute("PRAGMA journal_mode=WAL")
+        except sqlite3.OperationalError:
+            if time.monotonic() > deadline:
+                raise
+            time.sleep(0.01)
+
+
+def _journal_mode(sqlite_connection: Any) -> str:
+    return str(sqlite_connection.execute("PRAGMA journal_mode").fetchone()[0]).lower()
 
 
 def _finite_or_none(value: Any) -> Any:
