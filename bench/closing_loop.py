@@ -1,16 +1,23 @@
 """Closing the loop on rig-like logs: is the right effect found, and how much error is left?
 
 For every case (a clean log, one log per effect of the library, and one effect outside the
-library: a lag that grows with the square of the speed) and every seed, a rig-like log is
-simulated (30:1, 1 kHz, 14-bit motor, 17-bit load, 2 counts of load noise, 0.5 deg of play,
-continuous rotation with reversals; :func:`online_backlash.rig.simulate_rig`), the effect of
-:mod:`online_backlash.diagnostics.synthetic` is added, and
+library: a lag that grows with the square of the speed) and every seed, a log is simulated by
+the two-mass rig (``--generator two_mass``, the default: 30:1, 1 kHz, 14-bit motor, 17-bit load,
+0.5 deg of play, continuous rotation with reversals, Coulomb friction on the output; the play
+and the wind-up follow from its dynamics, not from the estimator's model; a stiff gear for every
+case but compliance, where the gear is compliant and the transmitted torque is logged:
+``synthetic.TWO_MASS_INJECTORS``) or by the estimator's own model (``--generator rig``:
+:func:`online_backlash.rig.simulate_rig` with 2 counts of load noise, ``synthetic.INJECTORS``),
+the effect is added, and
 :func:`online_backlash.diagnostics.loop.diagnose` is run. Prints a markdown table of how often
 each figure of the issue holds:
 
 * **named first**: the first named effect is the one added (clean log: ``effects`` empty;
   outside the library: something is reported and the RMS falls by at least 30 %),
 * **<= 1.5 floor**: ``rms_after_deg <= 1.5 * noise_floor_deg``,
+* **<= 1.1 clean**: ``rms_after_deg`` at most 1.1 times what the loop leaves on the clean log of
+  the same seed (on the two-mass rig the clean log itself sits at 1.2-1.5 times the floor: the
+  load coasts through the dead band, which no term models),
 * **<= 1/2 before**: ``rms_after_deg <= 0.5 * rms_before_deg`` (not applicable to the clean log),
 * **play 2 %**: ``|backlash_after_deg - 0.5| <= 0.01``,
 
@@ -36,36 +43,54 @@ import numpy as np
 from online_backlash import BacklashRLS
 from online_backlash.diagnostics import synthetic
 from online_backlash.diagnostics.loop import diagnose_arrays
-from online_backlash.diagnostics.synthetic import INJECTORS
+from online_backlash.diagnostics.synthetic import INJECTORS, TWO_MASS_INJECTORS
 from online_backlash.rig import simulate_rig
 
 PLAY_DEG = 0.5
 
 
-def run_case(name: str, seed: int, duration_s: float) -> dict:
-    rec = simulate_rig(duration_s=duration_s, play_deg=PLAY_DEG, seed=seed)
-    t, m, y, q = INJECTORS[name](rec)
+def run_case(name: str, seed: int, duration_s: float, generator: str = "two_mass") -> dict:
+    if generator == "two_mass":
+        t, m, y, q = TWO_MASS_INJECTORS[name](seed, duration_s)
+        ratio = 30.0
+    else:
+        rec = simulate_rig(duration_s=duration_s, play_deg=PLAY_DEG, seed=seed)
+        t, m, y, q = INJECTORS[name](rec)
+        ratio = rec.ratio
     t0 = time.perf_counter()
-    d = diagnose_arrays(t, m, y, rec.ratio, torque_Nm=q).as_dict()
+    d = diagnose_arrays(t, m, y, ratio, torque_Nm=q).as_dict()
     d["seconds"] = time.perf_counter() - t0
     names = [e["name"] for e in d["effects"]]
-    unexplained = [e["name"] for e in d["unexplained"]]
+    unexplained = [e["name"] if e["name"] != "not_separable" else "|".join(e["candidates"]) for e in d["unexplained"]]
     if name == "clean":
         named = names == []
     elif name == "outside_library":
         named = bool(names or unexplained) and d["rms_after_deg"] <= 0.7 * d["rms_before_deg"]
     else:
         named = bool(names) and names[0] == name
+    clean_rms = d["rms_after_deg"] if name == "clean" else clean_residual(seed, duration_s, generator)
     d.update(
         case=name,
         seed=seed,
         named=named,
         floor_ok=d["rms_after_deg"] <= 1.5 * d["noise_floor_deg"],
+        clean_ok=d["rms_after_deg"] <= 1.1 * clean_rms,
         half_ok=None if name == "clean" else d["rms_after_deg"] <= 0.5 * d["rms_before_deg"],
         play_ok=abs(d["backlash_after_deg"] - PLAY_DEG) <= 0.02 * PLAY_DEG,
         found=names + [f"({u})" for u in unexplained],
     )
     return d
+
+
+_CLEAN: dict[tuple[int, float, str], float] = {}
+
+
+def clean_residual(seed: int, duration_s: float, generator: str) -> float:
+    """The residual RMS the loop leaves on the clean log of the same seed (what a perfect term leaves), deg."""
+    key = (seed, duration_s, generator)
+    if key not in _CLEAN:
+        _CLEAN[key] = run_case("clean", seed, duration_s, generator)["rms_after_deg"]
+    return _CLEAN[key]
 
 
 def tracker(seeds: int, duration_s: float) -> None:
@@ -102,20 +127,24 @@ def main() -> None:
     parser.add_argument("--duration-s", type=float, default=180.0)
     parser.add_argument("--cases", default=",".join(INJECTORS), help="comma-separated subset of " + ",".join(INJECTORS))
     parser.add_argument("--verbose", action="store_true", help="print one line per log")
+    parser.add_argument(
+        "--generator", choices=("two_mass", "rig"), default="two_mass",
+        help="two_mass: the two-mass rig, a simulator the estimator does not assume; rig: the estimator's own model plus the effect",
+    )
     parser.add_argument("--tracker", action="store_true", help="run the recursive-estimator check instead")
     args = parser.parse_args()
     if args.tracker:
         tracker(args.seeds, args.duration_s)
         return
     print(f"machine: {platform.processor() or platform.machine()}, {os.cpu_count()} CPUs, Python {platform.python_version()}")
-    print(f"logs: {args.duration_s:.0f} s at 1 kHz, play {PLAY_DEG} deg, seeds 0..{args.seeds - 1}\n")
+    print(f"logs: {args.generator}, {args.duration_s:.0f} s at 1 kHz, play {PLAY_DEG} deg, seeds 0..{args.seeds - 1}\n")
     print(
-        "| case | named first | <= 1.5 floor | <= 1/2 before | play 2 % | RMS before, deg | RMS after, deg | floor, deg "
+        "| case | named first | <= 1.5 floor | <= 1.1 clean | <= 1/2 before | play 2 % | RMS before, deg | RMS after, deg | floor, deg "
         "| play before, deg | play after, deg | terms found (seed 0) | s per log |"
     )
-    print("|---|---|---|---|---|---|---|---|---|---|---|---|")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|")
     for name in args.cases.split(","):
-        rows = [run_case(name, seed, args.duration_s) for seed in range(args.seeds)]
+        rows = [run_case(name, seed, args.duration_s, args.generator) for seed in range(args.seeds)]
         if args.verbose:
             for r in rows:
                 print(
@@ -131,7 +160,7 @@ def main() -> None:
             return f"{min(v):.4f}..{max(v):.4f}"
 
         print(
-            f"| {name} | {count(rows, 'named')} | {count(rows, 'floor_ok')} | {count(rows, 'half_ok')} | {count(rows, 'play_ok')} "
+            f"| {name} | {count(rows, 'named')} | {count(rows, 'floor_ok')} | {count(rows, 'clean_ok')} | {count(rows, 'half_ok')} | {count(rows, 'play_ok')} "
             f"| {med('rms_before_deg', '.5f')} | {med('rms_after_deg', '.5f')} | {med('noise_floor_deg', '.5f')} "
             f"| {span('backlash_before_deg')} | {span('backlash_after_deg')} | {', '.join(rows[0]['found']) or '-'} | {med('seconds', '.1f')} |",
             flush=True,

@@ -7,7 +7,9 @@ written once as a Parquet file (pyarrow, row groups of 1,000,000) and as an MDF 
 * ``learn_many`` on the samples already in memory (the estimator's own rate: the reference),
 * ``online-backlash estimate FILE --ratio 30`` through ``main()`` (read + validate + estimate),
   warm (the reader's and CLI's modules imported and numba's compiled estimator loaded before
-  the timing, as for the reference) and cold (all of that inside the timing),
+  the timing, as for the reference) and cold (all of that inside the timing); ``estimate`` reads
+  the file in a reader thread one block ahead while the estimator (compiled ``nogil``) learns,
+* the same fit on one thread (``fit_recursive(..., ahead=0)``: reading and estimating in turn),
 * the reader alone (``ParquetLog``/``MdfLog.iter_chunks()``),
 * the library's own bulk read of the whole file (``pyarrow.parquet.read_table``,
   ``asammdf.MDF.get``), which holds everything in memory.
@@ -62,6 +64,14 @@ CASES = {
     "`BacklashRLS.learn_many`, samples in memory (reference)": ("parquet", LEARN_MANY, ""),
     "`estimate` of the Parquet file": ("parquet", ESTIMATE, ""),
     "`estimate` of the Parquet file, cold (lazy imports and numba's cache load timed too)": ("parquet", (COLD, ESTIMATE[1]), ""),
+    "`fit_recursive` of the Parquet file on one thread (no read-ahead)": (
+        "parquet",
+        (
+            "from online_backlash.replay.parquet import ParquetLog\nfrom online_backlash.fitting import fit_recursive\n" + WARM,
+            "with ParquetLog({path!r}) as log:\n    out = round(fit_recursive(log.iter_chunks(), 30.0, ahead=0)[0].backlash_deg, 5)",
+        ),
+        "",
+    ),
     "`ParquetLog.iter_chunks()` alone": (
         "parquet",
         ("from online_backlash.replay.parquet import ParquetLog", "with ParquetLog({path!r}) as log:\n    out = sum(len(c) for c in log.iter_chunks())"),
@@ -70,6 +80,15 @@ CASES = {
     "`pyarrow.parquet.read_table` (whole file)": ("parquet", ("import pyarrow.parquet as pq", "out = pq.read_table({path!r}).num_rows"), ""),
     "`estimate` of the MDF4 file": ("mf4", ESTIMATE, ", '--columns', 'motor=Motor,load=Load'"),
     "`estimate` of the MDF4 file, cold": ("mf4", (COLD, ESTIMATE[1]), ", '--columns', 'motor=Motor,load=Load'"),
+    "`fit_recursive` of the MDF4 file on one thread (no read-ahead)": (
+        "mf4",
+        (
+            "from online_backlash.replay.mdf import MdfLog\nfrom online_backlash.fitting import fit_recursive\n" + WARM,
+            "with MdfLog({path!r}, columns={{'motor': 'Motor', 'load': 'Load'}}) as log:\n"
+            "    out = round(fit_recursive(log.iter_chunks(), 30.0, ahead=0)[0].backlash_deg, 5)",
+        ),
+        "",
+    ),
     "`MdfLog.iter_chunks()` alone": (
         "mf4",
         (
@@ -110,7 +129,9 @@ def write_files(samples: int, folder: str) -> dict[str, str]:
 
 
 def run_child(imports: str, body: str) -> dict:
-    done = subprocess.run([sys.executable, "-c", CHILD.format(imports=imports, body=body)], capture_output=True, text=True, check=True)
+    done = subprocess.run([sys.executable, "-c", CHILD.format(imports=imports, body=body)], capture_output=True, text=True)
+    if done.returncode:
+        raise SystemExit(f"a benchmark case failed (exit {done.returncode}):\n{body}\n{done.stderr[-2000:]}")
     return json.loads(done.stdout.strip().splitlines()[-1])
 
 

@@ -4,6 +4,7 @@
 
     live.py          LiveSource: the receive loop (stop, duration, timeout) both live sources share
     can.py           CanSource: Bus + Notifier, raw writer first, then the frames decoded in blocks
+    canopen.py       CanopenSource: the same bus and notifier, CANopen drives' TPDOs grouped by SYNC
     serial.py        SerialSource: pyserial ``serial_for_url``, bytes captured before parsing
     rawlog.py        raw captures named in time order (python-can writers; verbatim bytes)
 

@@ -19,13 +19,13 @@ from __future__ import annotations
 import os
 import queue
 from collections.abc import Iterator
-from typing import Any
+from typing import Any, Protocol
 
 import can
 from cantools.database.can import Database
 
-from online_backlash.codecs.dbc import DbcDecoder
-from online_backlash.codecs.pairing import CanCounters, FramePipeline
+from online_backlash.codecs.dbc import DbcDecoder, WrapDeg
+from online_backlash.codecs.pairing import CanCounters, CanPipeline, FramePipeline
 from online_backlash.errors import BacklashError, SourceError
 from online_backlash.stream import Row, SampleChunk, rows_to_chunk
 
@@ -45,10 +45,22 @@ def open_bus(interface: str, channel: Any, bitrate: int | None = None, **config:
         raise SourceError(f"cannot open CAN interface {interface!r} channel {channel!r}: {exc}") from exc
 
 
+class RowPipeline(Protocol):
+    """What the notifier thread feeds: one frame in, the checked sample it completes (a row) out;
+    :class:`~online_backlash.codecs.pairing.FramePipeline` (DBC) and
+    :class:`~online_backlash.codecs.canopen.SyncPipeline` (CANopen) are ones."""
+
+    counters: CanCounters
+
+    def feed_row(self, msg: can.Message) -> Row | None: ...
+
+    def flush(self) -> None: ...
+
+
 class _RowListener(can.Listener):
     """Decode in the notifier thread; hand the checked samples as rows (or the error that stopped it) to the consumer."""
 
-    def __init__(self, pipeline: FramePipeline, out: queue.SimpleQueue) -> None:
+    def __init__(self, pipeline: RowPipeline, out: queue.SimpleQueue) -> None:
         self.pipeline = pipeline
         self.out = out
 
@@ -86,7 +98,7 @@ class CanSource(LiveSource):
     ----------
     counters : CanCounters
         ``frames`` counts every frame the bus delivered; they reconcile after close.
-    pipeline : FramePipeline
+    pipeline : CanPipeline
         Pairing skew (``skew_mean_s``, ``skew_max_s``) and frames per sample.
     raw_log : RawCanLog or None
     max_batch : int
@@ -115,11 +127,27 @@ class CanSource(LiveSource):
         timeout_s: float | None = None,
         own_bus: bool = True,
         units: str | None = None,
-        wrap_deg: float | None = None,
+        wrap_deg: WrapDeg = None,
     ) -> None:
         decoder = DbcDecoder(dbc, motor_signal, load_signal, motor_cpr, load_cpr, counter_signal, checksum_signal, units, wrap_deg)
-        self.pipeline = FramePipeline(decoder, period_s, max_skew_s, strict)
-        self.counters: CanCounters = self.pipeline.counters
+        pipeline = FramePipeline(decoder, period_s, max_skew_s, strict)
+        self.pipeline: CanPipeline = pipeline
+        self._listen(bus, pipeline, raw_log_dir, raw_format, duration_s, timeout_s, own_bus)
+
+    def _listen(
+        self,
+        bus: can.BusABC,
+        pipeline: RowPipeline,
+        raw_log_dir: str | os.PathLike[str] | None,
+        raw_format: str,
+        duration_s: float | None,
+        timeout_s: float | None,
+        own_bus: bool,
+    ) -> None:
+        """Start receiving: the raw writer first, then ``pipeline`` in the notifier thread (the bus/notifier
+        split every live CAN source shares; a subclass with other frame rules passes its own pipeline)."""
+        self._rows = pipeline
+        self.counters: CanCounters = pipeline.counters
         self.bus = bus
         self.own_bus = own_bus
         self.duration_s = duration_s
@@ -127,7 +155,7 @@ class CanSource(LiveSource):
         self.raw_log = RawCanLog(raw_log_dir, raw_format) if raw_log_dir is not None else None
         self._queue: queue.SimpleQueue = queue.SimpleQueue()
         listeners: list[can.Listener] = [self.raw_log] if self.raw_log is not None else []
-        listeners.append(_RowListener(self.pipeline, self._queue))
+        listeners.append(_RowListener(pipeline, self._queue))
         self._notifier = can.Notifier(bus, listeners, timeout=_POLL_S)
         self._stop_requested = False
         self._stopped = False
@@ -166,7 +194,7 @@ class CanSource(LiveSource):
         self._notifier.stop()
         if self.raw_log is not None:
             self.raw_log.stop()
-        self.pipeline.flush()
+        self._rows.flush()
 
     def close(self) -> None:
         """:meth:`stop`, then shut the bus down (if owned); the counters then reconcile."""

@@ -9,6 +9,7 @@ class plus one entry in :mod:`~online_backlash.replay.registry`.
     registry.py       LOG_READERS, open_log, read_log_arrays, log_suffix
     csv.py            CsvLog: CSV rows (pandas' C parser in blocks)
     canlog.py         CanLog: python-can's log formats decoded with a DBC (blocks, compiled pairing)
+    canopenlog.py     CanopenLog: the same logs of CANopen drives, decoded with their EDS/DCF (SYNC groups)
     serialcapture.py  SerialCapture: raw serial captures through the live parser
     paths.py          a file's suffix
 """

@@ -29,8 +29,8 @@ import can
 from cantools.database.can import Database
 
 from online_backlash.codecs.blockpairing import BlockPipeline, make_pipeline
-from online_backlash.codecs.dbc import DbcDecoder
-from online_backlash.codecs.pairing import CanCounters, FramePipeline
+from online_backlash.codecs.dbc import DbcDecoder, WrapDeg
+from online_backlash.codecs.pairing import CanCounters, CanPipeline
 from online_backlash.codecs.rawfiles import raw_log_files
 from online_backlash.errors import InvalidParameterError, LogFormatError
 from online_backlash.stream import SampleChunk, SampleSource, rechunk
@@ -66,7 +66,7 @@ class CanLog(SampleSource):
     ----------
     counters : CanCounters
         Reconcile at the end of iteration (see :mod:`~online_backlash.codecs.pairing`).
-    pipeline : FramePipeline or BlockPipeline
+    pipeline : CanPipeline
         The pairing skew of the last iteration (``frames_per_sample``, ``skew_mean_s``, ``skew_max_s``).
     block_path : bool
         True when iteration takes the block path (not realtime, not strict, a DBC it supports).
@@ -89,19 +89,27 @@ class CanLog(SampleSource):
         skip_bad: bool = False,
         realtime: bool = False,
         units: str | None = None,
-        wrap_deg: float | None = None,
+        wrap_deg: WrapDeg = None,
     ) -> None:
         if dbc is None or motor_signal is None or load_signal is None:
             raise InvalidParameterError("a CAN log needs dbc, motor_signal and load_signal (--dbc, --motor-signal, --load-signal)")
-        self.path = os.fspath(path)
         self.decoder = DbcDecoder(dbc, motor_signal, load_signal, motor_cpr, load_cpr, counter_signal, checksum_signal, units, wrap_deg)
         self._pipeline_args = (period_s, max_skew_s, strict, realtime)
+        self._setup(path, skip_bad, realtime)
+
+    def _setup(self, path: str | os.PathLike[str], skip_bad: bool, realtime: bool) -> None:
+        """The reading state every CAN log shares (a subclass with other frame rules calls this and overrides :meth:`_new_pipeline`)."""
+        self.path = os.fspath(path)
         self.skip_bad = skip_bad
         self.realtime = realtime
-        self.pipeline: FramePipeline | BlockPipeline = make_pipeline(self.decoder, *self._pipeline_args)
+        self.pipeline: CanPipeline = self._new_pipeline()
         self.counters: CanCounters = self.pipeline.counters
         self.block_path = isinstance(self.pipeline, BlockPipeline)
         self._reader: can.io.generic.MessageReader | None = None
+
+    def _new_pipeline(self) -> CanPipeline:
+        """A fresh pipeline for one pass over the files: the DBC rules (block path where it applies)."""
+        return make_pipeline(self.decoder, *self._pipeline_args)
 
     def close(self) -> None:
         """Close the file being read, if any."""
@@ -125,7 +133,7 @@ class CanLog(SampleSource):
 
     def _blocks(self) -> Iterator[SampleChunk]:
         """Per block of frames read: the samples they complete."""
-        self.pipeline = pipeline = make_pipeline(self.decoder, *self._pipeline_args)
+        self.pipeline = pipeline = self._new_pipeline()
         self.counters = pipeline.counters
         per_read = 1 if self.realtime else BLOCK_FRAMES
         for path in self.files():

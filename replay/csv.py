@@ -13,7 +13,13 @@ and line, or, with ``skip_bad=True``, is counted in ``counters.corrupt`` and ski
 the rule of every source (:class:`~online_backlash.codecs.gaps.GapDetector`): a time step longer
 than three nominal periods (given as ``period_s``, or learnt as the median of the first steps) is
 reported as a gap (``counters.gap_log``) and the next sample carries ``after_gap=True``.
-``.csv.gz`` files are read transparently.
+``.csv.gz`` files are read transparently; a truncated or damaged one raises LogFormatError naming
+the line where it ends.
+
+The dialect is sniffed from the first few KB (:func:`sniff_dialect`), as people write CSV: a
+UTF-8 byte-order mark (Excel's "CSV UTF-8"), ``,``, ``;``, tab or ``|`` as separator, a decimal
+comma with ``;`` (German Excel, ``pandas.to_csv(sep=";", decimal=",")``), quoted cells and CRLF
+line ends. ``delimiter=`` and ``decimal=`` override the guess.
 """
 
 from __future__ import annotations
@@ -24,18 +30,129 @@ import io
 import math
 import operator
 import os
+import re
+import zlib
 from collections.abc import Iterator
+from dataclasses import dataclass
 from itertools import islice, repeat
 from typing import Any
 
 import numpy as np
 
 from online_backlash.codecs.gaps import GapDetector
-from online_backlash.errors import LogFormatError
+from online_backlash.errors import InvalidParameterError, LogFormatError
 from online_backlash.stream import SampleChunk, StreamCounters, read_all, rechunk
 
 from .tabular import REQUIRED as _REQUIRED
 from .tabular import TabularSource, angle_scale, role_names
+
+#: Separators the sniffer chooses from.
+DELIMITERS = ",;\t|"
+#: Decimal marks a CSV may use.
+DECIMALS = (".", ",")
+#: Characters read to sniff the dialect.
+SNIFF_CHARS = 4096
+_COMMA_NUMBER = re.compile(r"^\s*[-+]?\d*,\d+(?:[eE][-+]?\d+)?\s*$")
+_POINT_NUMBER = re.compile(r"^\s*[-+]?\d*\.\d+(?:[eE][-+]?\d+)?\s*$")
+#: What reading a file that is not UTF-8 text, or a damaged or truncated ``.gz``, raises (BadGzipFile is an OSError).
+UNREADABLE = (UnicodeDecodeError, EOFError, OSError, zlib.error)
+
+
+def unreadable(path: str, line: int, exc: Exception) -> LogFormatError:
+    """The error for a file that stops being readable text after ``line - 1`` lines were read.
+
+    A bad UTF-8 byte is named by its own line: the decoder fails on a block of bytes that starts
+    within the next line (the text before it holds no line end), and says where in it.
+    """
+    if isinstance(exc, UnicodeDecodeError):
+        line += bytes(exc.object[: exc.start]).count(b"\n")
+        return LogFormatError(path, line, f"not a text CSV file: not UTF-8 ({exc.reason})")
+    return LogFormatError(path, line, f"damaged or truncated file: it ends here ({type(exc).__name__}: {exc})")
+
+
+@dataclass(frozen=True)
+class CsvDialect:
+    """How a CSV file is written: its field ``delimiter`` and its ``decimal`` mark (quotes are ``"``)."""
+
+    delimiter: str = ","
+    decimal: str = "."
+
+
+def check_dialect(delimiter: str | None, decimal: str | None) -> None:
+    """Raise InvalidParameterError unless ``delimiter`` (one character) and ``decimal`` (``.`` or ``,``) can be used."""
+    if delimiter is not None and (len(delimiter) != 1 or delimiter in '"\r\n' or delimiter.isalnum() or delimiter in "+-."):
+        raise InvalidParameterError(f"delimiter must be one character such as , ; | or a tab, not a quote, sign, point or letter; got {delimiter!r}")
+    if decimal is not None and decimal not in DECIMALS:
+        raise InvalidParameterError(f"decimal must be one of {DECIMALS}, got {decimal!r}")
+    if delimiter is not None and delimiter == decimal:
+        raise InvalidParameterError(f"delimiter and decimal mark are both {delimiter!r}")
+
+
+def sniff_dialect(sample: str, delimiter: str | None = None, decimal: str | None = None) -> CsvDialect:
+    r"""The dialect of a CSV file from its first characters ``sample`` (header row first).
+
+    The separator is :class:`csv.Sniffer`'s choice among :data:`DELIMITERS` (or, when it cannot
+    tell, the one the header row holds most of; ``,`` if none); the decimal mark is ``,`` when
+    the separator is not ``,`` and the data cells hold more numbers written ``1,5`` than ``1.5``.
+    ``delimiter`` and ``decimal`` override the guess.
+
+    Examples
+    --------
+    >>> sniff_dialect("time;motor;load\n0,001;1,5;2,5\n")
+    CsvDialect(delimiter=';', decimal=',')
+    >>> sniff_dialect('"time","motor","load"\r\n"0.001","1.5","2.5"\r\n')
+    CsvDialect(delimiter=',', decimal='.')
+    """
+    check_dialect(delimiter, decimal)
+    lines = sample.splitlines()
+    if len(sample) >= SNIFF_CHARS and len(lines) > 2:
+        lines = lines[:-1]  # the last line may be cut
+    if delimiter is None:
+        try:
+            delimiter = csv.Sniffer().sniff("\n".join(lines), delimiters=DELIMITERS).delimiter
+        except csv.Error:
+            header = lines[0] if lines else ""
+            delimiter = max(DELIMITERS, key=header.count) if any(d in header for d in DELIMITERS) else ","
+    if decimal is None:
+        decimal = "."
+        if delimiter != ",":
+            cells = [cell for row in csv.reader(lines[1:], delimiter=delimiter) for cell in row]
+            commas = sum(1 for cell in cells if _COMMA_NUMBER.match(cell))
+            points = sum(1 for cell in cells if _POINT_NUMBER.match(cell))
+            decimal = "," if commas > points else "."
+    if delimiter == decimal:
+        raise InvalidParameterError(f"delimiter and decimal mark are both {delimiter!r}; give --delimiter or --decimal")
+    return CsvDialect(delimiter, decimal)
+
+
+def open_text(path: str) -> io.TextIOWrapper:
+    """The CSV file at ``path`` (``.gz`` looked through) as UTF-8 text, a byte-order mark dropped, line ends kept.
+
+    Raises LogFormatError naming the file when it cannot be opened.
+    """
+    try:
+        if path.lower().endswith(".gz"):
+            return io.TextIOWrapper(gzip.open(path, "rb"), encoding="utf-8-sig", newline="")
+        return open(path, encoding="utf-8-sig", newline="")
+    except IsADirectoryError as exc:
+        raise LogFormatError(path, None, "is a folder, not a CSV file") from exc
+    except OSError as exc:
+        reason = "no such file or folder" if isinstance(exc, FileNotFoundError) else exc.strerror or str(exc)
+        raise LogFormatError(path, None, f"cannot open: {reason}") from exc
+
+
+def file_dialect(f: io.TextIOBase, path: str, delimiter: str | None = None, decimal: str | None = None) -> CsvDialect:
+    """:func:`sniff_dialect` of the open text file ``f`` at its start; ``f`` is rewound to the start."""
+    try:
+        try:
+            sample = f.read(SNIFF_CHARS)
+        except UnicodeDecodeError:  # a bad byte somewhere in the first block: the reader names its line later
+            f.seek(0)
+            sample = f.buffer.read(SNIFF_CHARS).decode("utf-8-sig", "replace")  # type: ignore[attr-defined]
+        f.seek(0)
+    except UNREADABLE as exc:
+        raise unreadable(path, 1, exc) from exc
+    return sniff_dialect(sample, delimiter, decimal)
 
 
 class CsvLog(TabularSource):
@@ -59,6 +176,10 @@ class CsvLog(TabularSource):
         Rows parsed at once (memory stays bounded by it; the natural block of :meth:`iter_chunks`).
     period_s : float, optional
         Nominal sample period, seconds, for gap detection (None: learnt from the first steps).
+    delimiter : str, optional
+        Field separator (one character, e.g. ``;`` or a tab); None: sniffed.
+    decimal : {".", ","}, optional
+        Decimal mark of the numbers; None: sniffed.
 
     Attributes
     ----------
@@ -66,6 +187,8 @@ class CsvLog(TabularSource):
         ``frames`` counts data rows read; ``frames == samples + corrupt`` at the end.
     nominal_period_s : float or None
         The nominal sample period of the gap rule, seconds: ``period_s``, or learnt while reading.
+    dialect : CsvDialect or None
+        The separator and decimal mark used (sniffed or given), once reading has begun.
     """
 
     def __init__(
@@ -78,8 +201,15 @@ class CsvLog(TabularSource):
         skip_bad: bool = False,
         block_rows: int = 65536,
         period_s: float | None = None,
+        delimiter: str | None = None,
+        decimal: str | None = None,
     ) -> None:
+        check_dialect(delimiter, decimal)
         self.path = os.fspath(path)
+        self.delimiter = delimiter
+        self.decimal = decimal
+        self.dialect: CsvDialect | None = None
+        self._delimiter = delimiter or ","
         self.columns = role_names(columns)
         self.motor_scale = angle_scale(units, motor_cpr, "motor")
         self.load_scale = angle_scale(units, load_cpr, "load")
@@ -97,19 +227,11 @@ class CsvLog(TabularSource):
             self._file = None
 
     # -- reading ---------------------------------------------------------------------------
-    def _open(self) -> io.TextIOBase:
-        try:
-            if self.path.endswith(".gz"):
-                return io.TextIOWrapper(gzip.open(self.path, "rb"), encoding="utf-8", newline="")
-            return open(self.path, encoding="utf-8", newline="")
-        except OSError as exc:
-            raise LogFormatError(self.path, None, f"cannot open: {exc.strerror or exc}") from exc
-
     def _header(self, f: io.TextIOBase) -> tuple[list[int], bool]:
         line = f.readline()
         if not line.strip():
             raise LogFormatError(self.path, 1, "empty file: expected a header row naming the columns")
-        names = [n.strip() for n in next(csv.reader([line]))]
+        names = [n.strip() for n in next(csv.reader([line], delimiter=self._delimiter))]
         missing = [self.columns[r] for r in _REQUIRED if self.columns[r] not in names]
         if missing:
             raise LogFormatError(self.path, 1, f"header has no column {missing} (columns: {names}); map them with columns=/--columns")
@@ -125,7 +247,7 @@ class CsvLog(TabularSource):
 
     def _read(self) -> Iterator[SampleChunk]:
         self.close()
-        self._file = f = self._open()
+        self._file = f = open_text(self.path)
         try:
             yield from self._read_blocks(f)
         finally:
@@ -133,17 +255,20 @@ class CsvLog(TabularSource):
 
     def _read_blocks(self, f: io.TextIOBase) -> Iterator[SampleChunk]:
         self.counters = StreamCounters()
+        self.dialect = file_dialect(f, self.path, self.delimiter, self.decimal)
+        self._delimiter = self.dialect.delimiter
         try:
             usecols, has_torque = self._header(f)
-        except UnicodeDecodeError as exc:
-            raise LogFormatError(self.path, 1, f"not a text CSV file ({exc.reason})") from exc
+        except UNREADABLE as exc:
+            raise unreadable(self.path, 1, exc) from exc
         line_no = 1  # lines consumed so far
         last_time = -math.inf
         while True:
+            lines: list[str] = []
             try:
-                lines = list(islice(f, self.block_rows))
-            except UnicodeDecodeError as exc:
-                raise LogFormatError(self.path, line_no + 1, f"not UTF-8 text ({exc.reason})") from exc
+                lines.extend(islice(f, self.block_rows))  # keeps the lines read before a failure
+            except UNREADABLE as exc:
+                raise unreadable(self.path, line_no + len(lines) + 1, exc) from exc
             if not lines:
                 break
             values, line_numbers = self._parse_block(lines, line_no, usecols)
@@ -151,6 +276,7 @@ class CsvLog(TabularSource):
             chunk, last_time = self._validate(values, line_numbers, has_torque, last_time)
             if len(chunk):
                 yield chunk
+        self._end_of_pass(last_time)
 
     def _parse_block(self, lines: list[str], first: int, usecols: list[int]) -> tuple[np.ndarray, np.ndarray]:
         """Parse rows to a float array; returns it with each row's 1-based line number."""
@@ -160,10 +286,10 @@ class CsvLog(TabularSource):
         if blank.all():  # nothing to parse
             return np.empty((0, len(usecols))), numbers[:0]
         try:
-            values = _read_block("".join(lines), usecols)
+            values = _read_block("".join(lines), usecols, self.dialect or CsvDialect())
         except ValueError:  # pandas' ParserError is a ValueError too
             return self._parse_rows(lines, numbers, usecols)
-        commas = np.fromiter(map(str.count, lines, repeat(",")), np.int64, len(lines))
+        commas = np.fromiter(map(str.count, lines, repeat(self._delimiter)), np.int64, len(lines))
         row_ok = commas[~blank] == self._n_columns - 1
         if values.shape[0] == (~blank).sum() and row_ok.all() and not np.isnan(values).any():
             self.counters.frames += values.shape[0]
@@ -174,14 +300,17 @@ class CsvLog(TabularSource):
     def _parse_rows(self, lines: list[str], numbers: np.ndarray, usecols: list[int]) -> tuple[np.ndarray, np.ndarray]:
         """The slow path: row by row, to name the bad line."""
         rows, kept = [], []
+        comma = (self.dialect or CsvDialect()).decimal == ","
         for line, number in zip(lines, numbers):
             if not line.strip():
                 continue
             self.counters.frames += 1
-            fields = next(csv.reader([line]))
+            fields = next(csv.reader([line], delimiter=self._delimiter))
             if len(fields) != self._n_columns:
                 self._bad(int(number), f"expected {self._n_columns} columns, got {len(fields)}")
                 continue
+            if comma:
+                fields = [field.replace(",", ".") for field in fields]
             try:
                 rows.append([float(fields[i]) for i in usecols])
             except ValueError:
@@ -191,7 +320,7 @@ class CsvLog(TabularSource):
         return np.array(rows, dtype=float).reshape(-1, len(usecols)), np.array(kept, dtype=int)
 
 
-def _read_block(text: str, usecols: list[int]) -> np.ndarray:
+def _read_block(text: str, usecols: list[int], dialect: CsvDialect) -> np.ndarray:
     """Parse a block of CSV rows (no header) to floats with pandas' C parser, columns in ``usecols`` order.
 
     Raises ValueError on anything that is not a number.
@@ -199,7 +328,8 @@ def _read_block(text: str, usecols: list[int]) -> np.ndarray:
     import pandas as pd  # imported here: only reading a log needs it
 
     frame = pd.read_csv(
-        io.StringIO(text), header=None, usecols=usecols, dtype=float, engine="c", skip_blank_lines=True
+        io.StringIO(text), header=None, usecols=usecols, dtype=float, engine="c", skip_blank_lines=True,
+        sep=dialect.delimiter, decimal=dialect.decimal,
     )
     return frame[usecols].to_numpy(dtype=float)
 

@@ -18,6 +18,8 @@ loggers write) is a CAN log: :func:`is_bus_logging` tells them apart.
 
 from __future__ import annotations
 
+import contextlib
+import io
 import os
 from collections.abc import Iterator
 from typing import IO, Any
@@ -58,6 +60,13 @@ def _release_half_built(exc: BaseException) -> None:
                 temporary.close()
             obj._closed = True
         tb = tb.tb_next
+
+
+def _quiet_stdout() -> contextlib.AbstractContextManager[Any]:
+    """Silence what asammdf prints on stdout while it reads (8.x prints a ``MB/s`` line whenever
+    reading a channel group takes over 10 s, e.g. a long file, which would corrupt ``--json``).
+    The reader thread's few calls are the only prints in that window: the CLI prints after reading."""
+    return contextlib.redirect_stdout(io.StringIO())
 
 
 def is_bus_logging(path: str | os.PathLike[str]) -> bool:
@@ -135,20 +144,30 @@ class MdfLog(MeasurementLog):
             raise LogFormatError(self.path, None, f"channel {name!r} for {role} is in several groups {groups}; name one as {name}@GROUP")
         return found[0]
 
-    def _fragments(self, role: str, where: tuple[int, int]) -> Iterator[_Fragment]:
-        """(time_s, values, unit) per file fragment of one channel; asammdf's errors name the file and channel."""
-        signals = self._mdf.iter_get(group=where[0], index=where[1])
+    def _fragments(self, role: str, where: tuple[int, int], with_time: bool = True) -> Iterator[_Fragment]:
+        """(time_s, values, unit) per file fragment of one channel; asammdf's errors name the file and channel.
+
+        ``with_time=False`` (a channel of the motor's group, whose master time the motor's
+        fragments carry) reads the samples alone: the time is empty and the unit is the channel's.
+        """
+        signals = self._mdf.iter_get(group=where[0], index=where[1], samples_only=not with_time)
+        unit = "" if with_time else self._unit_of(where) or ""
+        no_time = np.empty(0)
         while True:
             try:
-                signal = next(signals)
+                with _quiet_stdout():
+                    signal = next(signals)
             except StopIteration:
                 return
             except Exception as exc:  # a damaged data block
                 raise LogFormatError(self.path, None, f"cannot read {role} channel {self.columns[role]!r} ({type(exc).__name__}: {exc})") from exc
-            values = signal.samples
+            values = signal.samples if with_time else signal[0]
             if values.dtype.kind not in "biuf":
                 raise LogFormatError(self.path, None, f"{role} channel {self.columns[role]!r} holds {values.dtype} values, not numbers")
-            yield np.asarray(signal.timestamps, dtype=float), values.astype(float, copy=False), signal.unit
+            if with_time:
+                yield np.asarray(signal.timestamps, dtype=float), values.astype(float, copy=False), signal.unit
+            else:
+                yield no_time, values.astype(float, copy=False), unit
 
     def _read(self) -> Iterator[SampleChunk]:
         self.counters = StreamCounters()
@@ -158,7 +177,7 @@ class MdfLog(MeasurementLog):
         present = [r for r in ("time", "motor", "load", "torque") if where.get(r) is not None]
         motor_group = where["motor"][0]  # type: ignore[index]
         aligned = [r for r in present if where[r][0] == motor_group]  # type: ignore[index]
-        streams = {r: self._fragments(r, where[r]) for r in aligned}  # type: ignore[arg-type]
+        streams = {r: self._fragments(r, where[r], r == "motor") for r in aligned}  # type: ignore[arg-type]  # the motor carries the master time
         foreign = {r: Resampler(((t, v) for t, v, _ in self._fragments(r, where[r])), self.path, self.columns[r]) for r in present if r not in aligned}  # type: ignore[arg-type]
         units: dict[str, str | None] = {}
         scales: tuple[float, float, float, float] | None = None
@@ -208,8 +227,10 @@ class MdfLog(MeasurementLog):
             yield blocks
 
     def _unit_of(self, where: tuple[int, int]) -> str | None:
+        """A channel's unit as asammdf gives it with the samples: its conversion's unit, else its own."""
         channel = self._mdf.groups[where[0]].channels[where[1]]
-        return getattr(channel, "unit", None)
+        conversion = getattr(channel, "conversion", None)
+        return (conversion is not None and getattr(conversion, "unit", None)) or getattr(channel, "unit", None)
 
 
 def describe(path: str | os.PathLike[str]) -> list[ChannelInfo]:

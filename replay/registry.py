@@ -11,8 +11,6 @@ import os
 from collections.abc import Callable
 from typing import Any
 
-from can.io.player import MESSAGE_READERS as _CAN_MESSAGE_READERS
-
 from online_backlash.errors import LogFormatError
 from online_backlash.stream import SampleChunk, SampleSource, read_all
 
@@ -27,7 +25,12 @@ LOG_READERS: dict[str, Callable[..., SampleSource]] = {
 
 
 def _can_log(path: str | os.PathLike[str], **options: Any) -> SampleSource:
-    """A CAN log in a python-can format, decoded with a DBC (:class:`~online_backlash.replay.canlog.CanLog`)."""
+    """A CAN log in a python-can format, decoded with a DBC (:class:`~online_backlash.replay.canlog.CanLog`)
+    or, given ``eds``, with a CANopen drive's object dictionary (:class:`~online_backlash.replay.canopenlog.CanopenLog`)."""
+    if options.get("eds") is not None:
+        from .canopenlog import CanopenLog  # imported on use: canopen loads only for CANopen logs
+
+        return CanopenLog(path, **options)
     from .canlog import CanLog  # imported on use: cantools loads only for CAN logs
 
     return CanLog(path, **options)
@@ -40,8 +43,11 @@ def _serial_capture(path: str | os.PathLike[str], **options: Any) -> SampleSourc
     return SerialCapture(path, **options)
 
 
-# every format python-can's LogReader reads (.asc .blf .log .trc .db .mf4), except .csv which is ours
-LOG_READERS.update({suffix: _can_log for suffix in _CAN_MESSAGE_READERS if suffix not in LOG_READERS})
+#: Every format python-can's LogReader reads (``can.io.player.MESSAGE_READERS``) but ``.csv``, which is ours,
+#: and ``.mf4`` (by content, below); named here so python-can (and the asammdf and pandas it loads,
+#: 55 MB) is imported only when a CAN log is read. A test holds it equal to python-can's table.
+CAN_LOG_SUFFIXES = (".asc", ".blf", ".db", ".log", ".trc")
+LOG_READERS.update({suffix: _can_log for suffix in CAN_LOG_SUFFIXES})
 LOG_READERS[".serial"] = _serial_capture
 
 
@@ -92,6 +98,8 @@ def open_log(path: str | os.PathLike[str], **options: Any) -> SampleSource:
     try:
         reader = LOG_READERS[suffix]
     except KeyError:
+        if not suffix and not os.path.exists(path):  # e.g. a folder name misspelt: say so, not "unknown format ''"
+            raise LogFormatError(path, None, "no such file or folder") from None
         raise LogFormatError(path, None, f"unknown log format {suffix!r}; known: {sorted(LOG_READERS)}") from None
     return reader(path, **options)
 

@@ -7,7 +7,10 @@ NI TDMS (:mod:`~online_backlash.replay.tdms`) and Parquet/Arrow
 (:func:`unit_scale`), and validate blocks the same way (:class:`TabularSource`): a non-finite
 value or a time that goes backwards raises :class:`~online_backlash.errors.LogFormatError`
 naming the file, the row and the column, or with ``skip_bad=True`` is counted in
-``counters.corrupt``; a time step longer than three nominal periods is a gap.
+``counters.corrupt``; a time step longer than three nominal periods is a gap. An angle beyond
+:data:`MAX_ANGLE_DEG` is refused like a non-finite one (wrong units: no float64 fit resolves it).
+At the end of a pass, a time column that never advances is an error, and samples that repeat the
+previous sample's time are counted in one :class:`~online_backlash.errors.BacklashWarning`.
 """
 
 from __future__ import annotations
@@ -15,6 +18,7 @@ from __future__ import annotations
 import difflib
 import math
 import os
+import warnings
 from abc import abstractmethod
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass
@@ -24,11 +28,15 @@ import numpy as np
 
 from online_backlash.codecs.gaps import GapDetector
 from online_backlash.codecs.units import ANGLE_UNITS, COUNT_UNITS
-from online_backlash.errors import InvalidParameterError, LogFormatError
+from online_backlash.errors import BacklashWarning, InvalidParameterError, LogFormatError
 from online_backlash.stream import SampleChunk, SampleSource, StreamCounters, rechunk
 
 ROLES = ("time", "motor", "load", "torque")
 REQUIRED = ("time", "motor", "load")
+
+#: Largest angle magnitude accepted, degrees: float64 spaces numbers beyond it more than 0.1 deg apart,
+#: so no play can be resolved (and squares of such values overflow in a fit).
+MAX_ANGLE_DEG = 1e15
 
 #: Time units -> seconds per unit.
 TIME_UNITS = {"s": 1.0, "sec": 1.0, "": 1.0, "ms": 1e-3, "us": 1e-6, "µs": 1e-6, "ns": 1e-9}
@@ -262,11 +270,17 @@ class TabularSource(SampleSource):
         keep = finite[0] & finite[1] & finite[2]
         if len(columns) > 3:
             keep &= finite[3]
-        clean = bool(keep.all())
+        huge = (_beyond(columns[1], MAX_ANGLE_DEG / abs(motor_scale)) | _beyond(columns[2], MAX_ANGLE_DEG / abs(load_scale))) & keep
+        clean = bool(keep.all()) and not huge.any()
         if not clean:
-            for row in np.flatnonzero(~keep).tolist():
+            for row in np.flatnonzero(~keep | huge).tolist():
+                if huge[row]:
+                    names = f"motor {self.columns['motor']!r} or load {self.columns['load']!r}"
+                    self._bad(int(numbers[row]), f"angle beyond {MAX_ANGLE_DEG:g} deg in {names}: check the units")
+                    continue
                 bad = [f"{r} {self.columns[r]!r}" for r, ok in zip(ROLES, finite) if not ok[row]]
                 self._bad(int(numbers[row]), f"non-finite value in {', '.join(bad)}")
+            keep &= ~huge
         # a time that goes backwards, relative to the last kept time (the loop only when some does)
         kept = time if clean else time[keep]
         in_order = kept.size == 0 or (kept[0] >= last_time and bool((kept[1:] >= kept[:-1]).all()))
@@ -283,9 +297,17 @@ class TabularSource(SampleSource):
         if not clean:
             columns = [c[keep] for c in columns]
             time = columns[0]
+            numbers = numbers[keep]
         time = np.ascontiguousarray(time, dtype=float)
         if last_time == -math.inf:  # a new pass over the file: the one gap rule of every source, from the start
             self._gap_rule = GapDetector(None, self.period_s)
+            self._repeated_times = 0
+            self._first_time = float(time[0]) if time.size else math.nan
+        elif math.isnan(self._first_time) and time.size:
+            self._first_time = float(time[0])
+        if time.size:
+            self._repeated_times += int(np.count_nonzero(time[1:] == time[:-1])) + int(time[0] == last_time)
+            self._last_number = int(numbers[-1])
         after_gap, gaps = self._gap_rule.check_times(time)
         for gap in gaps:
             self.counters.report_gap(gap)
@@ -299,6 +321,35 @@ class TabularSource(SampleSource):
             after_gap=after_gap,
         )
         return chunk, (float(time[-1]) if time.size else last_time)
+
+
+    def _end_of_pass(self, last_time: float) -> None:
+        """After the last block: LogFormatError if the time column never advanced (two samples or more,
+        all at one time), and one BacklashWarning counting the samples that repeat the previous time."""
+        samples = self.counters.samples
+        if samples < 2:
+            return
+        name = self.columns["time"]
+        if last_time == self._first_time:
+            raise LogFormatError(
+                self.path,
+                self._last_number,
+                f"time column {name!r} never advances: all {samples} samples at {last_time:g} s; map the real time with --columns time=NAME",
+            )
+        if self._repeated_times:
+            warnings.warn(
+                f"{self.path}: {self._repeated_times} of {samples} samples repeat the previous sample's time in {name!r} "
+                "(duplicated timestamps; kept)",
+                BacklashWarning,
+                stacklevel=2,
+            )
+
+
+def _beyond(values: np.ndarray, limit: float) -> np.ndarray:
+    """Where finite ``|values|`` exceed ``limit`` (all False at the cost of one max when none does)."""
+    if not np.nanmax(np.abs(values), initial=0.0) > limit:
+        return np.zeros(values.shape, bool)
+    return np.abs(values) > limit
 
 
 def _scaled(values: np.ndarray, scale: float) -> np.ndarray:

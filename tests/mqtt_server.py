@@ -9,11 +9,13 @@ on a free port, which it may stop and start again on the same port (to test reco
 
 from __future__ import annotations
 
+import getpass
 import shutil
 import socket
 import subprocess
 import sys
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 
@@ -41,19 +43,58 @@ def _accepts(port: int) -> bool:
         return s.connect_ex(("127.0.0.1", port)) == 0
 
 
+@dataclass(frozen=True)
+class BrokerCertificates:
+    """A private CA and a server certificate for 127.0.0.1 signed by it (PEM files), from ``openssl``."""
+
+    ca: Path
+    server_cert: Path
+    server_key: Path
+
+    @classmethod
+    def make(cls, folder: Path) -> BrokerCertificates:
+        folder.mkdir(parents=True, exist_ok=True)
+        ca, ca_key = folder / "ca.pem", folder / "ca.key"
+        cert, key, request = folder / "server.pem", folder / "server.key", folder / "server.csr"
+        ext = folder / "san.ext"
+        ext.write_text("subjectAltName=IP:127.0.0.1,DNS:localhost\n")
+        openssl = shutil.which("openssl") or "openssl"
+        quiet = {"check": True, "capture_output": True}
+        subprocess.run([openssl, "req", "-x509", "-newkey", "rsa:2048", "-nodes", "-days", "2", "-subj", "/CN=test CA",
+                        "-keyout", str(ca_key), "-out", str(ca)], **quiet)
+        subprocess.run([openssl, "req", "-newkey", "rsa:2048", "-nodes", "-subj", "/CN=127.0.0.1", "-keyout", str(key), "-out", str(request)], **quiet)
+        subprocess.run([openssl, "x509", "-req", "-in", str(request), "-CA", str(ca), "-CAkey", str(ca_key), "-CAcreateserial",
+                        "-days", "2", "-extfile", str(ext), "-out", str(cert)], **quiet)
+        return cls(ca, cert, key)
+
+
 class MosquittoBroker:
     """One broker process on ``127.0.0.1:port`` (anonymous, no persistence), restartable on the same port."""
 
-    def __init__(self, folder: Path, port: int | None = None) -> None:
+    def __init__(self, folder: Path, port: int | None = None, tls: BrokerCertificates | None = None, users: dict[str, str] | None = None) -> None:
         self.folder = folder
         self.port = port or _free_port()
         self.process: subprocess.Popen | None = None
+        self.tls = tls
         folder.mkdir(parents=True, exist_ok=True)
+        # run as whoever runs the tests (as root, mosquitto would switch to the user 'mosquitto' and lose the test's files)
+        lines = [f"listener {self.port} 127.0.0.1", "persistence false", "log_dest stderr", f"user {getpass.getuser()}"]
+        if tls is not None:  # TLS on this listener: the server certificate signed by the test CA
+            lines += [f"cafile {tls.ca}", f"certfile {tls.server_cert}", f"keyfile {tls.server_key}"]
+        if users:  # logins only, from a password file written by mosquitto_passwd
+            passwords = folder / "passwords"
+            for i, (user, password) in enumerate(users.items()):
+                create = ["-c"] if i == 0 else []
+                subprocess.run([shutil.which("mosquitto_passwd") or "mosquitto_passwd", *create, "-b", str(passwords), user, password], check=True)
+            lines += ["allow_anonymous false", f"password_file {passwords}"]
+        else:
+            lines.append("allow_anonymous true")
         self.config = folder / "mosquitto.conf"
-        self.config.write_text(f"listener {self.port} 127.0.0.1\nallow_anonymous true\npersistence false\nlog_dest stderr\n")
+        self.config.write_text("\n".join(lines) + "\n")
 
-    def url(self, prefix: str) -> str:
-        return f"mqtt://127.0.0.1:{self.port}/{prefix}"
+    def url(self, prefix: str, user: str | None = None) -> str:
+        login = f"{user}@" if user else ""
+        return f"{'mqtts' if self.tls else 'mqtt'}://{login}127.0.0.1:{self.port}/{prefix}"
 
     def start(self, timeout_s: float = 10.0) -> None:
         """Start the broker and wait until it accepts connections."""

@@ -49,6 +49,11 @@ def test_json_contract_plot_and_report(te_log, tmp_path, capsys):
     assert png.read_bytes()[:4] == b"\x89PNG"
     text = md.read_text()
     assert "`transmission_error`" in text and str(png) in text
+    # the held-out figures, in the JSON evidence and the report, with the residual on the term's own axis
+    ev = out["effects"][0]["evidence"]
+    assert ev["heldout_gain"] > 0.5 and ev["heldout_gain_in_final_model"] > 0.5
+    assert ev["heldout_split"]["split"] == "reversal cycles"
+    assert "- held out: " in text and "residual against its own axis, load angle (deg)" in text
 
 
 def test_text_output(te_log, capsys):
@@ -76,3 +81,4 @@ def test_measured_recording(capsys):
     assert out["noise_floor_deg"] == pytest.approx(360 / 8192 / 12**0.5, rel=0.2)
     for e in out["effects"] + out["unexplained"]:
         assert e["rms_after_deg"] < e["rms_before_deg"]
+        assert e["evidence"]["heldout_gain"] >= 0.05  # every term holds on cycles it was not fitted on

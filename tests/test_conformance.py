@@ -2,7 +2,8 @@
 
 Each case is a factory of a configured estimator and the data it learns: BacklashRLS alone,
 BacklashRLS with effects (a delay, whose columns need a window of past samples, and a drift,
-which keeps the first time seen: both must survive a saved state), and CascadeRLS. Every
+which keeps the first time seen: both must survive a saved state), CascadeRLS, and
+TorqueBacklashRLS on a two-mass rig with its torque column (no warm start). Every
 estimator on :class:`~online_backlash.estimators.RecursiveEstimator` must pass all of it:
 
 * ``learn_many`` in chunks (edges before, inside and after the warm-up, with gaps) gives the
@@ -29,8 +30,10 @@ from online_backlash import BacklashRLS, CascadeRLS
 from online_backlash.diagnostics.effects import Delay, Drift
 from online_backlash.errors import InvalidParameterError
 from online_backlash.estimators import RecursiveEstimator
+from online_backlash.load_aware import TorqueBacklashRLS
 from online_backlash.model import BacklashParams, simulate_cascade
 from online_backlash.rig import simulate_rig
+from online_backlash.two_mass_rig import simulate_two_mass
 
 
 @dataclass(frozen=True)
@@ -41,6 +44,14 @@ class Case:
     time_s: np.ndarray
     warm: int  # warm_start_samples of the estimator made
     still_steps: int  # samples of the still input in the idle check
+    torque: np.ndarray | None = None  # N m, for an estimator that takes torque
+    start: str = "batch"  # how it starts ("none": no warm start at all)
+
+    def q(self, lo: int, hi: int) -> np.ndarray | None:
+        return None if self.torque is None else self.torque[lo:hi]
+
+    def q1(self, i: int) -> float | None:
+        return None if self.torque is None else float(self.torque[i])
 
 
 def _rig_case(make: Callable[[], RecursiveEstimator], warm: int) -> Case:
@@ -57,12 +68,19 @@ def _cascade_case() -> Case:
     return Case(make, u, y, np.arange(u.size) * 1e-3, 400, 50_000)
 
 
+def _torque_case() -> Case:
+    rec = simulate_two_mass(duration_s=16.0, play_deg=0.4, external_torque_nm=0.2, seed=4)
+    make = lambda: TorqueBacklashRLS(memory_s=2.0, memory_reversals=20)  # noqa: E731
+    return Case(make, rec.motor_deg / rec.ratio, rec.load_deg, rec.time_s, 3000, 200_000, rec.torque_Nm, "none")
+
+
 CASES = {
     "BacklashRLS": lambda: _rig_case(lambda: BacklashRLS(warm_start_samples=3000, memory_s=2.0), 3000),
     "BacklashRLS+effects": lambda: _rig_case(
         lambda: BacklashRLS(warm_start_samples=3000, memory_s=2.0, effects=[Delay(lag_step_samples=3), Drift(1, 30.0)]), 3000
     ),
     "CascadeRLS": _cascade_case,
+    "TorqueBacklashRLS": _torque_case,
 }
 
 
@@ -78,7 +96,7 @@ def _snapshot(est: RecursiveEstimator) -> np.ndarray:
 
 
 def _learn_many(est: RecursiveEstimator, case: Case, lo: int, hi: int, gap: np.ndarray | None = None) -> None:
-    est.learn_many(case.u[lo:hi], case.y[lo:hi], None if gap is None else gap[lo:hi], time_s=case.time_s[lo:hi])
+    est.learn_many(case.u[lo:hi], case.y[lo:hi], None if gap is None else gap[lo:hi], time_s=case.time_s[lo:hi], torque_Nm=case.q(lo, hi))
 
 
 def _edges(n: int, warm: int) -> list[int]:
@@ -99,12 +117,12 @@ def test_learn_many_in_chunks_equals_a_learn_one_loop(case):
     for i in range(n):
         if gap[i]:
             one.mark_gap()
-        one.learn_one(case.u[i], case.y[i], time_s=case.time_s[i])
+        one.learn_one(case.u[i], case.y[i], time_s=case.time_s[i], torque_Nm=case.q1(i))
     many = case.make()
     edges = _edges(n, case.warm)
     for lo, hi in itertools.pairwise(edges):
         _learn_many(many, case, lo, hi, gap)
-    assert one.started and many.started and one.warm_start_["method"] == "batch"
+    assert one.started and many.started and one.warm_start_.get("method", "none") == case.start
     np.testing.assert_allclose(_snapshot(many), _snapshot(one), rtol=1e-12, atol=1e-15)
 
 
@@ -131,7 +149,7 @@ def test_a_json_saved_state_continues_bit_for_bit(case, where):
     part = case.make()
     _learn_many(part, case, 0, split)
     resumed = type(part).from_state(_state(part))  # effects (if any) come back by name
-    assert resumed.started == (where == "after-start")
+    assert resumed.started == (where == "after-start" or case.start == "none")  # no warm start: started at once
     _learn_many(resumed, case, split, n)
     np.testing.assert_array_equal(_snapshot(resumed), _snapshot(whole))
     assert _state(resumed) == _state(whole)
@@ -150,13 +168,13 @@ def test_a_gap_is_not_read_as_motion(case):
     _learn_many(est, case, 0, k)
     far_u, far_y = case.u[k - 1] + 50.0, case.y[k - 1] + 50.3  # a jump that no flank explains
     blind = type(est).from_state(_state(est))
-    blind.learn_one(far_u, far_y, time_s=case.time_s[k])
+    blind.learn_one(far_u, far_y, time_s=case.time_s[k], torque_Nm=case.q1(k))
     assert not np.array_equal(blind.theta_, est.theta_)  # read as motion, the jump is learned
     before = est.theta_
     flagged = type(est).from_state(_state(est))
-    flagged.learn_many(np.array([far_u]), np.array([far_y]), np.array([True]), time_s=case.time_s[k : k + 1])
+    flagged.learn_many(np.array([far_u]), np.array([far_y]), np.array([True]), time_s=case.time_s[k : k + 1], torque_Nm=case.q(k, k + 1))
     est.mark_gap()
-    est.learn_one(far_u, far_y, time_s=case.time_s[k])
+    est.learn_one(far_u, far_y, time_s=case.time_s[k], torque_Nm=case.q1(k))
     np.testing.assert_array_equal(est.theta_, before)
     np.testing.assert_array_equal(flagged.theta_, before)
     assert est.n_samples_seen_ == flagged.n_samples_seen_ == k + 1
@@ -168,7 +186,8 @@ def test_a_still_input_neither_moves_the_estimate_nor_winds_up(case):
 
     def still(m: int) -> None:
         t = est.n_samples_seen_ * 1e-3 + np.arange(m) * 1e-3
-        est.learn_many(np.full(m, case.u[-1]), np.full(m, case.y[-1]), time_s=t)
+        q = None if case.torque is None else np.full(m, case.torque[-1])
+        est.learn_many(np.full(m, case.u[-1]), np.full(m, case.y[-1]), time_s=t, torque_Nm=q)
 
     still(100)  # longer than any estimator's memory of the motion (the cascade's n_a + n_b + 1 samples)
     theta, trace = est.theta_, float(np.trace(est.P_))

@@ -153,11 +153,13 @@ def test_effect_outside_the_library_is_reported_and_reduced(rec):
     diag = _diagnose(rec, "outside_library")
     d = diag.as_dict()
     in_order = sorted(d["effects"] + d["unexplained"], key=lambda e: e["step"])
-    assert [e.name for e in diag.all_terms] == [e["name"] for e in in_order]
-    reported = d["effects"] + d["unexplained"]
-    assert reported
+    assert [e.name for e in diag.all_terms] == [e.get("closed_with", e["name"]) for e in in_order]
     assert d["rms_after_deg"] <= 0.7 * d["rms_before_deg"]
-    assert d["unexplained"] and "velocity" in d["unexplained"][0]["where"]
+    # no label is claimed outright: the first structure is unexplained, or two named effects that
+    # explain it equally well are reported together as not separable
+    first = in_order[0]
+    assert first in d["unexplained"]
+    assert "velocity" in first["where"] or set(first["candidates"]) == {"delay", "compliance"}
 
 
 def test_report_and_plot(rec, tmp_path):

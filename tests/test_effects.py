@@ -119,13 +119,36 @@ def test_delay_lag_in_samples_and_seconds():
 
 
 def test_compliance_prefers_the_measured_torque():
+    # the shaft twists under the true torque; the sensor adds its own noise, which twists nothing
     u, t, rng = _rig_motion()
-    torque = np.sin(2 * np.pi * 0.4 * t) + 0.3 * rng.normal(size=u.size)
-    r = -0.02 * torque + rng.normal(0, 0.004, u.size)
+    true = np.sin(2 * np.pi * 0.4 * t)
+    torque = true + 0.03 * rng.normal(size=u.size)
+    r = -0.02 * true + rng.normal(0, 0.004, u.size)
     det = Compliance.detect(_data(r, u, t, torque))
     p = det.effect.describe(det.score.coef)
     assert p["proxy"] == "measured torque"
     assert p["compliance_deg_per_Nm"] == pytest.approx(-0.02, rel=0.03)
+    assert p["stiffness_Nm_per_arcmin"] == pytest.approx(1 / 0.02 / 60, rel=0.03)
+
+
+def test_compliance_is_active_only_where_the_torque_engages_a_flank():
+    # inside the dead band (|torque| below the sensor's noise band) the column is exactly 0
+    u, t, rng = _rig_motion()
+    torque = np.where(np.sin(2 * np.pi * 0.4 * t) > 0.5, 1.0, 0.0) + 0.01 * rng.normal(size=u.size)
+    cols = Compliance("torque", deadband_Nm=0.05, smooth_samples=1).terms(u, t, torque)[:, 0]
+    inside = np.abs(torque) <= 0.05
+    assert inside.sum() > 1000
+    assert np.all(cols[inside] == 0.0)
+    np.testing.assert_array_equal(cols[~inside], torque[~inside])
+
+
+def test_compliance_without_torque_names_its_proxy_and_units():
+    u, t, rng = _rig_motion()
+    det = Compliance.detect(_data(rng.normal(0, 0.004, u.size), u, t, np.full(u.size, np.nan)))
+    p = det.effect.describe(np.array([1e-5, 2e-3]))
+    assert det.effect.proxy == "motion"
+    assert p["proxy"].startswith("load-side acceleration and velocity")
+    assert p["deflection_per_acceleration_s2"] == 1e-5 and p["deflection_per_velocity_s"] == 2e-3
 
 
 def test_drift_degree_and_size():

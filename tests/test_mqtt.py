@@ -14,6 +14,8 @@ import json
 import os
 import shutil
 import signal
+import subprocess
+import sys
 import threading
 import time
 
@@ -21,12 +23,12 @@ import can
 import paho.mqtt.client as mqtt
 import pytest
 from can.interfaces.virtual import channels
-from mqtt_server import MosquittoBroker, MosquittoUnavailable
+from mqtt_server import BrokerCertificates, MosquittoBroker, MosquittoUnavailable
 
 from online_backlash.cli import main
 from online_backlash.codecs.dbc import RIG_DBC, DbcDecoder
 from online_backlash.errors import InvalidParameterError
-from online_backlash.publish import MqttPublisher, MqttTarget, estimate_message, live_state
+from online_backlash.publish import PASSWORD_ENV, MqttPublisher, MqttTarget, MqttTls, estimate_message, live_state
 from online_backlash.rig import simulate_rig
 from online_backlash.rig_logs import rig_can_frames
 from online_backlash.rows import REPORT_KEYS, EstimateRow
@@ -52,9 +54,13 @@ def mqtt_broker(tmp_path):
 class Subscriber:
     """Every message under ``PREFIX/#``, as ``(topic, payload dict, retained)``; reconnects and resubscribes by itself."""
 
-    def __init__(self, broker: MosquittoBroker, prefix: str) -> None:
+    def __init__(self, broker: MosquittoBroker, prefix: str, login: tuple[str, str] | None = None) -> None:
         self.messages: list[tuple[str, dict, bool]] = []
         self.client = mqtt.Client(mqtt.CallbackAPIVersion.VERSION2)
+        if broker.tls is not None:
+            self.client.tls_set(ca_certs=str(broker.tls.ca))
+        if login is not None:
+            self.client.username_pw_set(*login)
         self.client.reconnect_delay_set(1, 1)
         self.client.on_connect = lambda client, *_: client.subscribe(f"{prefix}/#", qos=1)
         self.client.on_message = lambda _c, _u, msg: self.messages.append((msg.topic, json.loads(msg.payload), bool(msg.retain)))
@@ -188,8 +194,10 @@ def test_listen_publishes_reconnects_after_a_broker_crash_and_counts_the_dropped
         assert wait_for(lambda: late.messages, 10.0)
     finally:
         late.close()
-    assert late.messages == [(state_topic, late.messages[0][1], True)]
-    assert late.messages[0][1]["state"] == "alarm" and late.messages[0][1]["limit_arcmin"] == 15
+    retained = {topic: payload for topic, payload, flag in late.messages if flag}
+    assert len(late.messages) == len(retained) == 2  # the state, and the publisher's status
+    assert retained[state_topic]["state"] == "alarm" and retained[state_topic]["limit_arcmin"] == 15
+    assert retained[f"{prefix}/GB-7/status"]["status"] == "offline"  # the listener stopped, and said so
 
 
 def test_track_listen_publishes_with_the_stored_levels(mqtt_broker, tmp_path, capsys):
@@ -224,13 +232,13 @@ def test_mqtt_needs_a_gearbox_and_a_well_formed_url(tmp_path, capsys):
     assert main([*base, "--mqtt", "mqtt://127.0.0.1:1883/p"]) == 1
     assert "give --gearbox ID" in capsys.readouterr().err
     assert main([*base, "--mqtt", "http://127.0.0.1/p", "--gearbox", "g"]) == 1
-    assert "expected mqtt://HOST:PORT/PREFIX, got 'http://127.0.0.1/p'" in capsys.readouterr().err
+    assert "expected mqtt://HOST:PORT/PREFIX (or mqtts:// for TLS), got 'http://127.0.0.1/p'" in capsys.readouterr().err
     assert main(["track", "log.csv", "--ratio", "30", "--db", str(tmp_path / "w.db"), "--gearbox", "g", "--mqtt", "mqtt://h/p"]) == 1
     assert "use it with --listen" in capsys.readouterr().err
 
 
 @pytest.mark.parametrize(
-    "url", ["mqtt://host", "mqtt://host:0/p", "mqtt://:1883/p", "mqtts://host/p", "mqtt://host/a/#", "mqtt://host:x/p", "mqtt://h/p?q=1"]
+    "url", ["mqtt://host", "mqtt://host:0/p", "mqtt://:1883/p", "mqtx://host/p", "mqtt://u:secret@host/p", "mqtt://host/a/#", "mqtt://host:x/p", "mqtt://h/p?q=1"]
 )
 def test_bad_urls_are_refused(url):
     with pytest.raises(InvalidParameterError, match="--mqtt"):
@@ -242,6 +250,8 @@ def test_a_good_url_and_the_topics():
     assert (target.host, target.port, target.prefix) == ("broker.plant", 1884, "backlash/hall-3")
     assert target.topic("GB-7", "estimate") == "backlash/hall-3/GB-7/estimate"
     assert MqttTarget.parse("mqtt://localhost/p").port == 1883
+    secure = MqttTarget.parse("mqtts://rig@localhost/p")
+    assert (secure.port, secure.tls, secure.username) == (8883, True, "rig")
 
 
 def row(play_deg: float, std_deg: float) -> EstimateRow:
@@ -277,3 +287,70 @@ def test_a_publisher_without_a_broker_drops_and_counts(tmp_path):
             publisher.publish(row(0.3, 0.001), T0)
         assert not publisher.connected
     assert publisher.counts() == {"mqtt_published": 0, "mqtt_dropped": 3, "mqtt_connections": 0}
+
+
+def test_status_is_online_while_publishing_offline_after_and_the_last_will_covers_a_crash(mqtt_broker, tmp_path):
+    sub = Subscriber(mqtt_broker, "p")
+    status = "p/GB-1/status"
+    try:
+        with MqttPublisher(mqtt_broker.url("p"), "GB-1", connect_wait_s=5.0) as publisher:
+            assert publisher.connected
+            assert wait_for(lambda: [m["status"] for m in sub.on(status)] == ["online"])
+        assert wait_for(lambda: len(sub.on(status)) == 2)
+        assert sub.on(status)[-1]["status"] == "offline" and sub.on(status)[-1]["reason"] == "stopped"
+        # a publisher process that dies without a goodbye: the broker publishes its last will
+        script = (
+            "import sys, time; from online_backlash.publish import MqttPublisher\n"
+            f"p = MqttPublisher({mqtt_broker.url('p')!r}, 'GB-2', connect_wait_s=5.0).start()\n"
+            "print(p.connected, flush=True); time.sleep(60)\n"
+        )
+        with subprocess.Popen([sys.executable, "-c", script], stdout=subprocess.PIPE, text=True) as child:
+            try:
+                assert child.stdout is not None and child.stdout.readline().strip() == "True"
+                assert wait_for(lambda: [m["status"] for m in sub.on("p/GB-2/status")] == ["online"])
+            finally:
+                child.kill()
+        assert wait_for(lambda: len(sub.on("p/GB-2/status")) == 2)
+        will = sub.on("p/GB-2/status")[-1]
+        assert will["status"] == "offline" and "last will" in will["reason"]
+    finally:
+        sub.close()
+
+
+# paho-mqtt 2.2 leaves the socket of a refused TLS handshake for the garbage collector (its reconnect loop)
+@pytest.mark.filterwarnings("ignore:unclosed <ssl.SSLSocket:ResourceWarning")
+@pytest.mark.filterwarnings("ignore:Exception ignored in. <ssl.SSLSocket:pytest.PytestUnraisableExceptionWarning")
+def test_tls_with_a_private_ca_and_a_login(tmp_path, monkeypatch):
+    certs = BrokerCertificates.make(tmp_path / "certs")
+    broker = MosquittoBroker(tmp_path / "broker", tls=certs, users={"rig": "s3cret"})
+    try:
+        broker.start()
+    except MosquittoUnavailable as exc:
+        pytest.fail(str(exc), pytrace=False)
+    try:
+        sub = Subscriber(broker, "plant", login=("rig", "s3cret"))
+        try:
+            monkeypatch.setenv(PASSWORD_ENV, "s3cret")
+            with MqttPublisher(broker.url("plant", "rig"), "GB-3", limit_arcmin=20.0, tls=MqttTls(str(certs.ca)), connect_wait_s=10.0) as pub:
+                assert pub.connected
+                pub.publish(row(0.3, 0.001), T0)
+                assert wait_for(lambda: sub.on("plant/GB-3/estimate"))
+            assert sub.on("plant/GB-3/estimate")[0]["backlash_arcmin"] == pytest.approx(18.0)
+        finally:
+            sub.close()
+        # the system's CAs do not know the test CA; a wrong password is refused: never connected, estimates dropped
+        for tls, password in ((None, "s3cret"), (MqttTls(str(certs.ca)), "wrong")):
+            monkeypatch.setenv(PASSWORD_ENV, password)
+            with MqttPublisher(broker.url("plant", "rig"), "GB-3", tls=tls, connect_wait_s=1.0) as pub:
+                pub.publish(row(0.3, 0.001), T0)
+                assert not pub.connected
+            assert pub.counts() == {"mqtt_published": 0, "mqtt_dropped": 1, "mqtt_connections": 0}
+    finally:
+        broker.stop()
+
+
+def test_tls_files_are_checked_up_front(tmp_path):
+    with pytest.raises(InvalidParameterError, match="need an mqtts:// URL"):
+        MqttPublisher("mqtt://127.0.0.1/p", "g", tls=MqttTls(ca_file=str(tmp_path / "ca.pem")))
+    with pytest.raises(InvalidParameterError, match=r"ca\.pem: --mqtt-ca: no such file"):
+        MqttPublisher("mqtts://127.0.0.1/p", "g", tls=MqttTls(ca_file=str(tmp_path / "ca.pem")))

@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+import csv
 import gzip
 import math
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -12,8 +14,9 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from online_backlash.codecs.gaps import GapDetector
-from online_backlash.errors import InvalidParameterError, LogFormatError
+from online_backlash.errors import BacklashWarning, InvalidParameterError, LogFormatError
 from online_backlash.replay import CsvLog, open_log, read_csv_arrays
+from online_backlash.replay.csv import CsvDialect, sniff_dialect
 from online_backlash.stream import Sample
 
 SHARED = Path(__file__).resolve().parents[2] / "shared" / "data" / "davinci_tool_gearhead_backlash"
@@ -142,18 +145,182 @@ def test_chunks_equal_rows_across_block_boundaries(tmp_path):
 @given(body=st.text(alphabet="0123456789.,-eEnaif \n", max_size=300))
 def test_fuzzed_rows_raise_only_log_format_error_and_counters_reconcile(tmp_path, body):
     path = write(tmp_path, "time,motor,load\n" + body)
-    try:
-        samples = list(CsvLog(path))
-    except LogFormatError as exc:
-        assert exc.path == str(path) and exc.line is not None and exc.line >= 2
-    else:
-        assert all(s.is_finite() for s in samples)
-    log = CsvLog(path, skip_bad=True, block_rows=4)
-    samples = list(log)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", BacklashWarning)  # repeated times are counted in a warning
+        try:
+            samples = list(CsvLog(path))
+        except LogFormatError as exc:
+            assert exc.path == str(path) and exc.line is not None and exc.line >= 2
+        else:
+            assert all(s.is_finite() for s in samples)
+        log = CsvLog(path, skip_bad=True, block_rows=4)
+        try:
+            samples = list(log)
+        except LogFormatError as exc:  # a file-level fault no row skipping can mend
+            assert "never advances" in exc.reason and exc.line is not None
+            return
     assert all(math.isfinite(s.motor_deg) and math.isfinite(s.load_deg) for s in samples)
     assert log.counters.frames == log.counters.samples + log.counters.corrupt
     times = [s.time_s for s in samples]
     assert times == sorted(times)
+
+
+# -- CSV as people write it ---------------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def frame():
+    """A table with awkward values (negative, tiny, large, many digits) and a torque column."""
+    import pandas as pd
+
+    rng = np.random.default_rng(3)
+    n = 700  # the sniffer sees only the first few KB; the rest is read by pandas in blocks
+    return pd.DataFrame(
+        {
+            "time": np.arange(n) * 0.001,
+            "motor": rng.normal(0, 5000, n),
+            "load": rng.normal(0, 100, n) * 1e-3,
+            "torque": rng.normal(0, 2, n),
+        }
+    )
+
+
+def _excel_writer(quoting: int, encoding: str) -> object:
+    def write_file(df: object, path: Path) -> None:
+        with open(path, "w", newline="", encoding=encoding) as f:
+            writer = csv.writer(f, dialect="excel", quoting=quoting)  # excel: CRLF line ends
+            writer.writerow(df.columns)
+            writer.writerows(df.itertuples(index=False))
+
+    return write_file
+
+
+WRITERS = {
+    # German Excel / pandas: ';' separator, decimal comma
+    "pandas-sep;-decimal,": (lambda df, path: df.to_csv(path, sep=";", decimal=",", index=False), CsvDialect(";", ",")),
+    "pandas-tab": (lambda df, path: df.to_csv(path, sep="\t", index=False), CsvDialect("\t", ".")),
+    "pandas-pipe-gz": (lambda df, path: df.to_csv(path, sep="|", index=False, compression="gzip"), CsvDialect("|", ".")),
+    "csv-excel-crlf-bom": (_excel_writer(csv.QUOTE_MINIMAL, "utf-8-sig"), CsvDialect(",", ".")),
+    "csv-quote-all-bom": (_excel_writer(csv.QUOTE_ALL, "utf-8-sig"), CsvDialect(",", ".")),
+    "csv-quote-all-crlf": (_excel_writer(csv.QUOTE_ALL, "utf-8"), CsvDialect(",", ".")),
+    "pandas-quote-all-sep;-decimal,": (
+        lambda df, path: df.to_csv(path, sep=";", decimal=",", index=False, quoting=csv.QUOTE_ALL),
+        CsvDialect(";", ","),
+    ),
+}
+
+
+@pytest.mark.parametrize("writer", WRITERS)
+@pytest.mark.parametrize("block_rows", [65536, 64])
+def test_dialects_written_by_the_tools_people_use_read_the_same_samples(tmp_path, frame, writer, block_rows):
+    write_file, dialect = WRITERS[writer]
+    path = tmp_path / ("log.csv.gz" if writer.endswith("-gz") else "log.csv")
+    write_file(frame, path)
+    log = CsvLog(path, block_rows=block_rows)
+    chunk = read_csv_arrays(path, block_rows=block_rows)
+    with log:
+        list(log.iter_chunks())
+    assert log.dialect == dialect
+    # the text round trip of pandas/csv keeps every digit of a float64
+    np.testing.assert_array_equal(chunk.time_s, frame["time"].to_numpy())
+    np.testing.assert_array_equal(chunk.motor_deg, frame["motor"].to_numpy())
+    np.testing.assert_array_equal(chunk.load_deg, frame["load"].to_numpy())
+    np.testing.assert_array_equal(chunk.torque_Nm, frame["torque"].to_numpy())
+    assert log.counters.as_dict()["frames"] == len(frame) and log.counters.corrupt == 0
+
+
+def test_a_bad_row_of_a_german_excel_file_is_named_by_its_line(tmp_path, frame):
+    path = tmp_path / "de.csv"
+    frame.to_csv(path, sep=";", decimal=",", index=False)
+    lines = path.read_text().splitlines(keepends=True)
+    lines[301] = "0,3;zwölf;1,0;0\n"  # line 302 of the file
+    path.write_text("".join(lines))
+    with pytest.raises(LogFormatError) as info:
+        read_csv_arrays(path, block_rows=100)
+    assert info.value.line == 302 and "not a number" in info.value.reason
+    log = CsvLog(path, skip_bad=True)
+    assert sum(len(c) for c in log.iter_chunks()) == len(frame) - 1 and log.counters.corrupt == 1
+
+
+def test_delimiter_and_decimal_override_the_guess(tmp_path):
+    # integers only in the first KB the sniffer reads: nothing there tells the decimal comma
+    rows = [f"{i};{i};{i}" for i in range(2000)] + ["2000;5,5;5,25"]
+    path = write(tmp_path, "time;motor;load\n" + "\n".join(rows) + "\n")
+    with pytest.raises(LogFormatError, match=r":2002: not a number"):
+        read_csv_arrays(path)
+    chunk = read_csv_arrays(path, decimal=",")
+    assert chunk.motor_deg[-1] == 5.5 and chunk.load_deg[-1] == 5.25
+    forced = write(tmp_path, "time,motor,load\n0,1,2\n", "forced.csv")
+    with pytest.raises(LogFormatError, match=r"forced.csv:1: header has no column"):
+        read_csv_arrays(forced, delimiter=";")
+    for bad in ({"delimiter": "ab"}, {"delimiter": "1"}, {"decimal": ";"}, {"delimiter": ",", "decimal": ","}):
+        with pytest.raises(InvalidParameterError):
+            CsvLog(path, **bad)
+
+
+@pytest.mark.parametrize(
+    "sample, expected",
+    [
+        ("time;motor;load\n0,001;1,5;2,5\n", CsvDialect(";", ",")),
+        ("time;motor;load\n0.001;1.5;2.5\n", CsvDialect(";", ".")),
+        ("time\tmotor\tload\r\n0.1\t1\t2\r\n", CsvDialect("\t", ".")),
+        ('"time","motor","load"\r\n"0.1","1","2"\r\n', CsvDialect(",", ".")),
+        ("time|motor|load\n", CsvDialect("|", ".")),  # a header alone: the header decides
+        ("t\n1\n", CsvDialect(",", ".")),  # one column: the default
+    ],
+)
+def test_sniffed_dialect(sample, expected):
+    assert sniff_dialect(sample) == expected
+
+
+def test_truncated_gzip_names_the_line_where_it_ends(tmp_path):
+    text = "time,motor,load\n" + "".join(f"{i * 0.001:.3f},{i % 7},{i % 5}\n" for i in range(20000))
+    data = gzip.compress(text.encode())
+    path = tmp_path / "cut.csv.gz"
+    path.write_bytes(data[: len(data) // 2])
+    with pytest.raises(LogFormatError) as info:
+        read_csv_arrays(path, block_rows=1000)
+    assert info.value.line is not None and 2 < info.value.line < 20002 and "truncated" in info.value.reason
+    fake = tmp_path / "fake.csv.gz"
+    fake.write_text(text[:200])
+    with pytest.raises(LogFormatError, match=r"fake.csv.gz:1: damaged or truncated"):
+        read_csv_arrays(fake)
+
+
+def test_a_byte_that_is_not_utf8_is_named_by_its_line(tmp_path):
+    rows = "".join(f"{i * 0.001:.3f},{i % 9},{i % 4}\n" for i in range(2000))
+    path = tmp_path / "latin1.csv"
+    path.write_bytes(b"time,motor,load\n" + rows.encode() + "0.5,1,2 \u00b0\n".encode("latin-1") + b"0.6,1,2\n")
+    with pytest.raises(LogFormatError, match=r"latin1.csv:2002: not a text CSV file: not UTF-8"):
+        read_csv_arrays(path, block_rows=500)
+    binary = tmp_path / "binary.csv"
+    binary.write_bytes(bytes(range(128, 256)) * 40)
+    with pytest.raises(LogFormatError, match=r"binary.csv:1: not a text CSV file"):
+        read_csv_arrays(binary)
+
+
+def test_time_that_never_advances_is_an_error_and_repeated_times_are_counted(tmp_path):
+    rows = "".join(f"0,{i},{i}\n" for i in range(50))
+    with pytest.raises(LogFormatError, match=r"zeros.csv:51: time column 'time' never advances: all 50 samples at 0 s"):
+        read_csv_arrays(write(tmp_path, "time,motor,load\n" + rows, "zeros.csv"))
+    times = [0.0, 0.001, 0.001, 0.002, 0.003, 0.003, 0.004]  # one repeat inside a block of 3, one across blocks
+    path = write(tmp_path, "time,motor,load\n" + "".join(f"{t},{i},{i}\n" for i, t in enumerate(times)), "dups.csv")
+    with pytest.warns(BacklashWarning, match=r"dups.csv: 2 of 7 samples repeat the previous sample's time"):
+        chunk = read_csv_arrays(path, block_rows=3)
+    assert list(chunk.time_s) == times
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        read_csv_arrays(write(tmp_path, "time,motor,load\n0,0,0\n0.001,1,1\n", "clean.csv"))  # no warning
+
+
+def test_angles_beyond_float64_resolution_are_refused_by_line(tmp_path):
+    rows = "time,motor,load\n0,0,0\n0.001,1e300,1\n0.002,1,-2e16\n0.003,1,1\n"
+    with pytest.raises(LogFormatError, match=r"huge.csv:3: angle beyond 1e\+15 deg"):
+        read_csv_arrays(write(tmp_path, rows, "huge.csv"))
+    log = CsvLog(tmp_path / "huge.csv", skip_bad=True)
+    assert sum(len(c) for c in log.iter_chunks()) == 2 and log.counters.corrupt == 2
+    # counts under a degrees header are big but resolvable: accepted (the plausibility check names them)
+    assert len(read_csv_arrays(write(tmp_path, "time,motor,load\n0,4e9,1e6\n0.001,4e9,1e6\n", "counts.csv"))) == 2
 
 
 RECORDINGS = [

@@ -8,6 +8,9 @@ their names and never prints. The recursive fit runs the one loop of
 
 from __future__ import annotations
 
+import inspect
+import itertools
+import math
 import os
 from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field
@@ -16,9 +19,18 @@ from typing import Any
 import numpy as np
 
 from .estimators import BacklashRLS, VorosBacklash
+from .estimators.uncertainty import SCATTER_EVERY_S, RecursivePlayScatter
+from .load_aware import DwellTracker, TorqueBacklash, TorqueBacklashRLS
+from .load_aware.engagement import torque_orientation
+from .load_aware.report import batch_keys, has_torque, kinematic_keys, recursive_keys, why_not_observable
 from .pipeline import GapPolicy, GapTally, Pipeline, check_every
 from .rows import ARCMIN_PER_DEG, REPORT_KEYS, TRACE_COLUMNS, EstimateRow, describe_counts, select, source_counts
 from .stream import SampleChunk
+
+#: Plausible range of the fitted slopes' magnitude: after referring, load and motor move alike (eq. 1, m ~ +-1).
+PLAUSIBLE_SLOPE = (0.5, 2.0)
+#: Largest plausible play, degrees on the load side (worn gearboxes have tenths of a degree, not degrees).
+PLAUSIBLE_PLAY_DEG = 5.0
 
 __all__ = ["ARCMIN_PER_DEG", "TRACE_COLUMNS", "BacklashReport", "describe", "fit_batch", "fit_recursive"]
 
@@ -35,6 +47,14 @@ class BacklashReport:
     m_left: float
     m_right: float
     residual_rms_deg: float
+    play_observable: bool = True
+    torque_reversals: int | None = None
+    backlash_lower_bound_deg: float | None = None
+    stiffness_nm_per_arcmin: float | None = None
+    stiffness_left_nm_per_arcmin: float | None = None
+    stiffness_right_nm_per_arcmin: float | None = None
+    lost_motion_arcmin: float | None = None
+    hysteresis_loss_arcmin: float | None = None
     extra: dict[str, Any] = field(default_factory=dict)
 
     @classmethod
@@ -51,6 +71,54 @@ class BacklashReport:
             residual_rms_deg=est.residual_rms_,
             extra=extra,
         )
+
+    def plausibility(self, ratio: float) -> str | None:
+        """One sentence naming the likely cause when the fit looks like wrong units or ratio, else None.
+
+        After referring (``u = motor / ratio``) the flanks of eq. (1) have slopes near +-1; a slope
+        ``m`` far from that (``|m|`` outside :data:`PLAUSIBLE_SLOPE`) means the two angles are in
+        different units (counts under a degrees header, wrong counts per revolution) or the ratio
+        is off by ``m`` (``ratio / m`` would give slope 1). A play above :data:`PLAUSIBLE_PLAY_DEG`
+        degrees points at counts read as degrees; a negative play is not physical (with torque: wind-up
+        and play not told apart).
+        """
+        slopes = [m for m in (self.m_left, self.m_right) if np.isfinite(m)]
+        low, high = PLAUSIBLE_SLOPE
+        if slopes and not all(low <= abs(m) <= high for m in slopes):
+            m = float(np.mean(slopes))
+            return (
+                f"fitted slope {m:.4g}, not near +-1 after referring: the motor and load angles are likely in different units "
+                f"(encoder counts under a degrees header: give --units counts --motor-cpr N --load-cpr N; or wrong counts per "
+                f"revolution), or the ratio is off (--ratio {ratio / m:.4g} would give slope 1)"
+            )
+        if np.isfinite(self.backlash_deg) and self.backlash_deg < 0:
+            why = (
+                "with torque, the flank offsets at zero torque are an extrapolation the data do not support here (the torque "
+                "barely varies on each flank, so wind-up and play are confounded): read lost_motion_arcmin, or leave out the "
+                "torque column for the kinematic play"
+                if self.torque_reversals is not None
+                else "the flanks cross: check the sign of --ratio and the units"
+            )
+            return f"a negative play ({self.backlash_deg:.4g} deg) is not physical: {why}"
+        if np.isfinite(self.backlash_deg) and abs(self.backlash_deg) > PLAUSIBLE_PLAY_DEG:
+            return (
+                f"a play of {self.backlash_deg:.4g} deg is more than gearboxes have: check the units (counts read as degrees: "
+                "--units counts --motor-cpr N --load-cpr N) and the ratio"
+            )
+        return None
+
+    def add_load_keys(self, keys: Mapping[str, Any]) -> BacklashReport:
+        """Take the load-aware keys (:mod:`online_backlash.load_aware.report`): the declared ones as
+        fields, the rest in ``extra``; a play that is not observable becomes NaN (JSON null). Returns self."""
+        for name, value in keys.items():
+            if name in self.__dataclass_fields__ and name != "extra":
+                setattr(self, name, value)
+            else:
+                self.extra[name] = value
+        if not self.play_observable:
+            self.backlash_deg = math.nan
+            self.extra["backlash_std_deg"] = None
+        return self
 
     @property
     def backlash_arcmin(self) -> float:
@@ -70,11 +138,47 @@ class BacklashReport:
         return self
 
 
-def fit_batch(chunk: SampleChunk, ratio: float, **params: Any) -> tuple[BacklashReport, VorosBacklash]:
-    """Fit :class:`VorosBacklash` (eq. 8-14, then the output-error refinement) to a whole log in memory."""
+def fit_batch(
+    chunk: SampleChunk, ratio: float, *, rated_torque_Nm: float | None = None, **params: Any
+) -> tuple[BacklashReport, VorosBacklash | TorqueBacklash]:
+    """Fit a whole log in memory: with a torque column, :class:`~online_backlash.load_aware.TorqueBacklash`
+    (flank lines with wind-up; the data-sheet figures, lost motion at 3 % of ``rated_torque_Nm``
+    N m if given); without, :class:`VorosBacklash` (eq. 8-14, then the output-error refinement)
+    and the kinematic observability (:class:`~online_backlash.load_aware.DwellTracker`)."""
     u, y = chunk.referred(ratio)
+    gaps = GapTally.of_chunk(chunk).values()
+    if has_torque(chunk.torque_Nm):
+        torque_est = TorqueBacklash(**params).fit(u, y, chunk.torque_Nm)
+        report = BacklashReport.from_estimator("batch", len(chunk), torque_est, n_iter=torque_est.n_iter_, **gaps)
+        return report.add_load_keys(batch_keys(torque_est, u, y, chunk.torque_Nm, rated_torque_Nm)), torque_est
     est = VorosBacklash(**{"origin": "first", **params}).fit(u, y)  # encoder zeros are arbitrary
-    return BacklashReport.from_estimator("batch", len(chunk), est, n_iter=est.n_iter_, **GapTally.of_chunk(chunk).values()), est
+    tracker = DwellTracker()
+    tracker.update(u, y, chunk.after_gap)
+    extra = {"backlash_std_deg": est.backlash_std_, "n_iter": est.n_iter_, **gaps}
+    report = BacklashReport.from_estimator("batch", len(chunk), est, **extra)
+    return report.add_load_keys(kinematic_keys(tracker)), est
+
+
+def _first_and_rest(chunks: Iterable[SampleChunk]) -> tuple[SampleChunk | None, Iterable[SampleChunk]]:
+    """The first chunk (None for an empty stream) and an iterable of all of them, the first included."""
+    it = iter(chunks)
+    first = next(it, None)
+    return first, (it if first is None else itertools.chain([first], it))
+
+
+def _torque_params(params: Mapping[str, Any]) -> dict[str, Any]:
+    """The settings that :class:`TorqueBacklashRLS` shares with :class:`BacklashRLS`."""
+    names = inspect.signature(TorqueBacklashRLS).parameters
+    return {k: v for k, v in params.items() if k in names}
+
+
+def recursive_estimator(first: SampleChunk | None, ratio: float, **params: Any) -> BacklashRLS | TorqueBacklashRLS:
+    """A new recursive estimator for a stream that begins with ``first``: :class:`TorqueBacklashRLS`
+    where it has a torque column (its sign from :func:`~online_backlash.load_aware.engagement.torque_orientation`,
+    the settings it shares with ``params``), else :class:`BacklashRLS` with ``params``."""
+    if first is not None and has_torque(first.torque_Nm):
+        return TorqueBacklashRLS(**{"torque_sign": torque_orientation(*first.referred(ratio), first.torque_Nm), **_torque_params(params)})
+    return BacklashRLS(**params)
 
 
 def fit_recursive(
@@ -86,9 +190,12 @@ def fit_recursive(
     estimator: BacklashRLS | None = None,
     source: str | os.PathLike[str] = "<stream>",
     gap_policy: GapPolicy | None = None,
+    ahead: int = 0,
+    rated_torque_Nm: float | None = None,
     **params: Any,
-) -> tuple[BacklashReport, BacklashRLS]:
-    """Stream a log through :class:`BacklashRLS` chunk by chunk (memory stays flat).
+) -> tuple[BacklashReport, BacklashRLS | TorqueBacklashRLS]:
+    """Stream a log through :class:`BacklashRLS` chunk by chunk (memory stays flat); through
+    :class:`~online_backlash.load_aware.TorqueBacklashRLS` when its first chunk has a torque column.
 
     Parameters
     ----------
@@ -110,33 +217,47 @@ def fit_recursive(
         Names the log in errors.
     gap_policy : GapPolicy, optional
         Which gaps the estimator is carried across (default :class:`~online_backlash.pipeline.GapPolicy`).
+    ahead : int
+        Chunks read ahead in a reader thread (:func:`~online_backlash.pipeline.read_ahead`; 0: none).
+        For recorded files: the reading overlaps the estimation. Live sources keep 0.
+    rated_torque_Nm : float, optional
+        With torque: lost motion at 3 % of it (N m); else at the torque dead band.
     **params
-        Settings of a new :class:`BacklashRLS`.
+        Settings of a new :class:`BacklashRLS` (those it shares with ``TorqueBacklashRLS`` for torque).
 
     Returns
     -------
     report : BacklashReport
         ``method="recursive"``; ``extra`` has ``backlash_std_deg``, ``n_reversals``, the gap
         figures (:data:`~online_backlash.rows.GAP_KEYS`) and, where the start failed, ``warm_start``
-        (how the estimator started and why).
-    est : BacklashRLS
+        (how the estimator started and why); the load-aware keys (observability, figures).
+    est : BacklashRLS or TorqueBacklashRLS
     """
-    est = estimator if estimator is not None else BacklashRLS(**params)
+    first, chunks = _first_and_rest(chunks)
+    est = estimator if estimator is not None else recursive_estimator(first, ratio, **params)
     check_every(every_s)
-    pipeline = Pipeline(est, ratio, every_s if trace is not None else None, gap_policy=gap_policy)  # rows cost time: only for a trace
-    for step in pipeline.run(chunks, os.fspath(source)):
+    tracker = DwellTracker()
+    # rows cost time: every every_s for a trace, else every SCATTER_EVERY_S (the ticks of the scatter)
+    pipeline = Pipeline(est, ratio, every_s if trace is not None else SCATTER_EVERY_S, gap_policy=gap_policy)
+    scatter = RecursivePlayScatter(est)  # backlash_std_deg: the play's scatter over the reversal cycles too
+    for step in pipeline.run(chunks, os.fspath(source), ahead):
+        scatter.update(step.u_deg, step.chunk.load_deg, step.chunk.after_gap, due=step.row is not None)
+        if not isinstance(est, TorqueBacklashRLS):
+            tracker.update(step.u_deg, step.chunk.load_deg, step.chunk.after_gap)
         if step.row is not None and trace is not None:
             trace(step.row)
     last = pipeline.finish()
+    scatter.finish()
     if last is not None and trace is not None:
         trace(last)
     report = BacklashReport.from_estimator(
-        "recursive", est.n_samples_seen_, est, backlash_std_deg=est.backlash_std_, n_reversals=est.n_reversals_,
+        "recursive", est.n_samples_seen_, est, backlash_std_deg=scatter.std_deg, n_reversals=est.n_reversals_,
         **pipeline.gap_tally.values(),
     )
     if est.warm_start_.get("method") == "cold":
         report.extra["warm_start"] = dict(est.warm_start_)
-    return report, est
+    keys = recursive_keys(est, rated_torque_Nm) if isinstance(est, TorqueBacklashRLS) else kinematic_keys(tracker)
+    return report.add_load_keys(keys), est
 
 
 def describe(report: BacklashReport, source: str | os.PathLike[str] | None = None) -> str:
@@ -158,7 +279,35 @@ def describe(report: BacklashReport, source: str | os.PathLike[str] | None = Non
     counts = describe_counts(report.as_dict())
     if counts:
         lines.append(f"source:         {counts}")
+    lines += _load_lines(report)
     warm = report.extra.get("warm_start")
     if warm is not None:
         lines.append(f"warm start:     failed, cold start ({warm.get('reason', 'no reason given')})")
     return "\n".join(lines)
+
+
+def _load_lines(report: BacklashReport) -> list[str]:
+    """The report's load-aware lines: why the play is not observable (one line), the data-sheet figures."""
+    lines = []
+    reason = why_not_observable(report.as_dict())
+    if reason is not None:
+        bound = report.backlash_lower_bound_deg
+        lines.append(f"play:           {reason}" + (f"; at least {bound:.4f} deg" if bound else ""))
+    if report.torque_reversals is not None:
+        deadband = report.extra.get("torque_deadband_Nm", math.nan)
+        lines.append(f"torque:         {report.torque_reversals} reversals through a dead band of {deadband:.4g} N m")
+    if report.stiffness_nm_per_arcmin is not None:
+        lines.append(
+            f"stiffness:      {report.stiffness_nm_per_arcmin:.4g} N m/arcmin (left {_fmt(report.stiffness_left_nm_per_arcmin)}, "
+            f"right {_fmt(report.stiffness_right_nm_per_arcmin)})"
+        )
+    if report.lost_motion_arcmin is not None:
+        at = report.extra.get("lost_motion_torque_Nm", math.nan)
+        lines.append(f"lost motion:    {report.lost_motion_arcmin:.3f} arcmin at +-{at:.4g} N m ({report.extra.get('lost_motion_basis')})")
+    if report.hysteresis_loss_arcmin is not None:
+        lines.append(f"hysteresis loss: {report.hysteresis_loss_arcmin:.3f} arcmin")
+    return lines
+
+
+def _fmt(value: float | None) -> str:
+    return "n/a" if value is None else f"{value:.4g}"

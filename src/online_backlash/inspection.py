@@ -21,14 +21,13 @@ from __future__ import annotations
 
 import csv
 import fnmatch
-import gzip
-import io
 import os
 from collections import Counter
 from dataclasses import asdict, dataclass, field, replace
 from typing import Any
 
 from .errors import LogFormatError
+from .replay.csv import file_dialect, open_text, unreadable
 from .replay.measurement import MEASUREMENT_READERS, is_measurement_log
 from .replay.paths import file_suffix
 from .replay.tabular import ChannelInfo
@@ -84,10 +83,13 @@ class FileSummary:
         return out
 
 
-def inspect_file(path: str | os.PathLike[str], dbc: str | os.PathLike[str] | None = None) -> FileSummary:
+def inspect_file(
+    path: str | os.PathLike[str], dbc: str | os.PathLike[str] | None = None, delimiter: str | None = None, decimal: str | None = None
+) -> FileSummary:
     """List what the file at ``path`` holds (its format chosen as :func:`~online_backlash.replay.open_log` does).
 
-    ``dbc`` names the CAN IDs of a CAN log. Raises LogFormatError for a file that cannot be read
+    ``dbc`` names the CAN IDs of a CAN log; ``delimiter`` and ``decimal`` override a CSV's sniffed
+    dialect (:func:`~online_backlash.replay.csv.sniff_dialect`). Raises LogFormatError for a file that cannot be read
     or a format with nothing to list (a raw serial capture).
     """
     path = os.fspath(path)
@@ -95,7 +97,7 @@ def inspect_file(path: str | os.PathLike[str], dbc: str | os.PathLike[str] | Non
         raise LogFormatError(path, None, "no such file" if not os.path.exists(path) else "not a file: inspect one file")
     suffix = file_suffix(path)
     if suffix == ".csv":
-        return FileSummary(path, "csv", _csv_columns(path))
+        return FileSummary(path, "csv", _csv_columns(path, delimiter=delimiter, decimal=decimal))
     if is_measurement_log(path):
         if suffix in (".mf4", ".mdf"):
             from .replay.mdf import describe as mdf_channels
@@ -117,22 +119,23 @@ def inspect_file(path: str | os.PathLike[str], dbc: str | os.PathLike[str] | Non
     raise LogFormatError(path, None, f"inspect reads {', '.join(known)} files, not {suffix or 'files without a suffix'!r}")
 
 
-def _csv_columns(path: str, sample_rows: int = 10000) -> list[ChannelInfo]:
-    """The header's columns, each with the type pandas infers from the first rows and the file's data row count."""
+def _csv_columns(path: str, sample_rows: int = 10000, delimiter: str | None = None, decimal: str | None = None) -> list[ChannelInfo]:
+    """The header's columns, each with the type pandas infers from the first rows and the file's data row count
+    (the dialect sniffed as the CSV reader does, or given)."""
     import pandas as pd
 
-    def opener() -> io.TextIOBase:
-        if path.lower().endswith(".gz"):
-            return io.TextIOWrapper(gzip.open(path, "rb"), encoding="utf-8", newline="")
-        return open(path, encoding="utf-8", newline="")
-
     try:
-        with opener() as f:
-            header = next(csv.reader([f.readline()]), [])
+        with open_text(path) as f:
+            dialect = file_dialect(f, path, delimiter, decimal)
+            header = next(csv.reader([f.readline()], delimiter=dialect.delimiter), [])
             rows = sum(1 for line in f if line.strip())
-        with opener() as f:
-            head = pd.read_csv(f, nrows=sample_rows)
-    except (OSError, UnicodeDecodeError, EOFError, ValueError, pd.errors.ParserError) as exc:
+        with open_text(path) as f:
+            head = pd.read_csv(f, nrows=sample_rows, sep=dialect.delimiter, decimal=dialect.decimal)
+    except LogFormatError:
+        raise
+    except UnicodeDecodeError as exc:
+        raise unreadable(path, 1, exc) from exc
+    except (OSError, EOFError, ValueError, pd.errors.ParserError) as exc:
         raise LogFormatError(path, None, f"cannot read as CSV ({type(exc).__name__}: {exc})") from exc
     if not [h for h in header if h.strip()]:
         raise LogFormatError(path, 1, "empty file: expected a header row naming the columns")

@@ -23,6 +23,8 @@ checkpoints it with each row. The library never prints; the caller decides what 
 from __future__ import annotations
 
 import math
+import queue
+import threading
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
 from typing import Any
@@ -210,6 +212,77 @@ class GapTally:
         return tally
 
 
+#: Blocks a reader thread may hold ready ahead of the estimator (:func:`read_ahead`).
+READ_AHEAD = 1
+
+
+class _Raised:
+    """An exception of the reader thread, handed to the consumer to raise."""
+
+    def __init__(self, exc: BaseException) -> None:
+        self.exc = exc
+
+
+_END = object()
+
+
+def read_ahead(chunks: Iterable[SampleChunk], depth: int = READ_AHEAD) -> Iterator[SampleChunk]:
+    """The chunks of ``chunks``, read in a thread of their own at most ``depth`` chunks ahead.
+
+    The compiled estimator releases the GIL while it learns a block (``nogil``), and the file
+    readers' libraries (pyarrow, asammdf, numpy) do most of their work without it, so on two
+    cores the next block is decoded while the current one is learned. The chunks, their order
+    and what the source counts are those of iterating ``chunks`` directly; an exception of the
+    reader is raised here, at the chunk where it occurred. Closing this generator early (the
+    consumer stopped) stops the reader and closes ``chunks`` in the reader's thread.
+    ``depth=0`` reads on the caller's thread (no thread at all).
+    """
+    if depth <= 0:
+        yield from chunks
+        return
+    ready: queue.Queue[Any] = queue.Queue(maxsize=depth)
+    stop = threading.Event()
+
+    def hand(item: Any) -> bool:
+        """Put ``item`` in the queue unless the consumer has stopped; False if it has."""
+        while not stop.is_set():
+            try:
+                ready.put(item, timeout=0.05)
+                return True
+            except queue.Full:
+                continue
+        return False
+
+    def reader() -> None:
+        source = iter(chunks)
+        try:
+            for chunk in source:
+                if not hand(chunk):
+                    break
+            else:
+                hand(_END)
+        except BaseException as exc:  # handed over: raised on the consumer's thread
+            hand(_Raised(exc))
+        finally:
+            close = getattr(source, "close", None)
+            if close is not None:
+                close()
+
+    thread = threading.Thread(target=reader, name="online-backlash-read-ahead", daemon=True)
+    thread.start()
+    try:
+        while True:
+            item = ready.get()
+            if item is _END:
+                break
+            if isinstance(item, _Raised):
+                raise item.exc
+            yield item
+    finally:
+        stop.set()
+        thread.join()
+
+
 class Pipeline:
     """Feed chunks of samples to a recursive estimator and emit a row every ``every_s`` seconds of data.
 
@@ -301,10 +374,14 @@ class Pipeline:
                 self.samples_since_row = 0
             yield PipelineStep(block, u[start:end], self.samples, row)
 
-    def run(self, chunks: Iterable[SampleChunk], source: str = "<stream>") -> Iterator[PipelineStep]:
-        """:meth:`feed` every chunk; LogFormatError naming ``source`` if there was no sample at all."""
+    def run(self, chunks: Iterable[SampleChunk], source: str = "<stream>", ahead: int = 0) -> Iterator[PipelineStep]:
+        """:meth:`feed` every chunk; LogFormatError naming ``source`` if there was no sample at all.
+
+        ``ahead`` > 0 reads the chunks in a thread of their own, that many ahead (:func:`read_ahead`):
+        for recorded files, whose reading then overlaps the estimation.
+        """
         seen = self.samples
-        for chunk in chunks:
+        for chunk in read_ahead(chunks, ahead):
             yield from self.feed(chunk)
         if self.samples == seen:
             raise LogFormatError(source, None, "no data rows")

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+from typing import Any
 
 import numpy as np
 
@@ -53,3 +54,71 @@ def plot_characteristic(
         fig.suptitle(title)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
+
+
+def plot_hysteresis(curve: Any, path: str | os.PathLike[str], title: str = "", note: str = "") -> None:
+    """Write the data-sheet hysteresis curve: torsion angle (arcmin) against torque (N m).
+
+    ``curve`` is a :class:`~online_backlash.load_aware.datasheet.HysteresisCurve`. The samples are
+    drawn by engaged flank (left, right, neither), each fitted flank as a line over the torque it
+    reached, and the lost motion marked: the two flanks' angles at ``+-T`` joined by an arrow at
+    zero torque, labelled with its width and ``T``. ``note`` (e.g. a data licence's attribution)
+    is written under the plot.
+    """
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(7.5, 5.2))
+    ax = fig.subplots()
+    q, phi, flank = np.asarray(curve.torque_Nm), np.asarray(curve.torsion_arcmin), np.asarray(curve.flank)
+    for side, colour, label in ((0, "0.75", "in the dead band"), (-1, "C0", "left flank (torque < 0)"), (1, "C3", "right flank (torque > 0)")):
+        sel = flank == side
+        if sel.any():
+            ax.plot(q[sel], phi[sel], ".", ms=1.5, color=colour, label=label)
+    for line, colour in ((curve.left, "C0"), (curve.right, "C3")):
+        if line is not None:
+            offset, slope, (lo, hi) = line
+            tq = np.linspace(lo, hi, 2)
+            ax.plot(tq, offset + slope * tq, "-", lw=1.4, color=colour)
+    if curve.lost_motion_arcmin is not None and curve.left is not None and curve.right is not None:
+        t = curve.lost_motion_torque_Nm
+        top = curve.right[0] + curve.right[1] * t
+        bottom = curve.left[0] - curve.left[1] * t
+        for level in (top, bottom):
+            ax.axhline(level, color="k", lw=0.6, ls=":")
+        for x in (-t, t):
+            ax.axvline(x, color="k", lw=0.6, ls=":")
+        ax.annotate("", xy=(0.0, top), xytext=(0.0, bottom), arrowprops={"arrowstyle": "<->", "color": "k", "lw": 1.0})
+        ax.text(
+            0.02, 0.97, f"lost motion {curve.lost_motion_arcmin:.2f} arcmin at +-{t:.3g} N m ({curve.lost_motion_basis})",
+            transform=ax.transAxes, va="top", fontsize=9,
+        )
+    ax.set_xlabel("torque  [N m]")
+    ax.set_ylabel("torsion angle  [arcmin]")
+    ax.set_title(f"hysteresis curve: {title}" if title else "hysteresis curve")
+    ax.grid(True, lw=0.3)
+    ax.legend(loc="lower right", markerscale=6, fontsize=8)
+    if note:
+        fig.text(0.01, 0.005, note, fontsize=6.5, va="bottom", wrap=True)
+    fig.tight_layout(rect=(0, 0.04 if note else 0, 1, 1))
+    fig.savefig(path, dpi=110)
+
+
+def plot_fit(
+    chunk: Any, ratio: float, path: str | os.PathLike[str], *, rated_torque_Nm: float | None = None, title: str = "", note: str = ""
+) -> None:
+    """Fit a whole log by the batch method and plot it: with a torque column the data-sheet hysteresis
+    curve (:func:`plot_hysteresis`), without one the backlash characteristic (:func:`plot_characteristic`).
+
+    ``chunk`` is the whole log as a :class:`~online_backlash.stream.SampleChunk`; ``ratio`` motor:load.
+    """
+    from .fitting import fit_batch  # the fit, only when a plot is asked for
+    from .load_aware import TorqueBacklash
+    from .load_aware.datasheet import datasheet_figures, hysteresis_curve
+
+    _, est = fit_batch(chunk, ratio, rated_torque_Nm=rated_torque_Nm)
+    u, y = chunk.referred(ratio)
+    if isinstance(est, TorqueBacklash):
+        figures = datasheet_figures(est, u, y, chunk.torque_Nm, rated_torque_Nm)
+        plot_hysteresis(hysteresis_curve(est, u, y, chunk.torque_Nm, figures), path, title, note)
+    else:
+        plot_characteristic(u, y, est.predict(u, y[0]), path, title)

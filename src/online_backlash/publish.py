@@ -9,7 +9,17 @@ applied to the latest estimate, with the gearbox's warning level and limit in ar
 ``ok | warning | alarm | unknown``; ``unknown`` without a limit, or while the play is not
 observable) goes to ``PREFIX/GEARBOX/state``, *retained*, whenever it changes, and again after
 every (re)connection, so a subscriber that arrives later, or a broker that restarted without
-persistence, has it.
+persistence, has it. Whether the publisher is there at all goes, retained, to
+``PREFIX/GEARBOX/status``: ``online`` on every connection, ``offline`` when it stops, and
+``offline`` as the client's *last will*, which the broker publishes when the connection is lost
+without a goodbye (the host died, the network went) -- so a dashboard never shows a stale
+state as if it were live (the Homie convention's ``$state``; MQTT 3.1.1 section 3.1.2.5).
+
+``mqtts://HOST[:PORT]/PREFIX`` (port 8883 by default) connects over TLS, checking the broker's
+certificate against the system's CAs or ``--mqtt-ca FILE``; ``--mqtt-cert``/``--mqtt-key``
+present a client certificate. A user name in the URL (``mqtt://USER@HOST/PREFIX``) logs in, with
+the password from the environment variable :data:`PASSWORD_ENV` (not from the command line, where
+other users of the machine could read it).
 
 The broker is a side channel: the estimate and the raw capture never wait for it. The client
 (paho-mqtt 2.x) runs its network loop in its own thread and reconnects by itself (1 s, doubling
@@ -26,6 +36,7 @@ from __future__ import annotations
 import datetime as dt
 import json
 import math
+import os
 import threading
 import uuid
 from dataclasses import dataclass
@@ -42,6 +53,12 @@ from .stream import live_clock_offset
 #: Default MQTT port (unencrypted).
 DEFAULT_PORT = 1883
 
+#: Default MQTT port over TLS (``mqtts://``).
+DEFAULT_TLS_PORT = 8883
+
+#: The environment variable holding the broker password for a user named in the URL.
+PASSWORD_ENV = "ONLINE_BACKLASH_MQTT_PASSWORD"
+
 #: Bound of paho's outgoing queue (messages): a stalled connection never grows memory without bound.
 MAX_QUEUED_MESSAGES = 100
 
@@ -51,7 +68,7 @@ RECONNECT_DELAY_S = (1, 30)
 
 @dataclass(frozen=True)
 class MqttTarget:
-    """Where to publish: ``mqtt://HOST[:PORT]/PREFIX`` parsed.
+    """Where to publish: ``mqtt[s]://[USER@]HOST[:PORT]/PREFIX`` parsed.
 
     Attributes
     ----------
@@ -61,38 +78,58 @@ class MqttTarget:
         Broker TCP port (default :data:`DEFAULT_PORT`).
     prefix : str
         Topic prefix (may contain ``/``; no wildcards ``+`` ``#``).
+    tls : bool
+        ``mqtts://``: connect over TLS.
+    username : str or None
+        Log in as this user (password from :data:`PASSWORD_ENV`).
     """
 
     host: str
     port: int
     prefix: str
+    tls: bool = False
+    username: str | None = None
 
     @classmethod
     def parse(cls, url: str) -> MqttTarget:
-        """Parse ``mqtt://HOST[:PORT]/PREFIX``; a malformed URL is an InvalidParameterError naming it.
+        """Parse ``mqtt[s]://[USER@]HOST[:PORT]/PREFIX``; a malformed URL is an InvalidParameterError naming it.
 
         Examples
         --------
         >>> MqttTarget.parse("mqtt://broker.plant:1884/backlash/hall-3")
-        MqttTarget(host='broker.plant', port=1884, prefix='backlash/hall-3')
+        MqttTarget(host='broker.plant', port=1884, prefix='backlash/hall-3', tls=False, username=None)
+        >>> MqttTarget.parse("mqtts://rig@broker.plant/backlash")
+        MqttTarget(host='broker.plant', port=8883, prefix='backlash', tls=True, username='rig')
         >>> MqttTarget.parse("mqtt://localhost/rig").topic("GB-7", "state")
         'rig/GB-7/state'
         """
         parts = urlsplit(url)
+        tls = parts.scheme == "mqtts"
         try:
-            port = DEFAULT_PORT if parts.port is None else parts.port
+            port = (DEFAULT_TLS_PORT if tls else DEFAULT_PORT) if parts.port is None else parts.port
         except ValueError:
             port = 0
         prefix = parts.path.strip("/")
-        if parts.scheme != "mqtt" or not parts.hostname or port <= 0 or not prefix or parts.query or parts.fragment:
-            raise InvalidParameterError(f"--mqtt: expected mqtt://HOST:PORT/PREFIX, got {url!r}")
+        if parts.scheme not in ("mqtt", "mqtts") or not parts.hostname or port <= 0 or not prefix or parts.query or parts.fragment:
+            raise InvalidParameterError(f"--mqtt: expected mqtt://HOST:PORT/PREFIX (or mqtts:// for TLS), got {url!r}")
+        if parts.password is not None:
+            raise InvalidParameterError(f"--mqtt: put the password in the environment variable {PASSWORD_ENV}, not in the URL")
         if "+" in prefix or "#" in url:  # a '#' would be read as a URL fragment
             raise InvalidParameterError(f"--mqtt: the topic prefix {prefix!r} must not contain the wildcards + or #")
-        return cls(parts.hostname, port, prefix)
+        return cls(parts.hostname, port, prefix, tls, parts.username or None)
 
     def topic(self, gearbox_id: str, leaf: str) -> str:
-        """``PREFIX/GEARBOX/leaf`` (``leaf`` is ``estimate`` or ``state``)."""
+        """``PREFIX/GEARBOX/leaf`` (``leaf`` is ``estimate``, ``state`` or ``status``)."""
         return f"{self.prefix}/{gearbox_id}/{leaf}"
+
+
+@dataclass(frozen=True)
+class MqttTls:
+    """TLS files for an ``mqtts://`` broker (PEM paths; None: the system's CAs, no client certificate)."""
+
+    ca_file: str | None = None
+    cert_file: str | None = None
+    key_file: str | None = None
 
 
 def _finite(value: Any) -> Any:
@@ -129,6 +166,12 @@ def estimate_message(row: EstimateRow, gearbox_id: str, state: str, time_unix_s:
     return {k: _finite(v) for k, v in {**report, **extra, **stamp}.items()}
 
 
+def status_message(gearbox_id: str, status: str, reason: str) -> dict[str, Any]:
+    """The JSON object published, retained, to ``PREFIX/GEARBOX/status``: ``online`` or ``offline`` and why."""
+    now = dt.datetime.now(dt.timezone.utc)
+    return {"gearbox": gearbox_id, "status": status, "reason": reason, "time": now.isoformat(), "time_unix_s": now.timestamp()}
+
+
 def state_message(status: AlarmStatus, gearbox_id: str, time_unix_s: float) -> dict[str, Any]:
     """The JSON object published, retained, to ``PREFIX/GEARBOX/state``: state, reason, play and levels (arcmin)."""
     return {
@@ -156,6 +199,8 @@ class MqttPublisher:
         The gearbox's warning level and limit of the play, arcmin.
     connect_wait_s : float
         :meth:`start` waits this long for the first connection (estimates before it are dropped).
+    tls : MqttTls, optional
+        CA, client certificate and key for ``mqtts://`` (default: the system's CAs).
 
     Use as a context manager (or :meth:`start` / :meth:`close`); :meth:`publish` is called with
     every row. :meth:`counts` gives ``mqtt_published``, ``mqtt_dropped`` and ``mqtt_connections``.
@@ -168,6 +213,7 @@ class MqttPublisher:
         warn_arcmin: float | None = None,
         limit_arcmin: float | None = None,
         connect_wait_s: float = 2.0,
+        tls: MqttTls | None = None,
     ) -> None:
         import paho.mqtt.client as mqtt  # loads only when publishing
 
@@ -191,7 +237,30 @@ class MqttPublisher:
         client.max_queued_messages_set(MAX_QUEUED_MESSAGES)
         client.on_connect = self._on_connect
         client.on_disconnect = self._on_disconnect
+        self._status_topic = self.target.topic(gearbox_id, "status")
+        will = status_message(gearbox_id, "offline", "connection lost without a goodbye (last will)")
+        client.will_set(self._status_topic, json.dumps(will), qos=1, retain=True)
+        self._secure(client, tls)
         self._client = client
+
+    def _secure(self, client: Any, tls: MqttTls | None) -> None:
+        """TLS for ``mqtts://`` and the login for a user in the URL; files are checked up front."""
+        import ssl
+
+        if self.target.username is not None:
+            client.username_pw_set(self.target.username, os.environ.get(PASSWORD_ENV))
+        if tls is not None and not self.target.tls and any(vars(tls).values()):
+            raise InvalidParameterError("--mqtt-ca/--mqtt-cert/--mqtt-key need an mqtts:// URL")
+        if not self.target.tls:
+            return
+        tls = tls or MqttTls()
+        for name, path in (("--mqtt-ca", tls.ca_file), ("--mqtt-cert", tls.cert_file), ("--mqtt-key", tls.key_file)):
+            if path is not None and not os.path.isfile(path):
+                raise InvalidParameterError(f"{path}: {name}: no such file")
+        try:
+            client.tls_set(ca_certs=tls.ca_file, certfile=tls.cert_file, keyfile=tls.key_file)
+        except (ssl.SSLError, ValueError) as exc:
+            raise InvalidParameterError(f"--mqtt: the TLS files were refused: {exc}") from exc
 
     # -- lifecycle ------------------------------------------------------------------------
     def start(self) -> MqttPublisher:
@@ -202,7 +271,15 @@ class MqttPublisher:
         return self
 
     def close(self) -> None:
-        """Disconnect cleanly and stop the network thread."""
+        """Say ``offline`` (retained; waited for up to ``connect_wait_s``), disconnect cleanly, stop the network thread."""
+        if self._connected.is_set():
+            message = status_message(self.gearbox_id, "offline", "stopped")
+            info = self._client.publish(self._status_topic, json.dumps(message), qos=1, retain=True)
+            if info.rc == self._success:
+                try:
+                    info.wait_for_publish(self.connect_wait_s)
+                except (RuntimeError, ValueError):  # the connection went meanwhile: the last will says offline
+                    pass
         self._client.disconnect()
         self._client.loop_stop()
 
@@ -264,6 +341,7 @@ class MqttPublisher:
         with self._lock:
             self.connections += 1
         self._connected.set()
+        self._send(self._status_topic, status_message(self.gearbox_id, "online", "publishing"), qos=1, retain=True)
         self._send_state()  # retained again: a restarted broker may have lost it
 
     def _on_disconnect(self, client: Any, userdata: Any, flags: Any, reason_code: Any, properties: Any) -> None:
@@ -279,4 +357,14 @@ def unix_time_of(time_s: float, offset_s: float | None) -> tuple[float, float]:
     return time_s + offset_s, offset_s
 
 
-__all__ = ["ARCMIN_PER_DEG", "MqttPublisher", "MqttTarget", "estimate_message", "live_state", "state_message", "unix_time_of"]
+__all__ = [
+    "ARCMIN_PER_DEG",
+    "MqttPublisher",
+    "MqttTarget",
+    "MqttTls",
+    "estimate_message",
+    "live_state",
+    "state_message",
+    "status_message",
+    "unix_time_of",
+]

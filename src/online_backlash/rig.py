@@ -71,6 +71,10 @@ class RigRecording:
         """Write ``time,motor,load``: seconds and degrees (``units="deg"``, enough digits to keep
         every count) or seconds and encoder counts (``units="counts"``; read back with
         ``motor_cpr=2**motor_bits, load_cpr=2**load_bits``). A ``.gz`` suffix compresses."""
+        self._write_columns(path, units)
+
+    def _write_columns(self, path: str | os.PathLike[str], units: str, torque: np.ndarray | None = None) -> None:
+        """Write ``time,motor,load`` and, given ``torque`` (N m), a ``torque`` column."""
         opener = gzip.open if os.fspath(path).endswith(".gz") else open
         motor: Iterable[object]
         load: Iterable[object]
@@ -80,10 +84,15 @@ class RigRecording:
             motor, load = self.motor_counts(), self.load_counts()
         else:
             raise InvalidParameterError(f"units must be 'deg' or 'counts', got {units!r}")
+        columns: list[Iterable[object]] = [(f"{t:.6f}" for t in self.time_s), motor, load]
+        header = ["time", "motor", "load"]
+        if torque is not None:
+            columns.append(f"{v:.6f}" for v in torque)
+            header.append("torque")
         with opener(path, "wt", newline="") as f:
             w = csv.writer(f)
-            w.writerow(["time", "motor", "load"])
-            w.writerows(zip((f"{t:.6f}" for t in self.time_s), motor, load))
+            w.writerow(header)
+            w.writerows(zip(*columns))
 
 
 def rig_motion(

@@ -69,7 +69,7 @@ FIELDS: dict[str, RowField] = {
         _field("samples", int, "", "samples the estimator learned from this log"),
         _field("n_samples", int, "", "samples the estimator learned since the gearbox was new"),
         _field("method", str, "", "'recursive' (BacklashRLS) or 'batch' (VorosBacklash)"),
-        _field("backlash_deg", float, "deg", "total play c_left + c_right at the current output level (eq. 1)"),
+        _field("backlash_deg", float, "deg", "total play c_left + c_right at the current output level (eq. 1); null where not observable", nullable=True),
         _field("backlash_arcmin", float, "arcmin", "backlash_deg in arc minutes"),
         _field("backlash_std_deg", float, "deg", "standard error of backlash_deg", nullable=True),
         _field("backlash_std_arcmin", float, "arcmin", "backlash_std_deg in arc minutes", nullable=True),
@@ -79,6 +79,27 @@ FIELDS: dict[str, RowField] = {
         _field("m_right", float, "", "slope of the right flank (eq. 1: m_R)", nullable=True),
         _field("residual_rms_deg", float, "deg", "RMS of the one-step residual (eq. 14)", nullable=True),
         _field("n_reversals", int, "", "reversals of the input the estimator saw", nullable=True),
+        _field(
+            "play_observable", bool, "",
+            "the data show the play: the torque reversed (with torque), or the load held still while the motor crossed the gap (without)",
+        ),
+        _field("torque_reversals", int, "", "changes of the engaged flank (transmitted torque through its dead band); null without torque", nullable=True),
+        _field(
+            "backlash_lower_bound_deg", float, "deg",
+            "where the play is not observable: a play it is at least (motor travel with the load still), else null", nullable=True,
+        ),
+        _field("stiffness_nm_per_arcmin", float, "N m/arcmin", "torsional stiffness, mean of both directions (with torque)", nullable=True),
+        _field("stiffness_left_nm_per_arcmin", float, "N m/arcmin", "torsional stiffness of the left flank (negative torque)", nullable=True),
+        _field("stiffness_right_nm_per_arcmin", float, "N m/arcmin", "torsional stiffness of the right flank (positive torque)", nullable=True),
+        _field(
+            "lost_motion_arcmin", float, "arcmin",
+            "width of the hysteresis curve at +-3 % of the rated torque (else at the smaller peak torque of the two directions)", nullable=True,
+        ),
+        _field(
+            "hysteresis_loss_arcmin", float, "arcmin", "width of the hysteresis curve at zero torque, torque returned from its peak", nullable=True,
+        ),
+        _field("torque_mean_nm", float, "N m", "mean transmitted torque of the data since the previous estimate; null without torque", nullable=True),
+        _field("torque_rms_nm", float, "N m", "RMS transmitted torque of the data since the previous estimate; null without torque", nullable=True),
         _field("operating_hours", float, "h", "operating time since the gearbox was new (UsageCounter)"),
         _field("load_revolutions", float, "rev", "load shaft travel since the gearbox was new (UsageCounter)"),
         _field("reversals", int, "", "reversals since the gearbox was new (UsageCounter)"),
@@ -101,7 +122,9 @@ def _view(*keys: str) -> tuple[str, ...]:
 
 #: Keys of ``estimate --json`` (and ``listen --json``), in this order; more may follow.
 REPORT_KEYS = _view(
-    "backlash_deg", "backlash_arcmin", "c_left_deg", "c_right_deg", "m_left", "m_right", "samples", "residual_rms_deg", "method"
+    "backlash_deg", "backlash_arcmin", "c_left_deg", "c_right_deg", "m_left", "m_right", "samples", "residual_rms_deg", "method",
+    "play_observable", "torque_reversals", "backlash_lower_bound_deg", "stiffness_nm_per_arcmin", "stiffness_left_nm_per_arcmin",
+    "stiffness_right_nm_per_arcmin", "lost_motion_arcmin", "hysteresis_loss_arcmin",
 )
 #: Columns of the estimate-over-time trace (``estimate --trace``), in this order.
 TRACE_COLUMNS = _view("time_s", "backlash_deg", "backlash_std_deg", "c_left_deg", "c_right_deg", "m_left", "m_right")
@@ -109,13 +132,16 @@ TRACE_COLUMNS = _view("time_s", "backlash_deg", "backlash_std_deg", "c_left_deg"
 STORE_KEYS = (
     "sample_index", "time_unix_s", "backlash_deg", "backlash_std_deg", "c_left_deg", "c_right_deg", "m_left", "m_right",
     "residual_rms_deg", "n_samples", "operating_hours", "load_revolutions", "reversals",
+    # schema 3: the load condition of each estimate (the wear trend uses only observable ones)
+    "play_observable", "torque_mean_nm", "torque_rms_nm", "torque_reversals", "stiffness_nm_per_arcmin",
 )
 STORE_COLUMNS = _view(*STORE_KEYS)
 #: Columns of ``history --csv``, in this order.
 HISTORY_CSV_COLUMNS = _view(
     "time_iso", "time_unix_s", "operating_hours", "load_revolutions", "reversals", "backlash_deg", "backlash_std_deg",
     "backlash_arcmin", "backlash_std_arcmin", "c_left_deg", "c_right_deg", "m_left", "m_right", "residual_rms_deg",
-    "n_samples", "run_id", "sample_index",
+    "n_samples", "run_id", "sample_index", "play_observable", "torque_mean_nm", "torque_rms_nm", "torque_reversals",
+    "stiffness_nm_per_arcmin",
 )
 
 
@@ -153,6 +179,23 @@ def select(columns: Iterable[str], values: Mapping[str, Any]) -> dict[str, Any]:
     return {name: values[name] for name in columns}
 
 
+def _torque_values(est: Any) -> dict[str, Any]:
+    """The torque-aware figures of a recursive estimator that has them (``takes_torque``), else none."""
+    if not getattr(est, "takes_torque", False):
+        return {}
+    return {
+        "torque_reversals": int(est.n_reversals_),
+        "stiffness_left_nm_per_arcmin": float(est.stiffness_left_nm_per_arcmin_),
+        "stiffness_right_nm_per_arcmin": float(est.stiffness_right_nm_per_arcmin_),
+    }
+
+
+def _mean_or_none(*values: float | None) -> float | None:
+    """The mean of the finite values, None if there is none."""
+    finite = [v for v in values if v is not None and math.isfinite(v)]
+    return sum(finite) / len(finite) if finite else None
+
+
 @dataclass(frozen=True)
 class EstimateRow:
     """The recursive estimator's estimate at one instant (see :data:`FIELDS` for each column).
@@ -171,6 +214,9 @@ class EstimateRow:
     m_right: float
     residual_rms_deg: float
     n_reversals: int
+    torque_reversals: int | None = None
+    stiffness_left_nm_per_arcmin: float | None = None
+    stiffness_right_nm_per_arcmin: float | None = None
 
     @classmethod
     def from_estimator(cls, est: Any, time_s: float) -> EstimateRow | None:
@@ -196,6 +242,7 @@ class EstimateRow:
             m_right=float(est.m_right_),
             residual_rms_deg=float(est.residual_rms_),
             n_reversals=int(est.n_reversals_),
+            **_torque_values(est),
         )
 
     def values(self) -> dict[str, Any]:
@@ -213,6 +260,14 @@ class EstimateRow:
             "m_right": self.m_right,
             "residual_rms_deg": self.residual_rms_deg,
             "n_reversals": self.n_reversals,
+            "play_observable": True,  # a row is emitted only while the estimator has a play
+            "torque_reversals": self.torque_reversals,
+            "backlash_lower_bound_deg": None,
+            "stiffness_nm_per_arcmin": _mean_or_none(self.stiffness_left_nm_per_arcmin, self.stiffness_right_nm_per_arcmin),
+            "stiffness_left_nm_per_arcmin": self.stiffness_left_nm_per_arcmin,
+            "stiffness_right_nm_per_arcmin": self.stiffness_right_nm_per_arcmin,
+            "lost_motion_arcmin": None,  # a figure of the whole curve (batch fit), not of a row
+            "hysteresis_loss_arcmin": None,
         }
 
     def trace(self) -> dict[str, float]:

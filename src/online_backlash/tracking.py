@@ -3,19 +3,31 @@
 One gearbox has one :class:`~online_backlash.pipeline.Pipeline` (its estimator,
 :class:`~online_backlash.estimators.BacklashRLS`, the recursive form of Vörös 2013, and its data
 clock) and one :class:`~online_backlash.history.usage.UsageCounter` for its whole life: every
-log continues from the state the previous one left, so the estimate follows the wear. Each log is a *run* of the store, keyed by the SHA-256 of the file.
+log continues from the state the previous one left, so the estimate follows the wear. Each log is a *run* of the store, keyed by its
+samples (:func:`sample_key`: the SHA-256 of the first :data:`IDENTITY_SAMPLES` times and angles, decoded), not by its
+bytes: ``day01.csv.gz`` and its unzipped copy are one log, and a copy with a bad row fixed
+after the first samples is the log already tracked.
+
+A gearbox's logs are tracked in time order: a new log that starts before a stored run of the
+gearbox ends (an overlapping copy, a log placed by a wrong clock, an older log given after a
+newer one) is refused with :class:`~online_backlash.errors.HistoryError` naming that run, so no
+operating hour is counted twice and no use per day is negative. :func:`in_time_order` sorts the
+logs of one call by their first sample's calendar time.
 
 Every ``every_s`` seconds of data an estimate is appended, and in the same transaction the
 tracker state (estimator, with its effects by name; usage counters; data clock) becomes the gearbox's checkpoint and the
 run's resume point (``samples_done``) moves on. A process killed at any instant therefore
 leaves a consistent store; run again on the same log, it skips the samples the checkpoint
 already holds and continues, so the history ends the same as an uninterrupted run: no
-duplicate, no missing row, nothing learnt twice. A log already complete is not read again.
+duplicate, no missing row, nothing learnt twice. Of a log already complete only its first
+samples are read (its key). A store written before logs were keyed by their samples holds the
+files' SHA-256 (:func:`file_sha256`) as keys: a log whose sample key the gearbox does not know is
+looked up by that too, so its runs are still found complete or resumed.
 
 Calendar time of a sample: ``start_unix_s + (time_s - first time_s)`` when a start is given;
 the time column itself when it holds UNIX times (at least :data:`UNIX_TIME_MIN`); otherwise
 the log file's modification time is taken as its start. The first run of a log fixes it
-(``runs.started_unix_s``); a resumed run keeps it.
+(``runs.started_unix_s``); a resumed run keeps it. :attr:`TrackResult.clock` names the clock used.
 
 This module sits above :mod:`online_backlash.history` (which only stores rows) and below the
 CLI: it is where readers, estimators and the store meet.
@@ -23,27 +35,32 @@ CLI: it is where readers, estimators and the store meet.
 
 from __future__ import annotations
 
+import copy
+import datetime as dt
 import hashlib
 import math
 import os
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field
 from importlib import resources
 from itertools import chain
-from typing import Any
+from typing import Any, NamedTuple
+
+import numpy as np
 
 from .effect_terms import effect_to_dict
-from .errors import HistoryError, InvalidParameterError, LogFormatError
+from .errors import HistoryError, InvalidParameterError, LogFormatError, NotExcitedError
 from .estimators import BacklashRLS
+from .fitting import recursive_estimator
+from .history.condition import LoadCondition
 from .history.series import WearSeries
 from .history.store import Gearbox, HistoryStore, Run
 from .history.usage import UsageCounter
+from .load_aware import TorqueBacklashRLS
 from .pipeline import DataClock, Pipeline, check_every, tail
 from .replay import open_log
 from .rows import STORE_COLUMNS, EstimateRow, select, source_counts
 from .stream import UNIX_TIME_MIN, SampleChunk, SampleSource, live_clock_offset, refer_to_load
-
-#: Times at or above this (2001-09-09) are read as UNIX seconds.
 
 #: Version of the checkpoint's layout (inside the store's ``gearboxes.checkpoint``).
 CHECKPOINT_FORMAT = 1
@@ -55,7 +72,7 @@ RowCallback = Callable[[EstimateRow, float], None]
 
 
 def file_sha256(path: str | os.PathLike[str], block_bytes: int = 1 << 20) -> str:
-    """SHA-256 of a file's bytes (a compressed log is hashed as stored)."""
+    """SHA-256 of a file's bytes: the key of a log in stores written before :func:`sample_key`."""
     digest = hashlib.sha256()
     with open(path, "rb") as f:
         while block := f.read(block_bytes):
@@ -63,13 +80,92 @@ def file_sha256(path: str | os.PathLike[str], block_bytes: int = 1 << 20) -> str
     return digest.hexdigest()
 
 
+#: Samples at the start of a log whose times and angles identify it (:func:`sample_key`).
+IDENTITY_SAMPLES = 4096
+
+#: The clocks a log's samples can be placed by (:attr:`TrackResult.clock`).
+CLOCK_START, CLOCK_UNIX, CLOCK_MTIME, CLOCK_LIVE = "--start", "UNIX time column", "file modification time", "live: first sample is now"
+
+
+class LogClock(NamedTuple):
+    """How a log's ``time_s`` becomes calendar time: ``offset_s`` seconds to add, and the clock's name."""
+
+    offset_s: float
+    name: str
+
+
+def log_clock(path: str | os.PathLike[str], first_time_s: float, start_unix_s: float | None = None) -> LogClock:
+    """The clock of a log whose first sample is at ``first_time_s`` (see the module docstring)."""
+    if start_unix_s is not None:
+        return LogClock(start_unix_s - first_time_s, CLOCK_START)
+    if first_time_s >= UNIX_TIME_MIN:
+        return LogClock(0.0, CLOCK_UNIX)
+    return LogClock(os.stat(path).st_mtime - first_time_s, CLOCK_MTIME)
+
+
 def log_clock_offset(path: str | os.PathLike[str], first_time_s: float, start_unix_s: float | None = None) -> float:
     """Seconds to add to the log's ``time_s`` to get UNIX time (see the module docstring)."""
-    if start_unix_s is not None:
-        return start_unix_s - first_time_s
-    if first_time_s >= UNIX_TIME_MIN:
-        return 0.0
-    return os.stat(path).st_mtime - first_time_s
+    return log_clock(path, first_time_s, start_unix_s).offset_s
+
+
+def sample_key(chunks: Iterable[SampleChunk], n: int = IDENTITY_SAMPLES) -> tuple[str | None, Iterator[SampleChunk]]:
+    """A log's identity: SHA-256 (hex) of its first ``n`` samples' ``time_s``, ``motor_deg`` and
+    ``load_deg`` (little-endian float64), and the chunks again, none lost (None for no samples).
+
+    The samples as decoded, not the file's bytes: the same recording compressed, renamed or in
+    another container gives the same key.
+    """
+    it = iter(chunks)
+    head: list[SampleChunk] = []
+    count = 0
+    for chunk in it:
+        head.append(chunk)
+        count += len(chunk)
+        if count >= n:
+            break
+    if count == 0:
+        return None, chain(head, it)
+    digest = hashlib.sha256()
+    for name in ("time_s", "motor_deg", "load_deg"):
+        values = np.concatenate([np.asarray(getattr(c, name), dtype=np.float64) for c in head])[:n]
+        digest.update(values.astype("<f8").tobytes())
+    return digest.hexdigest(), chain(head, it)
+
+
+def first_time_unix_s(path: str | os.PathLike[str], log_options: dict[str, Any] | None = None, start_unix_s: float | None = None) -> float:
+    """Calendar time of a log's first sample, UNIX seconds (reads only its first block)."""
+    with open_log(path, **(log_options or {})) as reader:
+        first = next(iter(reader.iter_chunks()), None)
+    if first is None or len(first) == 0:
+        raise LogFormatError(path, None, "no data rows")
+    first_time_s = float(first.time_s[0])
+    return first_time_s + log_clock(path, first_time_s, start_unix_s).offset_s
+
+
+def in_time_order(
+    paths: Iterable[str | os.PathLike[str]], log_options: Callable[[str], dict[str, Any]], start_unix_s: float | None = None
+) -> list[str]:
+    """The logs sorted by their first sample's calendar time (stable: equal times keep their order).
+
+    ``log_options(path)`` gives each log's reader options.
+    """
+    named = [os.fspath(p) for p in paths]
+    starts = {p: first_time_unix_s(p, log_options(p), start_unix_s) for p in named}
+    return sorted(named, key=lambda p: starts[p])
+
+
+def log_files(path: str | os.PathLike[str]) -> list[str]:
+    """A log, or the files of a log directory (a ``listen --raw-log`` folder) in name (= time) order.
+
+    A capture still being written (``...-active.<suffix>``) and hidden files are left out.
+    """
+    path = os.fspath(path)
+    if not os.path.isdir(path):
+        return [path]
+    names = sorted(e.name for e in os.scandir(path) if e.is_file() and not e.name.startswith(".") and "-active." not in e.name)
+    if not names:
+        raise LogFormatError(path, None, "no finished log files in this directory")
+    return [os.path.join(path, name) for name in names]
 
 
 @dataclass
@@ -90,6 +186,12 @@ class TrackResult:
         The last row appended (column name -> value).
     counters : dict
         The log reader's counters (frames, samples, corrupt, skipped, gaps).
+    clock : str
+        The clock that placed the samples in calendar time (:data:`CLOCK_START`,
+        :data:`CLOCK_UNIX`, :data:`CLOCK_MTIME`, :data:`CLOCK_LIVE`).
+    note : str or None
+        Why no estimate was added, when none was (the log still counts as read: its samples
+        stay in the gearbox's state, and the next log continues from them).
     """
 
     gearbox_id: str
@@ -101,6 +203,8 @@ class TrackResult:
     estimates_added: int = 0
     last_estimate: dict | None = None
     counters: dict = field(default_factory=dict)
+    clock: str = ""
+    note: str | None = None
 
 
 class GearboxTracker:
@@ -165,13 +269,15 @@ class GearboxTracker:
             ``progress(samples_fed, backlash_deg or None)`` after every block.
         """
         path = os.fspath(path)
-        digest = file_sha256(path)
+        os.stat(path)  # FileNotFoundError naming the path, before any reader is chosen
         with open_log(path, **(log_options or {})) as reader:
+            key, chunks = sample_key(reader.iter_chunks())
+            key = self._stored_key(key, path)
             return self.track_chunks(
-                reader.iter_chunks(),
+                chunks,
                 path,
-                key=digest,
-                clock_offset=lambda first_time_s: log_clock_offset(path, first_time_s, start_unix_s),
+                key=key,
+                clock_offset=lambda first_time_s: log_clock(path, first_time_s, start_unix_s),
                 counters=lambda: reader.counters.as_dict(),
                 progress=progress,
             )
@@ -203,7 +309,7 @@ class GearboxTracker:
         chunks: Iterable[SampleChunk],
         source: str,
         key: str | None = None,
-        clock_offset: Callable[[float], float] | None = None,
+        clock_offset: Callable[[float], float | LogClock] | None = None,
         counters: Callable[[], dict] | None = None,
         progress: ProgressCallback | None = None,
         on_row: RowCallback | None = None,
@@ -217,11 +323,13 @@ class GearboxTracker:
         source : str
             Description stored with the run (a path, a bus and channel).
         key : str, optional
-            Identity of the data (a log's SHA-256): a complete run with this key is not fed
-            again, an interrupted one is resumed. Without a key every call is a new run.
+            Identity of the data (a log's :func:`sample_key`): a complete run with this key is not fed
+            again, an interrupted one is resumed. Without a key every call is a new run. A keyed
+            run new to the gearbox must start after every stored run ends (else HistoryError).
         clock_offset : callable, optional
-            ``clock_offset(first_time_s)``: seconds to add to ``time_s`` for UNIX time; default
-            0 for UNIX times (at least :data:`UNIX_TIME_MIN`), else "the first sample is now".
+            ``clock_offset(first_time_s)``: seconds to add to ``time_s`` for UNIX time (or a
+            :class:`LogClock`, which also names the clock); default 0 for UNIX times (at least
+            :data:`UNIX_TIME_MIN`), else "the first sample is now".
         counters : callable, optional
             Returns the source's counters at the end (default: only ``samples``).
         progress : callable, optional
@@ -235,24 +343,40 @@ class GearboxTracker:
         if first is None:
             raise LogFormatError(source, None, "no data rows")
         first_time_s = float(first.time_s[0])
-        offset = clock_offset(first_time_s) if clock_offset is not None else live_clock_offset(first_time_s)
-        self._check_estimator_params(self.store.find_gearbox(self.gearbox_id))
+        placed = clock_offset(first_time_s) if clock_offset is not None else LogClock(live_clock_offset(first_time_s), CLOCK_LIVE)
+        offset, clock_name = placed if isinstance(placed, LogClock) else (placed, "")
+        known = self.store.find_gearbox(self.gearbox_id)
+        self._check_estimator_params(known)
+        if key is not None and known is not None and known.ratio == self.ratio:  # a contradicting ratio: begin_run says so
+            check_time_order(self.store.runs(self.gearbox_id), key, source, first_time_s + offset, clock_name)
         gearbox, run = self.store.begin_run(self.gearbox_id, self.ratio, source, key, first_time_s + offset, self.limit_arcmin)
-        result = TrackResult(self.gearbox_id, run.id, source, resumed_from=run.samples_done)
+        result = TrackResult(self.gearbox_id, run.id, source, resumed_from=run.samples_done, clock=clock_name)
         if run.complete:
             result.already_imported = True
             result.counters = {k: getattr(run, k) for k in _COUNTERS}
             return result
         # a resumed run keeps its first clock (begin_run stored it; it is None only in a foreign store)
         clock = (run.started_unix_s if run.started_unix_s is not None else first_time_s + offset) - first_time_s
-        gearbox, run, state, ended = self._feed(gearbox, run, chain([first], chunks), clock, result, progress, on_row)
+        gearbox, run, state, ended = self._feed(gearbox, run, first, chain([first], chunks), clock, result, progress, on_row)
         done = result.resumed_from + result.samples_fed
         counts = counters() if counters is not None else {k: done if k == "samples" else 0 for k in _COUNTERS}
         result.counters = {**source_counts(counts), **state.pipeline.gap_tally.values()}
         self.store.commit(gearbox, run, done, state.checkpoint(run.id), counters=result.counters, ended_unix_s=ended)
+        if result.estimates_added == 0:
+            result.note = why_no_estimate(state.pipeline.estimator, self.every_s)
         return result
 
     # -- internals -------------------------------------------------------------------------
+    def _stored_key(self, key: str | None, path: str) -> str | None:
+        """``key``, or the file's SHA-256 where an older store keyed this log's run by it."""
+        if key is None or self.store.find_gearbox(self.gearbox_id) is None:
+            return key
+        keys = {r.log_sha256 for r in self.store.runs(self.gearbox_id)}
+        if key in keys or not os.path.isfile(path):
+            return key
+        legacy = file_sha256(path)
+        return legacy if legacy in keys else key
+
     def _check_estimator_params(self, gearbox: Gearbox | None) -> None:
         """A known gearbox keeps its estimator: refuse parameters that differ from its own."""
         if gearbox is None or gearbox.checkpoint is None or not self.estimator_params:
@@ -277,6 +401,7 @@ class GearboxTracker:
         self,
         gearbox: Gearbox,
         run: Run,
+        first: SampleChunk,
         chunks: Iterable[SampleChunk],
         clock: float,
         result: TrackResult,
@@ -288,7 +413,7 @@ class GearboxTracker:
         Returns the latest gearbox and run records, the state after the last sample and the
         calendar time of the last sample (None if every sample was skipped).
         """
-        state = TrackerState.load(gearbox.checkpoint, self.ratio, self.every_s, self.estimator_params, self.usage_params)
+        state = TrackerState.load(gearbox.checkpoint, self.ratio, self.every_s, self.estimator_params, self.usage_params, first)
         if run.samples_done == 0 or (gearbox.checkpoint or {}).get("run_id") != run.id:
             state.mark_gap()  # the log does not continue the samples the state saw last
         skip = run.samples_done
@@ -303,6 +428,7 @@ class GearboxTracker:
                 chunk, skip = tail(chunk, skip), 0
             for step in state.pipeline.feed(chunk):
                 state.usage.update(step.chunk.time_s, step.u_deg, step.chunk.after_gap)
+                state.condition.update(step.chunk.torque_Nm)
                 done += len(step.chunk)
                 result.samples_fed += len(step.chunk)
                 if step.row is not None:
@@ -318,6 +444,56 @@ class GearboxTracker:
 
 
 _COUNTERS = ("frames", "samples", "corrupt", "skipped", "gaps")
+
+
+def why_no_estimate(estimator: Any, every_s: float) -> str:
+    """Why a run added no estimate: the estimator has not started (the reason its warm start would
+    fail now, tried on a copy) or less than ``every_s`` seconds of data came since the last row."""
+    if estimator.started:
+        return f"less than --every {every_s:g} s of data since the gearbox's last estimate; the next log continues the count"
+    probe = copy.deepcopy(estimator)
+    try:
+        probe.force_start()
+    except NotExcitedError as exc:
+        return f"the estimator has not started: {exc}; its samples are kept and the gearbox's next log continues them"
+    return "the estimator's warm start waits for more samples; the gearbox's next log continues it"
+
+
+def _utc(time_unix_s: float) -> str:
+    return dt.datetime.fromtimestamp(time_unix_s, dt.timezone.utc).strftime("%Y-%m-%d %H:%M:%S UTC")
+
+
+def check_time_order(runs: Iterable[Run], key: str, source: str, start_unix_s: float, clock: str = "") -> None:
+    """Refuse a log new to the gearbox (no stored run has its ``key``) that starts before one of
+    its stored ``runs`` ends: it overlaps a tracked log, or it is older than one.
+
+    An interrupted run, whose end is not stored, counts as ending at its start. Raises
+    HistoryError naming the run and the clock that placed the new log.
+    """
+    runs = list(runs)
+    if any(r.log_sha256 == key for r in runs):
+        return  # the same log: already imported, or resumed
+    later: list[tuple[Run, float]] = []
+    for r in runs:
+        end = r.ended_unix_s if r.ended_unix_s is not None else r.started_unix_s
+        if end is not None and start_unix_s < end:
+            later.append((r, end))
+    if not later:
+        return
+    run, end = max(later, key=lambda item: item[1])
+    by = f" by the {clock}" if clock else ""
+    began = run.started_unix_s if run.started_unix_s is not None else end
+    if start_unix_s >= began:
+        raise HistoryError(
+            f"{source}: starts {_utc(start_unix_s)}{by}, inside run {run.id} ({run.source}, {_utc(began)} to {_utc(end)}) "
+            "already tracked for this gearbox; an overlapping log is refused, nothing was added (a corrected copy of a "
+            "tracked log cannot be added again: track it into a new gearbox id; if the clock is wrong, give --start)"
+        )
+    raise HistoryError(
+        f"{source}: starts {_utc(start_unix_s)}{by}, before run {run.id} ({run.source}, {_utc(began)} to {_utc(end)}) "
+        "already tracked for this gearbox; logs are tracked in time order, nothing was added (give the logs in one "
+        "call to have them sorted, or track into a new gearbox id; if the clock is wrong, give --start)"
+    )
 
 
 def current_backlash_deg(estimator: Any) -> float | None:
@@ -339,11 +515,14 @@ class TrackerState:
         and between logs excluded, and when the next estimate is due).
     usage : UsageCounter
         Operating time, load revolutions and reversals since new.
+    condition : LoadCondition
+        The torque since the last estimate (stored with the next one).
     """
 
-    def __init__(self, pipeline: Pipeline, usage: UsageCounter) -> None:
+    def __init__(self, pipeline: Pipeline, usage: UsageCounter, condition: LoadCondition | None = None) -> None:
         self.pipeline = pipeline
         self.usage = usage
+        self.condition = condition if condition is not None else LoadCondition()
 
     @classmethod
     def load(
@@ -353,20 +532,27 @@ class TrackerState:
         every_s: float,
         estimator_params: dict | None = None,
         usage_params: dict | None = None,
+        first: SampleChunk | None = None,
     ) -> TrackerState:
         """The state saved in a gearbox's checkpoint, or a new one (with these parameters) if None.
+
+        A new gearbox whose first chunk ``first`` has a torque column gets the torque-aware
+        estimator (:func:`~online_backlash.fitting.recursive_estimator`); a saved one keeps its class.
 
         A saved estimator's effects are rebuilt by :meth:`BacklashRLS.from_state` from their
         names and parameters (:data:`online_backlash.effect_terms.EFFECTS`), stream history
         included, so a resumed run continues them exactly.
         """
         if checkpoint is None:
-            return cls(Pipeline(BacklashRLS(**(estimator_params or {})), ratio, every_s), UsageCounter(**(usage_params or {})))
+            fresh = recursive_estimator(first, ratio, **(estimator_params or {}))
+            return cls(Pipeline(fresh, ratio, every_s), UsageCounter(**(usage_params or {})))
         if checkpoint.get("format") != CHECKPOINT_FORMAT:
             raise HistoryError(f"checkpoint format {checkpoint.get('format')!r} is not {CHECKPOINT_FORMAT}; upgrade online-backlash")
-        estimator = BacklashRLS.from_state(checkpoint["estimator"])
+        saved = checkpoint["estimator"]
+        estimator = (TorqueBacklashRLS if saved.get("estimator") == TorqueBacklashRLS.__name__ else BacklashRLS).from_state(saved)
         clock = DataClock.from_state(every_s, checkpoint)
-        return cls(Pipeline(estimator, ratio, every_s, clock), UsageCounter.from_state(checkpoint["usage"]))
+        usage = UsageCounter.from_state(checkpoint["usage"])
+        return cls(Pipeline(estimator, ratio, every_s, clock), usage, LoadCondition.from_state(checkpoint.get("condition")))
 
     def checkpoint(self, run_id: int | None = None) -> dict:
         """The state as a JSON-serialisable dict, noting the run whose sample it saw last."""
@@ -375,6 +561,7 @@ class TrackerState:
             "run_id": run_id,
             "estimator": self.pipeline.estimator.state_dict(),
             "usage": self.usage.state_dict(),
+            "condition": self.condition.state_dict(),
             **self.pipeline.clock.state_dict(),
         }
 
@@ -390,7 +577,11 @@ class TrackerState:
             "load_revolutions": self.usage.load_revolutions,
             "reversals": self.usage.reversals,
         }
-        return select(STORE_COLUMNS, {**row.values(), **usage, "sample_index": sample_index, "time_unix_s": time_unix_s})
+        values = {**row.values(), **usage, **self.condition.take(), "sample_index": sample_index, "time_unix_s": time_unix_s}
+        est = self.pipeline.estimator
+        if getattr(est, "takes_torque", False):  # the play is seen only where the torque reversed since the last estimate
+            values["play_observable"] = bool(values["play_observable"]) and self.condition.reversed_since_last(est.n_reversals_)
+        return select(STORE_COLUMNS, values)
 
 
 def track_series(

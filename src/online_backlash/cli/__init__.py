@@ -3,18 +3,20 @@
 One module per subcommand in this package (cantools style). Each module defines
 ``add_subparser(subparsers)`` which registers its parser and sets ``func`` to a function
 ``func(args) -> int``. The CLI does no math: it parses options, calls the library, prints.
-Errors print as one line ``error: <message>`` with a non-zero exit; ``--debug`` shows the trace.
+Errors print as one line ``error: FILE[:LINE]: reason`` with a non-zero exit and never a traceback
+(``--debug``, before or after the subcommand, shows it); see :func:`._common.run_command`.
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import importlib
 import pkgutil
 import sys
 from collections.abc import Sequence
 
-from ..errors import BacklashError
+from ._common import run_command
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -31,6 +33,9 @@ def build_parser() -> argparse.ArgumentParser:
             continue
         module = importlib.import_module(f"{__name__}.{info.name}")
         module.add_subparser(subparsers)
+    for subparser in subparsers.choices.values():  # --debug after the subcommand too
+        with contextlib.suppress(argparse.ArgumentError):  # a subcommand that declares its own keeps it
+            subparser.add_argument("--debug", action="store_true", default=argparse.SUPPRESS, help="show the full traceback on errors")
     return parser
 
 
@@ -38,16 +43,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``online-backlash`` console script; returns the exit code."""
     parser = build_parser()
     args = parser.parse_args(argv)
-    try:
-        return int(args.func(args) or 0)
-    except KeyboardInterrupt:
-        print("error: interrupted", file=sys.stderr)
-        return 130
-    except (BacklashError, OSError) as exc:
-        if args.debug:
-            raise
-        print(f"error: {exc}", file=sys.stderr)
-        return 1
+    return run_command(args.func, args)
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -5,8 +5,68 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
 import sys
+import warnings
+from collections.abc import Callable
 from typing import Any
+
+from ..errors import BacklashError, BacklashWarning, InvalidParameterError, NotExcitedError
+
+#: Exit code of a command that failed (argparse uses 2 for bad options, an interrupt 130).
+EXIT_ERROR = 1
+
+
+def run_command(func: Callable[[argparse.Namespace], int | None], args: argparse.Namespace) -> int:
+    """``func(args)`` with every failure as one line ``error: FILE[:LINE]: reason`` on stderr and a non-zero exit.
+
+    No traceback reaches the user (``--debug`` shows it): the library's errors name their file or
+    setting; an OSError names its file; anything else is reported as unexpected, with its type.
+    The library's warnings (:class:`~online_backlash.errors.BacklashWarning`) print as one line
+    ``warning: ...`` each.
+    """
+    debug = getattr(args, "debug", False)
+    with warnings.catch_warnings():
+        warnings.simplefilter("always", BacklashWarning)
+        warnings.showwarning = _show_warning
+        try:
+            return int(func(args) or 0)
+        except KeyboardInterrupt:
+            print("error: interrupted", file=sys.stderr)
+            return 130
+        except Exception as exc:
+            if debug:
+                raise
+            print(f"error: {error_line(exc, getattr(args, 'log', None))}", file=sys.stderr)
+            return EXIT_ERROR
+
+
+def error_line(exc: BaseException, log: str | None = None) -> str:
+    """The one-line description of an error, without the ``error:`` prefix; data that cannot
+    identify the model (NotExcitedError) are named by the ``log`` they came from."""
+    if isinstance(exc, NotExcitedError) and log is not None:
+        text = f"{log}: {exc}"
+    elif isinstance(exc, (BacklashError, argparse.ArgumentTypeError)):
+        text = str(exc)
+    elif isinstance(exc, OSError) and exc.filename is not None:
+        reason = "no such file or folder" if isinstance(exc, FileNotFoundError) else exc.strerror or str(exc)
+        text = f"{exc.filename}: {reason}"
+    elif isinstance(exc, OSError):
+        text = exc.strerror or str(exc)
+    elif isinstance(exc, ImportError) and exc.name:
+        text = f"module {exc.name!r} is not installed ({exc})"
+    else:
+        text = f"unexpected {type(exc).__name__}: {exc} (run with --debug for the trace, and please report it)"
+    return " ".join(text.split())  # one line
+
+
+def _show_warning(message: Warning | str, category: type[Warning], filename: str, lineno: int, file: Any = None, line: str | None = None) -> None:
+    """``warnings.showwarning`` of the CLI: one line ``warning: ...`` on stderr (another library's warning
+    with its category, e.g. ``warning: RuntimeWarning: ...``), never the source line of a traceback."""
+    text = " ".join(str(message).split())
+    if not issubclass(category, BacklashWarning):
+        text = f"{category.__name__}: {text}"
+    print(f"warning: {text}", file=sys.stderr)
 
 
 def add_log_options(parser: argparse.ArgumentParser) -> None:
@@ -22,16 +82,59 @@ def add_log_options(parser: argparse.ArgumentParser) -> None:
         choices=("deg", "rad", "rev", "arcmin", "counts"),
         help="unit of the motor and load columns or DBC signals (default: deg for CSV; a measurement file's channel units; the DBC signals' units)",
     )
-    group.add_argument("--motor-cpr", type=float, help="motor encoder counts per motor revolution (with --units counts)")
-    group.add_argument("--load-cpr", type=float, help="load encoder counts per load revolution (with --units counts)")
+    group.add_argument("--motor-cpr", type=positive_float, help="motor encoder counts per motor revolution (with --units counts)")
+    group.add_argument("--load-cpr", type=positive_float, help="load encoder counts per load revolution (with --units counts)")
     group.add_argument("--skip-bad-rows", action="store_true", help="count and skip malformed rows instead of stopping")
+    add_csv_dialect_options(group)
+
+
+def add_csv_dialect_options(group: argparse._ActionsContainer) -> None:
+    """``--delimiter C --decimal M``: override the sniffed CSV dialect (German Excel: ``--delimiter ';' --decimal ,``)."""
+    group.add_argument(
+        "--delimiter", type=_delimiter, metavar="C",
+        help="CSV field separator (one character; 'tab' for a tab); default: sniffed from the file (, ; tab |)",
+    )
+    group.add_argument("--decimal", choices=(".", ","), help="CSV decimal mark; default: sniffed (',' only with a separator other than ',')")
+
+
+def csv_dialect_options(args: argparse.Namespace) -> dict[str, str]:
+    """The ``delimiter``/``decimal`` keyword arguments of a CSV reader that the user gave."""
+    given = {"delimiter": getattr(args, "delimiter", None), "decimal": getattr(args, "decimal", None)}
+    return {k: v for k, v in given.items() if v is not None}
+
+
+def _delimiter(text: str) -> str:
+    named = {"tab": "\t", "\\t": "\t", "semicolon": ";", "comma": ",", "pipe": "|", "space": " "}
+    value = named.get(text.lower(), text)
+    if len(value) != 1 or value.isalnum() or value in "\"'.+-\r\n":
+        raise argparse.ArgumentTypeError(f"expected one separator character such as ',' ';' '|' or 'tab', got {text!r}")
+    return value
+
+
+def warn_if_implausible(report: Any, args: argparse.Namespace) -> None:
+    """Print one line ``warning: LOG: ...`` on stderr when the fit of ``args.log`` looks like wrong units or ratio."""
+    note = report.plausibility(args.ratio)
+    if note is not None:
+        print(f"warning: {args.log}: {note}", file=sys.stderr)
+
+
+def check_plot_path(path: str | None) -> None:
+    """Refuse, before any work, a ``--plot`` file whose suffix matplotlib cannot write (no suffix: PNG)."""
+    if path is None:
+        return
+    from matplotlib.backend_bases import FigureCanvasBase
+
+    suffix = os.path.splitext(path)[1].lower().lstrip(".")
+    formats = FigureCanvasBase.get_supported_filetypes()
+    if suffix and suffix not in formats:
+        raise InvalidParameterError(f"{path}: cannot draw a plot as .{suffix}; use one of {', '.join('.' + f for f in sorted(formats))}")
 
 
 def add_ratio_option(parser: argparse.ArgumentParser, required: bool = True) -> None:
     """``--ratio R``: motor:load gear ratio; negative for a stage that reverses direction."""
     parser.add_argument(
         "--ratio",
-        type=float,
+        type=nonzero_float,
         required=required,
         help="gear ratio motor:load (motor angle is divided by it; negative for a reversing stage)",
     )
@@ -45,7 +148,7 @@ def parse_column_map(text: str | None) -> dict[str, str] | None:
     for item in text.split(","):
         key, sep, value = item.partition("=")
         if not sep or not key.strip() or not value.strip():
-            raise argparse.ArgumentTypeError(f"--columns expects name=column pairs, got {item!r}")
+            raise InvalidParameterError(f"--columns expects role=column pairs such as time=time_s,motor=m,load=l; got {item!r} in {text!r}")
         mapping[key.strip()] = value.strip()
     return mapping
 
@@ -73,10 +176,24 @@ def add_can_decoding_options(parser: argparse.ArgumentParser, required: bool) ->
     group.add_argument("--motor-signal", required=required, metavar="MSG.SIGNAL", help="motor angle (counts, deg, rad...), e.g. MotorAngle.Count")
     group.add_argument("--load-signal", required=required, metavar="MSG.SIGNAL", help="load angle (counts, deg, rad...), e.g. LoadAngle.Count")
     group.add_argument(
-        "--wrap-deg", type=_positive_float, metavar="DEG", help="angle signals (deg, rad...) wrap every DEG degrees, e.g. 360; default: multi-turn as given"
+        "--wrap-deg", type=wrap_deg_type, metavar="DEG",
+        help="angle signals (deg, rad...) wrap every DEG degrees, e.g. 360, or per signal: motor=360,load=none; default: multi-turn as given",
     )
     group.add_argument("--counter-signal", default="Counter", metavar="NAME", help="rolling counter signal in those messages ('none': pair by time)")
     group.add_argument("--checksum-signal", default="Checksum", metavar="NAME", help="CRC-8/SAE-J1850 checksum byte in those messages ('none': no check)")
+    add_canopen_options(parser)
+
+
+def add_canopen_options(parser: argparse.ArgumentParser) -> None:
+    """``--eds F --node N [--load-node N [--load-eds F] | --load-subindex K]``: CANopen drives instead of a DBC."""
+    group = parser.add_argument_group("CANopen drives (instead of --dbc)")
+    group.add_argument("--eds", metavar="FILE", help="EDS or DCF of the motor drive: its TPDO mapping carries position actual value 0x6064")
+    group.add_argument("--node", type=node_id_type, metavar="N", help="node-ID of the motor drive (1-127)")
+    group.add_argument("--load-node", type=node_id_type, metavar="N", help="load encoder: 0x6064 of this node; default: 0x60E4 of --node")
+    group.add_argument("--load-eds", metavar="FILE", help="EDS or DCF of --load-node, if it is not the --eds one")
+    group.add_argument(
+        "--load-subindex", type=_integer_in(1, 254), metavar="K", help="sub-index of 0x60E4 (additional position actual value); default: the first mapped"
+    )
 
 
 def can_decoding_options(args: argparse.Namespace) -> dict[str, Any]:
@@ -86,6 +203,8 @@ def can_decoding_options(args: argparse.Namespace) -> dict[str, Any]:
     def optional(name: str) -> str | None:
         return None if name.lower() == "none" else name
 
+    if getattr(args, "eds", None) is not None:
+        return canopen_options(args)
     return {
         "dbc": RIG_DBC if args.dbc == "rig" else args.dbc,
         "motor_signal": args.motor_signal,
@@ -97,11 +216,72 @@ def can_decoding_options(args: argparse.Namespace) -> dict[str, Any]:
     }
 
 
-def _positive_float(text: str) -> float:
+def canopen_options(args: argparse.Namespace) -> dict[str, Any]:
+    """Keyword arguments of the CANopen sources (``CanopenSource``, ``CanopenLog``) from :func:`add_canopen_options`."""
+    from ..errors import InvalidParameterError
+
+    if args.node is None:
+        raise InvalidParameterError(f"--eds {args.eds}: give --node N, the node-ID of the motor drive")
+    if getattr(args, "dbc", None) is not None:
+        raise InvalidParameterError("--dbc and --eds both given: a CAN log is decoded with one of them")
+    return {"eds": args.eds, "node": args.node, "load_node": args.load_node, "load_eds": args.load_eds, "load_subindex": args.load_subindex}
+
+
+def _integer_in(low: int, high: int) -> Callable[[str], int]:
+    """An argparse type: an integer ``low..high`` (decimal or 0x hex)."""
+
+    def parse(text: str) -> int:
+        try:
+            value = int(text, 0)
+        except ValueError:
+            value = low - 1
+        if not low <= value <= high:
+            raise argparse.ArgumentTypeError(f"expected a number {low}..{high}, got {text!r}")
+        return value
+
+    return parse
+
+
+#: argparse type of a CANopen node-ID (1..127).
+node_id_type = _integer_in(1, 127)
+
+
+def wrap_deg_type(text: str) -> Any:
+    """argparse type of ``--wrap-deg``: ``DEG`` or ``motor=DEG,load=DEG`` (:func:`~online_backlash.codecs.dbc.parse_wrap_deg`)."""
+    from ..codecs.dbc import parse_wrap_deg
+    from ..errors import InvalidParameterError
+
     try:
-        value = float(text)
-    except ValueError:
-        value = math.nan
+        return parse_wrap_deg(text)
+    except InvalidParameterError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from exc
+
+
+def positive_float(text: str) -> float:
+    """argparse type of options that must be finite and positive, e.g. ``--every`` seconds."""
+    value = _float(text)
     if not (math.isfinite(value) and value > 0):
         raise argparse.ArgumentTypeError(f"expected a positive number, got {text!r}")
     return value
+
+
+def nonzero_float(text: str) -> float:
+    """argparse type of a finite, non-zero number (a gear ratio; negative for a reversing stage)."""
+    value = _float(text)
+    if not (math.isfinite(value) and value != 0):
+        raise argparse.ArgumentTypeError(f"expected a finite non-zero number, got {text!r}")
+    return value
+
+
+def nonempty_text(text: str) -> str:
+    """argparse type of a name that must not be empty or blank (a gearbox id)."""
+    if not text.strip():
+        raise argparse.ArgumentTypeError("expected a non-empty name")
+    return text
+
+
+def _float(text: str) -> float:
+    try:
+        return float(text)
+    except ValueError:
+        return math.nan

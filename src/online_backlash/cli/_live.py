@@ -8,6 +8,7 @@ import threading
 from collections.abc import Callable
 from typing import TYPE_CHECKING, Any
 
+from ..errors import InvalidParameterError
 from ._common import can_decoding_options
 
 if TYPE_CHECKING:
@@ -15,11 +16,19 @@ if TYPE_CHECKING:
 
 
 def open_can_source(args: argparse.Namespace) -> LiveSource:
-    """A :class:`~online_backlash.drivers.can.CanSource` from the options of ``listen can``."""
+    """A :class:`~online_backlash.drivers.can.CanSource` (``--dbc``) or :class:`~online_backlash.drivers.canopen.CanopenSource`
+    (``--eds``) from the options of ``listen can``."""
     from ..drivers.can import CanSource, open_bus
 
-    bus = open_bus(args.interface, args.channel, args.bitrate)
-    return CanSource(bus, **can_decoding_options(args), raw_format=args.raw_format, **_live_options(args))
+    options = can_decoding_options(args)
+    source: type[CanSource] = CanSource
+    if "eds" in options:
+        from ..drivers.canopen import CanopenSource
+
+        source = CanopenSource
+    elif not (args.dbc and args.motor_signal and args.load_signal):
+        raise InvalidParameterError("listen can decodes frames with --dbc FILE --motor-signal S --load-signal S, or with --eds FILE --node N (CANopen)")
+    return source(open_bus(args.interface, args.channel, args.bitrate), **options, raw_format=args.raw_format, **_live_options(args))
 
 
 def open_serial_source(args: argparse.Namespace) -> LiveSource:

@@ -10,7 +10,7 @@ from typing import TYPE_CHECKING
 from ..errors import InvalidParameterError
 
 if TYPE_CHECKING:
-    from ..publish import MqttPublisher
+    from ..publish import MqttPublisher, MqttTls
     from ..rows import EstimateRow
 
 MQTT_HELP = (
@@ -20,8 +20,18 @@ MQTT_HELP = (
 
 
 def add_mqtt_option(parser: argparse.ArgumentParser | argparse._ArgumentGroup) -> None:
-    """``--mqtt URL`` (``track`` has ``--gearbox``, ``--every`` and the alarm levels already)."""
+    """``--mqtt URL`` and its TLS files (``track`` has ``--gearbox``, ``--every`` and the alarm levels already)."""
     parser.add_argument("--mqtt", metavar="URL", help=MQTT_HELP)
+    parser.add_argument("--mqtt-ca", metavar="FILE", help="mqtts://: the CA certificate (PEM) that signed the broker's; default: the system's CAs")
+    parser.add_argument("--mqtt-cert", metavar="FILE", help="mqtts://: a client certificate (PEM) to present to the broker")
+    parser.add_argument("--mqtt-key", metavar="FILE", help="mqtts://: the client certificate's private key (PEM)")
+
+
+def mqtt_tls(args: argparse.Namespace) -> MqttTls:
+    """The TLS files given with ``--mqtt-ca``, ``--mqtt-cert`` and ``--mqtt-key``."""
+    from ..publish import MqttTls
+
+    return MqttTls(args.mqtt_ca, args.mqtt_cert, args.mqtt_key)
 
 
 def add_listen_mqtt_options(parser: argparse.ArgumentParser) -> None:
@@ -36,7 +46,7 @@ def add_listen_mqtt_options(parser: argparse.ArgumentParser) -> None:
 
 @contextmanager
 def mqtt_publisher(
-    url: str | None, gearbox_id: str | None, warn_arcmin: float | None, limit_arcmin: float | None
+    url: str | None, gearbox_id: str | None, warn_arcmin: float | None, limit_arcmin: float | None, tls: MqttTls | None = None
 ) -> Iterator[MqttPublisher | None]:
     """The running publisher for ``--mqtt URL`` (None without ``--mqtt``), closed at the end."""
     if url is None:
@@ -46,7 +56,7 @@ def mqtt_publisher(
         raise InvalidParameterError("--mqtt publishes under the gearbox's id: give --gearbox ID")
     from ..publish import MqttPublisher
 
-    with MqttPublisher(url, gearbox_id, warn_arcmin, limit_arcmin) as publisher:
+    with MqttPublisher(url, gearbox_id, warn_arcmin, limit_arcmin, tls=tls) as publisher:
         yield publisher
 
 

@@ -13,7 +13,7 @@ from importlib import resources
 from pathlib import Path
 
 from ..fitting import describe, fit_batch, fit_recursive
-from ..plotting import plot_characteristic
+from ..plotting import plot_fit
 from .history import describe_trend
 
 #: The bundled log (made by scripts/make_demo_log.py): 30:1 gearbox, 0.50 deg play, encoder counts.
@@ -44,12 +44,11 @@ def run(args: argparse.Namespace) -> int:
     with resources.as_file(resources.files("online_backlash") / "data" / DEMO_LOG) as path:
         chunk = read_csv_arrays(path, **DEMO_OPTIONS)
         report, _ = fit_recursive([chunk], DEMO_RATIO, source=path.name)
-        batch, est = fit_batch(chunk, DEMO_RATIO)
+        batch, _ = fit_batch(chunk, DEMO_RATIO)
         print(f"bundled recording: 30:1 gearbox, true play 0.500 deg ({DEMO_LOG})")
         print(describe(report, path.name))
         print(f"batch fit:      {batch.backlash_deg:.4f} deg (the paper's algorithm on the whole log; plotted)")
-    u, y = chunk.referred(DEMO_RATIO)
-    plot_characteristic(u, y, est.predict(u, y[0]), args.plot, "online-backlash demo: 30:1 gearbox")
+    plot_fit(chunk, DEMO_RATIO, args.plot, title="online-backlash demo: 30:1 gearbox")  # the batch fit again, plotted
     print(f"plot:           {args.plot}")
     wear_demo(args.wear_plot or Path(args.plot).with_name("wear-demo.png"))
     return 0

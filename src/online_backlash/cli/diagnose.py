@@ -6,7 +6,7 @@ import argparse
 
 from ..pipeline import GapTally
 from ..rows import describe_counts, source_counts
-from ._common import add_can_decoding_options, add_log_options, add_ratio_option, print_json
+from ._common import add_can_decoding_options, add_log_options, add_ratio_option, check_plot_path, positive_float, print_json
 from .estimate import read_counted, write_trace
 
 
@@ -36,7 +36,7 @@ def add_subparser(subparsers: argparse._SubParsersAction) -> None:
         help="also track the backlash over the log with the named effects found (recursive estimator) and write "
         "the estimate over time, as estimate --trace does",
     )
-    parser.add_argument("--every", metavar="S", type=float, default=1.0, help="seconds of data between trace rows")
+    parser.add_argument("--every", metavar="S", type=positive_float, default=1.0, help="seconds of data between trace rows")
     add_log_options(parser)
     add_can_decoding_options(parser, required=False)
     parser.add_argument("--serial-format", choices=("ascii", "binary"), help="frame format of a serial capture (.serial)")
@@ -49,6 +49,7 @@ def run(args: argparse.Namespace) -> int:
     from ..diagnostics.plot import plot_diagnosis
     from ..diagnostics.report import markdown_report
 
+    check_plot_path(args.plot)
     chunk, source = read_counted(args)
     counts = {**source_counts(source.counters.as_dict()), **GapTally.of_chunk(chunk).values()}
     result = diagnose(chunk, args.ratio, max_terms=args.max_terms)

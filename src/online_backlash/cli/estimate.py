@@ -10,10 +10,21 @@ from typing import Any
 
 from ..errors import InvalidParameterError
 from ..fitting import BacklashReport, describe, fit_batch, fit_recursive
-from ..pipeline import BRIDGE_S, JUMP_DEG, GapPolicy
+from ..pipeline import BRIDGE_S, JUMP_DEG, READ_AHEAD, GapPolicy
 from ..rows import TRACE_COLUMNS, EstimateRow
 from ..stream import SampleChunk, SampleSource, read_all
-from ._common import add_can_decoding_options, add_log_options, add_ratio_option, can_decoding_options, parse_column_map, print_json
+from ._common import (
+    add_can_decoding_options,
+    add_log_options,
+    add_ratio_option,
+    can_decoding_options,
+    check_plot_path,
+    csv_dialect_options,
+    parse_column_map,
+    positive_float,
+    print_json,
+    warn_if_implausible,
+)
 
 
 def add_subparser(subparsers: argparse._SubParsersAction) -> None:
@@ -35,9 +46,18 @@ def add_subparser(subparsers: argparse._SubParsersAction) -> None:
     add_ratio_option(parser)
     parser.add_argument("--method", choices=("recursive", "batch"), default="recursive", help="estimator")
     parser.add_argument("--json", action="store_true", help="print one JSON object")
+    parser.add_argument(
+        "--rated-torque", metavar="NM", type=positive_float,
+        help="rated torque of the gearbox, N m: with a torque column, lost motion is taken at +-3 %% of it (else at the torque dead band)",
+    )
+    parser.add_argument(
+        "--plot", metavar="FILE.png",
+        help="write a plot of a batch fit of the whole log (read into memory): with a torque column the data-sheet "
+        "hysteresis curve (torsion angle vs torque), else the backlash characteristic",
+    )
     group = parser.add_argument_group("recursive method")
     group.add_argument("--trace", metavar="FILE.csv", help="write the estimate over time: " + ",".join(TRACE_COLUMNS))
-    group.add_argument("--every", metavar="S", type=float, default=1.0, help="seconds of data between trace rows")
+    group.add_argument("--every", metavar="S", type=positive_float, default=1.0, help="seconds of data between trace rows")
     group.add_argument("--memory-reversals", type=float, default=10.0, help="memory of the estimator, in reversals")
     group.add_argument("--memory-s", type=float, help="memory in seconds of motion (instead of / besides reversals)")
     group.add_argument("--sample-period", type=float, default=0.001, help="sampling period of the log, seconds")
@@ -51,7 +71,8 @@ def add_subparser(subparsers: argparse._SubParsersAction) -> None:
     )
     parser.add_argument(
         "--period", type=float, metavar="S",
-        help="nominal sample period for gap detection (CSV, CAN log, serial capture), as given to listen/track; learnt if not given",
+        help="nominal sample period for gap detection (CSV, CAN log, serial capture), as given to listen/track; learnt if not given. "
+        "With a frame counter (CAN, serial, CANopen), sample times are then first time + counter periods x S, not the jittery timestamps",
     )
     add_log_options(parser)
     add_can_decoding_options(parser, required=False)
@@ -85,6 +106,7 @@ def log_options(args: argparse.Namespace) -> dict:
         "load_cpr": args.load_cpr,
         "skip_bad": args.skip_bad_rows,
         **(timing if suffix == ".csv" else {}),
+        **(csv_dialect_options(args) if suffix == ".csv" else {}),
     }
 
 
@@ -99,26 +121,33 @@ def read_counted(args: argparse.Namespace) -> tuple[SampleChunk, SampleSource]:
 def run(args: argparse.Namespace) -> int:
     from ..replay import open_log
 
+    check_plot_path(args.plot)
     if args.method == "batch":
         if args.trace:
             raise InvalidParameterError("--trace needs --method recursive")
         chunk, source = read_counted(args)
-        report, _ = fit_batch(chunk, args.ratio)
+        report, _ = fit_batch(chunk, args.ratio, rated_torque_Nm=args.rated_torque)
     else:
         params = {
             "memory_reversals": args.memory_reversals, "memory_s": args.memory_s, "sample_period_s": args.sample_period,
-            "gap_policy": GapPolicy(args.bridge_s, args.jump_deg),
+            "gap_policy": GapPolicy(args.bridge_s, args.jump_deg), "rated_torque_Nm": args.rated_torque,
         }
         with open_log(args.log, **log_options(args)) as source:
             if args.trace:
                 report = write_trace(args.trace, source.iter_chunks(), args.ratio, args.every, args.log, **params)
             else:
-                report, _ = fit_recursive(source.iter_chunks(), args.ratio, source=args.log, **params)
+                report, _ = fit_recursive(source.iter_chunks(), args.ratio, source=args.log, ahead=READ_AHEAD, **params)
     report.add_counters(source.counters.as_dict())
+    if args.plot:
+        from ..plotting import plot_fit  # matplotlib: only for a plot
+
+        whole = chunk if args.method == "batch" else read_counted(args)[0]
+        plot_fit(whole, args.ratio, args.plot, rated_torque_Nm=args.rated_torque, title=os.path.basename(args.log))
     if args.json:
         print_json(report.as_dict())
     else:
         print(describe(report, args.log))
+    warn_if_implausible(report, args)
     return 0
 
 
@@ -133,5 +162,5 @@ def write_trace(
         def write(row: EstimateRow) -> None:
             writer.writerow(row.trace())
 
-        report, _ = fit_recursive(chunks, ratio, every_s=every_s, trace=write, source=source, **params)
+        report, _ = fit_recursive(chunks, ratio, every_s=every_s, trace=write, source=source, ahead=READ_AHEAD, **params)
     return report

@@ -10,7 +10,7 @@ from typing import TYPE_CHECKING
 
 from ..errors import BacklashError, InvalidParameterError
 from ..rows import HISTORY_CSV_COLUMNS
-from ._common import print_json
+from ._common import check_plot_path, nonempty_text, print_json
 
 if TYPE_CHECKING:
     from ..history.report import WearReport
@@ -19,7 +19,7 @@ if TYPE_CHECKING:
 def add_db_options(parser: argparse.ArgumentParser, gearbox_required: bool = True) -> None:
     """``--db`` and ``--gearbox``, shared with ``track``."""
     parser.add_argument("--db", required=True, help="history store: an SQLite file path or postgresql://user@host/dbname")
-    parser.add_argument("--gearbox", required=gearbox_required, metavar="ID", help="the gearbox's id in the store")
+    parser.add_argument("--gearbox", type=nonempty_text, required=gearbox_required, metavar="ID", help="the gearbox's id in the store")
 
 
 def add_subparser(subparsers: argparse._SubParsersAction) -> None:
@@ -73,7 +73,8 @@ def run(args: argparse.Namespace) -> int:
         return run_check(args)
     if args.gearbox is None or args.all:
         raise InvalidParameterError("give --gearbox ID (--all only goes with --check)")
-    with HistoryStore(args.db) as store:
+    check_plot_path(args.plot)
+    with HistoryStore(args.db, read_only=True) as store:
         report = wear_report(store, args.gearbox, **report_options(args))
     if args.plot:
         plot_wear(report, args.plot)
@@ -109,7 +110,7 @@ def run_check(args: argparse.Namespace) -> int:
         print("BACKLASH UNKNOWN - give --gearbox ID or --all with --check")
         return PLUGIN_STATUS["unknown"][1]
     try:
-        with HistoryStore(args.db) as store:
+        with HistoryStore(args.db, read_only=True) as store:
             ids = store.gearbox_ids() if args.all else [args.gearbox]
             reports = [wear_report(store, gearbox_id, **report_options(args)) for gearbox_id in ids]
     except (BacklashError, OSError) as exc:
@@ -139,14 +140,16 @@ def describe(report: WearReport) -> str:
     g = report.gearbox
     limit = "none stored" if g.limit_arcmin is None else f"{g.limit_arcmin:g} arcmin"
     warn = "" if g.warn_arcmin is None else f", warning level {g.warn_arcmin:g} arcmin"
-    lines = [f"gearbox {g.id}: ratio {g.ratio:g}, limit {limit}{warn}, {len(report.estimates)} estimates"]
+    hidden = int((~report.observable).sum())
+    counted = f", {hidden} with the play not observable (marked *, left out of the trend)" if hidden else ""
+    lines = [f"gearbox {g.id}: ratio {g.ratio:g}, limit {limit}{warn}, {len(report.estimates)} estimates{counted}"]
     header = f"{'time (UTC)':<20} {'op. hours':>10} {'load rev':>10} {'reversals':>9} {'backlash deg':>12} {'std deg':>9} {'arcmin':>8} {'std arcmin':>10}"
     lines += [header, "-" * len(header)]
-    for row in report.rows():
+    for row, seen in zip(report.rows(), report.observable):
         lines.append(
             f"{row['time'][:19].replace('T', ' '):<20} {row['operating_hours']:>10.3f} {row['load_revolutions']:>10.1f} "
-            f"{row['reversals']:>9d} {row['backlash_deg']:>12.4f} {_num(row['backlash_std_deg'], '9.4f'):>9} "
-            f"{row['backlash_arcmin']:>8.2f} {_num(row['backlash_std_arcmin'], '10.2f'):>10}"
+            f"{row['reversals']:>9d} {_num(row['backlash_deg'], '12.4f'):>12} {_num(row['backlash_std_deg'], '9.4f'):>9} "
+            f"{_num(row['backlash_arcmin'], '8.2f'):>8} {_num(row['backlash_std_arcmin'], '10.2f'):>10}{'' if seen else ' *'}"
         )
     lines.append("")
     lines += describe_trend(report)

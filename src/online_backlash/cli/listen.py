@@ -20,7 +20,7 @@ from ..fitting import describe, fit_recursive
 from ..rows import EstimateRow, arcmin
 from ._common import add_can_decoding_options, add_ratio_option, print_json
 from ._live import on_interrupt, open_can_source, open_serial_source
-from ._mqtt import add_listen_mqtt_options, mqtt_publisher, mqtt_summary_line, row_sink
+from ._mqtt import add_listen_mqtt_options, mqtt_publisher, mqtt_summary_line, mqtt_tls, row_sink
 
 
 def add_subparser(subparsers: argparse._SubParsersAction) -> None:
@@ -35,15 +35,16 @@ def add_subparser(subparsers: argparse._SubParsersAction) -> None:
     can_parser = sources.add_parser(
         "can",
         help="a CAN bus (any python-can interface)",
-        description="Listen to a CAN bus; frames are decoded with a DBC.",
+        description="Listen to a CAN bus; frames are decoded with a DBC (--dbc) or a CANopen drive's EDS/DCF (--eds --node).",
         formatter_class=argparse.ArgumentDefaultsHelpFormatter,
     )
     can_parser.add_argument("--interface", required=True, help="python-can interface: socketcan, pcan, kvaser, vector, virtual, ...")
     can_parser.add_argument("--channel", required=True, help="channel of the interface, e.g. can0")
     can_parser.add_argument("--bitrate", type=int, help="bit rate, bit/s (where the interface sets it)")
-    add_can_decoding_options(can_parser, required=True)
+    add_can_decoding_options(can_parser, required=False)  # --dbc with its signals, or --eds --node: checked on opening
     can_parser.add_argument("--motor-cpr", type=int, help="motor counts per revolution; from the DBC if not given")
     can_parser.add_argument("--load-cpr", type=int, help="load counts per revolution; from the DBC if not given")
+    can_parser.add_argument("--units", help="unit of the motor and load DBC signals (deg, rad, rev, counts...), replacing the DBC's")
     can_parser.add_argument("--raw-format", choices=("blf", "asc", "log"), default="blf", help="format of the raw CAN log")
     _add_common(can_parser)
     can_parser.set_defaults(func=run, open_source=open_can_source)
@@ -68,7 +69,10 @@ def _add_common(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--raw-log", required=True, metavar="DIR", help="directory for the raw captures (written before decoding)")
     parser.add_argument("--duration", type=float, metavar="S", help="stop after S seconds; without it, at Ctrl-C")
     parser.add_argument("--timeout", type=float, metavar="S", help="fail when nothing arrives for S seconds")
-    parser.add_argument("--period", type=float, metavar="S", help="nominal sample period for gap detection; learnt if not given")
+    parser.add_argument(
+        "--period", type=float, metavar="S",
+        help="nominal sample period for gap detection; learnt if not given. With a frame counter, sample times are then first time + counter periods x S",
+    )
     parser.add_argument("--json", action="store_true", help="print the summary as one JSON object on stdout")
     parser.add_argument("--status-every", type=float, default=0.5, metavar="S", help="seconds of data between status lines")
     group = parser.add_argument_group("recursive estimator")
@@ -111,7 +115,7 @@ def run(args: argparse.Namespace) -> int:
     params = {"memory_reversals": args.memory_reversals, "memory_s": args.memory_s, "sample_period_s": args.sample_period}
     started = time.monotonic()
     every_s = args.status_every if args.every is None else args.every
-    with mqtt_publisher(args.mqtt, args.gearbox, args.warn_arcmin, args.limit_arcmin) as publisher, args.open_source(args) as source:
+    with mqtt_publisher(args.mqtt, args.gearbox, args.warn_arcmin, args.limit_arcmin, mqtt_tls(args)) as publisher, args.open_source(args) as source:
         status = _StatusLine(source.counters)
         undo = on_interrupt(source.request_stop)
         try:

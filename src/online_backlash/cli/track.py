@@ -16,9 +16,9 @@ from typing import TYPE_CHECKING, Any
 
 from ..errors import InvalidParameterError
 from ..rows import describe_counts
-from ._common import add_can_decoding_options, add_log_options, add_ratio_option, print_json
+from ._common import add_can_decoding_options, add_log_options, add_ratio_option, positive_float, print_json
 from ._live import on_interrupt, open_can_source, open_serial_source
-from ._mqtt import add_mqtt_option, mqtt_publisher, mqtt_summary_line
+from ._mqtt import add_mqtt_option, mqtt_publisher, mqtt_summary_line, mqtt_tls
 from .estimate import log_options
 from .history import add_db_options
 
@@ -51,12 +51,13 @@ def add_subparser(subparsers: argparse._SubParsersAction) -> None:
         "logs",
         nargs="*",
         metavar="LOG",
-        help="recorded logs, in the order they were recorded: .csv[.gz]; CAN logs (.asc .blf .log .trc ..., with --dbc); "
+        help="recorded logs (tracked in the order of their first samples' time), or listen --raw-log folders: .csv[.gz]; "
+        "CAN logs (.asc .blf .log .trc ..., with --dbc); "
         "serial captures (.serial, with --serial-format)",
     )
-    add_ratio_option(parser)
-    add_db_options(parser)
-    parser.add_argument("--every", type=float, default=60.0, metavar="S", help="seconds of data between estimates")
+    add_ratio_option(parser, required=False)
+    add_db_options(parser, gearbox_required=False)
+    parser.add_argument("--every", type=positive_float, default=60.0, metavar="S", help="seconds of data between estimates")
     parser.add_argument("--limit-arcmin", type=float, metavar="X", help="store this backlash limit with the gearbox")
     parser.add_argument(
         "--warn-arcmin", type=float, metavar="X", help="store this warning level of the play with the gearbox (not above the limit)"
@@ -98,12 +99,26 @@ def add_subparser(subparsers: argparse._SubParsersAction) -> None:
     live.add_argument("--raw-log", metavar="DIR", help="directory for the raw captures, written before decoding (required with --listen)")
     live.add_argument("--duration", type=float, metavar="S", help="stop after S seconds; without it, at Ctrl-C")
     live.add_argument("--timeout", type=float, metavar="S", help="fail when nothing arrives for S seconds")
-    live.add_argument("--period", type=float, metavar="S", help="nominal sample period for gap detection; learnt if not given")
+    live.add_argument(
+        "--period", type=float, metavar="S",
+        help="nominal sample period for gap detection; learnt if not given. With a frame counter, sample times are then first time + counter periods x S",
+    )
     add_mqtt_option(live)
+    fleet = parser.add_argument_group("fleet, instead of one gearbox (see docs/fleet.md)")
+    fleet.add_argument("--manifest", metavar="TOML", help="track every gearbox of this fleet manifest ([defaults], [[gearbox]] tables of track options)")
+    fleet.add_argument(
+        "--workers", type=int, metavar="N", help="with --manifest: Dask worker processes on this machine (default: its cores); 0: gearboxes one by one here"
+    )
+    fleet.add_argument("--scheduler", metavar="tcp://HOST:PORT", help="with --manifest: run on this Dask scheduler's workers instead of local ones")
     parser.set_defaults(func=run)
 
 
-def run(args: argparse.Namespace) -> int:
+def check_track_args(args: argparse.Namespace) -> None:
+    """The checks of one gearbox's options that argparse cannot make (InvalidParameterError)."""
+    from ..history.alarms import check_alarm_levels
+
+    if args.gearbox is None or args.ratio is None:
+        raise InvalidParameterError("give --gearbox ID and --ratio R (or --manifest for a fleet)")
     if args.listen is None and not args.logs:
         raise InvalidParameterError("give the logs to track, or --listen can|serial to track live")
     if args.listen is not None and (args.logs or args.raw_log is None):
@@ -114,28 +129,28 @@ def run(args: argparse.Namespace) -> int:
         raise InvalidParameterError(f"--start gives the start of one log; {len(args.logs)} logs were given")
     if args.diagnose and args.listen is not None:
         raise InvalidParameterError("--diagnose diagnoses the first log: track a log first, then --listen continues with its effects")
-    # imported here: SQLAlchemy loads only for this subcommand
-    from ..history.alarms import check_alarm_levels
-    from ..history.store import HistoryStore
-
     check_alarm_levels(args.warn_arcmin, args.limit_arcmin)
-    from ..tracking import GearboxTracker
+
+
+def run(args: argparse.Namespace) -> int:
+    if args.manifest is not None:
+        from ._fleet import run_manifest
+
+        return run_manifest(args)
+    if args.workers is not None or args.scheduler is not None:
+        raise InvalidParameterError("--workers and --scheduler run a fleet: give them with --manifest")
+    check_track_args(args)
+    # imported here: SQLAlchemy loads only for this subcommand
+    from ..history.store import HistoryStore
 
     show_progress = not args.quiet and sys.stderr.isatty()
     with HistoryStore(args.db, create=True) as store:
-        given = {"memory_reversals": args.memory_reversals, "sample_period_s": args.sample_period}
-        params = {name: value for name, value in given.items() if value is not None}
-        if args.diagnose:
-            params.update(_diagnosed_effects(store, args))
-        if args.warn_arcmin is not None or args.limit_arcmin is not None:
-            store.set_alarm_levels(args.gearbox, args.ratio, warn_arcmin=args.warn_arcmin, limit_arcmin=args.limit_arcmin)
-        tracker = GearboxTracker(
-            store, args.gearbox, args.ratio, every_s=args.every, limit_arcmin=args.limit_arcmin, estimator_params=params
-        )
+        logs = [] if args.listen is not None else ordered_logs(args)
+        tracker = gearbox_tracker(store, args, logs)
         if args.listen is not None:
             known = store.find_gearbox(args.gearbox)
-            levels = (known.warn_arcmin, known.limit_arcmin) if known is not None else (args.warn_arcmin, args.limit_arcmin)
-            with mqtt_publisher(args.mqtt, args.gearbox, *levels) as publisher:
+            warn, limit = (known.warn_arcmin, known.limit_arcmin) if known is not None else (args.warn_arcmin, args.limit_arcmin)
+            with mqtt_publisher(args.mqtt, args.gearbox, warn, limit, tls=mqtt_tls(args)) as publisher:
                 with _progress_bar(f"{args.listen} live", show_progress) as progress:
                     result = _track_live(tracker, args, progress, None if publisher is None else publisher.publish)
                 if publisher is not None:
@@ -144,16 +159,51 @@ def run(args: argparse.Namespace) -> int:
             if publisher is not None and not args.json:
                 print(mqtt_summary_line(publisher))
             return 0
-        for path in args.logs:
-            options = log_options(argparse.Namespace(**{**vars(args), "log": path}))
-            with _progress_bar(path, show_progress) as progress:
-                result = tracker.track_log(path, options, start_unix_s=args.start, progress=progress)
+        for result in track_logs(tracker, args, logs, show_progress):
             report(result, args.json)
     return 0
 
 
-def _diagnosed_effects(store: HistoryStore, args: argparse.Namespace) -> dict[str, Any]:
-    """``{"effects": [...]}``: the named effects ``diagnose`` finds in the first log, for a new gearbox
+def gearbox_tracker(store: HistoryStore, args: argparse.Namespace, logs: list[str]) -> GearboxTracker:
+    """The tracker of the gearbox ``args`` name, its alarm levels stored (``--diagnose`` reads the first of ``logs``)."""
+    from ..tracking import GearboxTracker
+
+    given = {"memory_reversals": args.memory_reversals, "sample_period_s": args.sample_period}
+    params = {name: value for name, value in given.items() if value is not None}
+    if args.diagnose:
+        params.update(_diagnosed_effects(store, args, logs[0]))
+    if args.warn_arcmin is not None or args.limit_arcmin is not None:
+        store.set_alarm_levels(args.gearbox, args.ratio, warn_arcmin=args.warn_arcmin, limit_arcmin=args.limit_arcmin)
+    return GearboxTracker(store, args.gearbox, args.ratio, every_s=args.every, limit_arcmin=args.limit_arcmin, estimator_params=params)
+
+
+def _log_options(args: argparse.Namespace, path: str) -> dict[str, Any]:
+    return log_options(argparse.Namespace(**{**vars(args), "log": path}))
+
+
+def ordered_logs(args: argparse.Namespace) -> list[str]:
+    """The logs given (a ``listen --raw-log`` folder: its finished captures), sorted by their first
+    sample's calendar time; a note on stderr when that is not the order given."""
+    from ..tracking import in_time_order, log_files
+
+    given = [f for path in args.logs for f in log_files(path)]
+    if args.start is not None and len(given) != 1:
+        raise InvalidParameterError(f"--start gives the start of one log; {len(given)} logs were given (folders count their files)")
+    ordered = in_time_order(given, lambda p: _log_options(args, p), args.start)
+    if ordered != given and not args.quiet:
+        print(f"note: {args.gearbox}: logs tracked in the order of their first samples' time: {', '.join(ordered)}", file=sys.stderr)
+    return ordered
+
+
+def track_logs(tracker: GearboxTracker, args: argparse.Namespace, logs: list[str], show_progress: bool = False) -> Iterator[TrackResult]:
+    """Track ``logs`` in this order into the tracker's gearbox, one result per log as it completes."""
+    for path in logs:
+        with _progress_bar(path, show_progress) as progress:
+            yield tracker.track_log(path, _log_options(args, path), start_unix_s=args.start, progress=progress)
+
+
+def _diagnosed_effects(store: HistoryStore, args: argparse.Namespace, first: str) -> dict[str, Any]:
+    """``{"effects": [...]}``: the named effects ``diagnose`` finds in the ``first`` log, for a new gearbox
     (``{}`` for a gearbox with a checkpoint: its estimator carries its effects)."""
     known = store.find_gearbox(args.gearbox)
     if known is not None and known.checkpoint is not None:
@@ -161,8 +211,7 @@ def _diagnosed_effects(store: HistoryStore, args: argparse.Namespace) -> dict[st
     from ..diagnostics.loop import diagnose
     from ..replay import read_log_arrays
 
-    first = args.logs[0]
-    chunk = read_log_arrays(first, **log_options(argparse.Namespace(**{**vars(args), "log": first})))
+    chunk = read_log_arrays(first, **_log_options(args, first))
     return {"effects": diagnose(chunk, args.ratio).effects}
 
 
@@ -210,6 +259,8 @@ def report(result: TrackResult, as_json: bool) -> None:
         return
     resumed = f", resumed after {result.resumed_from} samples" if result.resumed_from else ""
     line = f"{where}: {result.samples_fed} samples{resumed}, {result.estimates_added} estimates added"
+    if result.note is not None:
+        line += f" ({result.note})"
     last = result.last_estimate
     if last is not None:
         std = last["backlash_std_deg"]
@@ -217,4 +268,5 @@ def report(result: TrackResult, as_json: bool) -> None:
             f"; backlash {last['backlash_deg']:.4f} deg (std {std:.4f}) after {last['operating_hours']:.3f} operating hours"
         )
     counts = describe_counts(result.counters)
-    print(line if not counts else f"{line}\n  source: {counts}")
+    clock = f"; placed in time by the {result.clock}" if result.clock else ""
+    print(f"{line}\n  source: {counts}{clock}" if counts or clock else line)

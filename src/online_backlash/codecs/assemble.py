@@ -13,7 +13,7 @@ import math
 from online_backlash.errors import FrameError
 from online_backlash.stream import Row, StreamCounters
 
-from .gaps import GapDetector
+from .gaps import CounterClock, GapDetector
 
 
 class SampleAssembler:
@@ -26,7 +26,8 @@ class SampleAssembler:
     counter_modulus : int or None
         Wrap of the source's sequence counter (None: gaps from time steps only).
     period_s : float or None
-        Nominal sample period, seconds (None: learnt).
+        Nominal sample period, seconds (None: learnt). Given, with a counter, the rows carry the
+        counter's time (:class:`~online_backlash.codecs.gaps.CounterClock`) instead of the timestamps.
     strict : bool
         Raise FrameError instead of counting a bad reading as corrupt.
     """
@@ -35,6 +36,8 @@ class SampleAssembler:
         self.counters = counters
         self.strict = strict
         self.gaps = GapDetector(counter_modulus, period_s)
+        # with a counter and a given period, a sample's time is the counter's (the gap rule reads the timestamps)
+        self.clock = CounterClock(counter_modulus, period_s) if counter_modulus is not None and period_s is not None else None
         self._last_time = -math.inf
 
     def accept(self, time_s: float, motor_deg: float, load_deg: float, seq: int | None, n_frames: int = 1) -> bool | None:
@@ -56,7 +59,9 @@ class SampleAssembler:
     def row(self, time_s: float, motor_deg: float, load_deg: float, seq: int | None, n_frames: int = 1) -> Row | None:
         """The checked sample of these readings (degrees, seconds) as a row, or None if it is corrupt (see :meth:`accept`)."""
         after_gap = self.accept(time_s, motor_deg, load_deg, seq, n_frames)
-        return None if after_gap is None else (time_s, motor_deg, load_deg, seq, after_gap)
+        if after_gap is None:
+            return None
+        return (time_s if self.clock is None else self.clock.time(time_s, seq), motor_deg, load_deg, seq, after_gap)
 
     def _corrupt(self, reason: str, n_frames: int) -> None:
         if self.strict:

@@ -24,7 +24,7 @@ from online_backlash.stream import Gap, SampleChunk
 
 from .blockdecode import CORRUPT, OK, SKIPPED, BlockDecoder, DecodedBlock, frame_arrays
 from .dbc import BOTH, MOTOR, DbcDecoder
-from .gaps import GapDetector
+from .gaps import CounterClock, GapDetector
 from .pairing import CanPipeline, FramePipeline
 
 # integer state: pending frame [motor, load] (has, counter, count); unwrapper [motor, load] (has, last, total);
@@ -204,6 +204,7 @@ class BlockPipeline(CanPipeline):
             self._fst[_G_PERIOD] = gaps.period_s
             self._ist[_G_KNOWN] = 1
         self._steps = np.zeros(gaps.learn_steps, dtype=np.float64)
+        self._clock = CounterClock(self._modulus, period_s) if self._modulus and period_s is not None else None  # as SampleAssembler
 
     @property
     def skew_mean_s(self) -> float:
@@ -239,6 +240,8 @@ class BlockPipeline(CanPipeline):
         for t, dt, missing in zip(*(g[:n_gaps].tolist() for g in gaps)):
             c.report_gap(Gap(t, dt, missing))
         time, motor, load, seq, after_gap = (a[:n_samples] for a in out)
+        if self._clock is not None:
+            time = self._clock.times(time, seq)
         return SampleChunk(time, motor, load, np.full(n_samples, np.nan), after_gap, seq=seq)
 
     def flush(self) -> None:

@@ -23,10 +23,10 @@ from __future__ import annotations
 
 import math
 import os
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import cast
+from typing import TypeAlias, cast
 
 import can
 import cantools
@@ -266,8 +266,9 @@ class DbcDecoder:
         Names of the rolling counter and checksum signals within our messages (None: not used).
     units : str, optional
         Replaces the unit strings of both angle signals (see :func:`resolve_signal`).
-    wrap_deg : float, optional
+    wrap_deg : float or mapping, optional
         Angle signals (not counts) wrap every ``wrap_deg`` degrees; default: multi-turn as given.
+        Per signal: ``{"motor": 360.0, "load": None}`` (:func:`wrap_per_signal`, :func:`parse_wrap_deg`).
 
     A signal of a multiplexed message is read from the frames whose multiplexer selects it; the
     other frames of that message are not ours (skipped).
@@ -295,11 +296,12 @@ class DbcDecoder:
         counter_signal: str | None = "Counter",
         checksum_signal: str | None = "Checksum",
         units: str | None = None,
-        wrap_deg: float | None = None,
+        wrap_deg: WrapDeg = None,
     ) -> None:
         self.db = load_dbc(dbc)
-        self.motor = resolve_signal(self.db, motor_signal, motor_cpr, units, wrap_deg)
-        self.load = resolve_signal(self.db, load_signal, load_cpr, units, wrap_deg)
+        motor_wrap, load_wrap = wrap_per_signal(wrap_deg)
+        self.motor = resolve_signal(self.db, motor_signal, motor_cpr, units, motor_wrap)
+        self.load = resolve_signal(self.db, load_signal, load_cpr, units, load_wrap)
         self.paired = self.motor.message.frame_id != self.load.message.frame_id
         if not self.paired and self.motor.message.is_multiplexed():
             motor_ids, load_ids = (self.motor.message.get_signal_by_name(e.signal).multiplexer_ids for e in (self.motor, self.load))
@@ -379,6 +381,57 @@ class FrameEncoder:
                 data[i] = Crc8SaeJ1850.calc(bytes(data[:i] + data[i + 1 :]))
             out.append(can.Message(timestamp=time_s, arbitration_id=frame_id, is_extended_id=message.is_extended_frame, is_fd=message.is_fd, data=data))
         return out
+
+
+#: ``wrap_deg`` of both angle signals (degrees; None: multi-turn), or per signal (``{"motor": 360.0, "load": None}``).
+WrapDeg: TypeAlias = float | Mapping[str, float | None] | None
+#: The signals a per-signal option names.
+WRAP_ROLES = ("motor", "load")
+
+
+def wrap_per_signal(wrap_deg: WrapDeg) -> tuple[float | None, float | None]:
+    """``(motor, load)`` wraps in degrees (None: multi-turn) of a ``wrap_deg`` for both or per signal.
+
+    >>> wrap_per_signal(360.0), wrap_per_signal({"load": 360.0})
+    ((360.0, 360.0), (None, 360.0))
+    """
+    if wrap_deg is None or not isinstance(wrap_deg, Mapping):
+        return wrap_deg, wrap_deg
+    unknown = sorted(set(wrap_deg) - set(WRAP_ROLES))
+    if unknown:
+        raise InvalidParameterError(f"wrap_deg names {', '.join(map(repr, unknown))}; the signals are {' and '.join(WRAP_ROLES)}")
+    return wrap_deg.get("motor"), wrap_deg.get("load")
+
+
+def parse_wrap_deg(text: str) -> WrapDeg:
+    """``--wrap-deg``: ``360`` (both angle signals), or per signal ``motor=360,load=none`` (degrees; ``none``:
+    multi-turn; a signal not named is multi-turn). InvalidParameterError on anything else.
+
+    >>> parse_wrap_deg("360"), parse_wrap_deg("motor=360,load=none")
+    (360.0, {'motor': 360.0, 'load': None})
+    """
+
+    def degrees(value: str, what: str) -> float | None:
+        if value.strip().lower() == "none":
+            return None
+        try:
+            number = float(value)
+        except ValueError:
+            number = math.nan
+        if not (math.isfinite(number) and number > 0):
+            raise InvalidParameterError(f"--wrap-deg {text!r}: {what} must be a positive number of degrees or 'none', got {value!r}")
+        return number
+
+    if "=" not in text:
+        return degrees(text, "the wrap")
+    out: dict[str, float | None] = {}
+    for part in text.split(","):
+        role, eq, value = part.partition("=")
+        role = role.strip().lower()
+        if not eq or role not in WRAP_ROLES or role in out:
+            raise InvalidParameterError(f"--wrap-deg {text!r}: expected DEG or motor=DEG,load=DEG (DEG a number or 'none')")
+        out[role] = degrees(value, role)
+    return out
 
 
 def _wrapped(raw: int, signal: EncoderSignal) -> int:

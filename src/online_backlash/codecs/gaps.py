@@ -14,6 +14,10 @@ cannot show, still shows in the time). :class:`GapDetector` applies the rule sam
 block of timestamps without counters (:meth:`GapDetector.check_times`, CSV rows; tested equal).
 The compiled pairing loop of CAN replay (:mod:`~online_backlash.codecs.blockpairing`) applies the
 same rule inside numba and is held equal to the per-frame path by ``tests/test_can_blocks.py``.
+
+Time from the counter: where the nominal period is given and the source has a rolling counter,
+:class:`CounterClock` gives each sample the time ``t0 + n * period`` (``n`` the unwrapped counter),
+so jittery timestamps do not reach the estimator or the data clock.
 """
 
 from __future__ import annotations
@@ -134,3 +138,88 @@ class GapDetector:
             period = statistics.median(self._steps) if self.counter_modulus is None else statistics.fmean(self._steps)
             self.period_s = period if period > 0 else None
             self._steps.clear()
+
+
+class CounterClock:
+    """Sample times from the frame counter and the nominal period, where the timestamps are jittery.
+
+    Host-timestamped adapters deliver frames in bursts of 1-5 ms, so the frame timestamps stall and
+    leap while the source's rolling counter runs on. Given the nominal period (``--period``), the
+    time of a sample is ``t0 + n * period_s``: ``t0`` the timestamp of the first sample and ``n`` the
+    unwrapped counter, the periods counted since it. Between consecutive samples the counter
+    advances by ``k = (seq - last_seq) mod counter_modulus``; the timestamps decide only how many
+    whole counter cycles were lost besides (``n_step = k + modulus * max(0, round((dt / period_s - k) / modulus))``
+    with ``dt`` the timestamp step: jitter below half a cycle changes nothing). A sample without a
+    counter value steps ``max(0, round(dt / period_s))`` periods. The time then no longer depends
+    on when the frames arrived, so a live run and the replay of its log give the same times; the
+    gap rule (:class:`GapDetector`) still reads the timestamps.
+
+    :meth:`time` takes samples one by one (live, per frame), :meth:`times` a block (replay); they
+    give the same times, whatever the blocks (``n`` is an integer, ``t0 + n * period_s`` one
+    rounding).
+
+    Parameters
+    ----------
+    counter_modulus : int
+        The counter wraps at this value (16 for a 4-bit counter).
+    period_s : float
+        Nominal sample period, seconds.
+
+    Examples
+    --------
+    >>> clock = CounterClock(16, 0.001)
+    >>> [round(clock.time(t, q), 6) for t, q in ((10.0, 5), (10.0, 6), (10.0, 7), (10.004, 8), (10.0041, 10))]
+    [10.0, 10.001, 10.002, 10.003, 10.005]
+    """
+
+    def __init__(self, counter_modulus: int, period_s: float) -> None:
+        if counter_modulus < 2:
+            raise InvalidParameterError(f"counter_modulus must be >= 2, got {counter_modulus!r}")
+        if not period_s > 0:
+            raise InvalidParameterError(f"period_s must be positive, got {period_s!r}")
+        self.counter_modulus = int(counter_modulus)
+        self.period_s = float(period_s)
+        self._t0: float | None = None
+        self._n = 0
+        self._last_time = 0.0
+        self._last_seq = -1
+
+    def time(self, time_s: float, seq: int | None) -> float:
+        """The time (s) of the next sample, timestamped ``time_s`` (s) with counter value ``seq`` (None or < 0: none)."""
+        q = -1 if seq is None else int(seq)
+        if self._t0 is None:
+            self._t0 = float(time_s)
+        else:
+            periods = (time_s - self._last_time) / self.period_s
+            if q < 0 or self._last_seq < 0:
+                self._n += max(0, round(periods))
+            else:
+                k = (q - self._last_seq) % self.counter_modulus
+                self._n += k + self.counter_modulus * max(0, round((periods - k) / self.counter_modulus))
+        self._last_time, self._last_seq = float(time_s), q
+        return self._t0 + self._n * self.period_s
+
+    def times(self, time_s: np.ndarray, seq: np.ndarray | None) -> np.ndarray:
+        """:meth:`time` of a block of samples: timestamps (s) and counter values (-1 or None: none)."""
+        size = time_s.shape[0]
+        if size == 0:
+            return np.asarray(time_s, dtype=float).copy()
+        q = np.full(size, -1, dtype=np.int64) if seq is None else np.asarray(seq, dtype=np.int64)
+        first = 0
+        if self._t0 is None:
+            self._t0 = float(time_s[0])
+            first = 1
+        prev_time = np.concatenate(([self._last_time], time_s[:-1]))[first:]
+        prev_seq = np.concatenate(([self._last_seq], q[:-1]))[first:]
+        periods = (time_s[first:] - prev_time) / self.period_s
+        modulus = self.counter_modulus
+        k = (q[first:] - prev_seq) % modulus
+        whole = np.maximum(0.0, np.round((periods - k) / modulus)).astype(np.int64)
+        plain = np.maximum(0.0, np.round(periods)).astype(np.int64)
+        steps = np.where((q[first:] < 0) | (prev_seq < 0), plain, k + modulus * whole)
+        n = np.empty(size, dtype=np.int64)
+        n[:first] = self._n
+        n[first:] = self._n + np.cumsum(steps)
+        self._n = int(n[-1])
+        self._last_time, self._last_seq = float(time_s[-1]), int(q[-1])
+        return self._t0 + n * self.period_s

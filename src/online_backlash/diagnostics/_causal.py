@@ -71,3 +71,15 @@ def acceleration_deg_s2(u: np.ndarray, t: np.ndarray, window: int) -> np.ndarray
     dv = lagged_difference(v, window)
     dt = lagged_difference(t, window)
     return np.divide(dv, dt, out=np.zeros_like(dv), where=dt > 0)
+
+
+def motion_direction(u: np.ndarray, window: int, deadzone_deg: float, start: float) -> np.ndarray:
+    """+1 / -1: the sign of ``u(t) - u(t - window)``, held while the change is within ``deadzone_deg``.
+
+    ``start`` is the direction before the first sample (0 when unknown).
+    """
+    du = lagged_difference(u, window)
+    raw = np.where(du > deadzone_deg, 1.0, np.where(du < -deadzone_deg, -1.0, 0.0))
+    idx = np.where(raw != 0, np.arange(raw.size), -1)
+    idx = np.maximum.accumulate(idx)
+    return np.where(idx >= 0, raw[np.maximum(idx, 0)], start)

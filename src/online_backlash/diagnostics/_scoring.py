@@ -1,4 +1,4 @@
-"""How much of a residual a set of regressor columns explains, with an information criterion.
+"""How much of a residual a set of regressor columns explains, in and out of sample.
 
 The residual of a fitted backlash model is autocorrelated wherever something is missing, so
 counting every sample as independent evidence would make everything look significant. The
@@ -12,22 +12,42 @@ criterion below therefore uses an effective sample size from the lag-1 autocorre
 Kass-Raftery scale) keeps false alarms rare, :data:`MIN_GAIN` asks the columns to remove a
 share of the residual's mean square that matters, and :data:`MIN_OWN_SHARE` refuses columns
 that are nearly collinear with what the model already has.
+
+Out of sample. The columns must also remove at least :data:`MIN_GAIN` of the residual's mean
+square on reversal cycles they were not fitted on (blocked cross-validation over whole cycles,
+:mod:`._folds`): for every fold, the nuisance columns with and without the candidate are fitted
+on the other folds and the squared error on the fold is summed (``heldout_gain``); it gates
+from :data:`MIN_FOLDS` folds on (two: a record of two cycles is held out one against the other).
+
+Speed. Every quantity is a function of cross-products: the per-fold Gram matrices of the
+nuisance columns and the residual are formed once per :class:`DetectionData`, and a candidate
+only adds its own products with them (``O(n q (p + q))`` for ``q`` columns and ``p`` nuisance
+columns) before small solves; the lag-1 autocorrelation of what is left takes one combination of
+the columns (``O(n (p + q))``). Nothing of length ``n`` is refitted per candidate.
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from ._folds import Folds, cycle_folds
+
 #: delta_bic must fall below this for a term to count as detected
 BIC_THRESHOLD = -10.0
-#: and the term must remove at least this share of the residual's mean square
+#: and the term must remove at least this share of the residual's mean square, in sample and
+#: on the held-out cycles
 MIN_GAIN = 0.05
 #: and every column must keep at least this share of its variance once the terms already in
 #: the model are projected out; below it the term is nearly collinear with them and would only
 #: trade amplitude with them (collinearity with the play is the joint fit's guard)
 MIN_OWN_SHARE = 0.1
+#: the held-out gain gates a term over at least this many folds (reversal cycles or time blocks)
+MIN_FOLDS = 2
+#: relative size below which a direction of the (scaled) normal equations counts as degenerate
+_RCOND = 1e-10
 
 
 @dataclass(frozen=True)
@@ -37,15 +57,18 @@ class Score:
     Attributes
     ----------
     rss_before, rss_after : float
-        Residual sum of squares without and with the columns (plus an intercept), deg^2.
+        Residual sum of squares without and with the columns (plus the nuisance columns), deg^2.
     n_eff : float
         Effective number of independent samples.
     delta_bic : float
         Change of the information criterion (negative: the columns are worth their parameters).
     coef : array
-        Least-squares coefficients of the columns (the intercept dropped).
+        Least-squares coefficients of the columns (the nuisance coefficients dropped).
     own_share : float
-        Smallest share of a column's variance left after projecting out the nuisance columns.
+        Smallest share of a column's variance left after projecting out the terms already added.
+    heldout_gain : float
+        Share of the held-out squared error the columns remove (blocked cross-validation over
+        reversal cycles); NaN when not measured.
     """
 
     n_terms: int
@@ -55,6 +78,9 @@ class Score:
     delta_bic: float
     coef: np.ndarray
     own_share: float = 1.0
+    heldout_gain: float = float("nan")
+    #: folds the held-out gain was measured over
+    heldout_folds: int = 0
 
     @property
     def gain(self) -> float:
@@ -62,8 +88,10 @@ class Score:
         return 1.0 - self.rss_after / self.rss_before if self.rss_before > 0 else 0.0
 
     def significant(self, bic_threshold: float = BIC_THRESHOLD, min_gain: float = MIN_GAIN) -> bool:
-        """True when the criterion, the size test and the collinearity test all pass."""
-        return self.delta_bic < bic_threshold and self.gain >= min_gain and self.own_share >= MIN_OWN_SHARE
+        """True when the criterion, the size test (in sample and held out) and the collinearity test all pass."""
+        gated = np.isfinite(self.heldout_gain) and self.heldout_folds >= MIN_FOLDS
+        held = self.heldout_gain >= min_gain if gated else True
+        return self.delta_bic < bic_threshold and self.gain >= min_gain and held and self.own_share >= MIN_OWN_SHARE
 
 
 def effective_samples(residual: np.ndarray) -> float:
@@ -71,42 +99,142 @@ def effective_samples(residual: np.ndarray) -> float:
     r = residual - residual.mean()
     denom = float(np.dot(r, r))
     rho = float(np.dot(r[1:], r[:-1]) / denom) if denom > 0 else 0.0
+    return _n_eff(r.size, rho)
+
+
+def _n_eff(n: int, rho: float) -> float:
     rho = min(max(rho, 0.0), 0.9999)
-    return max(r.size * (1.0 - rho) / (1.0 + rho), 2.0)
+    return max(n * (1.0 - rho) / (1.0 + rho), 2.0)
+
+
+def _solve(gram: np.ndarray, rhs: np.ndarray) -> np.ndarray:
+    """Least-squares coefficients from the normal equations, scaled to unit diagonal and solved by a
+    truncated eigen-decomposition (degenerate directions get no weight)."""
+    d = np.sqrt(np.maximum(np.diag(gram), 1e-300))
+    a = gram / d[:, None] / d[None, :]
+    w, v = np.linalg.eigh(a)
+    keep = w > _RCOND * max(float(w[-1]), 1e-300)
+    c = v[:, keep] @ ((v[:, keep].T @ (rhs / d)) / w[keep])
+    return c / d
+
+
+class _Grams:
+    """Cross-products of ``Z = [nuisance, residual]``: per fold and in total."""
+
+    def __init__(self, z: np.ndarray, folds: Folds) -> None:
+        self.order = np.argsort(folds.fold, kind="stable")
+        counts = np.bincount(folds.fold, minlength=folds.n_folds)
+        self.bounds = np.concatenate(([0], np.cumsum(counts)))
+        self.z = z
+        self.zs = z[self.order]
+        self.per_fold = np.stack([self._block(self.zs, self.zs, k) for k in range(folds.n_folds)])
+        self.total = self.per_fold.sum(axis=0)
+
+    def _block(self, a: np.ndarray, b: np.ndarray, k: int) -> np.ndarray:
+        s = slice(self.bounds[k], self.bounds[k + 1])
+        return a[s].T @ b[s]
+
+    def extended(self, x: np.ndarray, heldout: bool = True) -> tuple[np.ndarray, np.ndarray]:
+        """Per-fold (empty without ``heldout``) and total Grams of ``W = [nuisance, x, residual]`` (residual last)."""
+        p, q, k = self.z.shape[1], x.shape[1], self.per_fold.shape[0]
+        if not heldout:
+            return np.empty((0, p + q, p + q)), _assemble(self.total, self.z.T @ x, x.T @ x)
+        xs = x[self.order]
+        out = np.empty((k, p + q, p + q))
+        for j in range(k):
+            out[j] = _assemble(self.per_fold[j], self._block(self.zs, xs, j), self._block(xs, xs, j))
+        return out, out.sum(axis=0)
+
+    def lag_product(self, x: np.ndarray, e: np.ndarray) -> float:
+        """``sum_t w(t+1) w(t)`` for ``w = W e``, ``W = [nuisance, x, residual]``: the lag-1 product of a
+        combination of W's columns, formed as one vector (``O(n (p + q))``, no lag-1 Gram of ``x``)."""
+        p = self.z.shape[1] - 1
+        w = self.z @ np.concatenate((e[:p], e[-1:])) + x @ e[p:-1]
+        return float(np.dot(w[1:], w[:-1]))
+
+
+def _assemble(zz: np.ndarray, zx: np.ndarray, xx: np.ndarray) -> np.ndarray:
+    """The Gram of ``[N, X, r]`` from the blocks of ``Z = [N, r]`` and ``X``."""
+    p = zz.shape[0] - 1
+    q = xx.shape[0]
+    g = np.empty((p + q + 1, p + q + 1))
+    sel = np.r_[0:p, p + q]  # positions of Z's columns in W
+    g[np.ix_(sel, sel)] = zz
+    g[np.ix_(sel, np.arange(p, p + q))] = zx
+    g[np.ix_(np.arange(p, p + q), sel)] = zx.T
+    g[p : p + q, p : p + q] = xx
+    return g
+
+
+def _fit_rss(gram: np.ndarray, cols: np.ndarray) -> tuple[np.ndarray, float]:
+    """Coefficients on the columns ``cols`` of W and the RSS of the residual (W's last column)."""
+    c = _solve(gram[np.ix_(cols, cols)], gram[cols, -1])
+    return c, float(gram[-1, -1] - c @ gram[cols, -1])
+
+
+def _test_sse(gram: np.ndarray, cols: np.ndarray, c: np.ndarray) -> float:
+    """Squared error on a fold (its Gram ``gram``) of the residual minus ``W[:, cols] @ c``."""
+    return float(gram[-1, -1] - 2.0 * c @ gram[cols, -1] + c @ gram[np.ix_(cols, cols)] @ c)
+
+
+def _score_grams(per_fold: np.ndarray, total: np.ndarray, lag: Callable[[np.ndarray], float], n: int, p: int, terms: np.ndarray) -> Score:
+    """The :class:`Score` of the columns ``p .. end-1`` of W beyond its first ``p`` (nuisance) columns.
+
+    ``lag(e)``: ``sum_t w(t+1) w(t)`` for ``w = W e`` (see :meth:`_Grams.lag_product`).
+    ``terms``: positions of the nuisance columns that are a constant or terms already added (the
+    basis of ``own_share``); column 0 must be a constant.
+    """
+    m = total.shape[0] - 1
+    q = m - p
+    base, full = np.arange(p), np.arange(m)
+    _, rss0 = _fit_rss(total, base)
+    c, rss1 = _fit_rss(total, full)
+    rss0, rss1 = max(rss0, 0.0), max(rss1, 0.0)
+    # lag-1 autocorrelation of what is left, e = r - W c (zero mean: the constant is a column)
+    e = np.concatenate((-c, [1.0]))
+    rho = lag(e) / rss1 if rss1 > 0 else 0.0
+    n_eff = _n_eff(n, rho)
+    xs = np.arange(p, m)
+    own = 1.0
+    if q:
+        xx = total[np.ix_(xs, xs)]
+        xt = total[np.ix_(xs, terms)]
+        tt = total[np.ix_(terms, terms)]
+        left = np.diag(xx) - np.einsum("ij,ij->i", xt, _solve_many(tt, xt.T).T)
+        mean = total[xs, 0] / n
+        centred = np.diag(xx) - n * mean**2
+        own = float(np.min(left / np.maximum(centred, 1e-300)))
+    held = float("nan")
+    if per_fold.shape[0] >= 2 and q:
+        sse0 = sse1 = 0.0
+        for g in per_fold:
+            train = total - g
+            sse0 += _test_sse(g, base, _fit_rss(train, base)[0])
+            sse1 += _test_sse(g, full, _fit_rss(train, full)[0])
+        held = 1.0 - sse1 / sse0 if sse0 > 0 else 0.0
+    k = per_fold.shape[0]
+    if rss0 <= 0:
+        return Score(q, rss0, rss1, n_eff, 0.0, c[p:], own, held, k)
+    delta = n_eff * np.log(max(rss1, 1e-300) / rss0) + q * np.log(n_eff)
+    return Score(q, rss0, rss1, n_eff, float(delta), c[p:], own, held, k)
+
+
+def _solve_many(gram: np.ndarray, rhs: np.ndarray) -> np.ndarray:
+    return np.column_stack([_solve(gram, rhs[:, j]) for j in range(rhs.shape[1])]) if rhs.shape[1] else rhs
 
 
 def score_columns(residual: np.ndarray, columns: np.ndarray, nuisance: np.ndarray | None = None) -> Score:
     """Least squares of ``residual`` on ``columns`` (n x q) plus ``nuisance`` columns, and its criterion.
 
-    ``nuisance`` (default: an intercept) are directions the model can move anyway, here the
-    sensitivities of the backlash output to its four parameters: a term is scored on what it
-    explains beyond a shift of the backlash parameters, and can take back what the base fit
-    let the play absorb.
+    ``nuisance`` (default: an intercept; else its first column must be a constant) are
+    directions the model can move anyway, here the sensitivities of the backlash output to its
+    four parameters: a term is scored on what it explains beyond a shift of the backlash
+    parameters, and can take back what the base fit let the play absorb. The held-out gain is
+    measured over reversal cycles of the sample index (no angle is known here): time blocks.
     """
-    base = np.ones((residual.size, 1)) if nuisance is None else nuisance
-    qb = np.linalg.qr(base)[0]
-    return _score_projected(residual, columns, qb, qb)
-
-
-def _score_projected(residual: np.ndarray, columns: np.ndarray, qb: np.ndarray, qt: np.ndarray) -> Score:
-    """:func:`score_columns` with the nuisance columns given by an orthonormal basis ``qb``;
-    the own share is measured against the basis ``qt`` (a constant and the terms already added)."""
-    columns = np.asarray(columns, dtype=float).reshape(residual.size, -1)
-    q = columns.shape[1]
-    r0 = residual - qb @ (qb.T @ residual)
-    xp = columns - qb @ (qb.T @ columns)
-    xt = columns - qt @ (qt.T @ columns)
-    centred = columns - columns.mean(axis=0)
-    total = np.einsum("ij,ij->j", centred, centred)
-    own = float(np.min(np.einsum("ij,ij->j", xt, xt) / np.maximum(total, 1e-300))) if q else 1.0
-    coef, *_ = np.linalg.lstsq(xp, r0, rcond=None)
-    left = r0 - xp @ coef
-    rss0, rss1 = float(np.dot(r0, r0)), float(np.dot(left, left))
-    n_eff = effective_samples(left)
-    if rss0 <= 0:
-        return Score(q, rss0, rss1, n_eff, 0.0, coef, own)
-    delta = n_eff * np.log(max(rss1, 1e-300) / rss0) + q * np.log(n_eff)
-    return Score(q, rss0, rss1, n_eff, float(delta), coef, own)
+    r = np.asarray(residual, dtype=float)
+    data = DetectionData(np.arange(r.size, dtype=float) * 0.0, np.arange(r.size, dtype=float), np.full(r.size, np.nan), r, 1.0, 1.0, nuisance)
+    return data.score(False, columns)
 
 
 @dataclass(frozen=True)
@@ -123,41 +251,60 @@ class DetectionData:
     residual_deg: np.ndarray
     ratio: float
     sample_period_s: float
+    #: columns the model can move anyway; the first must be a constant (default: just the constant)
     nuisance: np.ndarray | None = None
+    #: for every sample, the last sample with a flank engaged by the current model (eq. 5-6)
     engaged_index: np.ndarray | None = None
-    #: leading nuisance columns that are the backlash's own directions, a constant first (not
-    #: counted in ``own_share``); the nuisance columns must include a constant
+    #: leading nuisance columns that are the backlash's own directions, the constant first (not
+    #: counted in ``own_share``)
     n_backlash: int = 0
-    #: orthonormal bases (QR) of all nuisance columns and of the non-backlash ones, set in __post_init__
-    base_basis: np.ndarray = field(init=False, repr=False)
-    terms_basis: np.ndarray = field(init=False, repr=False)
+    #: the cross-validation folds (default: :func:`._folds.cycle_folds` of ``u_deg``)
+    folds: Folds | None = None
+    #: the current backlash model's output, eq. (1)-(3), deg (for effects defined on it)
+    model_output_deg: np.ndarray | None = None
+    #: the cross-products of the nuisance columns and the residual, set in __post_init__
+    grams: _Grams = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
-        ones = np.ones((self.residual_deg.size, 1))
-        base = ones if self.nuisance is None else self.nuisance
-        if self.nuisance is None:
-            terms = ones
-        elif self.n_backlash:  # the backlash block starts with the constant: keep it
-            terms = np.column_stack((ones, self.nuisance[:, self.n_backlash :]))
-        else:
-            terms = self.nuisance
-        object.__setattr__(self, "base_basis", np.linalg.qr(base)[0])
-        object.__setattr__(self, "terms_basis", np.linalg.qr(terms)[0])
+        n = self.residual_deg.size
+        base = np.ones((n, 1)) if self.nuisance is None else np.asarray(self.nuisance, dtype=float).reshape(n, -1)
+        if self.folds is None:
+            object.__setattr__(self, "folds", cycle_folds(self.u_deg))
+        assert self.folds is not None
+        object.__setattr__(self, "nuisance", base)
+        object.__setattr__(self, "grams", _Grams(np.column_stack((base, self.residual_deg)), self.folds))
+
+    @property
+    def engaged(self) -> np.ndarray:
+        """True where the current model has a flank engaged (all True when not known)."""
+        n = self.residual_deg.size
+        return np.ones(n, dtype=bool) if self.engaged_index is None else self.engaged_index == np.arange(n)
 
     def hold(self, columns: np.ndarray) -> np.ndarray:
         """Input-side columns held through the dead band of the current model (see :mod:`.joint`)."""
         columns = np.asarray(columns, dtype=float).reshape(self.residual_deg.size, -1)
-        return columns if self.engaged_index is None else columns[self.engaged_index]
+        return columns if self.engaged_index is None else np.take(columns, self.engaged_index, axis=0)
 
-    def score(self, input_side: bool, columns: np.ndarray) -> Score:
-        """:func:`score_columns` of ``columns`` on this residual beyond the nuisance columns
-        (held through the dead band when ``input_side``)."""
-        return _score_projected(self.residual_deg, self.hold(columns) if input_side else columns, self.base_basis, self.terms_basis)
+    def score(self, input_side: bool, columns: np.ndarray, heldout: bool = True) -> Score:
+        """The :class:`Score` of ``columns`` on this residual beyond the nuisance columns
+        (held through the dead band when ``input_side``). Without ``heldout`` the cross-validation
+        is skipped (``heldout_gain`` NaN; a cheaper screening score)."""
+        x = self.hold(columns) if input_side else np.asarray(columns, dtype=float).reshape(self.residual_deg.size, -1)
+        per_fold, total = self.grams.extended(x, heldout)
+        assert self.nuisance is not None
+        p = self.nuisance.shape[1]
+        terms = np.r_[0, np.arange(max(self.n_backlash, 1), p)] if self.n_backlash else np.arange(p)
+        return _score_grams(per_fold, total, lambda e: self.grams.lag_product(x, e), self.residual_deg.size, p, terms)
 
     def with_nuisance(self, columns: np.ndarray) -> DetectionData:
         """The same data with ``columns`` added to the nuisance columns."""
-        base = np.ones((self.residual_deg.size, 1)) if self.nuisance is None else self.nuisance
-        return replace(self, nuisance=np.column_stack((base, columns)))
+        assert self.nuisance is not None
+        return replace(self, nuisance=np.column_stack((self.nuisance, columns)))
+
+    def fold_info(self) -> dict[str, object]:
+        """How the held-out cycles were chosen (for the evidence)."""
+        assert self.folds is not None
+        return self.folds.as_dict()
 
 
 @dataclass(frozen=True)
@@ -167,6 +314,8 @@ class Detection:
     effect: object
     score: Score
     evidence: str
+    #: other explanations of the same part of the residual (reported as not separable)
+    rivals: tuple[str, ...] = ()
 
 
 def best_detection(candidates: list[Detection]) -> Detection | None:

@@ -36,12 +36,14 @@ from __future__ import annotations
 
 import inspect
 from collections.abc import Callable, Sequence
+from dataclasses import replace
 from typing import Any
 
 import numpy as np
 
 from ..errors import InvalidParameterError
-from ._causal import CausalWindow, acceleration_deg_s2, lagged_difference
+from ..load_aware.engagement import engaged_flank, torque_deadband
+from ._causal import CausalWindow, acceleration_deg_s2, lagged_difference, velocity_deg_s
 from ._scoring import Detection, DetectionData, best_detection
 
 #: the names an effect of the library may carry (the ``name`` of the JSON contract)
@@ -121,6 +123,10 @@ def amplitudes_phases(coef: np.ndarray) -> list[tuple[float, float]]:
     return [(float(np.hypot(a, b)), float(np.degrees(np.arctan2(b, a)))) for a, b in c]
 
 
+#: most memory :func:`select_orders` keeps for its candidates' columns (bytes); beyond it they are rebuilt
+SELECT_CACHE_BYTES = 256 * 2**20
+
+
 def select_orders(
     data: DetectionData,
     columns: Callable[[float], np.ndarray],
@@ -134,7 +140,8 @@ def select_orders(
     Only orders of which the data cover at least ``min_periods`` periods
     (``n * span_deg >= 360 * min_periods``) are tried, and once an order is chosen its
     neighbours closer than the resolution ``360 / span_deg`` are dropped: over a short span
-    they are nearly collinear and would fit huge amplitudes that cancel. Only the
+    they are nearly collinear and would fit huge amplitudes that cancel. Orders are screened
+    in sample; the one kept must also hold on the held-out cycles. Only the
     ``2 max_orders`` orders strongest on their own take part. At each step every remaining order is scored given the orders
     already chosen; the best is kept if it passes the information criterion and explains at
     least :data:`MIN_ORDER_GAIN` of what is left (so the leakage of a strong order into its
@@ -145,18 +152,28 @@ def select_orders(
     resolution = 360.0 / span_deg
     remaining = [n for n in range(1, max_order + 1) if n >= min_periods * resolution]
     # forward selection among the strongest orders on their own (a cheap first pass)
-    first = sorted((data.score(True, columns(n)).delta_bic, n) for n in remaining)
+    first = sorted((data.score(True, columns(n), heldout=False).delta_bic, n) for n in remaining)
     remaining = [n for _, n in first[: 2 * max_orders]]
+    held: dict[int, np.ndarray] = {}  # the candidates' columns held through the dead band, built once
+
+    def candidate(n: int) -> np.ndarray:
+        if n in held:
+            return held[n]
+        x = data.hold(columns(n))
+        if x.nbytes * len(remaining) <= SELECT_CACHE_BYTES:  # a long record rebuilds them instead
+            held[n] = x
+        return x
+
     chosen: list[int] = []
     current = data
     while remaining and len(chosen) < max_orders:
-        scored = [(current.score(True, columns(n)), n) for n in remaining]
-        s, best = min(scored, key=lambda item: item[0].delta_bic)
-        if not s.significant(min_gain=MIN_ORDER_GAIN):
+        scored = [(current.score(False, candidate(n), heldout=False), n) for n in remaining]
+        _, best = min(scored, key=lambda item: item[0].delta_bic)
+        if not current.score(False, candidate(best)).significant(min_gain=MIN_ORDER_GAIN):  # held out too
             break
         chosen.append(best)
         remaining = [n for n in remaining if abs(n - best) >= resolution]
-        current = current.with_nuisance(current.hold(columns(best)))
+        current = current.with_nuisance(candidate(best))
     return chosen
 
 
@@ -212,8 +229,11 @@ class TransmissionError(EffectBase):
         motor: list[int] = []
         if abs(data.ratio) > 1:
             motor_deg = u * data.ratio
+            # given the load orders chosen: their structure would leak into a motor order fitted on
+            # a few held-out cycles
+            given = data.with_nuisance(data.hold(harmonic_columns(u, load))) if load else data
             motor = select_orders(
-                data, lambda n: harmonic_columns(motor_deg, [n]), max_motor_order, float(np.ptp(motor_deg)), max_orders, PERIODIC_MIN_PERIODS
+                given, lambda n: harmonic_columns(motor_deg, [n]), max_motor_order, float(np.ptp(motor_deg)), max_orders, PERIODIC_MIN_PERIODS
             )
         if not load and not motor:
             return None
@@ -259,6 +279,15 @@ class Delay(EffectBase):
     def _columns(self, u: np.ndarray, t: np.ndarray, q: np.ndarray) -> np.ndarray:
         return -lagged_difference(u, self.lag_step_samples)
 
+    def output_columns(self, x_deg: np.ndarray) -> np.ndarray:
+        """The column on the backlash model's own output ``x`` (deg): ``x(t - k) - x(t)``.
+
+        Exact for a whole-sample lag everywhere, in the dead band too (where ``x`` stands still
+        and a lag of the load reading vanishes after ``k`` samples); the diagnostics loop uses it
+        in place of :meth:`terms` (``u`` based, for the recursive estimator) when it knows ``x``.
+        """
+        return -lagged_difference(np.asarray(x_deg, dtype=float), self.lag_step_samples)[:, None]
+
     def describe(self, coef: np.ndarray) -> dict[str, Any]:
         lag = float(coef[0]) * self.lag_step_samples
         return {
@@ -267,6 +296,12 @@ class Delay(EffectBase):
             "grid_lag_samples": self.lag_step_samples,
             "model": "load sample taken lag_s after the motor sample (negative: before)",
         }
+
+    def _prepared(self, data: DetectionData) -> tuple[bool, np.ndarray]:
+        """``(held, column)``: on the model's output when the data carry it, else on ``u`` held through the dead band."""
+        if data.model_output_deg is not None:
+            return False, self.output_columns(data.model_output_deg)
+        return True, self.clone().terms(data.u_deg, data.time_s, data.torque_Nm)
 
     @classmethod
     def detect(cls, data: DetectionData, grid: Sequence[int] = (1, 2, 3, 5, 8, 13, 21, 34, 55)) -> Detection | None:
@@ -277,11 +312,11 @@ class Delay(EffectBase):
         """
         found = []
         for k in grid:
-            s = data.score(cls.input_side, cls(k).terms(data.u_deg, data.time_s, data.torque_Nm))
+            s = data.score(*cls(k)._prepared(data), heldout=False)
             found.append((s.delta_bic, k, float(s.coef[0]) * k))
         _, k_grid, lag = min(found)
         effect = cls(max(1, round(abs(lag))), data.sample_period_s)
-        s = data.score(cls.input_side, effect.clone().terms(data.u_deg, data.time_s, data.torque_Nm))
+        s = data.score(*effect._prepared(data))
         p = effect.describe(s.coef)
         return Detection(
             effect, s, f"residual follows the motor-angle change over {k_grid} samples (lag {p['lag_samples']:.2f} samples, {p['lag_s'] * 1e3:.3f} ms)"
@@ -289,62 +324,110 @@ class Delay(EffectBase):
 
 
 class Compliance(EffectBase):
-    """Shaft compliance: a load deflection proportional to the transmitted torque.
+    """Twist of the output shaft under the torque it transmits, only while a flank is engaged.
 
-    With ``proxy="torque"`` the column is the measured torque (N m; the coefficient is the
-    compliance in deg/N m), with ``proxy="acceleration"`` it is the causal acceleration of
-    ``u`` over ``window_samples`` (deg/s^2; an inertial torque, coefficient in s^2). Missing
-    torque samples (NaN) contribute 0.
+    Torque reaches the output only through an engaged flank: inside the dead band the shaft
+    carries no torque and does not twist. On the right flank the load angle is
+    ``y = u - c_right - tau / k`` (eq. 1 plus the wind-up), so the column is a torque and its
+    coefficient a compliance.
+
+    * ``proxy="torque"``: the measured transmitted torque (N m), averaged over the last
+      ``smooth_samples`` samples against the sensor's noise, where a flank is engaged by the
+      torque's sign (:func:`online_backlash.load_aware.engagement.engaged_flank` with
+      ``deadband_Nm``), 0 elsewhere; coefficient in deg/N m (``-1 / k``).
+    * ``proxy="motion"`` (no torque measured): the torque the output needs, from the motion of the
+      load side: its acceleration (deg/s^2, the inertia's share) and velocity (deg/s, the viscous
+      share), over ``window_samples``; coefficients in deg per deg/s^2 and deg per deg/s.
+    * ``proxy="acceleration"``: the acceleration alone.
+
+    The motion proxies carry no engagement of their own: the loop zeroes them where the
+    model's switching functions (eq. 5-6) have no flank engaged (``engaged_only``).
+    Missing torque samples (NaN) contribute 0.
 
     Parameters
     ----------
-    proxy : {"torque", "acceleration"}
+    proxy : {"torque", "motion", "acceleration"}
     window_samples : int
-        Difference span of the acceleration estimate, samples.
+        Difference span of the velocity and acceleration estimates, samples.
+    deadband_Nm : float
+        Torque within this of zero engages no flank (``proxy="torque"``), N m.
+    smooth_samples : int
+        Causal moving average of the torque, samples (1: none).
     """
 
     name = "compliance"
-    input_side = False  # the twist follows the torque, also while the teeth are apart
+    input_side = False  # the twist is read on the load side
 
-    def __init__(self, proxy: str = "torque", window_samples: int = 10) -> None:
-        if proxy not in ("torque", "acceleration"):
-            raise InvalidParameterError(f"proxy must be 'torque' or 'acceleration', got {proxy!r}")
+    def __init__(self, proxy: str = "torque", window_samples: int = 10, deadband_Nm: float = 0.0, smooth_samples: int = 5) -> None:
+        if proxy not in ("torque", "motion", "acceleration"):
+            raise InvalidParameterError(f"proxy must be 'torque', 'motion' or 'acceleration', got {proxy!r}")
+        if not deadband_Nm >= 0:
+            raise InvalidParameterError(f"deadband_Nm must be >= 0, got {deadband_Nm!r}")
         self.proxy = proxy
         self.window_samples = int(window_samples)
-        self.history = 2 * self.window_samples
+        self.deadband_Nm = float(deadband_Nm)
+        if int(smooth_samples) < 1:
+            raise InvalidParameterError(f"smooth_samples must be >= 1, got {smooth_samples!r}")
+        self.smooth_samples = int(smooth_samples)
+        self.history = max(2 * self.window_samples, self.smooth_samples)
         super().__init__()
 
     @property
+    def engaged_only(self) -> bool:
+        """True when the loop must zero the columns where the model has no flank engaged."""
+        return self.proxy != "torque"
+
+    @property
     def n_terms(self) -> int:
-        return 1
+        return 2 if self.proxy == "motion" else 1
 
     def _columns(self, u: np.ndarray, t: np.ndarray, q: np.ndarray) -> np.ndarray:
         if self.proxy == "torque":
-            return np.nan_to_num(q, nan=0.0)
-        return acceleration_deg_s2(u, t, self.window_samples)
+            q = np.nan_to_num(q, nan=0.0)
+            w = self.smooth_samples
+            mean = np.convolve(q, np.ones(w) / w)[: q.size] if w > 1 else q  # the first w-1 rows are in the window's past
+            return mean * (engaged_flank(q, self.deadband_Nm) != 0)
+        acc = acceleration_deg_s2(u, t, self.window_samples)
+        if self.proxy == "acceleration":
+            return acc
+        return np.column_stack((acc, velocity_deg_s(u, t, self.window_samples)))
 
     def describe(self, coef: np.ndarray) -> dict[str, Any]:
-        c = float(coef[0])
+        c = [float(v) for v in coef]
         if self.proxy == "torque":
+            stiffness = 1.0 / abs(c[0]) if c[0] else float("inf")
             return {
                 "proxy": "measured torque",
-                "compliance_deg_per_Nm": c,
-                "stiffness_Nm_per_deg": 1.0 / abs(c) if c else float("inf"),
+                "active_on": "engaged samples, by the torque's sign",
+                "compliance_deg_per_Nm": c[0],
+                "stiffness_Nm_per_deg": stiffness,
+                "stiffness_Nm_per_arcmin": stiffness / 60.0,
+                "torque_deadband_Nm": self.deadband_Nm,
             }
-        return {"proxy": "acceleration of the motor angle", "deflection_per_acceleration_s2": c}
+        out: dict[str, Any] = {
+            "proxy": "load-side acceleration" + (" and velocity (inertial and viscous torque)" if self.proxy == "motion" else " (inertial torque)"),
+            "active_on": "engaged samples, by the model's switching functions (eq. 5-6)",
+            "deflection_per_acceleration_s2": c[0],
+        }
+        if self.proxy == "motion":
+            out["deflection_per_velocity_s"] = c[1]
+        return out
 
     @classmethod
     def detect(cls, data: DetectionData) -> Detection | None:
-        """The measured torque (when the log has one) or the acceleration, whichever explains more."""
-        proxies = ["acceleration"]
-        if np.mean(np.isfinite(data.torque_Nm)) > 0.5:
-            proxies.insert(0, "torque")
-        found = []
-        for proxy in proxies:
-            effect = cls(proxy)
-            s = data.score(effect.input_side, effect.clone().terms(data.u_deg, data.time_s, data.torque_Nm))
-            found.append(Detection(effect, s, f"residual is proportional to the {proxy} (correlation {np.sqrt(max(s.gain, 0.0)):.2f})"))
-        return best_detection(found)
+        """The measured torque when the log has one, else the load side's motion (gated by the model's engagement)."""
+        q = np.nan_to_num(data.torque_Nm, nan=0.0)
+        if np.mean(np.isfinite(data.torque_Nm)) > 0.5 and q.size >= 3:
+            effect = cls("torque", deadband_Nm=torque_deadband(q))
+            what = "the measured torque on engaged samples"
+        else:
+            effect = cls("motion")
+            what = "the load side's acceleration and velocity on engaged samples"
+        cols = effect.clone().terms(data.u_deg, data.time_s, data.torque_Nm)
+        if effect.engaged_only:
+            cols = cols * data.engaged[:, None]
+        s = data.score(effect.input_side, cols)
+        return Detection(effect, s, f"residual is proportional to {what} (correlation {np.sqrt(max(s.gain, 0.0)):.2f})")
 
 
 class Drift(EffectBase):
@@ -394,14 +477,42 @@ class Drift(EffectBase):
 
     @classmethod
     def detect(cls, data: DetectionData, max_degree: int = 3) -> Detection | None:
-        """The polynomial degree in time that explains the residual best."""
+        """The polynomial degree in time that explains the residual best, beyond the same
+        polynomial in the net rotation.
+
+        A rig that turns steadily while it reverses makes time nearly collinear with the angle:
+        a drift in time and anything that grows with the angle (a slope error, a long-period
+        error of the shaft) then explain the same part of the residual. The drift is scored with
+        the polynomial of degree ``max_degree`` of the net rotation ``u - u[0]`` among the
+        nuisance columns: it is claimed
+        only if time explains a share of the residual that the net rotation does not (in sample
+        and on the held-out cycles). If it was significant in time alone, it is returned with
+        ``rivals=("net_rotation",)``: the loop reports the two as not separable.
+        """
         span = float(data.time_s[-1] - data.time_s[0]) or 1.0
-        found = []
+        rotation = data.u_deg - data.u_deg[0]
+        scale = float(np.max(np.abs(rotation))) or 1.0
+        beyond = data.with_nuisance(np.column_stack([(rotation / scale) ** j for j in range(1, max_degree + 1)]))
+        found, alone = [], []
         for degree in range(1, max_degree + 1):
             effect = cls(degree, span)
-            s = data.score(effect.input_side, effect.clone().terms(data.u_deg, data.time_s, data.torque_Nm))
-            found.append(Detection(effect, s, f"residual drifts in time (degree {degree} over {span:.0f} s)"))
-        return best_detection(found)
+            cols = effect.clone().terms(data.u_deg, data.time_s, data.torque_Nm)
+            in_time = data.score(effect.input_side, cols)
+            # what time explains beyond the rotation decides; the collinearity test is against the terms only
+            s = replace(beyond.score(effect.input_side, cols), own_share=in_time.own_share)
+            found.append(Detection(effect, s, f"residual drifts in time (degree {degree} over {span:.0f} s), beyond the net rotation"))
+            alone.append(Detection(effect, in_time, "in time alone"))
+        best = best_detection(found)
+        if best is not None and not best.score.significant():
+            # significant in time alone but not beyond the net rotation: the two are not separable
+            confounded = best_detection([d for d in alone if d.score.significant()])
+            if confounded is not None:
+                return Detection(
+                    confounded.effect, confounded.score,
+                    f"residual drifts in time (degree {getattr(confounded.effect, 'degree', 0)}), but time is collinear with the net rotation",
+                    rivals=("net_rotation",),
+                )
+        return best
 
 
 #: the named effects, in the order they are tried

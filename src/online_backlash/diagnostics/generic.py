@@ -21,21 +21,9 @@ from typing import Any
 
 import numpy as np
 
-from ._causal import lagged_difference, velocity_deg_s
+from ._causal import motion_direction, velocity_deg_s
 from ._scoring import Detection, DetectionData
 from .effects import EffectBase, amplitudes_phases, harmonic_columns, select_orders
-
-
-def motion_direction(u: np.ndarray, window: int, deadzone_deg: float, start: float) -> np.ndarray:
-    """+1 / -1: the sign of ``u(t) - u(t - window)``, held while the change is within ``deadzone_deg``.
-
-    ``start`` is the direction before the first sample (0 when unknown).
-    """
-    du = lagged_difference(u, window)
-    raw = np.where(du > deadzone_deg, 1.0, np.where(du < -deadzone_deg, -1.0, 0.0))
-    idx = np.where(raw != 0, np.arange(raw.size), -1)
-    idx = np.maximum.accumulate(idx)
-    return np.where(idx >= 0, raw[np.maximum(idx, 0)], start)
 
 
 class AngleHarmonicsPerFlank(EffectBase):
@@ -95,10 +83,14 @@ class AngleHarmonicsPerFlank(EffectBase):
         """Significant harmonics of the residual against the load angle, on either flank."""
         u = data.u_deg
         d = motion_direction(u, 10, 0.005, 0.0)
+        up, down = (d > 0)[:, None], (d < 0)[:, None]
 
         def cols(n: float) -> np.ndarray:
             h = harmonic_columns(u, [n])
-            return np.column_stack((h * (d > 0)[:, None], h * (d < 0)[:, None]))
+            out = np.empty((h.shape[0], 2 * h.shape[1]))
+            np.multiply(h, up, out=out[:, : h.shape[1]])
+            np.multiply(h, down, out=out[:, h.shape[1] :])
+            return out
 
         orders = select_orders(data, cols, max_order, float(np.ptp(u)), max_orders)
         if not orders:

@@ -92,7 +92,7 @@ def hold_columns(columns: np.ndarray, held: np.ndarray, index: np.ndarray) -> np
     if not np.any(held):
         return columns
     out = columns.copy()
-    out[:, held] = columns[index][:, held]
+    out[:, held] = np.take(columns[:, held], index, axis=0)
     return out
 
 
@@ -111,9 +111,14 @@ class _Projector:
         return np.linalg.solve(self.r, self.q.T @ v) if self.q.shape[1] else np.empty(0)
 
 
-def _r2(target: np.ndarray, basis: np.ndarray) -> float:
+def _left(target: np.ndarray, basis: np.ndarray) -> np.ndarray:
+    """What the least squares of ``target`` on ``basis`` leaves."""
     coef, *_ = np.linalg.lstsq(basis, target, rcond=None)
-    left = target - basis @ coef
+    return target - basis @ coef
+
+
+def _r2(target: np.ndarray, left: np.ndarray) -> float:
+    """Share of ``target`` explained, from what its least squares left (``left``)."""
     return 1.0 - float(np.dot(left, left)) / float(np.dot(target, target))
 
 
@@ -167,17 +172,28 @@ def _fit_fixed_columns(
     def valid(p: np.ndarray) -> bool:
         return p[0] * p[2] > 0 and p[1] + p[3] >= 0
 
+    last: dict[bytes, tuple[np.ndarray, np.ndarray]] = {}
+
+    def simulate(p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """:func:`_simulate`, run once for the residual and the Jacobian at the same point."""
+        key = p.tobytes()
+        if key not in last:
+            last.clear()
+            last[key] = _simulate(uc, p)
+        return last[key]
+
     def residual(v: np.ndarray) -> np.ndarray:
         p = unpack(v)
         if not valid(p):
             return np.full(uc.size, 1e6)
-        return proj.leave(yc - _simulate(uc, p)[0])
+        return proj.leave(yc - simulate(p)[0])
 
     def jacobian(v: np.ndarray) -> np.ndarray:
         p = unpack(v)
         if not valid(p):
             return np.zeros((uc.size, v.size))
-        return -proj.leave(_simulate(uc, p)[1] @ dp_dv)
+        dx = simulate(p)[1]
+        return -proj.leave(dx if hold_play is None else dx @ dp_dv)
 
     p0 = np.array([start.m_left, start.c_left, start.m_right, start.c_right])
     v0 = p0[:3] if hold_play is not None else p0
@@ -185,15 +201,13 @@ def _fit_fixed_columns(
     v = result.x if np.sum(result.fun**2) < np.sum(residual(v0) ** 2) else v0
     p = unpack(v)
     params = BacklashParams(*p)
-    x = _simulate(uc, p)[0]
+    x = simulate(p)[0]
     coef = proj.coef(yc - x)
     left = proj.leave(yc - x)
     g, others = play_sensitivity(uc, params)
-    r2_base = _r2(g, others)
-    full = np.column_stack((others, columns))
-    r2_joint = _r2(g, full)
-    inflation = (1.0 - r2_base) / max(1.0 - r2_joint, 1e-12)
-    g_left = g - full @ np.linalg.lstsq(full, g, rcond=None)[0]
+    r2_base = _r2(g, _left(g, others))
+    g_left = _left(g, np.column_stack((others, columns)))
+    inflation = (1.0 - r2_base) / max(1.0 - _r2(g, g_left), 1e-12)
     sigma2 = float(np.dot(left, left)) / effective_samples(left)
     play_std = float(np.sqrt(sigma2 / max(float(np.dot(g_left, g_left)), 1e-300)))
     return JointFit(params, coef, left, float(inflation), play_std, hold_play is not None)

@@ -5,8 +5,8 @@
    ``refine=True``). Its residual is the "before": the paper's equation-error estimate alone
    leaves a larger one and would flatter every effect.
 2. Score every effect of the library and every generic term on the residual (an information
-   criterion with an effective sample size, plus a minimum share explained, see
-   :mod:`._scoring`).
+   criterion with an effective sample size, plus a minimum share explained in sample and on
+   reversal cycles held out of the fit, see :mod:`._scoring` and :mod:`._folds`).
 3. Refit the backlash and all terms jointly by output error (:func:`.joint.fit_guarded`), once
    with the best significant named effect and once with the best generic term; keep the named
    effect unless the generic term leaves clearly less (then the structure is *unexplained*: it
@@ -16,7 +16,11 @@
    so. A term whose joint refit does not remove at least ``min_gain`` of the mean square
    residual is refused (the linear score can promise more than the refit delivers when the
    play is held).
-4. Repeat until nothing is significant or the residual reaches the noise floor.
+   The two named effects that explain most are both refitted and the better refit is the
+   candidate; if the other refits about as well and neither adds ``min_gain`` once the other is
+   in, the two are reported together as *not separable* (and neither is claimed).
+4. Repeat until nothing is significant or the residual is within ``floor_ratio`` of the noise
+   floor. Then every term is held out once more, given all the others in the final model.
 
 Angles in degrees on the load side, time in seconds.
 """
@@ -24,19 +28,24 @@ Angles in degrees on the load side, time in seconds.
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
 
 from ..estimators import VorosBacklash
 from ..estimators._validation import check_int, check_real
+from ..model import simulate_backlash
 from ..stream import SampleChunk
+from ._folds import Folds, cycle_folds
 from ._scoring import BIC_THRESHOLD, MIN_GAIN, Detection, DetectionData
 from .effects import LIBRARY
 from .generic import GENERIC
 from .joint import MAX_PLAY_INFLATION, MAX_PLAY_STD_SHARE, JointFit, engaged_index, fit_guarded, hold_columns, play_sensitivity
 from .residuals import NoiseFloor, Profile, noise_floor, one_step_residual, profile, simulation_residual
+
+#: the runner-up named effect is refitted too when its linear gain is at least this share of the best one's
+RUNNER_UP_SHARE = 0.8
 
 
 @dataclass
@@ -61,6 +70,14 @@ class Step:
     play_held: bool
     number: int = 0
     parameters: dict[str, Any] = field(default_factory=dict)
+    #: the simulation residual after this term was added, deg
+    residual_after_deg: np.ndarray = field(default_factory=lambda: np.empty(0), repr=False)
+    #: how the held-out cycles were chosen (``folds``, ``cycles``, ``split``)
+    heldout_split: dict[str, Any] = field(default_factory=dict)
+    #: held-out gain of this term given all the others, in the final model (NaN if not measured)
+    heldout_gain_final: float = float("nan")
+    #: named effects that explain the same part of the residual (kind ``"not_separable"``)
+    rivals: tuple[str, ...] = ()
 
     def as_dict(self) -> dict[str, Any]:
         """The JSON object of this term (``name``, ``parameters``, ``rms_before_deg``, ``rms_after_deg``, ``evidence``)."""
@@ -71,6 +88,9 @@ class Step:
             "delta_bic_eff": s.delta_bic,
             "threshold": BIC_THRESHOLD,
             "share_of_residual_explained": s.gain,
+            "heldout_gain": s.heldout_gain,
+            "heldout_gain_in_final_model": self.heldout_gain_final,
+            "heldout_split": self.heldout_split,
             "effective_samples": s.n_eff,
             "own_variance_share": s.own_share,
             "play_variance_inflation": self.play_inflation,
@@ -86,7 +106,7 @@ class Step:
             )
         out = {
             "step": self.number,
-            "name": self.effect.name,
+            "name": "not_separable" if self.kind == "not_separable" else self.effect.name,
             "parameters": self.parameters,
             "rms_before_deg": self.rms_before_deg,
             "rms_after_deg": self.rms_after_deg,
@@ -96,6 +116,14 @@ class Step:
         }
         if self.kind == "unexplained":
             out["where"] = self.effect.location()
+        if self.kind == "not_separable":
+            names = [self.effect.name, *self.rivals]
+            out["candidates"] = names
+            out["closed_with"] = self.effect.name
+            out["where"] = (
+                f"{' and '.join(names)} explain the same part of the residual (each adds less than "
+                f"{MIN_GAIN:.0%} once the other is in): not separable on this record; closed with {self.effect.name}"
+            )
         return out
 
 
@@ -130,6 +158,7 @@ class Diagnosis:
     load_deg: np.ndarray
     time_s: np.ndarray
     ratio: float
+    torque_Nm: np.ndarray | None = None
 
     @property
     def effects(self) -> list[Any]:
@@ -168,6 +197,30 @@ class Diagnosis:
             for name, (v, unit) in variables.items()
         }
 
+    def step_residuals(self) -> list[tuple[Step, np.ndarray, np.ndarray]]:
+        """Every step with the simulation residual just before and just after it, deg."""
+        out, before = [], self.residual_before_deg
+        for s in self.steps:
+            out.append((s, before, s.residual_after_deg))
+            before = s.residual_after_deg
+        return out
+
+    def axis(self, step: Step) -> tuple[str, str, np.ndarray]:
+        """The variable a term acts along, ``(name, unit, values)``: load angle (transmission error,
+        per-flank harmonics), velocity (delay, velocity function), torque or acceleration
+        (compliance), time (drift)."""
+        name = step.effect.name
+        period = float(np.median(np.diff(self.time_s))) if self.time_s.size > 1 else 1.0
+        if name == "compliance":
+            if getattr(step.effect, "proxy", "") == "torque" and self.torque_Nm is not None:
+                return "torque", "N m", np.nan_to_num(self.torque_Nm, nan=0.0)
+            return "acceleration", "deg/s^2", np.gradient(np.gradient(self.u_deg, period), period)
+        if name == "drift":
+            return "time", "s", self.time_s
+        if name in ("delay", "velocity_function"):
+            return "velocity", "deg/s", np.gradient(self.u_deg, period)
+        return "load angle", "deg", self.load_deg
+
     def as_dict(self) -> dict[str, Any]:
         """The JSON contract of ``online-backlash diagnose --json``."""
         return {
@@ -177,26 +230,59 @@ class Diagnosis:
             "backlash_before_deg": self.base.backlash_,
             "backlash_after_deg": self.final.params.play,
             "effects": [s.as_dict() for s in self.steps if s.kind == "effect"],
-            "unexplained": [s.as_dict() for s in self.steps if s.kind == "unexplained"],
+            "unexplained": [s.as_dict() for s in self.steps if s.kind != "effect"],
             "samples": int(self.u_deg.size),
             "load_step_deg": self.noise.step_deg,
             "load_noise_deg": self.noise.noise_deg,
         }
 
 
-def _columns(terms: Sequence[Any], u: np.ndarray, t: np.ndarray, q: np.ndarray) -> np.ndarray:
-    cols = [e.clone().terms(u, t, q) for e in terms]
+def _columns(terms: Sequence[Any], u: np.ndarray, t: np.ndarray, q: np.ndarray, engaged: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """The terms' columns. Those of effects that act only on engaged samples are zeroed where
+    ``engaged`` (the model's switching functions, eq. 5-6) is False; an effect defined on the
+    model's output (``output_columns``, the delay) is built on ``x``, the current backlash output."""
+    cols = []
+    for e in terms:
+        if hasattr(e, "output_columns"):
+            c = e.output_columns(x)
+        else:
+            c = e.clone().terms(u, t, q)
+        cols.append(c * engaged[:, None] if getattr(e, "engaged_only", False) else c)
     return np.column_stack(cols) if cols else np.empty((u.size, 0))
 
 
 def _held(terms: Sequence[Any]) -> np.ndarray:
-    """Which columns are held through the dead band (input-side effects)."""
-    return np.concatenate([np.full(e.n_terms, bool(e.input_side)) for e in terms]) if terms else np.zeros(0, bool)
+    """Which columns are held through the dead band (input-side effects not built on the model's output)."""
+    if not terms:
+        return np.zeros(0, bool)
+    return np.concatenate([np.full(e.n_terms, bool(e.input_side) and not hasattr(e, "output_columns")) for e in terms])
 
 
-def _significant(found: list[Detection | None], bic_threshold: float, min_gain: float) -> Detection | None:
+def _significant(found: list[Detection | None], bic_threshold: float, min_gain: float) -> list[Detection]:
+    """The significant detections, the one that explains most first."""
     ok = [d for d in found if d is not None and d.score.significant(bic_threshold, min_gain)]
-    return max(ok, key=lambda d: d.score.gain, default=None)
+    return sorted(ok, key=lambda d: -d.score.gain)
+
+
+def _prepared(data: DetectionData, effect: Any, engaged: np.ndarray) -> np.ndarray:
+    """An effect's columns as the scoring sees them: held through the dead band or gated by engagement."""
+    assert data.model_output_deg is not None
+    x = _columns([effect], data.u_deg, data.time_s, data.torque_Nm, engaged, data.model_output_deg)
+    return data.hold(x) if _held([effect]).any() else x
+
+
+def _rivals(data: DetectionData, chosen: Detection, others: list[Detection], engaged: np.ndarray, min_gain: float) -> tuple[str, ...]:
+    """Named effects that explain the same part of the residual as the chosen one: neither
+    removes ``min_gain`` of the residual's mean square once the other is in."""
+    xa = _prepared(data, chosen.effect, engaged)
+    names = []
+    for d in others:
+        if d is chosen:
+            continue
+        xb = _prepared(data, d.effect, engaged)
+        if data.with_nuisance(xb).score(False, xa).gain < min_gain and data.with_nuisance(xa).score(False, xb).gain < min_gain:
+            names.append(str(getattr(d.effect, "name", "")))
+    return tuple(names)
 
 
 def diagnose(
@@ -207,7 +293,7 @@ def diagnose(
     bic_threshold: float = BIC_THRESHOLD,
     min_gain: float = MIN_GAIN,
     label_ratio: float = 1.1,
-    floor_ratio: float = 1.1,
+    floor_ratio: float = 1.5,
 ) -> Diagnosis:
     """Run the loop on a record in memory.
 
@@ -245,30 +331,43 @@ def diagnose(
     uc, yc = u - base.u_ref_, y - base.y_ref_
     noise = noise_floor(y)
     period = round(float(np.median(np.diff(t))), 12) if t.size > 1 else 1.0  # 0.001, not 0.000999999...
+    folds = cycle_folds(u)
     before = simulation_residual(base.params_, uc, yc)
     current = JointFit(base.params_, np.empty(0), before, 1.0, float("nan"), False)
     steps: list[Step] = []
     refused: set[type] = set()
     while len(steps) < max_terms and current.rms_deg > floor_ratio * noise.floor_deg:
         taken = {type(s.effect) for s in steps} | refused
-        g, others = play_sensitivity(uc, current.params)
-        index = engaged_index(uc, current.params)
-        nuisance = np.column_stack((others, g))
-        done = [s.effect for s in steps]
-        if done:  # the terms already added may move too
-            nuisance = np.column_stack((nuisance, hold_columns(_columns(done, u, t, q), _held(done), index)))
-        data = DetectionData(u, t, q, current.residual_deg, float(ratio), period, nuisance, index, others.shape[1] + 1)
-        named = _significant([c.detect(data) for c in LIBRARY if c not in taken], bic_threshold, min_gain)
-        generic = _significant([c.detect(data) for c in GENERIC if c not in taken], bic_threshold, min_gain)
-
-        def refit(found: Detection, done: list = done, current: JointFit = current) -> JointFit:
-            terms = [*done, found.effect]
-            return fit_guarded(uc, yc, _columns(terms, u, t, q), current.params, _held(terms))
-
+        data, engaged = _detection_data(u, t, q, uc, current, [s.effect for s in steps], float(ratio), period, folds)
+        named_all = _significant([c.detect(data) for c in LIBRARY if c not in taken], bic_threshold, min_gain)
+        generic_all = _significant([c.detect(data) for c in GENERIC if c not in taken], bic_threshold, min_gain)
+        named = named_all[0] if named_all else None
+        generic = generic_all[0] if generic_all else None
         if named is None and generic is None:
             break
+        done = [s.effect for s in steps]
+
+        x_now = simulate_backlash(uc, current.params, 0.0)
+
+        def refit(found: Detection, done: list = done, current: JointFit = current, engaged: np.ndarray = engaged, x_now: np.ndarray = x_now) -> JointFit:
+            terms = [*done, found.effect]
+            fit = fit_guarded(uc, yc, _columns(terms, u, t, q, engaged, x_now), current.params, _held(terms))
+            if any(hasattr(e, "output_columns") for e in terms):  # built on the model's output: once more on the refitted one
+                x = simulate_backlash(uc, fit.params, 0.0)
+                fit = fit_guarded(uc, yc, _columns(terms, u, t, q, engaged, x), fit.params, _held(terms))
+            return fit
+
+        # the two named effects that explain most are both refitted: the better joint fit is named
+        fit_named = None
+        refits: list[tuple[Detection, JointFit]] = []
+        for candidate in named_all[:2]:
+            if fit_named is not None and candidate.score.gain < RUNNER_UP_SHARE * named_all[0].score.gain:
+                break
+            f = refit(candidate)
+            refits.append((candidate, f))
+            if fit_named is None or f.rms_deg < fit_named.rms_deg:
+                named, fit_named = candidate, f
         # a named effect must do about as well as a flexible generic term in the joint refit
-        fit_named = refit(named) if named is not None else None
         fit_generic = refit(generic) if generic is not None else None
         kind: str
         chosen: Detection
@@ -282,15 +381,62 @@ def diagnose(
         if fit.rms_deg**2 > (1.0 - min_gain) * current.rms_deg**2:
             refused.add(type(chosen.effect))  # the refit does not realise the gain: try the others
             continue
+        # rivals: refitted about as well as the chosen one, and explaining the same part of the residual
+        close = [d for d, f in refits if d is not chosen and f.rms_deg**2 <= label_ratio * fit.rms_deg**2]
+        rivals = (*chosen.rivals, *_rivals(data, chosen, close, engaged, min_gain)) if kind == "effect" else ()
         steps.append(
             Step(
-                kind, chosen.effect, chosen, current.rms_deg, fit.rms_deg, current.params.play, fit.params.play,
-                fit.play_inflation, fit.play_std_deg, fit.play_held, len(steps) + 1,
+                "not_separable" if rivals else kind, chosen.effect, chosen, current.rms_deg, fit.rms_deg, current.params.play,
+                fit.params.play, fit.play_inflation, fit.play_std_deg, fit.play_held, len(steps) + 1,
+                residual_after_deg=fit.residual_deg, heldout_split=folds.as_dict(), rivals=rivals,
             )
         )
         current = fit
     _describe(steps, current)
-    return Diagnosis(base, current, steps, noise, before, current.residual_deg, u, y, t, float(ratio))
+    _hold_out_final(steps, current, u, t, q, uc, float(ratio), period, folds)
+    return Diagnosis(base, current, steps, noise, before, current.residual_deg, u, y, t, float(ratio), q)
+
+
+def _detection_data(
+    u: np.ndarray, t: np.ndarray, q: np.ndarray, uc: np.ndarray, current: JointFit, done: list[Any], ratio: float, period: float, folds: Folds
+) -> tuple[DetectionData, np.ndarray]:
+    """What the detectors see given the current fit, and the model's engaged samples (eq. 5-6).
+
+    The nuisance columns are the backlash's own directions (a constant, ``dx/dmL``,
+    ``dx/dmR``, ``dx/d(play)``) and the terms already added (they may move too).
+    """
+    g, others = play_sensitivity(uc, current.params)
+    index = engaged_index(uc, current.params)
+    engaged = index == np.arange(index.size)
+    x = simulate_backlash(uc, current.params, 0.0)
+    nuisance = np.column_stack((others, g))
+    if done:
+        nuisance = np.column_stack((nuisance, hold_columns(_columns(done, u, t, q, engaged, x), _held(done), index)))
+    return DetectionData(u, t, q, current.residual_deg, ratio, period, nuisance, index, others.shape[1] + 1, folds, x), engaged
+
+
+def _hold_out_final(
+    steps: list[Step], final: JointFit, u: np.ndarray, t: np.ndarray, q: np.ndarray, uc: np.ndarray, ratio: float, period: float, folds: Folds
+) -> None:
+    """Each term's held-out gain given all the others in the final model (blocked over cycles).
+
+    The term's part is put back into the final residual, and its columns are scored with the
+    backlash directions and the other terms as nuisance.
+    """
+    if not steps:
+        return
+    index = engaged_index(uc, final.params)
+    engaged = index == np.arange(index.size)
+    terms = [s.effect for s in steps]
+    cols = hold_columns(_columns(terms, u, t, q, engaged, simulate_backlash(uc, final.params, 0.0)), _held(terms), index)
+    start = 0
+    for i, s in enumerate(steps):
+        n = s.effect.n_terms
+        mine = cols[:, start : start + n]
+        restored = final.residual_deg + mine @ final.coef[start : start + n]
+        data, _ = _detection_data(u, t, q, uc, replace(final, residual_deg=restored), [*terms[:i], *terms[i + 1 :]], ratio, period, folds)
+        s.heldout_gain_final = data.score(False, mine).heldout_gain
+        start += n
 
 
 def _describe(steps: list[Step], final: JointFit) -> None:

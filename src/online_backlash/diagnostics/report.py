@@ -9,7 +9,7 @@ from typing import Any
 import numpy as np
 
 from .loop import Diagnosis
-from .residuals import Profile
+from .residuals import Profile, profile
 
 
 def _fmt(value: Any) -> str:
@@ -20,6 +20,13 @@ def _peak(p: Profile) -> str:
     """The largest absolute bin mean and where it sits."""
     i = int(np.nanargmax(np.abs(p.mean_deg)))
     return f"{p.mean_deg[i]:+.4f} at {p.centers[i]:.4g}"
+
+
+def _along(diagnosis: Diagnosis, step: Any, before: np.ndarray, after: np.ndarray) -> str:
+    """The residual just before and after a step, binned against the variable the term acts along."""
+    name, unit, values = diagnosis.axis(step)
+    pb, pa = profile(before, values, name, unit), profile(after, values, name, unit)
+    return f"{name} ({unit}): largest bin mean {_peak(pb)} before, {_peak(pa)} after (deg)"
 
 
 def markdown_report(diagnosis: Diagnosis, source: str | os.PathLike[str] | None = None, plot: str | None = None) -> str:
@@ -53,14 +60,20 @@ def markdown_report(diagnosis: Diagnosis, source: str | os.PathLike[str] | None 
     if not d["effects"] and not d["unexplained"]:
         lines += ["Nothing significant is missing from the model: no effect was added.", ""]
     steps = sorted([("effect", e) for e in d["effects"]] + [("unexplained", e) for e in d["unexplained"]], key=lambda s: s[1]["step"])
+    along = {s.number: _along(diagnosis, s, before, after) for s, before, after in diagnosis.step_residuals()}
     for kind, e in steps:
         ev = e["evidence"]
-        title = "effect" if kind == "effect" else "unexplained structure"
+        title = "effect" if kind == "effect" else "not separable" if e["name"] == "not_separable" else "unexplained structure"
+        split = ev["heldout_split"]
         lines += [
             f"## Step {e['step']}: {title} `{e['name']}`",
             "",
             f"- evidence: {ev['summary']}; criterion delta_bic_eff = {ev['delta_bic_eff']:.0f} "
             f"(threshold {ev['threshold']:.0f}), {ev['share_of_residual_explained']:.1%} of the residual explained",
+            f"- held out: {ev['heldout_gain']:.1%} of the squared error removed on {split.get('split', 'blocks')} it was not fitted on "
+            f"({split.get('folds', '?')} folds, {split.get('cycles', '?')} cycles); {ev['heldout_gain_in_final_model']:.1%} "
+            "given all the other terms of the final model",
+            f"- residual against its own axis, {along[e['step']]}",
             f"- residual RMS {e['rms_before_deg']:.5f} -> {e['rms_after_deg']:.5f} deg; "
             f"play {e['backlash_before_deg']:.4f} -> {e['backlash_after_deg']:.4f} deg",
             f"- play variance inflation {ev['play_variance_inflation']:.1f}, play standard error {ev['play_std_deg']:.2g} deg: "

@@ -21,7 +21,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.signal import welch
 
 from ..model import BacklashParams, simulate_backlash, switching_functions
 
@@ -123,6 +122,8 @@ def time_spectrum(residual: np.ndarray, sample_period_s: float) -> tuple[np.ndar
     The amplitude is ``sqrt(PSD * bin width)``, so a sine of amplitude ``A`` shows as a peak
     of about ``A / sqrt(2)``.
     """
+    from scipy.signal import welch  # imported here: scipy.signal takes seconds to import, and only plots need it
+
     nper = int(min(residual.size, 2**14))
     f, psd = welch(residual - residual.mean(), fs=1.0 / sample_period_s, nperseg=nper)
     return f, np.sqrt(psd * (f[1] - f[0]))

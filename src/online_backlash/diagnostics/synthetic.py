@@ -6,14 +6,21 @@ load_deg, torque_Nm)`` with one effect acting on the true load angle ``x`` (rebu
 recording's true input and dead band, eq. 1-3); the recording's own noise and quantisation
 error ride along and the load angle is quantised again by the same encoder. Angles in
 degrees, time in seconds, torque in N m (NaN: no torque column).
+
+The ``two_mass_*`` functions start instead from the two-mass rig
+(:func:`~online_backlash.two_mass_rig.simulate_two_mass`), a simulator the estimator does not
+assume (see the section below).
 """
 
 from __future__ import annotations
+
+from typing import Any
 
 import numpy as np
 
 from ..model import simulate_backlash_varying
 from ..rig import RigRecording, quantise
+from ..two_mass_rig import TwoMassRecording, simulate_two_mass
 from ._causal import velocity_deg_s
 
 Record = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]
@@ -89,4 +96,85 @@ INJECTORS = {
     "compliance": compliance,
     "drift": drift,
     "outside_library": speed_dependent_lag,
+}
+
+
+# --- logs from a simulator the estimator does not assume ------------------------------------
+#
+# The injectors above add an effect to a load angle written by the estimator's own model
+# (eq. 1-3). The ones below start from the two-mass rig (:mod:`online_backlash.two_mass_rig`):
+# play, wind-up and the flank in contact follow from its equations of motion, the load coasts
+# through the dead band, and the load encoder is quantised once, after the effect is added.
+
+#: the two-mass rig of the benchmark: 30:1, 1 kHz, continuous rotation with reversals, 0.05 N m
+#: of Coulomb friction on the output, a 17-bit load encoder
+TWO_MASS_RIG: dict[str, Any] = {"motion": "rig", "coulomb_nm": 0.05, "play_deg": 0.5}
+#: a stiff gear (10 N m/arcmin): its wind-up stays below the load encoder's step
+STIFF_NM_PER_ARCMIN = 10.0
+#: a compliant gear (0.1 N m/arcmin): the twist under the torque the motion needs is tens of steps
+COMPLIANT_NM_PER_ARCMIN = 0.1
+
+
+def _two_mass(seed: int, duration_s: float, stiffness_nm_per_arcmin: float) -> TwoMassRecording:
+    """The rig with a load angle kept unquantised (30 bits) until the effect is added."""
+    return simulate_two_mass(
+        duration_s=duration_s, seed=seed, stiffness_nm_per_arcmin=stiffness_nm_per_arcmin, substeps=40, load_bits=30, **TWO_MASS_RIG
+    )
+
+
+def _record(rec: TwoMassRecording, disturbance_deg: np.ndarray, torque: bool = False, load_bits: int = 17) -> Record:
+    q = rec.torque_Nm if torque else np.full(rec.time_s.size, np.nan)
+    return rec.time_s, rec.motor_deg, quantise(rec.load_deg + disturbance_deg, load_bits), q
+
+
+def two_mass_clean(seed: int = 0, duration_s: float = 180.0) -> Record:
+    """The stiff two-mass rig as it is (no torque column)."""
+    rec = _two_mass(seed, duration_s, STIFF_NM_PER_ARCMIN)
+    return _record(rec, np.zeros_like(rec.load_deg))
+
+
+def two_mass_transmission_error(seed: int = 0, duration_s: float = 180.0, load_amp_deg: float = 0.02, motor_amp_deg: float = 0.01) -> Record:
+    """The stiff rig with ``A sin(2 y + 0.7) + B sin(motor angle + 1.9)`` added to the load angle ``y``."""
+    rec = _two_mass(seed, duration_s, STIFF_NM_PER_ARCMIN)
+    te = load_amp_deg * np.sin(np.radians(2.0 * rec.load_deg) + 0.7) + motor_amp_deg * np.sin(np.radians(rec.motor_deg) + 1.9)
+    return _record(rec, te)
+
+
+def two_mass_delay(seed: int = 0, duration_s: float = 180.0, lag_samples: int = 4) -> Record:
+    """The stiff rig with the load encoder read ``lag_samples`` after the motor encoder."""
+    rec = _two_mass(seed, duration_s, STIFF_NM_PER_ARCMIN)
+    y = rec.load_deg
+    late = np.concatenate((np.full(lag_samples, y[0]), y[: y.size - lag_samples]))
+    return _record(rec, late - y)
+
+
+def two_mass_compliance(seed: int = 0, duration_s: float = 180.0) -> Record:
+    """The compliant rig (0.1 N m/arcmin): the output twists under the torque its motion needs;
+    the transmitted torque is logged (with the sensor's noise of 0.005 N m)."""
+    rec = _two_mass(seed, duration_s, COMPLIANT_NM_PER_ARCMIN)
+    return _record(rec, np.zeros_like(rec.load_deg), torque=True)
+
+
+def two_mass_drift(seed: int = 0, duration_s: float = 180.0, amp_deg: float = 0.2, tau_s: float = 60.0) -> Record:
+    """The stiff rig with an encoder zero that warms up, ``amp (1 - exp(-t / tau))``."""
+    rec = _two_mass(seed, duration_s, STIFF_NM_PER_ARCMIN)
+    return _record(rec, amp_deg * (1.0 - np.exp(-(rec.time_s - rec.time_s[0]) / tau_s)))
+
+
+def two_mass_speed_dependent_lag(seed: int = 0, duration_s: float = 180.0, lag_s_at_ref: float = 0.0015, ref_speed_deg_s: float = 30.0) -> Record:
+    """Outside the library, on the stiff rig: a lag that grows with the square of the speed."""
+    rec = _two_mass(seed, duration_s, STIFF_NM_PER_ARCMIN)
+    v = velocity_deg_s(rec.u_true_deg, rec.time_s, 10)
+    lag = lag_s_at_ref * (v / ref_speed_deg_s) ** 2
+    return _record(rec, np.interp(rec.time_s - lag, rec.time_s, rec.load_deg) - rec.load_deg)
+
+
+#: effect name -> function(seed, duration_s), for the benchmark on the two-mass rig
+TWO_MASS_INJECTORS = {
+    "clean": two_mass_clean,
+    "transmission_error": two_mass_transmission_error,
+    "delay": two_mass_delay,
+    "compliance": two_mass_compliance,
+    "drift": two_mass_drift,
+    "outside_library": two_mass_speed_dependent_lag,
 }

@@ -34,7 +34,7 @@ import numpy as np
 from ..effect_terms import EffectTerms
 from ..errors import ConvergenceWarning, InvalidParameterError, NotExcitedError, NotFittedError
 from ._effect_stream import EffectStream, check_effects, effects_from_records
-from ._validation import check_int, check_option, check_real
+from ._validation import check_int, check_magnitude, check_option, check_real
 
 _STARTS = ("batch", "cold")
 _ORIGINS = ("first", "zero")
@@ -125,6 +125,8 @@ class RecursiveEstimator(ABC):
     origin: str
     noise_window: int
     effects: Sequence[EffectTerms] | None = None
+    #: True for an estimator whose model needs the torque of every sample (``_learn_arrays`` then gets it without effects)
+    takes_torque: bool = False
     _layout: Any
     _consts: Any
 
@@ -362,7 +364,7 @@ class RecursiveEstimator(ABC):
             if len(self._buf["u"]) >= self._next_attempt:
                 self._try_start(compiled=True)
         if i < n:
-            if self._fx.effects:
+            if self._fx.effects or self.takes_torque:
                 self._learn_arrays(u[i:], y[i:], gap[i:], *times(i, n))
             else:
                 self._learn_arrays(u[i:], y[i:], gap[i:], None, None)
@@ -399,6 +401,7 @@ class RecursiveEstimator(ABC):
     def _try_start(self, compiled: bool, fallback: bool = True) -> None:
         """Fit the paper's batch algorithm to the buffer, start from it and learn the buffer recursively."""
         u, y, t, q = (np.asarray(self._buf[k], dtype=float) for k in ("u", "y", "time", "torque"))
+        check_magnitude(u=u, y=y)  # refused, not fallen back from: no start copes with 1e300
         u0, y0 = self._origin_of(u, y)
         # the longest gap-free stretch of the buffer
         cuts = [0, *np.flatnonzero(np.asarray(self._buf["gap"][1:])) + 1, u.size]

@@ -33,6 +33,9 @@ replaces the 2x2 information update of :func:`update_side` by the joint one.
 Compiled with ``inline="always"`` (numba inlines the pieces into the loop: on input that
 reverses every few samples a call per piece cost a third of the time) and
 ``error_model="numpy"`` (no ZeroDivisionError check per division; the arithmetic is the same).
+The loops are compiled with ``nogil=True``: they touch only their arrays, so they release the
+GIL while they run and a reader thread (:func:`~online_backlash.pipeline.read_ahead`) decodes
+the next block on the other core meanwhile.
 """
 
 from __future__ import annotations
@@ -304,7 +307,7 @@ def _identity(f):
     return f
 
 
-_JIT = njit(cache=True, inline="always", error_model="numpy")
+_JIT = njit(cache=True, nogil=True, inline="always", error_model="numpy")
 
 (
     begin_sample,
@@ -319,7 +322,7 @@ _JIT = njit(cache=True, inline="always", error_model="numpy")
 _backlash_step_nb = _make_backlash_steps(_JIT)[-1]
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy")
 def backlash_run(st, c, u, y, after_gap):  # pragma: no cover - compiled
     """``learn_many``'s loop: :func:`backlash_step` over arrays, honouring gaps."""
     for i in range(u.shape[0]):
@@ -568,7 +571,7 @@ cascade_step = _make_cascade_step(_identity)
 _cascade_step_nb = _make_cascade_step(_JIT)
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy")
 def cascade_run(st, c, u, y, after_gap, phi, pphi):  # pragma: no cover - compiled
     """``learn_many``'s loop for the cascade."""
     for i in range(u.shape[0]):

@@ -9,6 +9,20 @@ import numpy as np
 
 from ..errors import InvalidParameterError, NotExcitedError, NotFittedError
 
+#: Largest input or output magnitude a fit accepts: float64 spaces numbers beyond it more than 0.1 apart,
+#: and the squares in the normal equations overflow long before 1e300.
+MAX_MAGNITUDE = 1e15
+
+
+def check_magnitude(**arrays: np.ndarray) -> None:
+    """Raise InvalidParameterError if a named array holds a value beyond :data:`MAX_MAGNITUDE` (e.g. 1e300: wrong units)."""
+    for name, arr in arrays.items():
+        big = np.flatnonzero(np.abs(arr) > MAX_MAGNITUDE)
+        if big.size:
+            raise InvalidParameterError(
+                f"{name} reaches {arr[big[0]]:.3g} at index {big[0]}: values beyond {MAX_MAGNITUDE:g} cannot be fitted in float64; check the units"
+            )
+
 
 def check_pair(u: np.ndarray, y: np.ndarray, *, min_samples: int = 8) -> tuple[np.ndarray, np.ndarray]:
     """Return ``u`` and ``y`` as finite 1-D float arrays of equal length, or raise InvalidParameterError."""
@@ -24,6 +38,7 @@ def check_pair(u: np.ndarray, y: np.ndarray, *, min_samples: int = 8) -> tuple[n
         bad = np.flatnonzero(~np.isfinite(arr))
         if bad.size:
             raise InvalidParameterError(f"{name} has {bad.size} non-finite values, first at index {bad[0]}")
+    check_magnitude(u=u, y=y)
     return u, y
 
 

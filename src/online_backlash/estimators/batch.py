@@ -47,6 +47,7 @@ from ..model import (
     switching_functions,
 )
 from ._validation import check_int, check_is_fitted, check_option, check_pair, check_real, check_reverses
+from .uncertainty import KinematicPlayScatter, PlayUncertainty
 
 _ORIGINS = ("first", "zero")
 
@@ -279,6 +280,18 @@ class VorosBacklash(_VorosBase):
         Simulations run by the refinement (when ``refine=True``).
     residual_rms_ : float
         RMS of the simulation residual ``x - simulate(u)`` on the fitted data, input units.
+    backlash_std_ : float
+        Standard error of ``backlash_``, input units: the scatter of the play over the reversal
+        cycles and the model misfit, never below the white-noise standard error
+        (:mod:`~online_backlash.estimators.uncertainty`; the parts in ``uncertainty_``).
+    backlash_white_std_ : float
+        The least-squares standard error of ``backlash_`` for white output noise:
+        ``sqrt(g^T (J^T J)^-1 g RSS / (n - 4))`` with ``J`` the Jacobian of the simulation and
+        ``g = [0, 1, 0, 1]``.
+    cycle_plays_ : array
+        The play of every reversal (:class:`~online_backlash.estimators.uncertainty.CyclePlays`).
+    uncertainty_ : PlayUncertainty
+        The parts of ``backlash_std_``.
     u_ref_, y_ref_ : float
         The origin subtracted from the inputs and outputs.
 
@@ -359,8 +372,22 @@ class VorosBacklash(_VorosBase):
         if self.refine:
             params = self._refine(uc, xc, params)
         self._set_backlash(params)
-        self.residual_rms_ = float(np.sqrt(np.mean((xc - self._simulate(uc, params, xc[0])) ** 2)))
+        x_sim, jac = self._simulate_with_jacobian(uc, params, xc[0])
+        self.residual_rms_ = float(np.sqrt(np.mean((xc - x_sim) ** 2)))
+        self._set_uncertainty(uc, xc, xc - x_sim, jac)
         return self
+
+    def _set_uncertainty(self, uc: np.ndarray, xc: np.ndarray, resid: np.ndarray, jac: np.ndarray) -> None:
+        """``backlash_std_`` and its parts: white noise through the Jacobian, then the per-cycle plays."""
+        grad = np.array([0.0, 1.0, 0.0, 1.0])  # d(cL + cR) / d[mL, cL, mR, cR]
+        cov = np.linalg.pinv(jac.T @ jac)
+        sigma2 = _inner(resid, resid) / max(resid.size - 4, 1)
+        self.backlash_white_std_ = float(np.sqrt(max(sigma2 * float(grad @ cov @ grad), 0.0)))
+        scatter = KinematicPlayScatter()
+        scatter.update(uc, xc, None, self.backlash_, self.m_left_, self.m_right_)
+        self.cycle_plays_ = scatter.plays_deg
+        self.uncertainty_: PlayUncertainty = scatter.uncertainty(self.backlash_white_std_, None, self.residual_rms_)
+        self.backlash_std_ = self.uncertainty_.std_deg
 
     @staticmethod
     def _simulate(uc: np.ndarray, params: BacklashParams, x_start: float) -> np.ndarray:

@@ -15,7 +15,8 @@ from .report import ARCMIN_PER_DEG, WearReport
 def plot_wear(report: WearReport, path: str | os.PathLike[str], dpi: int = 120) -> None:
     """Draw backlash against operating hours and save it (the format follows the suffix: .png, .svg, .pdf).
 
-    Estimates are points with bars of one standard deviation. The trend (Theil-Sen, or the
+    Estimates are points with bars of one standard deviation; estimates whose data did not show
+    the play (``play_observable`` false) are grey open circles, outside the trend. The trend (Theil-Sen, or the
     Kalman level with ``--trend kalman``) is a line with two labelled bands: the *confidence*
     band of the line (dark: where the trend is) and the *prediction* band (light: where a new
     estimate falls, which holds the scatter). The limit (if known) is a horizontal line; the
@@ -31,7 +32,13 @@ def plot_wear(report: WearReport, path: str | os.PathLike[str], dpi: int = 120) 
 
     fig = Figure(figsize=(8.0, 4.8), layout="constrained")
     ax = fig.add_subplot()
-    ax.errorbar(hours, backlash, yerr=std, fmt="o", ms=3, lw=0.8, color="tab:blue", ecolor="0.6", label="estimates (± 1 std)")
+    seen = report.observable
+    ax.errorbar(
+        hours[seen], backlash[seen], yerr=std[seen], fmt="o", ms=3, lw=0.8, color="tab:blue", ecolor="0.6", label="estimates (± 1 std)"
+    )
+    hidden = ~seen & np.isfinite(backlash)
+    if hidden.any():  # greyed: the data did not show the play (preloaded); left out of the trend
+        ax.plot(hours[hidden], backlash[hidden], "o", ms=3, mfc="none", color="0.65", label="play not observable (not in the trend)")
     x_end = float(np.nanmax(hours)) if hours.size else 1.0
     last = report.summary.last_hours
     crossing = None
@@ -63,10 +70,15 @@ def plot_wear(report: WearReport, path: str | os.PathLike[str], dpi: int = 120) 
     ax.set_ylabel("backlash, deg (load side)")
     right = ax.secondary_yaxis("right", functions=(_deg_to_arcmin, _arcmin_to_deg))
     right.set_ylabel("arcmin")
-    ax.set_title(f"gearbox {report.gearbox.id}: wear history ({len(report.estimates)} estimates), state {report.status.state}")
+    ax.set_title(f"gearbox {report.gearbox.id}: wear history ({_counted(report)}), state {report.status.state}")
     ax.grid(True, alpha=0.3)
     ax.legend(loc="upper left", fontsize=8)
     fig.savefig(path, dpi=dpi)
+
+
+def _counted(report: WearReport) -> str:
+    n, seen = len(report.estimates), int(report.observable.sum())
+    return f"{n} estimates" if seen == n else f"{n} estimates, {n - seen} not observable"
 
 
 def _deg_to_arcmin(deg: ArrayLike) -> np.ndarray:

@@ -4,7 +4,10 @@
 :meth:`WearReport.as_dict` is the JSON of ``online-backlash history --json`` (a contract: keys
 ``gearbox``, ``estimates`` with ``time``, ``backlash_deg``, ``backlash_std_deg``,
 ``operating_hours``, then ``trend_deg_per_hour``, ``forecast_hours_to_limit``,
-``forecast_date``, ``state`` (:mod:`.alarms`), ``limit_exceeded_since``, and more).
+``forecast_date``, ``state`` (:mod:`.alarms`), ``limit_exceeded_since``, ``n_observable``,
+``n_not_observable``, and more). Estimates whose data did not show the play
+(``play_observable`` false, e.g. a preloaded drive) are listed and counted but left out of the
+trend, the forecast and the alarm state: their apparent play is a load condition, not wear.
 """
 
 from __future__ import annotations
@@ -21,7 +24,9 @@ from .kalman import estimator_lag_hours
 from .store import Estimate, Gearbox, HistoryStore
 from .trend import WearSummary, iso_time, summarise
 
-__all__ = ["ARCMIN_PER_DEG", "HISTORY_CSV_COLUMNS", "WearReport", "estimate_column", "estimate_dict", "wear_report"]
+__all__ = [
+    "ARCMIN_PER_DEG", "HISTORY_CSV_COLUMNS", "WearReport", "estimate_column", "estimate_dict", "observable_mask", "wear_report",
+]
 
 
 def estimate_dict(e: Estimate) -> dict:
@@ -63,6 +68,8 @@ class WearReport:
             "ratio": self.gearbox.ratio,
             "stored_limit_arcmin": self.gearbox.limit_arcmin,
             "n_estimates": len(self.estimates),
+            "n_observable": int(self.observable.sum()),
+            "n_not_observable": int(len(self.estimates) - self.observable.sum()),
             "estimates": self.rows(),
             **self.summary.as_dict(),
             **self.status_dict(),
@@ -81,6 +88,11 @@ class WearReport:
             "checked_at": iso_time(self.now_unix_s),
         }
 
+    @property
+    def observable(self) -> np.ndarray:
+        """Per estimate: did its data show the play (:func:`observable_mask`)? Only those make the trend."""
+        return observable_mask(self.estimates)
+
     def column(self, name: str) -> np.ndarray:
         """One estimate column as a float array (None as NaN)."""
         return estimate_column(self.estimates, name)
@@ -89,6 +101,11 @@ class WearReport:
 def estimate_column(estimates: list[Estimate], name: str) -> np.ndarray:
     """Column ``name`` of the estimates as a float array (None as NaN)."""
     return np.array([np.nan if getattr(e, name) is None else getattr(e, name) for e in estimates], dtype=float)
+
+
+def observable_mask(estimates: list[Estimate]) -> np.ndarray:
+    """True for the estimates whose data showed the play (``play_observable``) and that hold one."""
+    return np.array([bool(e.play_observable) and e.backlash_deg is not None for e in estimates], dtype=bool)
 
 
 def estimator_lag(gearbox: Gearbox, estimates: list[Estimate]) -> float:
@@ -134,6 +151,7 @@ def wear_report(
         ) from exc
     names = ("time_unix_s", "operating_hours", "load_revolutions", "backlash_deg", "backlash_std_deg")
     arrays = {name: estimate_column(estimates, name) for name in names}
+    seen = observable_mask(estimates)
     summary = summarise(
         **arrays,
         limit_deg=None if limit is None else limit / ARCMIN_PER_DEG,
@@ -141,9 +159,9 @@ def wear_report(
         recent_days=recent_days,
         method=method,
         lag_hours=estimator_lag(gearbox, estimates),
+        observable=seen,
     )
     now = time.time() if now_unix_s is None else now_unix_s
-    status = evaluate_alarm(
-        arrays["time_unix_s"], arrays["backlash_deg"], arrays["backlash_std_deg"], warn, limit, now, max_age_h
-    )
+    play = np.where(seen, arrays["backlash_deg"], np.nan)  # a play not observed raises no alarm and clears none
+    status = evaluate_alarm(arrays["time_unix_s"], play, arrays["backlash_std_deg"], warn, limit, now, max_age_h)
     return WearReport(gearbox, estimates, limit, summary, status, now)

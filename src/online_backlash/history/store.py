@@ -27,8 +27,12 @@ Tables
     One row per estimate: ``time_unix_s``, ``backlash_deg`` and ``backlash_std_deg``, both
     sides ``c_left_deg``/``c_right_deg``, slopes ``m_left``/``m_right``, ``residual_rms_deg``,
     ``n_samples`` (samples seen by the estimator since the gearbox was new), and the usage since
-    new: ``operating_hours``, ``load_revolutions``, ``reversals``. ``(run_id, sample_index)``
-    is unique, so a row can never be written twice.
+    new: ``operating_hours``, ``load_revolutions``, ``reversals``; the load condition (schema 3):
+    ``play_observable`` (false: the data did not show the play, e.g. a preloaded drive whose
+    torque never reversed; ``backlash_deg`` is then NULL or the play last seen, and the trend
+    leaves the row out), ``torque_mean_nm``, ``torque_rms_nm`` (of the data since the estimate
+    before), ``torque_reversals`` and ``stiffness_nm_per_arcmin`` (NULL without torque).
+    ``(run_id, sample_index)`` is unique, so a row can never be written twice.
 
 Times are UNIX seconds (UTC), angles degrees on the load side.
 
@@ -41,7 +45,8 @@ to ``i + 1``), all in one transaction with the new stamp, so an upgrade that fai
 store as it was (DDL is transactional in both SQLite and PostgreSQL). A store stamped with a
 newer version than this code knows is refused rather than guessed at. To change the schema:
 edit the tables, append a migration from the current version, and increment
-:data:`SCHEMA_VERSION`. Version 1 is the first schema; version 2 adds ``gearboxes.warn_arcmin``.
+:data:`SCHEMA_VERSION`. Version 1 is the first schema; version 2 adds ``gearboxes.warn_arcmin``;
+version 3 adds the load condition of each estimate and lets ``backlash_deg`` be NULL.
 
 Every write that belongs together (estimate rows, the run's resume point and the gearbox's
 checkpoint) is one transaction: a process killed at any instant leaves either all or none of it.
@@ -58,9 +63,11 @@ from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
+from urllib.parse import quote
 
 from sqlalchemy import (
     BigInteger,
+    Boolean,
     Column,
     Connection,
     Double,
@@ -75,6 +82,7 @@ from sqlalchemy import (
     event,
     inspect,
     select,
+    true,
     update,
 )
 from sqlalchemy.engine import URL, Engine, make_url
@@ -87,7 +95,7 @@ from .alarms import check_alarm_levels
 APPLICATION = "online-backlash"
 
 #: Version of the schema defined in this module.
-SCHEMA_VERSION = 2
+SCHEMA_VERSION = 3
 
 
 def _add_warn_arcmin(conn: Connection) -> None:
@@ -96,9 +104,40 @@ def _add_warn_arcmin(conn: Connection) -> None:
     conn.exec_driver_sql(f"ALTER TABLE gearboxes ADD COLUMN warn_arcmin {column_type}")
 
 
+#: Columns schema 3 adds to ``estimates`` (the load condition of each estimate).
+_V3_COLUMNS = ("play_observable", "torque_mean_nm", "torque_rms_nm", "torque_reversals", "stiffness_nm_per_arcmin")
+
+
+def _add_load_condition(conn: Connection) -> None:
+    """Version 2 -> 3: each estimate's load condition, and ``backlash_deg`` may be NULL (not observable).
+
+    Adds ``play_observable`` (the estimates stored before are taken as observable: they came from
+    the kinematic estimator, whose play the trend used), ``torque_mean_nm``, ``torque_rms_nm``,
+    ``torque_reversals`` and ``stiffness_nm_per_arcmin`` (NULL: not known). SQLite cannot drop a
+    NOT NULL constraint, so there the table is rebuilt from the current definition and the rows
+    copied; PostgreSQL alters the column.
+    """
+    old = [c.name for c in estimates_table.columns if c.name not in _V3_COLUMNS]
+    names = ", ".join(old)
+    if conn.dialect.name == "sqlite":
+        conn.exec_driver_sql("ALTER TABLE estimates RENAME TO estimates_v2")
+        for index in estimates_table.indexes:
+            conn.exec_driver_sql(f"DROP INDEX IF EXISTS {index.name}")
+        estimates_table.create(conn)
+        conn.exec_driver_sql(f"INSERT INTO estimates ({names}, play_observable) SELECT {names}, 1 FROM estimates_v2")
+        conn.exec_driver_sql("DROP TABLE estimates_v2")
+        return
+    conn.exec_driver_sql("ALTER TABLE estimates ALTER COLUMN backlash_deg DROP NOT NULL")
+    for name in _V3_COLUMNS:
+        column = estimates_table.c[name]
+        sql_type = column.type.compile(dialect=conn.dialect)
+        default = " NOT NULL DEFAULT TRUE" if name == "play_observable" else ""
+        conn.exec_driver_sql(f"ALTER TABLE estimates ADD COLUMN IF NOT EXISTS {name} {sql_type}{default}")
+
+
 #: ``MIGRATIONS[i]`` upgrades a store from schema version ``i`` to ``i + 1``, given a connection
 #: inside the upgrade transaction.
-MIGRATIONS: dict[int, Callable[[Connection], None]] = {1: _add_warn_arcmin}
+MIGRATIONS: dict[int, Callable[[Connection], None]] = {1: _add_warn_arcmin, 2: _add_load_condition}
 
 _SQLITE_MAGIC = b"SQLite format 3\x00"
 
@@ -144,7 +183,13 @@ runs_table = Table(
 )
 
 #: SQL type of each kind of estimate column (online_backlash.rows.RowField.kind).
-_SQL_TYPES: dict[type, Any] = {float: Double, int: BigInteger}
+_SQL_TYPES: dict[type, Any] = {float: Double, int: BigInteger, bool: Boolean}
+
+def _estimate_column(key: str) -> Column:
+    """The store column of field ``key``; ``play_observable`` defaults to true (rows written without it)."""
+    f = FIELDS[key]
+    return Column(f.name, _SQL_TYPES[f.kind], nullable=f.nullable, server_default=true() if key == "play_observable" else None)
+
 
 estimates_table = Table(
     "estimates",
@@ -153,7 +198,7 @@ estimates_table = Table(
     Column("gearbox_id", String(200), ForeignKey("gearboxes.id"), nullable=False, index=True),
     Column("run_id", Integer, ForeignKey("runs.id"), nullable=False),
     # the estimate's columns, declared once in online_backlash.rows
-    *(Column(FIELDS[k].name, _SQL_TYPES[FIELDS[k].kind], nullable=FIELDS[k].nullable) for k in STORE_KEYS),
+    *(_estimate_column(k) for k in STORE_KEYS),
     UniqueConstraint("run_id", "sample_index", name="uq_estimates_run_sample"),
 )
 
@@ -209,7 +254,7 @@ class Estimate:
     run_id: int
     sample_index: int
     time_unix_s: float
-    backlash_deg: float
+    backlash_deg: float | None
     backlash_std_deg: float | None
     c_left_deg: float | None
     c_right_deg: float | None
@@ -220,6 +265,11 @@ class Estimate:
     operating_hours: float
     load_revolutions: float
     reversals: int
+    play_observable: bool = True
+    torque_mean_nm: float | None = None
+    torque_rms_nm: float | None = None
+    torque_reversals: int | None = None
+    stiffness_nm_per_arcmin: float | None = None
 
 
 def resolve_url(db: str | os.PathLike[str]) -> URL:
@@ -243,6 +293,18 @@ def _describe(url: URL) -> str:
     return (url.database or "") if url.get_backend_name() == "sqlite" else url.render_as_string(hide_password=True)
 
 
+class _NeedsMigration(Exception):
+    """A store opened read-only has an older schema (it is opened again for writing, to migrate)."""
+
+
+def _read_only_url(path: Path) -> URL:
+    """The SQLite URI that opens ``path`` read-only; ``immutable`` where its folder cannot be written."""
+    query = {"mode": "ro", "uri": "true"}
+    if not os.access(path.parent, os.W_OK):
+        query["immutable"] = "1"
+    return URL.create("sqlite", database=f"file:{quote(str(path.resolve()), safe='/')}", query=query)
+
+
 def _sqlite_file(url: URL) -> Path | None:
     """The file behind a SQLite URL (None for an in-memory database)."""
     if url.get_backend_name() != "sqlite" or url.database in (None, "", ":memory:"):
@@ -260,6 +322,11 @@ class HistoryStore:
     create : bool
         Create the store if ``db`` holds none yet (a missing file or an empty database). With
         False such a ``db`` raises :class:`~online_backlash.errors.HistoryError`.
+    read_only : bool
+        Only read (``history``, ``serve``): an SQLite file is opened read-only (``mode=ro``, and
+        ``immutable`` where its folder cannot be written, since SQLite could not make its WAL
+        files there), so a store in a read-only folder or on a read-only share can be read. A
+        store of an older schema is opened for writing once, to migrate it.
 
     Raises
     ------
@@ -273,17 +340,32 @@ class HistoryStore:
     >>> path = os.path.join(tempfile.mkdtemp(), "wear.db")
     >>> with HistoryStore(path, create=True) as store:
     ...     store.schema_version
-    2
+    3
     """
 
-    def __init__(self, db: str | os.PathLike[str], create: bool = False) -> None:
+    def __init__(self, db: str | os.PathLike[str], create: bool = False, read_only: bool = False) -> None:
+        if create and read_only:
+            raise HistoryError("a store opened read-only cannot be created")
         self.url = resolve_url(db)
         self.name = _describe(self.url)
         self._sqlite = self.url.get_backend_name() == "sqlite"
         path = _sqlite_file(self.url)
         if path is not None:
             self._check_sqlite_file(path, create)
-        self.engine = self._make_engine()
+        self.read_only = read_only and path is not None
+        self.engine = self._make_engine(_read_only_url(path) if self.read_only and path is not None else self.url)
+        try:
+            self.schema_version = self._open_schema(create)
+        except _NeedsMigration:
+            self.engine.dispose()
+            self.read_only = False
+            self.engine = self._make_engine(self.url)
+            self._open_or_dispose(create)
+        except BaseException:
+            self.engine.dispose()
+            raise
+
+    def _open_or_dispose(self, create: bool) -> None:
         try:
             self.schema_version = self._open_schema(create)
         except BaseException:
@@ -305,8 +387,14 @@ class HistoryStore:
         if head and head != _SQLITE_MAGIC:
             raise HistoryError(f"{path} is not an online-backlash history store (not an SQLite database)")
 
-    def _make_engine(self) -> Engine:
-        engine = create_engine(self.url)
+    def _make_engine(self, url: URL) -> Engine:
+        try:
+            engine = create_engine(url)
+        except ImportError as exc:  # the database driver is an extra: say which one
+            raise HistoryError(
+                f"{self.name}: {url.get_backend_name()} needs the driver {exc.name or 'psycopg'}, which is not installed; "
+                "pip install 'online-backlash[postgres]'"
+            ) from exc
         if self._sqlite:
             # pysqlite opens transactions lazily and not before DDL; take over BEGIN so that every
             # transaction (migrations included) is atomic, and take the write lock up front
@@ -359,6 +447,8 @@ class HistoryStore:
                 f"({SCHEMA_VERSION}); upgrade online-backlash to read it"
             )
         if version < SCHEMA_VERSION:
+            if self.read_only:
+                raise _NeedsMigration
             self._migrate(version)
         return SCHEMA_VERSION
 

@@ -309,6 +309,7 @@ def summarise(
     backlash_std_deg: np.ndarray | None = None,
     method: str = "theil-sen",
     lag_hours: float = 0.0,
+    observable: np.ndarray | None = None,
 ) -> WearSummary:
     """Trends against hours and revolutions, and the forecast of ``limit_deg`` (degrees) if given.
 
@@ -316,6 +317,11 @@ def summarise(
     ``"kalman"`` (:func:`~online_backlash.history.kalman.fit_kalman_trend`, which needs
     ``backlash_std_deg`` and corrects for the estimator's ``lag_hours``). The trend against
     revolutions is Theil-Sen.
+
+    ``observable`` (bool per estimate, default all) marks the estimates whose data showed the
+    play (issue 12: a preloaded drive hides it, and its apparent play is not wear): only those
+    enter the trends and the forecast's line. The use (rate of use, the last operating hour) is
+    read from every estimate: the gearbox ran, observable or not.
     """
     if method not in TREND_METHODS:
         raise InvalidParameterError(f"trend method must be one of {', '.join(TREND_METHODS)}, got {method!r}")
@@ -323,13 +329,17 @@ def summarise(
         raise InvalidParameterError(f"the limit must be a positive angle, got {limit_deg!r} deg")
     t = np.asarray(time_unix_s, dtype=float)
     hours = np.asarray(operating_hours, dtype=float)
+    keep = np.ones(hours.shape, dtype=bool) if observable is None else np.asarray(observable, dtype=bool)
+    if keep.shape != hours.shape:
+        raise InvalidParameterError(f"observable must have one flag per estimate ({hours.size}), got shape {keep.shape}")
+    play = np.asarray(backlash_deg, dtype=float)[keep]
     per_hour: Trend | None
     if method == "kalman":
-        std = np.full(hours.shape, np.nan) if backlash_std_deg is None else backlash_std_deg
-        per_hour = fit_kalman_trend(hours, backlash_deg, std, lag_hours, confidence)
+        std = np.full(hours.shape, np.nan) if backlash_std_deg is None else np.asarray(backlash_std_deg, dtype=float)
+        per_hour = fit_kalman_trend(hours[keep], play, std[keep], lag_hours, confidence)
     else:
-        per_hour = fit_trend(hours, backlash_deg, confidence)
-    per_rev = fit_trend(load_revolutions, backlash_deg, confidence)
+        per_hour = fit_trend(hours[keep], play, confidence)
+    per_rev = fit_trend(np.asarray(load_revolutions, dtype=float)[keep], play, confidence)
     last = int(np.argmax(hours)) if hours.size else None
     last_hours = None if last is None else float(hours[last])
     last_time = None if last is None else float(t[last])

@@ -1,0 +1,72 @@
+"""Blocked cross-validation folds over whole reversal cycles.
+
+A term is only worth adding if it predicts the residual on data it was not fitted on. The
+residual of a backlash fit is strongly autocorrelated, so a random split of samples would let
+a term fit the very wiggle it is scored on from its neighbours. The folds below therefore hold
+out *whole reversal cycles*: the record is cut where the direction of motion of the referred
+motor angle ``u`` changes (a cycle is one movement up and the movement down after it, so both
+flanks of the dead band are in every cycle), and cycle ``i`` goes to fold ``i mod k``. A record
+with fewer than two cycles is cut into ``k`` contiguous blocks of time instead (said in
+:attr:`Folds.kind`).
+
+Units: degrees.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ._causal import motion_direction
+
+#: folds of the cross-validation (at most; fewer when the record has fewer cycles)
+N_FOLDS = 5
+#: the direction of motion: sign of the change of ``u`` over this many samples, held inside
+#: a change of ``DEADZONE_DEG`` (as for the per-flank generic term)
+DIRECTION_WINDOW = 10
+DEADZONE_DEG = 0.005
+
+
+@dataclass(frozen=True)
+class Folds:
+    """Fold number of every sample, and how the folds were made.
+
+    Attributes
+    ----------
+    fold : array of int
+        Fold of each sample, ``0 .. n_folds - 1``.
+    n_folds : int
+    n_cycles : int
+        Reversal cycles found in the record.
+    kind : str
+        ``"reversal cycles"`` or ``"time blocks"`` (fewer than two cycles).
+    """
+
+    fold: np.ndarray
+    n_folds: int
+    n_cycles: int
+    kind: str
+
+    def as_dict(self) -> dict[str, object]:
+        """For the JSON evidence: ``{"folds", "cycles", "split"}``."""
+        return {"folds": self.n_folds, "cycles": self.n_cycles, "split": self.kind}
+
+
+def reversal_cycles(u_deg: np.ndarray) -> np.ndarray:
+    """Cycle number of every sample: it grows by one at every second reversal of the motion of ``u_deg``."""
+    d = motion_direction(np.asarray(u_deg, dtype=float), DIRECTION_WINDOW, DEADZONE_DEG, 0.0)
+    changes = np.concatenate(([0], np.cumsum(d[1:] * d[:-1] < 0)))  # reversals so far
+    return changes // 2
+
+
+def cycle_folds(u_deg: np.ndarray, n_folds: int = N_FOLDS) -> Folds:
+    """:class:`Folds` of whole reversal cycles (interleaved), or of time blocks for a record of fewer than 2 cycles."""
+    u = np.asarray(u_deg, dtype=float)
+    cycle = reversal_cycles(u)
+    n_cycles = int(cycle[-1]) + 1 if cycle.size else 0
+    if n_cycles >= 2:
+        k = min(n_folds, n_cycles)
+        return Folds(cycle % k, k, n_cycles, "reversal cycles")
+    k = max(2, n_folds)
+    return Folds(np.minimum(np.arange(u.size) * k // max(u.size, 1), k - 1), k, n_cycles, "time blocks")

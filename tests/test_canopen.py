@@ -1,0 +1,388 @@
+"""CANopen servo drives: EDS files written by the ``canopen`` library, TPDOs sent by its ``LocalNode``
+after SYNC on a python-can ``virtual`` bus, recorded with python-can's writers, then estimated,
+listened to, inspected; damaged frames counted; the load encoder on a second node or on 0x60E4."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import threading
+import time
+from pathlib import Path
+
+import can
+import canopen
+import numpy as np
+import pytest
+from can.interfaces.virtual import channels
+from canopen.objectdictionary import ODArray, ODRecord, ODVariable, datatypes
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from online_backlash.cli import main
+from online_backlash.codecs.canopen import CanopenLayout, SyncPipeline
+from online_backlash.errors import InvalidParameterError, LogFormatError
+from online_backlash.replay import open_log
+from online_backlash.rig import RigRecording, simulate_rig
+
+MOTOR_BITS, LOAD_BITS = 14, 17
+SYNC_OVERFLOW = 16
+
+
+@pytest.fixture(scope="module")
+def rec() -> RigRecording:
+    return simulate_rig(duration_s=4.0, rate_hz=1000.0, reversal_s=(0.4, 0.8), seed=5, motor_bits=MOTOR_BITS, load_bits=LOAD_BITS)
+
+
+def _var(name: str, index: int, subindex: int, data_type: int, default: int | None = None, relative: str | None = None) -> ODVariable:
+    var = ODVariable(name, index, subindex)
+    var.data_type = data_type
+    var.access_type = "rw"
+    var.pdo_mappable = index >= 0x6000
+    var.default = default
+    if relative is not None:
+        var.default_raw = relative  # "$NODEID+0x180": the COB-ID follows the node-ID it is imported with
+    return var
+
+
+def _record(name: str, index: int, members: list[ODVariable], array: bool = False) -> ODRecord | ODArray:
+    obj = ODArray(name, index) if array else ODRecord(name, index)
+    for member in members:
+        obj.add_member(member)
+    return obj
+
+
+def write_eds(path: Path, node: int, mapped: list[tuple[int, int]], *, resolution: int | None, trans_type: int = 1, sync: bool = True) -> Path:
+    """A servo drive's EDS written by ``canopen.export_od``: TPDO1 (COB-ID $NODEID+0x180) maps ``mapped`` objects (32 bits each)."""
+    od = canopen.ObjectDictionary()
+    u8, u32, i32 = datatypes.UNSIGNED8, datatypes.UNSIGNED32, datatypes.INTEGER32
+    if sync:
+        od.add_object(_var("COB-ID SYNC", 0x1005, 0, u32, 0x80))
+        od.add_object(_var("Synchronous counter overflow value", 0x1019, 0, u8, SYNC_OVERFLOW))
+    od.add_object(_record("Transmit PDO 1 communication parameter", 0x1800, [
+        _var("Highest sub-index supported", 0x1800, 0, u8, 2),
+        _var("COB-ID used by TPDO", 0x1800, 1, u32, 0x180 + node, relative="$NODEID+0x180"),
+        _var("Transmission type", 0x1800, 2, u8, trans_type),
+    ]))
+    entries = [_var(f"Application object {i + 1}", 0x1A00, i + 1, u32, (index << 16) | (sub << 8) | 32) for i, (index, sub) in enumerate(mapped)]
+    od.add_object(_record("Transmit PDO 1 mapping parameter", 0x1A00, [_var("Number of mapped objects", 0x1A00, 0, u8, len(mapped)), *entries]))
+    od.add_object(_var("Position actual value", 0x6064, 0, i32, 0))
+    od.add_object(_record("Additional position actual value", 0x60E4, [
+        _var("Highest sub-index supported", 0x60E4, 0, u8, 2),
+        _var("Additional position actual value 1", 0x60E4, 1, i32, 0),
+        _var("Additional position actual value 2", 0x60E4, 2, i32, 0),
+    ], array=True))
+    if resolution is not None:
+        od.add_object(_record("Position encoder resolution", 0x608F, [
+            _var("Highest sub-index supported", 0x608F, 0, u8, 2),
+            _var("Encoder increments", 0x608F, 1, u32, resolution),
+            _var("Motor revolutions", 0x608F, 2, u32, 1),
+        ]))
+    canopen.export_od(od, str(path))
+    return path
+
+
+class HardwareClock:
+    """The bus a canopen Network sends through, stamping each frame with the simulated time (as an adapter's hardware clock)."""
+
+    def __init__(self, bus: can.BusABC) -> None:
+        self.bus = bus
+        self.now = 0.0
+
+    def send(self, msg: can.Message, timeout: float | None = None) -> None:
+        msg.timestamp = self.now
+        self.bus.send(msg, timeout)
+
+
+def int32(count: np.ndarray) -> list[int]:
+    """Counts as a drive's INTEGER32 position: rolling over at 2**31."""
+    return [int(c) for c in (count.astype(np.int64) + 2**31) % 2**32 - 2**31]
+
+
+def counts(angle_deg: np.ndarray, cpr: int) -> np.ndarray:
+    """Encoder counts placed so that half the run lies past the 32-bit rollover."""
+    c = np.round(angle_deg / 360.0 * cpr).astype(np.int64)
+    return c - int(np.median(c)) + 2**31
+
+
+class Rig:
+    """Drives (canopen ``LocalNode``) on a virtual bus sending their TPDO after each SYNC of the test's SYNC producer."""
+
+    def __init__(self, channel: str, nodes: dict[int, Path]) -> None:
+        self.tx = can.Bus(interface="virtual", channel=channel, preserve_timestamps=True)
+        self.clock = HardwareClock(self.tx)
+        self.network = canopen.Network(self.clock)
+        self.nodes = {}
+        for node_id, eds in nodes.items():
+            node = canopen.LocalNode(node_id, canopen.import_od(str(eds), node_id))
+            self.network.add_node(node)
+            node.tpdo.read(from_od=True)
+            self.nodes[node_id] = node
+
+    def play(self, rec: RigRecording, values: dict[tuple[int, int, int], list[int]], t0: float = 1.7e9, hook=None) -> None:
+        """For sample k: SYNC (counter 1..16), then each node's TPDO1 with ``values[(node, index, sub)][k]``."""
+        for k, t in enumerate(rec.time_s.tolist()):
+            self.clock.now = t0 + t
+            if hook is None or hook(k, "sync"):
+                self.network.sync.transmit(k % SYNC_OVERFLOW + 1)
+            for node_id, node in self.nodes.items():
+                pdo = node.tpdo[1]
+                for var in pdo:
+                    var.raw = values[(node_id, var.index, var.subindex)][k]
+                self.clock.now = t0 + t + 50e-6
+                if hook is None or hook(k, node_id):
+                    pdo.transmit()
+
+    def close(self) -> None:
+        self.tx.shutdown()
+
+
+def record(channel: str, send, path: Path, extra: list[can.Message] = ()) -> list[can.Message]:
+    """Receive what ``send()`` puts on the bus and write it with python-can's writer for ``path`` (by suffix)."""
+    rx = can.Bus(interface="virtual", channel=channel, receive_own_messages=False)
+    try:
+        send()
+        frames = list(extra)
+        while (msg := rx.recv(timeout=0)) is not None:
+            frames.append(msg)
+    finally:
+        rx.shutdown()
+    frames.sort(key=lambda m: m.timestamp)
+    with can.Logger(str(path)) as writer:
+        for msg in frames:
+            writer.on_message_received(msg)
+    return frames
+
+
+@pytest.fixture(scope="module")
+def drives(tmp_path_factory) -> dict[str, Path]:
+    folder = tmp_path_factory.mktemp("eds")
+    return {
+        # motor drive: 0x6064 and the load encoder on 0x60E4.1 in one TPDO; 0x608F gives the motor's counts per revolution
+        "both": write_eds(folder / "drive_both.eds", 3, [(0x6064, 0), (0x60E4, 1)], resolution=2**MOTOR_BITS),
+        # two identical drives (one EDS): node 3 the motor, node 4 an encoder on the load shaft
+        "motor": write_eds(folder / "drive.eds", 3, [(0x6064, 0)], resolution=2**MOTOR_BITS),
+        "load": write_eds(folder / "encoder.eds", 4, [(0x6064, 0)], resolution=2**LOAD_BITS),
+        "event": write_eds(folder / "event.eds", 3, [(0x6064, 0)], resolution=2**MOTOR_BITS, trans_type=255),
+        "no_cpr": write_eds(folder / "no_cpr.eds", 3, [(0x6064, 0)], resolution=None),
+    }
+
+
+def one_node_values(rec: RigRecording) -> dict[tuple[int, int, int], list[int]]:
+    return {(3, 0x6064, 0): int32(counts(rec.motor_deg, 2**MOTOR_BITS)), (3, 0x60E4, 1): int32(counts(rec.load_deg, 2**LOAD_BITS))}
+
+
+def two_node_values(rec: RigRecording) -> dict[tuple[int, int, int], list[int]]:
+    return {(3, 0x6064, 0): int32(counts(rec.motor_deg, 2**MOTOR_BITS)), (4, 0x6064, 0): int32(counts(rec.load_deg, 2**LOAD_BITS))}
+
+
+def test_the_positions_roll_over_within_the_run(rec):
+    for values in one_node_values(rec).values():
+        assert min(values) < -(2**30) and max(values) > 2**30  # INTEGER32 wraps from 2**31 - 1 to -2**31
+
+
+def test_the_eds_is_the_library_s_and_the_mapping_comes_from_it(drives):
+    layout = CanopenLayout.from_files(drives["both"], 3, load_cpr=2**LOAD_BITS)
+    assert (layout.motor.pdo.cob_id, layout.motor.obj.index, layout.motor.obj.bit_offset) == (0x183, 0x6064, 0)
+    assert (layout.load.pdo.cob_id, layout.load.obj.index, layout.load.obj.subindex, layout.load.obj.bit_offset) == (0x183, 0x60E4, 1, 32)
+    assert layout.motor.counts_per_rev == 2**MOTOR_BITS and layout.sync_cob_id == 0x80 and layout.sync_overflow == SYNC_OVERFLOW
+    # the same EDS for another node: $NODEID in the file moves the COB-ID
+    assert CanopenLayout.from_files(drives["motor"], 3, load_node=5, load_cpr=100).load.pdo.cob_id == 0x185
+    assert "$NODEID" in drives["motor"].read_text()
+
+
+def test_a_dcf_s_parameter_values_win_over_the_eds_defaults(tmp_path, drives):
+    """A DCF (the drive as commissioned) written by ``canopen.export_od``: its COB-ID and resolution are the ones used."""
+    od = canopen.import_od(str(drives["both"]), 3)
+    od[0x1800][1].value = 0x283
+    od[0x608F][1].value = 4000
+    dcf = tmp_path / "drive.dcf"
+    canopen.export_od(od, str(dcf))
+    layout = CanopenLayout.from_files(dcf, 3, load_cpr=1000)
+    assert "ParameterValue" in dcf.read_text()
+    assert layout.motor.pdo.cob_id == layout.load.pdo.cob_id == 0x283 and layout.motor.counts_per_rev == 4000
+
+
+@pytest.mark.parametrize("suffix", [".blf", ".asc"])
+def test_estimate_a_recorded_log_of_one_drive_with_0x60e4(tmp_path, capsys, rec, drives, suffix):
+    rig = Rig(f"co-{suffix}", {3: drives["both"]})
+    log = tmp_path / f"run{suffix}"
+    try:
+        frames = record(f"co-{suffix}", lambda: rig.play(rec, one_node_values(rec)), log)
+    finally:
+        rig.close()
+    assert len(frames) == 2 * rec.time_s.size
+    argv = ["estimate", str(log), "--eds", str(drives["both"]), "--node", "3", "--load-cpr", str(2**LOAD_BITS), "--ratio", "30", "--json"]
+    assert main(argv) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["backlash_deg"] == pytest.approx(0.5, abs=0.02)
+    assert (out["frames"], out["samples"], out["corrupt"], out["skipped"], out["unpaired"], out["gaps"]) == (len(frames), rec.time_s.size, 0, 0, 0, 0)
+    # the samples are the rig's angles, through the 32-bit rollover, timestamped at the SYNC
+    with open_log(log, eds=drives["both"], node=3, load_cpr=2**LOAD_BITS) as source:
+        chunk = next(source.iter_chunks(max_samples=10**6))
+    assert np.allclose(chunk.motor_deg - chunk.motor_deg[0], rec.motor_deg - rec.motor_deg[0], atol=360 / 2**MOTOR_BITS)
+    assert np.allclose(chunk.load_deg - chunk.load_deg[0], rec.load_deg - rec.load_deg[0], atol=360 / 2**LOAD_BITS)
+    assert np.allclose(chunk.time_s - 1.7e9, rec.time_s, atol=1e-5)
+
+
+def test_a_second_node_as_load_encoder_and_damaged_frames_counted(tmp_path, capsys, rec, drives):
+    rig = Rig("co-two", {3: drives["motor"], 4: drives["load"]})
+    lost_sync, lost_pdo, short_pdo = 1000, 2000, 3000
+
+    def hook(k: int, what: int | str) -> bool:
+        return not ((k == lost_sync and what == "sync") or (k == lost_pdo and what == 4))
+
+    foreign = [can.Message(arbitration_id=0x703, data=[5], timestamp=1.7e9 + 0.5 + i * 1e-4, is_extended_id=False) for i in range(7)]
+    log = tmp_path / "two.blf"
+    try:
+        frames = record("co-two", lambda: rig.play(rec, two_node_values(rec), hook=hook), log, extra=foreign)
+    finally:
+        rig.close()
+    # one PDO of the motor node cut short (DLC 3), written again
+    frames = [m if not (m.arbitration_id == 0x183 and abs(m.timestamp - 1.7e9 - rec.time_s[short_pdo]) < 1e-4) else
+              can.Message(arbitration_id=0x183, data=m.data[:3], timestamp=m.timestamp, is_extended_id=False) for m in frames]
+    with can.Logger(str(log)) as writer:
+        for msg in frames:
+            writer.on_message_received(msg)
+    argv = ["estimate", str(log), "--eds", str(drives["motor"]), "--node", "3", "--load-node", "4", "--load-eds", str(drives["load"]),
+            "--ratio", "30", "--json"]
+    assert main(argv) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["backlash_deg"] == pytest.approx(0.5, abs=0.02)
+    n = rec.time_s.size
+    # each costs a sample and a gap (the SYNC counter jumps). Lost SYNC: its two PDOs have no period (unpaired 2);
+    # lost load PDO: its SYNC and motor PDO unpaired (2); short PDO: corrupt, its SYNC and load PDO unpaired (2)
+    assert out["corrupt"] == 1 and out["skipped"] == len(foreign) and out["unpaired"] == 6 and out["gaps"] == 3
+    assert out["samples"] == n - 3
+    assert out["frames"] == len(frames) == out["skipped"] + out["corrupt"] + out["unpaired"] + 3 * out["samples"]
+    # track and diagnose read it the same way
+    nodes = ["--eds", str(drives["motor"]), "--node", "3", "--load-node", "4", "--load-eds", str(drives["load"])]
+    assert main(["track", str(log), *nodes, "--ratio", "30", "--db", str(tmp_path / "wear.db"), "--gearbox", "gb1", "--every", "1", "--json"]) == 0
+    tracked = json.loads(capsys.readouterr().out)
+    # (4 s of data are too short for the tracker's warm start: it says so, and counts the log as read)
+    assert tracked["samples_fed"] == n - 3 and tracked["counters"]["unpaired"] == 6 and tracked["counters"]["frames"] == len(frames)
+    assert main(["diagnose", str(log), *nodes, "--ratio", "30", "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["corrupt"] == 1
+    # the CAN IDs of inspect, named by the dictionaries
+    assert main(["inspect", str(log), "--eds", str(drives["motor"]), "--node", "3", "--load-node", "4", "--load-eds", str(drives["load"]), "--json"]) == 0
+    ids = {i["id"]: i for i in json.loads(capsys.readouterr().out)["can_ids"]}
+    assert ids["0x080"]["message"] == "SYNC" and ids["0x080"]["frames"] == n - 1
+    assert ids["0x183"]["message"] == "TxPDO1_node3: 0x6064.0 Position actual value"
+    assert ids["0x184"]["message"] == "TxPDO1_node4: 0x6064.0 Position actual value"
+    assert ids["0x703"]["message"] == "heartbeat node 3"
+
+
+def test_listen_can_live_on_a_virtual_bus_replays_to_the_same_estimate(tmp_path, capsys, rec, drives):
+    channel = "co-live"
+
+    def send():
+        deadline = time.monotonic() + 30
+        while len(channels.get(channel, [])) < 1 and time.monotonic() < deadline:  # the listener's bus is open
+            time.sleep(0.01)
+        rig = Rig(channel, {3: drives["both"]})
+        try:
+            rig.play(rec, one_node_values(rec))
+            while not all(q.empty() for q in channels.get(channel, [])) and time.monotonic() < deadline:
+                time.sleep(0.01)
+            time.sleep(0.3)
+        finally:
+            rig.close()
+
+        os.kill(os.getpid(), signal.SIGINT)  # Ctrl-C: listen ends with its summary
+
+    sender = threading.Thread(target=send)
+    sender.start()
+    raw = tmp_path / "raw"
+    argv = ["listen", "can", "--interface", "virtual", "--channel", channel, "--eds", str(drives["both"]), "--node", "3",
+            "--load-cpr", str(2**LOAD_BITS), "--ratio", "30", "--raw-log", str(raw), "--duration", "120", "--json"]
+    try:
+        assert main(argv) == 0
+    finally:
+        sender.join()
+    live = json.loads(capsys.readouterr().out)
+    assert live["samples"] == rec.time_s.size and live["frames"] == 2 * rec.time_s.size and live["unpaired"] == 0
+    assert live["backlash_deg"] == pytest.approx(0.5, abs=0.02)
+    assert main(["estimate", str(raw), "--eds", str(drives["both"]), "--node", "3", "--load-cpr", str(2**LOAD_BITS), "--ratio", "30", "--json"]) == 0
+    replayed = json.loads(capsys.readouterr().out)
+    assert replayed["backlash_deg"] == live["backlash_deg"] and replayed["samples"] == live["samples"]
+
+
+def test_bad_dictionaries_and_nodes_name_the_file_and_the_object(tmp_path, capsys, drives):
+    log = tmp_path / "empty.asc"
+    with can.Logger(str(log)) as writer:
+        writer.on_message_received(can.Message(arbitration_id=0x80, data=[], timestamp=1.0, is_extended_id=False))
+    cases = [
+        (["--eds", str(drives["no_cpr"]), "--node", "3", "--load-node", "4"], f"{drives['no_cpr']}: node 3: no counts per revolution", "--motor-cpr"),
+        (["--eds", str(drives["motor"]), "--node", "3"], f"{drives['motor']}: node 3: object 0x60E4 is not mapped", "TxPDO1_node3: 0x6064.0"),
+        (["--eds", str(drives["event"]), "--node", "3", "--load-node", "4"], f"{drives['event']}: node 3: TxPDO1_node3 (0x1800) has transmission type 255", ""),
+        (["--eds", str(tmp_path / "missing.eds"), "--node", "3"], f"{tmp_path / 'missing.eds'}: no such object dictionary", ""),
+        (["--eds", str(drives["both"])], "give --node N", ""),
+        (["--eds", str(drives["both"]), "--node", "3"], "0x60E4.1 Additional position actual value 1 of node 3: give its counts per load revolution", ""),
+    ]
+    for options, message, also in cases:
+        assert main(["estimate", str(log), *options, "--ratio", "30"]) != 0
+        err = capsys.readouterr().err
+        assert err.startswith("error: ") and message in err and also in err and "Traceback" not in err, err
+    bad = tmp_path / "broken.eds"
+    bad.write_text("[1000]\nParameterName=Device type\nObjectType=0x7\nDataType=0x0007\nDefaultValue=not-a-number\n")
+    with pytest.raises(LogFormatError, match=r"broken\.eds: cannot read the object dictionary"):
+        CanopenLayout.from_files(bad, 3)
+    with pytest.raises(InvalidParameterError, match=r"node-ID is 1\.\.127"):
+        CanopenLayout.from_files(drives["both"], 200)
+    with pytest.raises(SystemExit) as usage:  # argparse: a usage error
+        main(["estimate", str(log), "--eds", str(drives["both"]), "--node", "300", "--ratio", "30"])
+    assert usage.value.code == 2
+    assert "expected a number 1..127" in capsys.readouterr().err
+
+
+def test_sync_pipeline_frame_by_frame_counts_every_frame(drives):
+    """The rules one frame at a time: a sample per complete SYNC period, a repeated PDO, a bad SYNC, extended IDs."""
+    layout = CanopenLayout.from_files(drives["motor"], 3, load_node=4, load_eds=drives["load"])
+    pipe = SyncPipeline(layout)
+
+    def frame(cob_id: int, data: bytes, t: float, extended: bool = False) -> can.Message:
+        return can.Message(arbitration_id=cob_id, data=data, timestamp=t, is_extended_id=extended)
+
+    motor, load = (4096).to_bytes(4, "little", signed=True), (-32768).to_bytes(4, "little", signed=True)
+    rows = [pipe.feed_row(f) for f in [
+        frame(0x80, b"\x01", 0.0), frame(0x183, motor, 0.0001), frame(0x184, load, 0.0002),   # a sample
+        frame(0x80, b"\x02", 0.001), frame(0x183, motor, 0.0011), frame(0x183, motor, 0.0012), frame(0x184, load, 0.0013),  # a repeat
+        frame(0x80, b"\x01\x02", 0.002),  # SYNC with 2 bytes: corrupt
+        frame(0x183, motor, 0.0021),  # no period: unpaired
+        frame(0x183, motor, 0.0022, extended=True),  # an extended ID: not ours
+        frame(0x80, b"\x04", 0.003),  # left open at the end: unpaired
+    ]]
+    samples = [r for r in rows if r is not None]
+    assert samples[0] == (0.0, 90.0, -90.0, 0, False) and samples[1][:4] == (0.001, 90.0, -90.0, 1)
+    pipe.flush()
+    c = pipe.counters
+    assert (c.frames, c.samples, c.corrupt, c.skipped, c.unpaired) == (11, 2, 1, 1, 3)
+    assert c.frames == c.skipped + c.corrupt + c.unpaired + pipe.frames_per_sample * c.samples
+
+
+def test_track_listen_can_opens_the_canopen_source(tmp_path, capsys, drives):
+    """``track --listen can --eds``: the CANopen live source on the bus (here a silent one: the timeout says where it listened)."""
+    argv = ["track", "--listen", "can", "--interface", "virtual", "--channel", "co-silent", "--eds", str(drives["both"]), "--node", "3",
+            "--load-cpr", str(2**LOAD_BITS), "--ratio", "30", "--db", str(tmp_path / "wear.db"), "--gearbox", "gb1",
+            "--raw-log", str(tmp_path / "raw"), "--timeout", "0.3", "--quiet"]
+    assert main(argv) != 0
+    err = capsys.readouterr().err
+    assert err.startswith("error: nothing received for 0.3 s on CAN") and "Traceback" not in err, err
+    assert main([*argv[:11], *argv[13:]]) != 0  # no --load-cpr for 0x60E4: the error names the object and the file
+    assert f"{drives['both']}: the load angle is 0x60E4.1" in capsys.readouterr().err
+
+
+@settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(st.lists(st.tuples(st.sampled_from([0x80, 0x183, 0x184, 0x703, 0x7FF]), st.binary(max_size=8), st.booleans(), st.floats(0, 1e-3)), max_size=60))
+def test_fuzzed_frames_are_counted_and_reconcile(drives, frames):
+    """Any frames (our COB-IDs with any length, others, extended IDs, times out of order): only counted, never raised."""
+    pipe = SyncPipeline(CanopenLayout.from_files(drives["motor"], 3, load_node=4, load_eds=drives["load"]))
+    t = 0.0
+    for cob_id, data, extended, dt in frames:
+        t += dt - 2e-4
+        row = pipe.feed_row(can.Message(arbitration_id=cob_id, data=data, timestamp=t, is_extended_id=extended))
+        assert row is None or all(np.isfinite(row[:3]))
+    pipe.flush()
+    c = pipe.counters
+    assert c.frames == len(frames) == c.skipped + c.corrupt + c.unpaired + pipe.frames_per_sample * c.samples

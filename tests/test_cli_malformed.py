@@ -1,0 +1,309 @@
+"""Malformed input at the CLI: every case ends in one line ``error: FILE[:LINE]: reason`` (or an
+argparse usage error for a bad option, or a documented ``warning:`` line), the right exit code,
+and never a traceback (issue 11, item 7).
+
+Each row of :data:`CASES` runs one command in-process through ``main(argv)``. ``{d}`` in an
+argument or an expected pattern is the folder of the files made by :func:`files`, ``{db}`` a
+fresh history store of the test. The files are written by the libraries people use (pandas,
+csv, gzip) or cut from a simulated rig log, not shaped to the reader.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import gzip
+import os
+import re
+import shutil
+import subprocess
+import sys
+import warnings
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from online_backlash.cli import main
+from online_backlash.cli._common import run_command
+from online_backlash.errors import BacklashWarning
+from online_backlash.rig import simulate_rig
+
+DEMO = Path(__file__).resolve().parents[1] / "src" / "online_backlash" / "data" / "demo_rig_30to1.csv.gz"
+
+
+@pytest.fixture(scope="module")
+def files(tmp_path_factory) -> Path:
+    """The malformed logs, next to a good one (10 s of a 30:1 rig with 0.5 deg of play)."""
+    d = tmp_path_factory.mktemp("malformed")
+    rec = simulate_rig(duration_s=10.0, ratio=30.0, play_deg=0.5, seed=4)
+    rec.write_csv(d / "good.csv")
+    lines = (d / "good.csv").read_text().splitlines(keepends=True)
+    header, body = lines[0], lines[1:]
+
+    def put(name: str, text: str) -> None:
+        (d / name).write_text(text)
+
+    def replace_row(name: str, index: int, row: str) -> None:
+        put(name, header + "".join(body[:index]) + row + "".join(body[index + 1 :]))
+
+    put("empty.csv", "")
+    put("header.csv", header)
+    put("blank.csv", "\n\n\n")
+    put("wrongcols.csv", "a,b,c\n1,2,3\n")
+    replace_row("text.csv", 4, "0.004,abc,1\n")  # line 6
+    replace_row("nan.csv", 4, "0.004,nan,1\n")
+    replace_row("inf.csv", 4, "0.004,1,-inf\n")
+    replace_row("short.csv", 4, "0.004,1\n")
+    replace_row("back.csv", 4, "0.0005,1,1\n")
+    data = gzip.compress("".join(lines).encode())
+    (d / "trunc.csv.gz").write_bytes(data[: len(data) // 2])
+    put("fake.csv.gz", "".join(lines[:50]))  # not gzip at all
+    t = np.arange(2000) * 1e-3
+    wave = np.sin(2 * np.pi * t)
+    put("huge.csv", "time,motor,load\n" + "".join(f"{a},{1e300 * b},{1e300 * b / 30}\n" for a, b in zip(t, wave)))
+    put("onerow.csv", header + body[0])
+    put("nomotion.csv", "time,motor,load\n" + "".join(f"{a},1.0,2.0\n" for a in t))
+    put("noreversal.csv", "time,motor,load\n" + "".join(f"{a},{a * 300},{a * 10}\n" for a in t))
+    put("zerotime.csv", header + "".join("0," + row.split(",", 1)[1] for row in body))
+    dup = list(body)
+    for i in range(100, 200, 10):  # ten rows take the previous row's time
+        dup[i + 1] = dup[i].split(",")[0] + "," + dup[i + 1].split(",", 1)[1]
+    put("dup.csv", header + "".join(dup))
+    (d / "binary.csv").write_bytes(np.random.default_rng(0).bytes(3000))
+    (d / "folder.csv").mkdir()
+    rec.write_csv(d / "de_source.csv")
+    import pandas as pd
+
+    pd.read_csv(d / "good.csv").to_csv(d / "german.csv", sep=";", decimal=",", index=False)
+    put("run.asc", "date Mon Nov 23 01:00:00.000 pm 2026\nbase hex  timestamps absolute\n")
+    return d
+
+
+@dataclass(frozen=True)
+class Case:
+    """One malformed input: the argv, the exit code, a pattern the last stderr line must match
+    (``error: ...``, argparse's ``... error: argument ...`` or ``warning: ...``), and one for stdout."""
+
+    argv: tuple[str, ...]
+    code: int
+    err: str
+    out: str = ""
+
+
+E, T, D = ("estimate",), ("track",), ("diagnose",)
+R = ("--ratio", "30")
+TRACK = ("--ratio", "30", "--db", "{db}", "--gearbox", "g", "--quiet")
+SIGNALS = ("--motor-signal", "A.a", "--load-signal", "B.b")
+
+CASES = {
+    # -- estimate: the file's content
+    "empty file": Case((*E, "{d}/empty.csv", *R), 1, r"error: {d}/empty.csv:1: empty file"),
+    "blank lines only": Case((*E, "{d}/blank.csv", *R), 1, r"error: {d}/blank.csv:1: empty file"),
+    "header only": Case((*E, "{d}/header.csv", *R), 1, r"error: {d}/header.csv: no data rows"),
+    "wrong column names": Case((*E, "{d}/wrongcols.csv", *R), 1, r"error: {d}/wrongcols.csv:1: header has no column \['time', 'motor', 'load'\]"),
+    "text in a number column": Case((*E, "{d}/text.csv", *R), 1, r"error: {d}/text.csv:6: not a number"),
+    "NaN row": Case((*E, "{d}/nan.csv", *R), 1, r"error: {d}/nan.csv:6: non-finite value in motor"),
+    "inf row": Case((*E, "{d}/inf.csv", *R, "--method", "batch"), 1, r"error: {d}/inf.csv:6: non-finite value in load"),
+    "short row": Case((*E, "{d}/short.csv", *R), 1, r"error: {d}/short.csv:6: expected 3 columns, got 2"),
+    "time goes backwards": Case((*E, "{d}/back.csv", *R), 1, r"error: {d}/back.csv:6: time goes backwards"),
+    "bad rows skipped are reported": Case((*E, "{d}/nan.csv", *R, "--skip-bad-rows"), 0, r"^$", r"corrupt 1"),
+    "bad rows skipped, in JSON": Case((*E, "{d}/text.csv", *R, "--skip-bad-rows", "--json"), 0, r"^$", r'"corrupt": 1'),
+    "truncated .csv.gz": Case((*E, "{d}/trunc.csv.gz", *R), 1, r"error: {d}/trunc.csv.gz:\d+: damaged or truncated file"),
+    "plain text named .csv.gz": Case((*E, "{d}/fake.csv.gz", *R), 1, r"error: {d}/fake.csv.gz:1: damaged or truncated file"),
+    "values near 1e300": Case((*E, "{d}/huge.csv", *R), 1, r"error: {d}/huge.csv:3: angle beyond 1e\+15 deg"),
+    "values near 1e300, batch": Case((*E, "{d}/huge.csv", *R, "--method", "batch"), 1, r"error: {d}/huge.csv:3: angle beyond"),
+    "one row": Case((*E, "{d}/onerow.csv", *R), 1, r"error: {d}/onerow.csv: only 1 samples buffered"),
+    "no motion": Case((*E, "{d}/nomotion.csv", *R), 1, r"error: {d}/nomotion.csv: .*never reverses"),
+    "no reversal, batch": Case((*E, "{d}/noreversal.csv", *R, "--method", "batch"), 1, r"error: {d}/noreversal.csv: .*never reverses"),
+    "time all zeros": Case((*E, "{d}/zerotime.csv", *R), 1, r"error: {d}/zerotime.csv:10001: time column 'time' never advances"),
+    "duplicated timestamps": Case((*E, "{d}/dup.csv", *R), 0, r"warning: {d}/dup.csv: 10 of 10000 samples repeat the previous sample's time", "backlash:"),
+    "binary garbage named .csv": Case((*E, "{d}/binary.csv", *R), 1, r"error: {d}/binary.csv:1: not a text CSV file"),
+    "folder given as a file": Case((*E, "{d}/folder.csv", *R), 1, r"error: {d}/folder.csv: empty directory"),
+    "missing file": Case((*E, "{d}/missing.csv", *R), 1, r"error: {d}/missing.csv: cannot open: no such file or folder"),
+    "missing folder": Case((*E, "{d}/raw/", *R), 1, r"error: {d}/raw/: no such file or folder"),
+    "unknown format": Case((*E, "{d}/good.xyz", *R), 1, r"error: {d}/good.xyz: unknown log format '\.xyz'"),
+    "counts under a degrees header": Case((*E, str(DEMO), *R), 0, r"warning: .*demo_rig_30to1.csv.gz: fitted slope 8, not near \+-1 .*units.*--ratio 3.75"),
+    # -- estimate: options
+    "--columns without =": Case((*E, "{d}/good.csv", *R, "--columns", "time"), 1, r"error: --columns expects role=column pairs.*got 'time'"),
+    "--columns unknown role": Case((*E, "{d}/good.csv", *R, "--columns", "speed=v"), 1, r"error: unknown column roles \['speed'\]"),
+    "--columns missing column": Case((*E, "{d}/good.csv", *R, "--columns", "motor=enc"), 1, r"error: {d}/good.csv:1: header has no column \['enc'\]"),
+    "--every 0": Case((*E, "{d}/good.csv", *R, "--every", "0"), 2, r"error: argument --every: expected a positive number, got '0'"),
+    "--every -1": Case((*E, "{d}/good.csv", *R, "--every", "-1"), 2, r"error: argument --every: expected a positive number, got '-1'"),
+    "--ratio 0": Case((*E, "{d}/good.csv", "--ratio", "0"), 2, r"error: argument --ratio: expected a finite non-zero number, got '0'"),
+    "--ratio nan": Case((*E, "{d}/good.csv", "--ratio", "nan"), 2, r"error: argument --ratio: expected a finite non-zero number"),
+    "--ratio text": Case((*E, "{d}/good.csv", "--ratio", "thirty"), 2, r"error: argument --ratio: expected a finite non-zero number"),
+    "--units unknown": Case((*E, "{d}/good.csv", *R, "--units", "furlong"), 2, r"error: argument --units: invalid choice"),
+    "--units counts without cpr": Case((*E, "{d}/good.csv", *R, "--units", "counts"), 1, r"error: motor is in encoder counts .*needs a positive motor_cpr"),
+    "--motor-cpr negative": Case(
+        (*E, "{d}/good.csv", *R, "--units", "counts", "--motor-cpr", "-4096"), 2, r"error: argument --motor-cpr: expected a positive number"
+    ),
+    "--delimiter two characters": Case((*E, "{d}/good.csv", *R, "--delimiter", ";;"), 2, r"error: argument --delimiter: expected one separator character"),
+    "--decimal unknown": Case((*E, "{d}/good.csv", *R, "--decimal", ";"), 2, r"error: argument --decimal: invalid choice"),
+    "--delimiter wrong for the file": Case((*E, "{d}/good.csv", *R, "--delimiter", ";"), 1, r"error: {d}/good.csv:1: header has no column"),
+    "--trace with batch": Case((*E, "{d}/good.csv", *R, "--method", "batch", "--trace", "{d}/t.csv"), 1, r"error: --trace needs --method recursive"),
+    "CAN log, missing DBC": Case((*E, "{d}/run.asc", *R, "--dbc", "{d}/none.dbc", *SIGNALS), 1, r"error: {d}/none.dbc: no such file"),
+    "CAN log, no DBC given": Case((*E, "{d}/run.asc", *R), 1, r"error: a CAN log needs dbc, motor_signal and load_signal"),
+    "CAN log, a CSV as DBC": Case((*E, "{d}/run.asc", *R, "--dbc", "{d}/good.csv", *SIGNALS), 1, r"error: {d}/good.csv: not a usable DBC file"),
+    "German Excel file": Case((*E, "{d}/german.csv", *R), 0, r"^$", r"backlash:\s+0\.\d+ deg"),
+    "--debug after the subcommand": Case((*E, "{d}/good.csv", *R, "--debug"), 0, r"^$", r"backlash:"),
+    # -- track
+    "track: missing file": Case((*T, "{d}/missing.csv", *TRACK), 1, r"error: {d}/missing.csv: (cannot open: )?no such file or folder"),
+    "track: empty file": Case((*T, "{d}/empty.csv", *TRACK), 1, r"error: {d}/empty.csv:1: empty file"),
+    "track: truncated .csv.gz": Case((*T, "{d}/trunc.csv.gz", *TRACK), 1, r"error: {d}/trunc.csv.gz:\d+: damaged or truncated"),
+    "track: time all zeros": Case((*T, "{d}/zerotime.csv", *TRACK), 1, r"error: {d}/zerotime.csv:10001: time column 'time' never advances"),
+    "track: no reversal says why": Case((*T, "{d}/noreversal.csv", *TRACK), 0, r"^$", r"0 estimates added \(the estimator has not started: .*never reverses"),
+    "track: one row says why": Case((*T, "{d}/onerow.csv", *TRACK), 0, r"^$", r"1 samples, 0 estimates added \(the estimator has not started: only 1 samples"),
+    "track: no motion says why": Case((*T, "{d}/nomotion.csv", *TRACK), 0, r"^$", r"0 estimates added \(the estimator has not started"),
+    "track: shorter than --every says why": Case((*T, "{d}/good.csv", *TRACK), 0, r"^$", r"0 estimates added \(less than --every 60 s of data"),
+    "track: --gearbox empty": Case((*T, "{d}/good.csv", *R, "--db", "{db}", "--gearbox", ""), 2, r"error: argument --gearbox: expected a non-empty name"),
+    "track: --limit-arcmin -1": Case((*T, "{d}/good.csv", *TRACK, "--limit-arcmin", "-1"), 1, r"error: the limit must be a finite positive angle in arcmin"),
+    "track: --every 0": Case((*T, "{d}/good.csv", *TRACK, "--every", "0"), 2, r"error: argument --every: expected a positive number"),
+    "track: --debug after the subcommand": Case((*T, "{d}/good.csv", *TRACK, "--every", "1", "--debug"), 0, r"^$", r"estimates added"),
+    # -- diagnose
+    "diagnose: --plot out.xyz": Case((*D, "{d}/good.csv", *R, "--plot", "{d}/out.xyz"), 1, r"error: {d}/out.xyz: cannot draw a plot as \.xyz; use .*\.png"),
+    "diagnose: time all zeros": Case((*D, "{d}/zerotime.csv", *R), 1, r"error: {d}/zerotime.csv:10001: time column 'time' never advances"),
+    "diagnose: duplicated timestamps, no numpy warning": Case((*D, "{d}/dup.csv", *R), 0, r"warning: {d}/dup.csv: 10 of 10000 samples repeat"),
+    "diagnose: values near 1e300": Case((*D, "{d}/huge.csv", *R), 1, r"error: {d}/huge.csv:3: angle beyond"),
+    "diagnose: no motion": Case((*D, "{d}/nomotion.csv", *R), 1, r"error: {d}/nomotion.csv: "),
+    "diagnose: missing file": Case((*D, "{d}/missing.csv", *R), 1, r"error: {d}/missing.csv: cannot open: no such file or folder"),
+    "diagnose: --every 0": Case((*D, "{d}/good.csv", *R, "--every", "0"), 2, r"error: argument --every: expected a positive number"),
+    "diagnose: truncated .csv.gz": Case((*D, "{d}/trunc.csv.gz", *R), 1, r"error: {d}/trunc.csv.gz:\d+: damaged or truncated"),
+    # -- inspect
+    "inspect: missing file": Case(("inspect", "{d}/missing.csv"), 1, r"error: {d}/missing.csv: no such file"),
+    "inspect: binary garbage named .csv": Case(("inspect", "{d}/binary.csv"), 1, r"error: {d}/binary.csv:1: not a text CSV file"),
+    "inspect: truncated .csv.gz": Case(("inspect", "{d}/trunc.csv.gz"), 1, r"error: {d}/trunc.csv.gz: cannot read as CSV \(EOFError"),
+    "inspect: German Excel file": Case(("inspect", "{d}/german.csv"), 0, r"^$", r"csv, 3 columns"),
+    "inspect: --delimiter wrong": Case(("inspect", "{d}/german.csv", "--delimiter", "tab"), 0, r"^$", r"csv, 1 columns"),
+    # -- history
+    "history: --gearbox empty": Case(("history", "--db", "{db}", "--gearbox", " "), 2, r"error: argument --gearbox: expected a non-empty name"),
+    "history: no store": Case(("history", "--db", "{db}", "--gearbox", "g"), 1, r"error: no history store at {db}"),
+    "history --check: no store": Case(("history", "--db", "{db}", "--gearbox", "g", "--check"), 3, r"^$", r"BACKLASH UNKNOWN - error: no history store"),
+    "history: --plot out.xyz": Case(("history", "--db", "{db}", "--gearbox", "g", "--plot", "{d}/w.xyz"), 1, r"error: {d}/w.xyz: cannot draw a plot as \.xyz"),
+}
+
+
+def run_cli(argv: list[str], capsys: pytest.CaptureFixture[str]) -> tuple[int, str, str]:
+    """``main(argv)`` in-process: exit code (argparse's SystemExit too), stdout, stderr."""
+    try:
+        code = main(argv)
+    except SystemExit as exc:
+        code = int(exc.code or 0)
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+@pytest.mark.parametrize("name", CASES)
+def test_malformed_input_gives_one_line_and_no_traceback(name, files, tmp_path, capsys):
+    case = CASES[name]
+    fill = {"d": str(files), "db": str(tmp_path / "wear.db")}
+    code, out, err = run_cli([a.format(**fill) for a in case.argv], capsys)
+    assert "Traceback" not in err and "Traceback" not in out
+    lines = [line for line in err.splitlines() if line.strip()]
+    usage = [line for line in lines if line.startswith("usage:") or line.startswith(" ")]
+    messages = [line for line in lines if line not in usage]
+    assert code == case.code, err
+    assert len(messages) <= 1, err  # one line (after argparse's usage, for a bad option)
+    pattern = case.err.replace("{d}", re.escape(fill["d"])).replace("{db}", re.escape(fill["db"]))
+    assert re.search(pattern, messages[0] if messages else ""), err
+    if code == 1:
+        assert messages[0].startswith("error: ")
+    if code == 2:
+        assert usage and messages[0].startswith(f"online-backlash {case.argv[0]}: error: argument ")
+    if case.out:
+        assert re.search(case.out, out), out
+
+
+def test_track_counts_a_log_without_estimates_as_read(files, tmp_path, capsys):
+    argv = ["track", str(files / "noreversal.csv"), "--ratio", "30", "--db", str(tmp_path / "w.db"), "--gearbox", "g", "--quiet"]
+    assert run_cli(argv, capsys)[0] == 0
+    code, out, _ = run_cli(argv, capsys)
+    assert code == 0 and "already imported" in out
+
+
+def test_postgresql_without_psycopg_names_the_extra(files, tmp_path, capsys, monkeypatch):
+    monkeypatch.setitem(sys.modules, "psycopg", None)  # as after a plain pip install: import psycopg fails
+    for argv in (
+        ["history", "--db", "postgresql://rig@localhost/wear", "--gearbox", "g"],
+        ["track", str(files / "good.csv"), "--ratio", "30", "--db", "postgresql://rig@localhost/wear", "--gearbox", "g", "--quiet"],
+    ):
+        code, _, err = run_cli(argv, capsys)
+        assert code == 1 and "Traceback" not in err
+        assert re.fullmatch(r"error: .*postgresql.* needs the driver psycopg, which is not installed; pip install 'online-backlash\[postgres\]'\n", err)
+
+
+@contextlib.contextmanager
+def unwritable(folder: Path):
+    """``folder`` made unwritable for this process: immutable (chattr +i) when run as root, else mode 555."""
+    if os.geteuid() == 0:
+        subprocess.run(["chattr", "+i", str(folder)], check=True)
+        try:
+            yield
+        finally:
+            subprocess.run(["chattr", "-i", str(folder)], check=True)
+    else:
+        folder.chmod(0o555)
+        try:
+            yield
+        finally:
+            folder.chmod(0o755)
+
+
+def test_history_reads_a_store_in_a_read_only_folder(files, tmp_path, capsys):
+    folder = tmp_path / "share"
+    folder.mkdir()
+    db = folder / "wear.db"
+    argv = ["track", str(files / "good.csv"), "--ratio", "30", "--db", str(db), "--gearbox", "g", "--every", "2", "--quiet"]
+    assert run_cli(argv, capsys)[0] == 0
+    before = sorted(p.name for p in folder.iterdir())
+    with unwritable(folder):
+        with pytest.raises(PermissionError):
+            (folder / "probe").touch()  # the folder really is read-only
+        code, out, err = run_cli(["history", "--db", str(db), "--gearbox", "g", "--json"], capsys)
+        assert code == 0, err
+        assert '"estimates"' in out or '"backlash_deg"' in out
+        code, out, err = run_cli(["history", "--db", str(db), "--gearbox", "g", "--check"], capsys)
+        assert out.startswith("BACKLASH ") and "error" not in out, out  # a state, not an UNKNOWN for a store it cannot open
+        code, _, err = run_cli(argv, capsys)  # writing still fails, with one line
+        assert code == 1 and err.startswith("error: ") and "Traceback" not in err
+    assert sorted(p.name for p in folder.iterdir()) == before
+
+
+def test_console_script_never_shows_a_traceback(files):
+    """The installed entry point, as a user runs it (a subprocess: the real stderr and exit code)."""
+    exe = shutil.which("online-backlash") or str(Path(sys.executable).with_name("online-backlash"))
+    done = subprocess.run(
+        [exe, "estimate", str(files / "trunc.csv.gz"), "--ratio", "30"], capture_output=True, text=True, timeout=120, check=False
+    )
+    assert done.returncode == 1 and "Traceback" not in done.stderr
+    assert re.fullmatch(rf"error: {re.escape(str(files))}/trunc.csv.gz:\d+: damaged or truncated file: .*\n", done.stderr)
+    debug = subprocess.run(
+        [exe, "estimate", str(files / "trunc.csv.gz"), "--ratio", "30", "--debug"], capture_output=True, text=True, timeout=120, check=False
+    )
+    assert debug.returncode == 1 and "Traceback" in debug.stderr  # --debug after the subcommand shows it
+
+
+def test_run_command_turns_every_failure_and_warning_into_one_line(capsys):
+    def warns(_args: argparse.Namespace) -> int:
+        warnings.warn("overflow\n  encountered", RuntimeWarning, stacklevel=1)
+        warnings.warn("10 samples repeat", BacklashWarning, stacklevel=1)
+        return 0
+
+    def fails(_args: argparse.Namespace) -> int:
+        raise KeyError("motor")
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("default")  # as for a user; pytest's filter turns warnings into errors
+        assert run_command(warns, argparse.Namespace()) == 0
+    assert capsys.readouterr().err == "warning: RuntimeWarning: overflow encountered\nwarning: 10 samples repeat\n"
+    assert run_command(fails, argparse.Namespace(debug=False)) == 1
+    err = capsys.readouterr().err
+    assert err.startswith("error: unexpected KeyError: 'motor' (run with --debug") and err.count("\n") == 1
+    with pytest.raises(KeyError):
+        run_command(fails, argparse.Namespace(debug=True))
+    def no_dbc(_args: argparse.Namespace) -> int:
+        raise FileNotFoundError(2, "No such file or directory", "rig.dbc")
+
+    assert run_command(no_dbc, argparse.Namespace()) == 1
+    assert capsys.readouterr().err == "error: rig.dbc: no such file or folder\n"
