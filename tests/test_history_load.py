@@ -210,10 +210,10 @@ DAY_S = 86400.0
 LOADS = (0.0, 0.1, 0.2, 0.3, 0.15, 0.05, 0.25)
 
 
-def track_month(db, load_of_day) -> tuple[dict, float, float]:
+def track_month(db, load_of_day, method: str = "theil-sen") -> tuple[dict, float, float]:
     """30 daily 20 s logs of the two-mass rig (sine, 0.5 Hz), the play growing 0.002 deg a day,
-    tracked with the torque column. Returns the Theil-Sen report and the true trend (deg per
-    operating hour, from the stored use) and the true play at the last estimate."""
+    tracked with the torque column. Returns the report (trend by ``method``), the true trend (deg
+    per operating hour, from the stored use) and the true play at the last estimate."""
     with HistoryStore(db, create=True) as store:
         tracker = GearboxTracker(store, "gb", 30.0, every_s=10.0, limit_arcmin=30.0, estimator_params={"memory_reversals": 10.0})
         for day in range(30):
@@ -221,15 +221,16 @@ def track_month(db, load_of_day) -> tuple[dict, float, float]:
             tracker.track_chunks(
                 [rec.to_chunk()], f"day{day:02d}", key=f"{day:064d}", clock_offset=lambda first, day=day: T0 + day * DAY_S - first
             )
-        report = wear_report(store, "gb", now_unix_s=T0 + 30 * DAY_S)
+        report = wear_report(store, "gb", now_unix_s=T0 + 30 * DAY_S, method=method)
     hours = report.column("operating_hours")
     per_day = (hours[-1] - hours[0]) / (report.column("time_unix_s")[-1] - report.column("time_unix_s")[0]) * DAY_S
     return report.as_dict(), 0.002 / per_day, 0.40 + 0.002 * 29
 
 
-def test_a_month_of_changing_load_gives_the_trend_of_a_constant_load(tmp_path):
-    changing, truth, last_play = track_month(tmp_path / "changing.db", lambda day: 1.0 if day % 5 == 4 else LOADS[day % 7])
-    constant, truth_c, _ = track_month(tmp_path / "constant.db", lambda day: 0.1)
+@pytest.mark.parametrize("method", ["theil-sen", "kalman"])
+def test_a_month_of_changing_load_gives_the_trend_of_a_constant_load(tmp_path, method):
+    changing, truth, last_play = track_month(tmp_path / "changing.db", lambda day: 1.0 if day % 5 == 4 else LOADS[day % 7], method)
+    constant, truth_c, _ = track_month(tmp_path / "constant.db", lambda day: 0.1, method)
     assert changing["n_not_observable"] >= 6 and constant["n_not_observable"] == 0  # the preloaded days, greyed
     assert changing["trend_deg_per_hour"] == pytest.approx(truth, rel=0.10)
     assert constant["trend_deg_per_hour"] == pytest.approx(truth_c, rel=0.10)

@@ -142,3 +142,14 @@ def test_track_and_diagnose_read_a_parquet_log(capsys, tmp_path):
     argv = ["track", str(path), "--ratio", "30", "--db", str(tmp_path / "wear.db"), "--gearbox", "gb1", "--every", "5", "--quiet", *mapping]
     assert main(argv) == 0, capsys.readouterr().err
     assert re.match(rf"gb1: {re.escape(str(path))}: {rec.time_s.size} samples, [1-9][0-9]* estimates added; backlash 0\.(49|50)", capsys.readouterr().out)
+
+
+@pytest.mark.parametrize("kind", ["float64", "float32", "int32", "uint16", "int64"])
+def test_column_values_are_read_from_the_buffer_with_its_offset(kind):
+    from online_backlash.replay.parquet import _as_float
+
+    values = pa.array(np.arange(20), type=getattr(pa, kind)())
+    part = values.slice(7, 9)  # a view with an offset into the shared buffer
+    np.testing.assert_array_equal(_as_float(part, "motor", "m", "f.parquet", 1, []), np.arange(7, 16, dtype=float))
+    with_null = pa.array([1, None, 3], type=getattr(pa, kind)())
+    np.testing.assert_array_equal(_as_float(with_null, "motor", "m", "f.parquet", 1, []), [1.0, np.nan, 3.0])
