@@ -44,10 +44,10 @@ from canopen.objectdictionary import ObjectDictionary, ODVariable
 from canopen.objectdictionary.datatypes import INTEGER_TYPES, SIGNED_TYPES
 
 from online_backlash.errors import FrameError, InvalidParameterError, LogFormatError
-from online_backlash.stream import Row, SampleChunk, rows_to_chunk
+from online_backlash.stream import Row
 
 from .assemble import SampleAssembler
-from .pairing import CanCounters, CanPipeline
+from .pairing import CanCounters, PerFramePipeline
 from .unwrap import Unwrapper
 
 #: Default COB-ID of the SYNC object (CiA 301), used when the dictionary has no 0x1005.
@@ -355,7 +355,7 @@ def service_name(cob_id: int) -> str | None:
     return f"{services[function]} node {node}" if function in services else None
 
 
-class SyncPipeline(CanPipeline):
+class SyncPipeline(PerFramePipeline):
     """CAN frames in, one sample per SYNC period out: the rules of the module docstring.
 
     Parameters
@@ -392,26 +392,6 @@ class SyncPipeline(CanPipeline):
         self._load_turns = Unwrapper(layout.load.modulus)
         self._sync: tuple[float, int | None] | None = None  # the open period: SYNC time, counter (0-based)
         self._got: dict[int, can.Message] = {}
-        self._skew_mean_s = 0.0
-        self._skew_max_s = 0.0
-        self._n_complete = 0
-
-    @property
-    def skew_mean_s(self) -> float:
-        return self._skew_mean_s
-
-    @property
-    def skew_max_s(self) -> float:
-        return self._skew_max_s
-
-    def feed_row(self, msg: can.Message) -> Row | None:
-        """Count and decode one frame; the sample it completes as a row ``(time_s, motor_deg, load_deg, seq, after_gap)``, if any."""
-        self.counters.frames += 1
-        return self._decode(msg)
-
-    def decode_frames(self, frames: Sequence[can.Message]) -> SampleChunk:
-        decode = self._decode
-        return rows_to_chunk([r for r in map(decode, frames) if r is not None])
 
     def flush(self) -> None:
         """End of stream: an open SYNC period without all its PDOs is unpaired."""
@@ -465,10 +445,7 @@ class SyncPipeline(CanPipeline):
         time_s, counter = self._sync
         motor_msg, load_msg = self._got[self.layout.motor.pdo.cob_id], self._got[self.layout.load.pdo.cob_id]
         self._sync, self._got = None, {}
-        skew = max(motor_msg.timestamp, load_msg.timestamp) - time_s
-        self._n_complete += 1
-        self._skew_mean_s += (abs(skew) - self._skew_mean_s) / self._n_complete
-        self._skew_max_s = max(self._skew_max_s, abs(skew))
+        self._add_skew(max(motor_msg.timestamp, load_msg.timestamp) - time_s)
         motor, load = self.layout.motor, self.layout.load
         return self._assemble(
             time_s,

@@ -97,7 +97,46 @@ class CanPipeline(ABC):
         """Largest absolute time between the frames of a pair, seconds."""
 
 
-class FramePipeline(CanPipeline):
+class PerFramePipeline(CanPipeline):
+    """A pipeline that decodes frame by frame (:meth:`_decode`): ``feed_row``, ``decode_frames``
+    and the skew statistics, written once for the DBC pairing (:class:`FramePipeline`) and the
+    CANopen SYNC grouping (:class:`~online_backlash.codecs.canopen.SyncPipeline`)."""
+
+    _skew_mean_s = 0.0
+    _skew_max_s = 0.0
+    _n_skews = 0
+
+    @abstractmethod
+    def _decode(self, msg: can.Message) -> Row | None:
+        """Decode one (already counted) frame; the sample it completes as a row, if any."""
+
+    @property
+    def skew_mean_s(self) -> float:
+        return self._skew_mean_s
+
+    @property
+    def skew_max_s(self) -> float:
+        return self._skew_max_s
+
+    def _add_skew(self, skew_s: float) -> None:
+        """Take the time between the frames of one completed sample (seconds) into the skew figures."""
+        self._n_skews += 1
+        self._skew_mean_s += (abs(skew_s) - self._skew_mean_s) / self._n_skews
+        self._skew_max_s = max(self._skew_max_s, abs(skew_s))
+
+    def feed_row(self, msg: can.Message) -> Row | None:
+        """Count and decode one frame; the sample it completes as a row ``(time_s, motor_deg, load_deg,
+        seq, after_gap)``, if any (no Sample object; :func:`~online_backlash.stream.rows_to_chunk`
+        makes a block of rows)."""
+        self.counters.frames += 1
+        return self._decode(msg)
+
+    def decode_frames(self, frames: Sequence[can.Message]) -> SampleChunk:
+        decode = self._decode
+        return rows_to_chunk([r for r in map(decode, frames) if r is not None])
+
+
+class FramePipeline(PerFramePipeline):
     """Feed CAN messages, get Samples (degrees, multi-turn; seconds of the frame timestamps).
 
     Parameters
@@ -131,9 +170,6 @@ class FramePipeline(CanPipeline):
     def __init__(self, decoder: DbcDecoder, period_s: float | None = None, max_skew_s: float = 1e-3, strict: bool = False) -> None:
         super().__init__(decoder, max_skew_s)
         self.strict = strict
-        self._skew_mean_s = 0.0
-        self._skew_max_s = 0.0
-        self._n_pairs = 0
         self._pending: list[DecodedFrame | None] = [None, None]  # [motor, load]
         self._assemble = SampleAssembler(self.counters, decoder.counter_modulus, period_s, strict).row
         self._motor_turns = Unwrapper(decoder.motor.modulus)
@@ -141,28 +177,11 @@ class FramePipeline(CanPipeline):
         self._motor_deg = decoder.motor.degrees
         self._load_deg = decoder.load.degrees
 
-    @property
-    def skew_mean_s(self) -> float:
-        return self._skew_mean_s
-
-    @property
-    def skew_max_s(self) -> float:
-        return self._skew_max_s
-
     def feed(self, msg: can.Message) -> Sample | None:
         """Account for one frame; return the Sample it completes, if any."""
         row = self.feed_row(msg)
         return None if row is None else Sample(row[0], row[1], row[2], None, row[3], row[4])
 
-    def feed_row(self, msg: can.Message) -> Row | None:
-        """:meth:`feed`, the sample as a row ``(time_s, motor_deg, load_deg, seq, after_gap)``
-        (no Sample object; :func:`~online_backlash.stream.rows_to_chunk` makes a block of rows)."""
-        self.counters.frames += 1
-        return self._decode(msg)
-
-    def decode_frames(self, frames: Sequence[can.Message]) -> SampleChunk:
-        decode = self._decode
-        return rows_to_chunk([r for r in map(decode, frames) if r is not None])
 
     def _decode(self, msg: can.Message) -> Row | None:
         """The sample ``msg`` completes, if any, as a row (the frame is counted by the caller)."""
@@ -201,9 +220,7 @@ class FramePipeline(CanPipeline):
 
     def _complete(self, time_s: float, counter: int | None, motor_count: int, load_count: int, skew_s: float) -> Row | None:
         if self.frames_per_sample == 2:
-            self._n_pairs += 1
-            self._skew_mean_s += (abs(skew_s) - self._skew_mean_s) / self._n_pairs
-            self._skew_max_s = max(self._skew_max_s, abs(skew_s))
+            self._add_skew(skew_s)
         return self._assemble(
             time_s,
             self._motor_deg(self._motor_turns(motor_count)),
