@@ -5,7 +5,8 @@ For every length (default 2, 10 and 60 minutes), a two-mass rig log (30:1, 1 kHz
 ``bench/closing_loop.py``) is written as CSV; then ``online-backlash estimate --method batch
 --json`` and ``online-backlash diagnose --json`` run on it one after the other, in this process
 through ``main(argv)`` (CSV reading included in both), wall clock and CPU time of this process.
-Prints a markdown table with the ratio diagnose / batch (the issue's figure: within 4x).
+Prints a markdown table with the ratio diagnose / batch (the issue's figure: within 4x), and the
+1-minute load average after each row (on a shared machine CPU seconds are the steadier figure).
 
 Run: ``python bench/diagnose_speed.py`` (about 10 minutes on 2 shared cores);
 ``--minutes 2,10`` shrinks it. The CSVs are cached in ``--dir``.
@@ -57,8 +58,8 @@ def main() -> None:
     directory.mkdir(parents=True, exist_ok=True)
     load = ", ".join(f"{v:.2f}" for v in os.getloadavg())
     print(f"machine: {platform.processor() or platform.machine()}, {os.cpu_count()} CPUs, Python {platform.python_version()}, load average {load}\n")
-    print("| log | samples | batch wall, s | batch CPU, s | diagnose wall, s | diagnose CPU, s | ratio (wall) | ratio (CPU) | terms found |")
-    print("|---|---|---|---|---|---|---|---|---|")
+    print("| log | samples | batch wall, s | batch CPU, s | diagnose wall, s | diagnose CPU, s | ratio (wall) | ratio (CPU) | terms found | load after |")
+    print("|---|---|---|---|---|---|---|---|---|---|")
     for minutes in (float(m) for m in args.minutes.split(",")):
         path = write_log(minutes, directory)
         common = [str(path), "--ratio", "30", *COLUMNS]
@@ -69,7 +70,8 @@ def main() -> None:
         d = json.loads(text)
         found = [e["name"] for e in d["effects"]] + [f"({e['name']})" for e in d["unexplained"]]
         print(
-            f"| {minutes:g} min | {d['samples']} | {bw:.1f} | {bc:.1f} | {dw:.1f} | {dc:.1f} | {dw / bw:.1f} | {dc / bc:.1f} | {', '.join(found) or '-'} |",
+            f"| {minutes:g} min | {d['samples']} | {bw:.1f} | {bc:.1f} | {dw:.1f} | {dc:.1f} | {dw / bw:.1f} | {dc / bc:.1f} | {', '.join(found) or '-'} "
+            f"| {os.getloadavg()[0]:.1f} |",
             flush=True,
         )
 

@@ -10,7 +10,10 @@ written once as a Parquet file (pyarrow, row groups of 1,000,000) and as an MDF 
   the timing, as for the reference) and cold (all of that inside the timing); ``estimate`` reads
   the file in a reader thread one block ahead while the estimator (compiled ``nogil``) learns,
 * the same fit on one thread (``fit_recursive(..., ahead=0)``: reading and estimating in turn),
-* the reader alone (``ParquetLog``/``MdfLog.iter_chunks()``),
+* the reader alone (``ParquetLog``/``MdfLog.iter_chunks()``; its compiled checks loaded from numba's
+  cache before the timing, by reading its first chunk),
+* the per-block checks alone (``replay/screen.screen_block`` and the gap rule) on the samples in
+  memory, as contiguous columns (Parquet) and as views of interleaved records (MDF),
 * the library's own bulk read of the whole file (``pyarrow.parquet.read_table``,
   ``asammdf.MDF.get``), which holds everything in memory.
 
@@ -60,6 +63,28 @@ LEARN_MANY = (
     "BacklashRLS().learn_many(u[:20000], y[:20000])  # numba's compilation (or cache load), outside the timing",
     "est = BacklashRLS()\nfor i in range(0, u.size, 262144):\n    est.learn_many(u[i:i + 262144], y[i:i + 262144])\nout = round(est.backlash_, 5)",
 )
+#: the reader's compiled checks loaded (numba's cache) outside the timing, as they are in ``estimate``: its first chunk read
+FIRST_CHUNK = "with {reader} as _log:\n    next(iter(_log.iter_chunks()))"
+#: the per-block checks of every column reader, on the samples in memory: one compiled pass over each block
+#: (finiteness, angle limit, time order, repeats; the samples copied out where needed) and the gap rule
+CHECKS = (
+    "import numpy as np, pyarrow.parquet as pq\nfrom online_backlash.replay.screen import screen_block\n"
+    "from online_backlash.codecs.gaps import GapDetector\n"
+    "table = pq.read_table({path!r})\ncolumns = [table.column(c).to_numpy() for c in ('time', 'motor', 'load')]\n"
+    "def check(columns, rows=65536):\n"
+    "    gaps, last, n = GapDetector(), -np.inf, 0\n"
+    "    for i in range(0, columns[0].size, rows):\n"
+    "        block = [c[i:i + rows] for c in columns]\n"
+    "        out = None if block[1].flags.c_contiguous else np.empty((4, block[0].size))\n"
+    "        found = screen_block(block, (1e15, 1e15), last, (1.0, 1.0), out)\n"
+    "        last = found.last_time\n"
+    "        n += gaps.check_times(block[0] if out is None else out[0])[0].size\n"
+    "    return n\n"
+    "check([c[:100000] for c in columns])",
+    "out = check(columns)",
+)
+#: the columns as views of interleaved records (time, motor, load: 24 bytes a record), as MDF channel groups lie
+RECORDS = "\ncolumns = list(np.column_stack(columns).T)\ncheck([c[:100000] for c in columns])"
 CASES = {
     "`BacklashRLS.learn_many`, samples in memory (reference)": ("parquet", LEARN_MANY, ""),
     "`estimate` of the Parquet file": ("parquet", ESTIMATE, ""),
@@ -74,9 +99,14 @@ CASES = {
     ),
     "`ParquetLog.iter_chunks()` alone": (
         "parquet",
-        ("from online_backlash.replay.parquet import ParquetLog", "with ParquetLog({path!r}) as log:\n    out = sum(len(c) for c in log.iter_chunks())"),
+        (
+            "from online_backlash.replay.parquet import ParquetLog\n" + FIRST_CHUNK.format(reader="ParquetLog({path!r})"),
+            "with ParquetLog({path!r}) as log:\n    out = sum(len(c) for c in log.iter_chunks())",
+        ),
         "",
     ),
+    "the block checks alone (`screen_block` + the gap rule, blocks of 65,536 rows), contiguous columns": ("parquet", CHECKS, ""),
+    "the block checks alone, columns strided in records (as MDF), samples copied out": ("parquet", (CHECKS[0] + RECORDS, CHECKS[1]), ""),
     "`pyarrow.parquet.read_table` (whole file)": ("parquet", ("import pyarrow.parquet as pq", "out = pq.read_table({path!r}).num_rows"), ""),
     "`estimate` of the MDF4 file": ("mf4", ESTIMATE, ", '--columns', 'motor=Motor,load=Load'"),
     "`estimate` of the MDF4 file, cold": ("mf4", (COLD, ESTIMATE[1]), ", '--columns', 'motor=Motor,load=Load'"),
@@ -92,7 +122,7 @@ CASES = {
     "`MdfLog.iter_chunks()` alone": (
         "mf4",
         (
-            "from online_backlash.replay.mdf import MdfLog",
+            "from online_backlash.replay.mdf import MdfLog\n" + FIRST_CHUNK.format(reader="MdfLog({path!r}, columns={{'motor': 'Motor', 'load': 'Load'}})"),
             "with MdfLog({path!r}, columns={{'motor': 'Motor', 'load': 'Load'}}) as log:\n    out = sum(len(c) for c in log.iter_chunks())",
         ),
         "",

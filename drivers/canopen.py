@@ -1,5 +1,5 @@
-"""Live CANopen servo drives: the bus and notifier of :class:`~online_backlash.drivers.can.CanSource`, the SYNC rules of
-:class:`~online_backlash.codecs.canopen.SyncPipeline`.
+"""Live CANopen servo drives: the bus and notifier of :class:`~online_backlash.drivers.can.CanSource`, the frame rules of
+:func:`~online_backlash.codecs.canopen.canopen_pipeline` (SYNC grouping, or event-driven TPDOs paired in time).
 
 ::
 
@@ -18,7 +18,8 @@ from typing import Any
 
 import can
 
-from online_backlash.codecs.canopen import CanopenLayout, SyncPipeline
+from online_backlash.codecs.canopen import CanopenLayout, canopen_pipeline
+from online_backlash.codecs.pairing import PerFramePipeline
 
 from .can import CanSource
 
@@ -36,7 +37,9 @@ class CanopenSource(CanSource):
     raw_log_dir, raw_format, duration_s, timeout_s, own_bus
         See :class:`~online_backlash.drivers.can.CanSource`.
     period_s : float, optional
-        Nominal SYNC period, seconds, for gap detection (learnt if None).
+        Nominal SYNC (or event timer) period, seconds, for gap detection (learnt if None).
+    max_skew_s : float
+        Event-driven TPDOs: the largest time between the motor and the load value of one sample, seconds.
     strict : bool
         Raise at the first corrupt frame instead of counting it.
 
@@ -45,7 +48,9 @@ class CanopenSource(CanSource):
     layout : CanopenLayout
     counters : CanCounters
         ``frames`` counts every frame the bus delivered; they reconcile after close.
-    pipeline : SyncPipeline
+    pipeline : SyncPipeline or FramePipeline
+        SYNC grouping, or for event-driven TPDOs the DBC path's pairing in time
+        (:func:`~online_backlash.codecs.canopen.canopen_pipeline`).
     """
 
     def __init__(
@@ -57,6 +62,7 @@ class CanopenSource(CanSource):
         raw_log_dir: str | os.PathLike[str] | None = None,
         raw_format: str = "blf",
         period_s: float | None = None,
+        max_skew_s: float = 1e-3,
         strict: bool = False,
         duration_s: float | None = None,
         timeout_s: float | None = None,
@@ -69,6 +75,6 @@ class CanopenSource(CanSource):
             if own_bus:
                 bus.shutdown()
             raise
-        pipeline = SyncPipeline(self.layout, period_s, strict)
-        self.pipeline = pipeline
+        pipeline = canopen_pipeline(self.layout, period_s, max_skew_s, strict)
+        self.pipeline: PerFramePipeline = pipeline
         self._listen(bus, pipeline, raw_log_dir, raw_format, duration_s, timeout_s, own_bus)

@@ -2,8 +2,9 @@
 
 The file handling of :class:`~online_backlash.replay.canlog.CanLog` (directories of raw logs in
 name order, ``.gz``, truncated files, ``skip_bad``, ``realtime``) with the frame rules of
-:class:`~online_backlash.codecs.canopen.SyncPipeline`: the TPDOs that follow one SYNC are one
-sample, timestamped at the SYNC. The live :class:`~online_backlash.drivers.canopen.CanopenSource`
+:func:`~online_backlash.codecs.canopen.canopen_pipeline`: synchronous TPDOs that follow one SYNC
+are one sample, timestamped at the SYNC; event-driven TPDOs (254, 255) are paired in time as the
+DBC path pairs two messages. The live :class:`~online_backlash.drivers.canopen.CanopenSource`
 feeds the same pipeline, so a raw log recorded live replays to the same samples and counters.
 """
 
@@ -12,7 +13,7 @@ from __future__ import annotations
 import os
 from typing import Any
 
-from online_backlash.codecs.canopen import CanopenLayout, SyncPipeline
+from online_backlash.codecs.canopen import CanopenLayout, canopen_pipeline
 from online_backlash.codecs.pairing import CanPipeline
 
 from .canlog import CanLog
@@ -33,7 +34,9 @@ class CanopenLog(CanLog):
         ``load_node``, ``load_eds``, ``load_subindex``, ``motor_cpr``, ``load_cpr``: where the load angle is and the
         counts per revolution (:meth:`~online_backlash.codecs.canopen.CanopenLayout.from_files`).
     period_s : float, optional
-        Nominal SYNC period, seconds, for gap detection (learnt if None).
+        Nominal SYNC (or event timer) period, seconds, for gap detection (learnt if None).
+    max_skew_s : float
+        Event-driven TPDOs: the largest time between the motor and the load value of one sample, seconds.
     strict : bool
         Raise at the first corrupt frame instead of counting it.
     skip_bad, realtime
@@ -54,15 +57,16 @@ class CanopenLog(CanLog):
         node: int,
         *,
         period_s: float | None = None,
+        max_skew_s: float = 1e-3,
         strict: bool = False,
         skip_bad: bool = False,
         realtime: bool = False,
         **where: Any,
     ) -> None:
         self.layout = CanopenLayout.from_files(eds, node, **where)
-        self._sync_args = (period_s, strict)
+        self._frame_args = (period_s, max_skew_s, strict)
         self._setup(path, skip_bad, realtime)
 
     def _new_pipeline(self) -> CanPipeline:
-        """A fresh SYNC pipeline for one pass over the files."""
-        return SyncPipeline(self.layout, *self._sync_args)
+        """A fresh pipeline (SYNC grouping or pairing in time) for one pass over the files."""
+        return canopen_pipeline(self.layout, *self._frame_args)

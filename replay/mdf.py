@@ -4,12 +4,16 @@ Channels are found by name (``columns={"motor": "EncMotor", "load": "EncLoad"}``
 picks one of several channels of one name). The motor channel's group sets the time base: its
 master channel (or the channel mapped to ``time``). Channels of other groups, recorded at other
 rates, are interpolated linearly onto it; motor samples outside their recorded span are counted
-in ``counters.skipped``. asammdf applies each channel's conversion; the channel's unit decides
+in ``counters.skipped``, as are records in which the motor, load, torque or time channel is marked
+invalid (MDF4 invalidation bits). asammdf applies each channel's conversion; the channel's unit decides
 its scale (:func:`~online_backlash.replay.tabular.channel_scales`: angle units to degrees, counts
 with ``motor_cpr``/``load_cpr``), unless ``units=`` overrides it.
 
 The file is read through a plain file object (no memory map) in fragments of about
-``fragment_bytes``, so memory stays flat whatever the file's length. A file asammdf cannot read
+``fragment_bytes``, so memory stays flat whatever the file's length. Each fragment of the motor's
+channel group is read once for all its channels (master time included); a plain channel (byte
+aligned, little endian, no conversion) is viewed where it lies in the records and copied out by
+the block checks' one compiled pass, the others are converted by asammdf. A file asammdf cannot read
 raises :class:`~online_backlash.errors.LogFormatError` naming the file (and the channel).
 
 An MDF file that holds CAN bus logging (``CAN_DataFrame`` channels, as python-can and bus
@@ -39,6 +43,9 @@ BUS_LOGGING_CHANNELS = ("CAN_DataFrame", "CANFD_DataFrame")
 
 def _open_mdf(path: str) -> tuple[Any, IO[bytes]]:
     """asammdf's MDF over a plain file object (flat memory: no memory map); errors name the file."""
+    # python-can before asammdf: asammdf imports python-can, whose MF4 support imports asammdf back, and begun
+    # from asammdf that circle leaves python-can's MF4 reader disabled for the process (a bus-logging .mf4)
+    import can  # noqa: F401
     from asammdf import MDF  # imported on use: asammdf is heavy
 
     return open_with(path, "MDF", MDF, _release_half_built)
@@ -96,7 +103,8 @@ class MdfLog(MeasurementLog):
     skip_bad : bool
         Count and skip non-finite or out-of-order samples instead of raising.
     fragment_bytes : int
-        Size hint of the blocks read from the file (memory stays bounded by it).
+        Size hint of the blocks read from the file (memory stays bounded by it; 1 MiB reads as
+        fast as 4 MiB and holds less in the blocks read ahead).
 
     Attributes
     ----------
@@ -114,7 +122,7 @@ class MdfLog(MeasurementLog):
         motor_cpr: float | None = None,
         load_cpr: float | None = None,
         skip_bad: bool = False,
-        fragment_bytes: int = 4 << 20,
+        fragment_bytes: int = 1 << 20,
     ) -> None:
         super().__init__(path, columns, units, motor_cpr, load_cpr, skip_bad)
         self.fragment_bytes = int(fragment_bytes)
@@ -144,15 +152,10 @@ class MdfLog(MeasurementLog):
             raise LogFormatError(self.path, None, f"channel {name!r} for {role} is in several groups {groups}; name one as {name}@GROUP")
         return found[0]
 
-    def _fragments(self, role: str, where: tuple[int, int], with_time: bool = True) -> Iterator[_Fragment]:
-        """(time_s, values, unit) per file fragment of one channel; asammdf's errors name the file and channel.
-
-        ``with_time=False`` (a channel of the motor's group, whose master time the motor's
-        fragments carry) reads the samples alone: the time is empty and the unit is the channel's.
-        """
-        signals = self._mdf.iter_get(group=where[0], index=where[1], samples_only=not with_time)
-        unit = "" if with_time else self._unit_of(where) or ""
-        no_time = np.empty(0)
+    def _fragments(self, role: str, where: tuple[int, int]) -> Iterator[_Fragment]:
+        """(time_s, values, unit) per file fragment of a channel of another group than the motor's;
+        asammdf's errors name the file and channel."""
+        signals = self._mdf.iter_get(group=where[0], index=where[1])
         while True:
             try:
                 with _quiet_stdout():
@@ -161,47 +164,34 @@ class MdfLog(MeasurementLog):
                 return
             except Exception as exc:  # a damaged data block
                 raise LogFormatError(self.path, None, f"cannot read {role} channel {self.columns[role]!r} ({type(exc).__name__}: {exc})") from exc
-            values = signal.samples if with_time else signal[0]
+            values = signal.samples
             if values.dtype.kind not in "biuf":
                 raise LogFormatError(self.path, None, f"{role} channel {self.columns[role]!r} holds {values.dtype} values, not numbers")
-            if with_time:
-                yield np.asarray(signal.timestamps, dtype=float), values.astype(float, copy=False), signal.unit
-            else:
-                yield no_time, values.astype(float, copy=False), unit
+            yield np.asarray(signal.timestamps, dtype=float), values.astype(float, copy=False), signal.unit
 
     def _read(self) -> Iterator[SampleChunk]:
         self.counters = StreamCounters()
         where = {r: self._locate(r) for r in ("motor", "load", "torque")}
-        if ("time" in self.mapped):
+        if "time" in self.mapped:
             where["time"] = self._locate("time")
         present = [r for r in ("time", "motor", "load", "torque") if where.get(r) is not None]
         motor_group = where["motor"][0]  # type: ignore[index]
-        aligned = [r for r in present if where[r][0] == motor_group]  # type: ignore[index]
-        streams = {r: self._fragments(r, where[r], r == "motor") for r in aligned}  # type: ignore[arg-type]  # the motor carries the master time
+        aligned = {r: where[r][1] for r in present if where[r][0] == motor_group}  # type: ignore[index]
         foreign = {r: Resampler(((t, v) for t, v, _ in self._fragments(r, where[r])), self.path, self.columns[r]) for r in present if r not in aligned}  # type: ignore[arg-type]
-        units: dict[str, str | None] = {}
+        units: dict[str, str | None] = {r: self._unit_of((motor_group, i)) or "" for r, i in aligned.items()}
+        units.update({r: self._unit_of(where[r]) for r in foreign})  # type: ignore[arg-type]
+        if "time" not in self.mapped:
+            units["time"] = None
         scales: tuple[float, float, float, float] | None = None
         has_torque = "torque" in present
         row = 0
         last_time = -np.inf
-        for blocks in self._records(streams):
-            master, motor, unit = blocks["motor"]  # type: ignore[misc]  # _records ends at the motor's end
-            units["motor"] = unit
-            columns = {"motor": motor}
-            for r in aligned:
-                if r != "motor":
-                    block = blocks[r]
-                    if block is None or len(block[1]) != len(motor):
-                        raise LogFormatError(self.path, row, f"{r} channel {self.columns[r]!r} has fewer records than the motor channel")
-                    columns[r], units[r] = block[1], block[2]
+        for master, columns, valid in self._group_records(motor_group, aligned):
             time = columns.pop("time", master)
-            if "time" not in self.mapped:
-                units["time"] = None
-            inside = np.ones(time.size, bool)
+            inside = np.ones(time.size, bool) if valid is None else valid
             for r, resampler in foreign.items():
                 columns[r], ok = resampler.at(time)
                 inside &= ok
-                units.setdefault(r, self._unit_of(where[r]))  # type: ignore[arg-type]
             if scales is None:
                 scales = channel_scales(self.path, self.columns, units, self.units, self.motor_cpr, self.load_cpr)
             self.counters.frames += time.size
@@ -209,22 +199,49 @@ class MdfLog(MeasurementLog):
             arrays = [time if scales[0] == 1.0 else time * scales[0], columns["motor"], columns["load"]]
             if has_torque:
                 arrays.append(columns["torque"] * scales[3])
-            numbers = np.arange(row, row + time.size)
-            row += time.size
+            numbers: np.ndarray | int = row
             if not inside.all():
-                arrays, numbers = [a[inside] for a in arrays], numbers[inside]
-            chunk, last_time = self._validate_columns(arrays, numbers, last_time, scales[1:3])
+                arrays, numbers = [a[inside] for a in arrays], np.flatnonzero(inside) + row
+            row += time.size
+            # the record views share asammdf's read buffer, which the next fragment overwrites: copied here
+            chunk, last_time = self._validate_columns(arrays, numbers, last_time, scales[1:3], copy=True)
             if len(chunk):
                 yield chunk
 
-    @staticmethod
-    def _records(streams: dict[str, Iterator[_Fragment]]) -> Iterator[dict[str, _Fragment | None]]:
-        """One fragment of each channel of the motor's group at a time, until the motor's end."""
+    def _group_records(self, group: int, channels: dict[str, int]) -> Iterator[tuple[np.ndarray, dict[str, np.ndarray], np.ndarray | None]]:
+        """(master time, role -> values, valid) per fragment of one channel group, its records read once for all its channels.
+
+        ``valid`` is False for the records in which one of the channels is marked invalid (MDF4
+        invalidation bits; None when none of them has any).
+
+        A byte-aligned little-endian number without a conversion is viewed in the records as it
+        lies (:func:`_record_field`); other channels, and the master, are taken from the same
+        fragment by asammdf (conversions applied). asammdf's errors name the file and the channels.
+        """
+        from asammdf.blocks.v4_constants import FLAG_CG_REMOTE_MASTER
+
+        mdf = self._mdf
+        fields = {r: _record_field(mdf, group, i) for r, i in channels.items()}
+        master_index = mdf.masters_db.get(group)
+        remote = mdf.groups[group].channel_group.flags & FLAG_CG_REMOTE_MASTER  # the master lies in another group
+        master_field = _record_field(mdf, group, master_index) if master_index is not None and not remote else None
+        fragments = mdf._mdf._load_data(mdf.groups[group])  # the group's records in fragments, as asammdf's own iter_get reads them
+        names = ", ".join(f"{r} {self.columns[r]!r}" for r in channels)
         while True:
-            blocks = {r: next(s, None) for r, s in streams.items()}
-            if blocks["motor"] is None:
-                return
-            yield blocks
+            try:
+                with _quiet_stdout():
+                    fragment = next(fragments, None)
+                    if fragment is None:
+                        return
+                    master = mdf.get_master(group, data=fragment) if master_field is None else _values(fragment, master_field)
+                    columns = {r: _in_records(fragment, fields[r], mdf, group, i) for r, i in channels.items()}
+                    valid = _valid(fragment, mdf, group, list(channels.values()), len(master))
+            except Exception as exc:  # a damaged data block
+                raise LogFormatError(self.path, None, f"cannot read channel group {group} ({names}) ({type(exc).__name__}: {exc})") from exc
+            for r, values in columns.items():
+                if values.dtype.kind not in "biuf":
+                    raise LogFormatError(self.path, None, f"{r} channel {self.columns[r]!r} holds {values.dtype} values, not numbers")
+            yield np.asarray(master, dtype=float), {r: v.astype(float, copy=False) for r, v in columns.items()}, valid
 
     def _unit_of(self, where: tuple[int, int]) -> str | None:
         """A channel's unit as asammdf gives it with the samples: its conversion's unit, else its own."""
@@ -253,6 +270,83 @@ def describe(path: str | os.PathLike[str]) -> list[ChannelInfo]:
     finally:
         mdf.close()
         stream.close()
+
+
+#: A channel's record field: byte offset in the record, numpy type, record size (bytes).
+_Field = tuple[int, np.dtype, int]
+#: MDF4 little-endian data types that lie in a record as numpy reads them: unsigned, signed, IEEE float.
+_PLAIN_KINDS = {0: "u", 2: "i", 4: "f"}
+
+
+def _record_field(mdf: Any, group: int, index: int) -> _Field | None:
+    """Where a channel lies in its group's records, if numpy can view it there as it is (else None).
+
+    That is an MDF4 channel with a fixed-length value (or master), little endian, byte aligned,
+    of a whole numpy size, without conversion, in a group of sorted records without record IDs.
+    """
+    if not str(mdf.version).startswith("4"):
+        return None
+    grp = mdf.groups[group]
+    channel = grp.channels[index]
+    kind = _PLAIN_KINDS.get(channel.data_type)
+    size, rest = divmod(channel.bit_count, 8)
+    record = grp.channel_group.samples_byte_nr + grp.channel_group.invalidation_bytes_nr
+    if (
+        kind is None
+        or rest
+        or size not in ((4, 8) if kind == "f" else (1, 2, 4, 8))
+        or channel.bit_offset
+        or channel.channel_type not in (0, 2)  # fixed-length value, master
+        or channel.conversion is not None
+        or grp.data_group.record_id_len
+        or grp.uses_ld
+        or grp.channel_dependencies[index]
+        or channel.byte_offset + size > grp.channel_group.samples_byte_nr
+    ):
+        return None
+    return channel.byte_offset, np.dtype(f"<{kind}{size}"), record
+
+
+def _valid(fragment: Any, mdf: Any, group: int, channels: list[int], records: int) -> np.ndarray | None:
+    """False for the records of a fragment in which one of ``channels`` is marked invalid (MDF4 invalidation
+    bits, in each record after its samples or, for column storage, in the fragment's invalidation data);
+    None when none of them carries invalidation bits."""
+    from asammdf.blocks.v4_constants import FLAG_CN_ALL_INVALID, FLAG_CN_INVALIDATION_PRESENT
+
+    if not str(mdf.version).startswith("4"):
+        return None
+    grp = mdf.groups[group]
+    sizes = grp.channel_group
+    valid = None
+    for index in channels:
+        channel = grp.channels[index]
+        if channel.flags & FLAG_CN_ALL_INVALID:
+            return np.zeros(records, bool)
+        if not channel.flags & FLAG_CN_INVALIDATION_PRESENT:
+            continue
+        if grp.uses_ld:
+            data, offset, stride = fragment.invalidation_data, 0, sizes.invalidation_bytes_nr
+        else:
+            data, offset, stride = fragment.data, sizes.samples_byte_nr, sizes.samples_byte_nr + sizes.invalidation_bytes_nr
+        bits = np.ndarray((records,), np.uint8, buffer=data, offset=offset + channel.pos_invalidation_bit // 8, strides=(stride,))
+        ok = (bits >> (channel.pos_invalidation_bit % 8)) & 1 == 0
+        valid = ok if valid is None else valid & ok
+    return valid
+
+
+def _in_records(fragment: Any, field: _Field | None, mdf: Any, group: int, index: int) -> np.ndarray:
+    """A channel's values in a fragment of records: viewed where it lies (``field``), else as asammdf gives them
+    (its conversion applied)."""
+    if field is not None:
+        return _values(fragment, field)
+    return mdf.get(group=group, index=index, data=fragment, samples_only=True, ignore_invalidation_bits=True)[0]
+
+
+def _values(fragment: Any, field: _Field) -> np.ndarray:
+    """A channel's values in a fragment of records (a strided view of asammdf's buffer, not a copy)."""
+    offset, dtype, record = field
+    count = len(fragment.data) // record
+    return np.ndarray((count,), dtype, buffer=fragment.data, offset=offset, strides=(record,)) if count else np.empty(0, dtype)
 
 
 #: MDF4 channel data types (little/big endian) -> numpy-like kind names, for ``inspect``.

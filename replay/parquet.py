@@ -43,8 +43,10 @@ class _Table:
                 self._source = pa.memory_map(path, "r")
                 self._reader: Any = pa.ipc.open_file(self._source)
             else:
-                self._source = open(path, "rb")
-                # unbuffered column reads, decoded on this thread: memory stays one row group (+ the batch)
+                # pyarrow's own file, read without the GIL (a Python file object takes it for every read)
+                self._source = pa.OSFile(path, "rb")
+                # buffered column reads, decoded on this thread: memory stays one batch, not one row group
+                # (decoding a whole row group takes 15 % less CPU but 80 MB more for row groups of 1 M rows)
                 self._reader = pq.ParquetFile(self._source, pre_buffer=False, buffer_size=1 << 20)
             self.schema = self._reader.schema_arrow if not self._arrow else self._reader.schema
         except OSError as exc:
@@ -186,7 +188,7 @@ class ParquetLog(MeasurementLog):
                 arrays[3] = arrays[3] * scales[3]
             size = arrays[0].size
             self.counters.frames += size
-            chunk, last_time = self._validate_columns(arrays, np.arange(row, row + size), last_time, scales[1:3])
+            chunk, last_time = self._validate_columns(arrays, row, last_time, scales[1:3])
             if len(chunk):
                 yield chunk
 

@@ -31,6 +31,8 @@ from online_backlash.codecs.units import ANGLE_UNITS, COUNT_UNITS
 from online_backlash.errors import BacklashWarning, InvalidParameterError, LogFormatError
 from online_backlash.stream import SampleChunk, SampleSource, StreamCounters, rechunk
 
+from .screen import Screened, screen_block
+
 ROLES = ("time", "motor", "load", "torque")
 REQUIRED = ("time", "motor", "load")
 
@@ -253,52 +255,39 @@ class TabularSource(SampleSource):
     def _validate_columns(
         self,
         columns: list[np.ndarray],
-        numbers: np.ndarray,
+        numbers: np.ndarray | int,
         last_time: float,
         scales: tuple[float, float] | None = None,
+        copy: bool = False,
     ) -> tuple[SampleChunk, float]:
         """Drop (or raise on) non-finite rows and backward times; mark gaps; scale the angles to degrees.
 
         ``columns`` are the arrays time (s), motor, load[, torque (N m)] of one block; ``numbers``
-        each row's line or row number for messages; ``scales`` the motor and load degrees per
-        unit (default: the attributes ``motor_scale``/``load_scale``). Returns the block and the
-        last kept time. A clean block (all finite, in time order) is passed on without copies.
+        each row's line or row number for messages (an int: the first row's, the others
+        following it); ``scales`` the motor and load degrees per unit (default: the attributes
+        ``motor_scale``/``load_scale``). Returns the block and the last kept time. The checks
+        are one compiled pass over the block (:func:`~online_backlash.replay.screen.screen_block`);
+        a clean block (all finite, in time order) is passed on without copies where its columns
+        already are contiguous float64 in degrees, unless ``copy`` (the columns' memory is reused).
         """
-        motor_scale, load_scale = scales if scales is not None else (self.motor_scale, self.load_scale)  # type: ignore[attr-defined]
-        time = columns[0]
-        finite = [np.isfinite(c) for c in columns]
-        keep = finite[0] & finite[1] & finite[2]
-        if len(columns) > 3:
-            keep &= finite[3]
-        huge = (_beyond(columns[1], MAX_ANGLE_DEG / abs(motor_scale)) | _beyond(columns[2], MAX_ANGLE_DEG / abs(load_scale))) & keep
-        clean = bool(keep.all()) and not huge.any()
-        if not clean:
-            for row in np.flatnonzero(~keep | huge).tolist():
-                if huge[row]:
-                    names = f"motor {self.columns['motor']!r} or load {self.columns['load']!r}"
-                    self._bad(int(numbers[row]), f"angle beyond {MAX_ANGLE_DEG:g} deg in {names}: check the units")
-                    continue
-                bad = [f"{r} {self.columns[r]!r}" for r, ok in zip(ROLES, finite) if not ok[row]]
-                self._bad(int(numbers[row]), f"non-finite value in {', '.join(bad)}")
-            keep &= ~huge
-        # a time that goes backwards, relative to the last kept time (the loop only when some does)
-        kept = time if clean else time[keep]
-        in_order = kept.size == 0 or (kept[0] >= last_time and bool((kept[1:] >= kept[:-1]).all()))
-        prev = last_time
-        for i in range(0 if in_order else time.size):
-            if not keep[i]:
-                continue
-            if time[i] < prev:
-                self._bad(int(numbers[i]), f"time goes backwards in {self.columns['time']!r} ({time[i]:g} s after {prev:g} s)")
-                keep[i] = False
-                clean = False
-                continue
-            prev = time[i]
-        if not clean:
-            columns = [c[keep] for c in columns]
-            time = columns[0]
-            numbers = numbers[keep]
-        time = np.ascontiguousarray(time, dtype=float)
+        scales = scales if scales is not None else (self.motor_scale, self.load_scale)  # type: ignore[attr-defined]
+        columns = [np.asarray(c, dtype=float) for c in columns]
+        limits = MAX_ANGLE_DEG / abs(scales[0]), MAX_ANGLE_DEG / abs(scales[1])
+        size = columns[0].size
+        # passed on as they are when clean, contiguous and in degrees; else the checking pass writes the samples
+        as_they_are = not copy and scales == (1.0, 1.0) and all(c.flags.c_contiguous for c in columns)
+        out = None if as_they_are else np.empty((4, size))
+        found = screen_block(columns, limits, last_time, scales, out)
+        if found.bad:
+            self._reject(columns, numbers, found)  # raises, unless skip_bad
+            if out is None:
+                out = np.empty((4, size))
+                screen_block(columns, limits, last_time, scales, out)
+        if out is None:
+            time, motor, load = columns[:3]
+            torque = columns[3] if len(columns) > 3 else np.full(size, np.nan)
+        else:
+            time, motor, load, torque = out[:, : size - found.bad]
         if last_time == -math.inf:  # a new pass over the file: the one gap rule of every source, from the start
             self._gap_rule = GapDetector(None, self.period_s)
             self._repeated_times = 0
@@ -306,21 +295,34 @@ class TabularSource(SampleSource):
         elif math.isnan(self._first_time) and time.size:
             self._first_time = float(time[0])
         if time.size:
-            self._repeated_times += int(np.count_nonzero(time[1:] == time[:-1])) + int(time[0] == last_time)
-            self._last_number = int(numbers[-1])
+            self._repeated_times += found.repeated
+            self._last_number = int(numbers + found.last_good if isinstance(numbers, int) else numbers[found.last_good])
         after_gap, gaps = self._gap_rule.check_times(time)
         for gap in gaps:
             self.counters.report_gap(gap)
         self.nominal_period_s = self._gap_rule.period_s
         self.counters.samples += time.size
-        chunk = SampleChunk(
-            time_s=time,
-            motor_deg=_scaled(columns[1], motor_scale),
-            load_deg=_scaled(columns[2], load_scale),
-            torque_Nm=np.ascontiguousarray(columns[3], dtype=float) if len(columns) > 3 else np.full(time.size, np.nan),
-            after_gap=after_gap,
-        )
-        return chunk, (float(time[-1]) if time.size else last_time)
+        self._pass_last_time = found.last_time
+        return SampleChunk(time_s=time, motor_deg=motor, load_deg=load, torque_Nm=torque, after_gap=after_gap), found.last_time
+
+    def _reject(self, columns: list[np.ndarray], numbers: np.ndarray | int, found: Screened) -> None:
+        """The bad rows :func:`~online_backlash.replay.screen.screen_block` found: LogFormatError naming the first
+        (by value before by time, as row-by-row checks find them), or with ``skip_bad`` counted in ``counters.corrupt``."""
+        if self.skip_bad:
+            self.counters.corrupt += found.bad
+            return
+        if found.first_value >= 0:
+            row = found.first_value
+            bad = [f"{r} {self.columns[r]!r}" for r, c in zip(ROLES, columns) if not math.isfinite(c[row])]
+            if bad:
+                reason = f"non-finite value in {', '.join(bad)}"
+            else:
+                names = f"motor {self.columns['motor']!r} or load {self.columns['load']!r}"
+                reason = f"angle beyond {MAX_ANGLE_DEG:g} deg in {names}: check the units"
+        else:
+            row = found.first_backwards
+            reason = f"time goes backwards in {self.columns['time']!r} ({columns[0][row]:g} s after {found.backwards_from:g} s)"
+        raise LogFormatError(self.path, int(numbers + row if isinstance(numbers, int) else numbers[row]), reason)
 
 
     def _end_of_pass(self, last_time: float) -> None:
@@ -343,21 +345,6 @@ class TabularSource(SampleSource):
                 BacklashWarning,
                 stacklevel=2,
             )
-
-
-def _beyond(values: np.ndarray, limit: float) -> np.ndarray:
-    """Where finite ``|values|`` exceed ``limit`` (all False at the cost of one max when none does)."""
-    if not np.nanmax(np.abs(values), initial=0.0) > limit:
-        return np.zeros(values.shape, bool)
-    return np.abs(values) > limit
-
-
-def _scaled(values: np.ndarray, scale: float) -> np.ndarray:
-    """``values * scale`` as contiguous float64 (no copy when the scale is 1 and the array already is)."""
-    if scale == 1.0:
-        return np.ascontiguousarray(values, dtype=float)
-    return np.multiply(values, scale, dtype=float)
-
 
 
 class MeasurementLog(TabularSource):
@@ -420,10 +407,13 @@ class MeasurementLog(TabularSource):
             handle.close()
 
     def iter_chunks(self, max_samples: int | None = None) -> Iterator[SampleChunk]:
-        """Validated blocks of samples (seconds, degrees, N m), at most ``max_samples`` each."""
+        """Validated blocks of samples (seconds, degrees, N m), at most ``max_samples`` each; at the end of
+        the pass a time that never advanced raises and repeated times warn, as in CSV logs."""
         self.close()
         self._handles = self._open()
+        self._pass_last_time = -math.inf
         try:
             yield from rechunk(self._read(), max_samples)
+            self._end_of_pass(self._pass_last_time)  # a whole pass: a time that never advances, repeated times
         finally:
             self.close()

@@ -150,9 +150,9 @@ class TdmsLog(MeasurementLog):
             self.counters.frames += size
             self.counters.skipped += int(np.count_nonzero(~inside))
             arrays = [time, columns["motor"], columns["load"]] + ([columns["torque"] * scales[3]] if has_torque else [])
-            numbers = np.arange(first, first + size)
+            numbers: np.ndarray | int = first
             if not inside.all():
-                arrays, numbers = [a[inside] for a in arrays], numbers[inside]
+                arrays, numbers = [a[inside] for a in arrays], np.flatnonzero(inside) + first
             chunk, last_time = self._validate_columns(arrays, numbers, last_time, scales[1:3])
             if len(chunk):
                 yield chunk

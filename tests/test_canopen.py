@@ -1,6 +1,7 @@
 """CANopen servo drives: EDS files written by the ``canopen`` library, TPDOs sent by its ``LocalNode``
-after SYNC on a python-can ``virtual`` bus, recorded with python-can's writers, then estimated,
-listened to, inspected; damaged frames counted; the load encoder on a second node or on 0x60E4."""
+after SYNC (or event-driven: on change or on their timer, no SYNC) on a python-can ``virtual`` bus,
+recorded with python-can's writers, then estimated, listened to, inspected; damaged frames counted;
+the load encoder on a second node or on 0x60E4."""
 
 from __future__ import annotations
 
@@ -21,7 +22,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from online_backlash.cli import main
-from online_backlash.codecs.canopen import CanopenLayout, SyncPipeline
+from online_backlash.codecs.canopen import CanopenLayout, SyncPipeline, canopen_pipeline
 from online_backlash.errors import InvalidParameterError, LogFormatError
 from online_backlash.replay import open_log
 from online_backlash.rig import RigRecording, simulate_rig
@@ -53,20 +54,26 @@ def _record(name: str, index: int, members: list[ODVariable], array: bool = Fals
     return obj
 
 
-def write_eds(path: Path, node: int, mapped: list[tuple[int, int]], *, resolution: int | None, trans_type: int = 1, sync: bool = True) -> Path:
-    """A servo drive's EDS written by ``canopen.export_od``: TPDO1 (COB-ID $NODEID+0x180) maps ``mapped`` objects (32 bits each)."""
+def write_eds(
+    path: Path, node: int, mapped: list[tuple[int, int]], *, resolution: int | None, trans_type: int = 1, sync: bool = True,
+    second: list[tuple[int, int]] | None = None,
+) -> Path:
+    """A servo drive's EDS written by ``canopen.export_od``: TPDO1 (COB-ID $NODEID+0x180) maps ``mapped`` objects (32 bits each),
+    TPDO2 ($NODEID+0x280) the ``second`` ones, both of transmission type ``trans_type``."""
     od = canopen.ObjectDictionary()
     u8, u32, i32 = datatypes.UNSIGNED8, datatypes.UNSIGNED32, datatypes.INTEGER32
     if sync:
         od.add_object(_var("COB-ID SYNC", 0x1005, 0, u32, 0x80))
         od.add_object(_var("Synchronous counter overflow value", 0x1019, 0, u8, SYNC_OVERFLOW))
-    od.add_object(_record("Transmit PDO 1 communication parameter", 0x1800, [
-        _var("Highest sub-index supported", 0x1800, 0, u8, 2),
-        _var("COB-ID used by TPDO", 0x1800, 1, u32, 0x180 + node, relative="$NODEID+0x180"),
-        _var("Transmission type", 0x1800, 2, u8, trans_type),
-    ]))
-    entries = [_var(f"Application object {i + 1}", 0x1A00, i + 1, u32, (index << 16) | (sub << 8) | 32) for i, (index, sub) in enumerate(mapped)]
-    od.add_object(_record("Transmit PDO 1 mapping parameter", 0x1A00, [_var("Number of mapped objects", 0x1A00, 0, u8, len(mapped)), *entries]))
+    for n, objects in enumerate([mapped] if second is None else [mapped, second]):
+        comm, mapping = 0x1800 + n, 0x1A00 + n
+        od.add_object(_record(f"Transmit PDO {n + 1} communication parameter", comm, [
+            _var("Highest sub-index supported", comm, 0, u8, 2),
+            _var("COB-ID used by TPDO", comm, 1, u32, 0x180 + 0x100 * n + node, relative=f"$NODEID+0x{0x180 + 0x100 * n:X}"),
+            _var("Transmission type", comm, 2, u8, trans_type),
+        ]))
+        entries = [_var(f"Application object {i + 1}", mapping, i + 1, u32, (index << 16) | (sub << 8) | 32) for i, (index, sub) in enumerate(objects)]
+        od.add_object(_record(f"Transmit PDO {n + 1} mapping parameter", mapping, [_var("Number of mapped objects", mapping, 0, u8, len(objects)), *entries]))
     od.add_object(_var("Position actual value", 0x6064, 0, i32, 0))
     od.add_object(_record("Additional position actual value", 0x60E4, [
         _var("Highest sub-index supported", 0x60E4, 0, u8, 2),
@@ -134,6 +141,24 @@ class Rig:
                 if hook is None or hook(k, node_id):
                     pdo.transmit()
 
+    def play_events(
+        self, rec: RigRecording, values: dict[tuple[int, int, int], list[int]], offsets_s: dict[int, float], on_change: bool = False, t0: float = 1.7e9
+    ) -> None:
+        """Event-driven TPDOs, no SYNC: at sample k each node sends every TPDO on its own timer (``offsets_s[node]`` after the
+        sample, 10 us between its PDOs) or, ``on_change``, only the PDOs whose value changed since they were last sent."""
+        sent: dict[tuple[int, int], list[int]] = {}
+        for k, t in enumerate(rec.time_s.tolist()):
+            for node_id, node in self.nodes.items():
+                for number, pdo in enumerate(p for p in node.tpdo.map.values() if p.enabled):
+                    now = [values[(node_id, var.index, var.subindex)][k] for var in pdo]
+                    if on_change and sent.get((node_id, number)) == now:
+                        continue
+                    for var, value in zip(pdo, now):
+                        var.raw = value
+                    self.clock.now = t0 + t + offsets_s[node_id] + number * 1e-5
+                    pdo.transmit()
+                    sent[(node_id, number)] = now
+
     def close(self) -> None:
         self.tx.shutdown()
 
@@ -164,7 +189,7 @@ def drives(tmp_path_factory) -> dict[str, Path]:
         # two identical drives (one EDS): node 3 the motor, node 4 an encoder on the load shaft
         "motor": write_eds(folder / "drive.eds", 3, [(0x6064, 0)], resolution=2**MOTOR_BITS),
         "load": write_eds(folder / "encoder.eds", 4, [(0x6064, 0)], resolution=2**LOAD_BITS),
-        "event": write_eds(folder / "event.eds", 3, [(0x6064, 0)], resolution=2**MOTOR_BITS, trans_type=255),
+        "rtr": write_eds(folder / "rtr.eds", 3, [(0x6064, 0)], resolution=2**MOTOR_BITS, trans_type=253),
         "no_cpr": write_eds(folder / "no_cpr.eds", 3, [(0x6064, 0)], resolution=None),
     }
 
@@ -273,16 +298,21 @@ def test_a_second_node_as_load_encoder_and_damaged_frames_counted(tmp_path, caps
     assert ids["0x703"]["message"] == "heartbeat node 3"
 
 
-def test_listen_can_live_on_a_virtual_bus_replays_to_the_same_estimate(tmp_path, capsys, rec, drives):
-    channel = "co-live"
+@pytest.mark.parametrize("trigger", ["sync", "event"])
+def test_listen_can_live_on_a_virtual_bus_replays_to_the_same_estimate(tmp_path, capsys, rec, drives, event_drives, trigger):
+    channel = f"co-live-{trigger}"
+    eds = drives["both"] if trigger == "sync" else event_drives["both"]
 
     def send():
         deadline = time.monotonic() + 30
         while len(channels.get(channel, [])) < 1 and time.monotonic() < deadline:  # the listener's bus is open
             time.sleep(0.01)
-        rig = Rig(channel, {3: drives["both"]})
+        rig = Rig(channel, {3: eds})
         try:
-            rig.play(rec, one_node_values(rec))
+            if trigger == "sync":
+                rig.play(rec, one_node_values(rec))
+            else:
+                rig.play_events(rec, one_node_values(rec), {3: 5e-5})
             while not all(q.empty() for q in channels.get(channel, [])) and time.monotonic() < deadline:
                 time.sleep(0.01)
             time.sleep(0.3)
@@ -294,16 +324,17 @@ def test_listen_can_live_on_a_virtual_bus_replays_to_the_same_estimate(tmp_path,
     sender = threading.Thread(target=send)
     sender.start()
     raw = tmp_path / "raw"
-    argv = ["listen", "can", "--interface", "virtual", "--channel", channel, "--eds", str(drives["both"]), "--node", "3",
+    argv = ["listen", "can", "--interface", "virtual", "--channel", channel, "--eds", str(eds), "--node", "3",
             "--load-cpr", str(2**LOAD_BITS), "--ratio", "30", "--raw-log", str(raw), "--duration", "120", "--json"]
     try:
         assert main(argv) == 0
     finally:
         sender.join()
     live = json.loads(capsys.readouterr().out)
-    assert live["samples"] == rec.time_s.size and live["frames"] == 2 * rec.time_s.size and live["unpaired"] == 0
+    per_sample = 2 if trigger == "sync" else 1  # SYNC + PDO, or the event-driven PDO alone
+    assert live["samples"] == rec.time_s.size and live["frames"] == per_sample * rec.time_s.size and live["unpaired"] == 0
     assert live["backlash_deg"] == pytest.approx(0.5, abs=0.02)
-    assert main(["estimate", str(raw), "--eds", str(drives["both"]), "--node", "3", "--load-cpr", str(2**LOAD_BITS), "--ratio", "30", "--json"]) == 0
+    assert main(["estimate", str(raw), "--eds", str(eds), "--node", "3", "--load-cpr", str(2**LOAD_BITS), "--ratio", "30", "--json"]) == 0
     replayed = json.loads(capsys.readouterr().out)
     assert replayed["backlash_deg"] == live["backlash_deg"] and replayed["samples"] == live["samples"]
 
@@ -315,7 +346,8 @@ def test_bad_dictionaries_and_nodes_name_the_file_and_the_object(tmp_path, capsy
     cases = [
         (["--eds", str(drives["no_cpr"]), "--node", "3", "--load-node", "4"], f"{drives['no_cpr']}: node 3: no counts per revolution", "--motor-cpr"),
         (["--eds", str(drives["motor"]), "--node", "3"], f"{drives['motor']}: node 3: object 0x60E4 is not mapped", "TxPDO1_node3: 0x6064.0"),
-        (["--eds", str(drives["event"]), "--node", "3", "--load-node", "4"], f"{drives['event']}: node 3: TxPDO1_node3 (0x1800) has transmission type 255", ""),
+        (["--eds", str(drives["rtr"]), "--node", "3", "--load-node", "4"], f"{drives['rtr']}: node 3: TxPDO1_node3 (0x1800) has transmission type 253",
+         "neither synchronous (0-240) nor event-driven (254, 255)"),
         (["--eds", str(tmp_path / "missing.eds"), "--node", "3"], f"{tmp_path / 'missing.eds'}: no such object dictionary", ""),
         (["--eds", str(drives["both"])], "give --node N", ""),
         (["--eds", str(drives["both"]), "--node", "3"], "0x60E4.1 Additional position actual value 1 of node 3: give its counts per load revolution", ""),
@@ -375,9 +407,14 @@ def test_track_listen_can_opens_the_canopen_source(tmp_path, capsys, drives):
 
 @settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
 @given(st.lists(st.tuples(st.sampled_from([0x80, 0x183, 0x184, 0x703, 0x7FF]), st.binary(max_size=8), st.booleans(), st.floats(0, 1e-3)), max_size=60))
-def test_fuzzed_frames_are_counted_and_reconcile(drives, frames):
-    """Any frames (our COB-IDs with any length, others, extended IDs, times out of order): only counted, never raised."""
-    pipe = SyncPipeline(CanopenLayout.from_files(drives["motor"], 3, load_node=4, load_eds=drives["load"]))
+def test_fuzzed_frames_are_counted_and_reconcile(drives, event_drives, frames):
+    """Any frames (our COB-IDs with any length, others, extended IDs, times out of order): only counted, never raised,
+    by the SYNC grouping and by the event-driven pairing alike."""
+    for d in (drives, event_drives):
+        _fuzz(canopen_pipeline(CanopenLayout.from_files(d["motor"], 3, load_node=4, load_eds=d["load"])), frames)
+
+
+def _fuzz(pipe, frames) -> None:
     t = 0.0
     for cob_id, data, extended, dt in frames:
         t += dt - 2e-4
@@ -386,3 +423,134 @@ def test_fuzzed_frames_are_counted_and_reconcile(drives, frames):
     pipe.flush()
     c = pipe.counters
     assert c.frames == len(frames) == c.skipped + c.corrupt + c.unpaired + pipe.frames_per_sample * c.samples
+
+
+# -- event-driven TPDOs (transmission type 254/255): no SYNC, paired in time as the DBC path pairs two messages ---------
+
+
+@pytest.fixture(scope="module")
+def event_drives(tmp_path_factory) -> dict[str, Path]:
+    folder = tmp_path_factory.mktemp("eds-event")
+    return {
+        "both": write_eds(folder / "both.eds", 3, [(0x6064, 0), (0x60E4, 1)], resolution=2**MOTOR_BITS, trans_type=255, sync=False),
+        "split": write_eds(folder / "split.eds", 3, [(0x6064, 0)], second=[(0x60E4, 1)], resolution=2**MOTOR_BITS, trans_type=254, sync=False),
+        "motor": write_eds(folder / "motor.eds", 3, [(0x6064, 0)], resolution=2**MOTOR_BITS, trans_type=255, sync=False),
+        "load": write_eds(folder / "load.eds", 4, [(0x6064, 0)], resolution=2**LOAD_BITS, trans_type=255, sync=False),
+    }
+
+
+def _event_log(tmp_path: Path, name: str, rec: RigRecording, nodes: dict[int, Path], values, offsets_s, on_change=False) -> tuple[Path, list]:
+    rig = Rig(f"ev-{name}", nodes)
+    log = tmp_path / f"{name}.blf"
+    try:
+        frames = record(f"ev-{name}", lambda: rig.play_events(rec, values, offsets_s, on_change), log)
+    finally:
+        rig.close()
+    assert frames and not any(m.arbitration_id == 0x80 for m in frames)  # no SYNC on this bus
+    return log, frames
+
+
+EVENT_CASES = {
+    # name: (drives and node-IDs, options, values, node timers' offsets from the sample (s), frames per sample)
+    "one TPDO": ({3: "both"}, ["--load-cpr", str(2**LOAD_BITS)], one_node_values, {3: 5e-5}, 1),
+    "two TPDOs": ({3: "split"}, ["--load-cpr", str(2**LOAD_BITS)], one_node_values, {3: 5e-5}, 2),
+    "two nodes": ({3: "motor", 4: "load"}, ["--load-node", "4"], two_node_values, {3: 5e-5, 4: 6.3e-4}, 2),
+}
+
+
+@pytest.mark.parametrize("case", sorted(EVENT_CASES))
+def test_event_driven_tpdos_on_their_timer_are_paired_in_time(tmp_path, capsys, rec, event_drives, case):
+    nodes, options, values, offsets, per_sample = EVENT_CASES[case]
+    paths = {node: event_drives[key] for node, key in nodes.items()}
+    log, frames = _event_log(tmp_path, case.replace(" ", "-"), rec, paths, values(rec), offsets)
+    eds = ["--eds", str(paths[3]), "--node", "3", *options, *(["--load-eds", str(paths[4])] if 4 in paths else [])]
+    assert main(["estimate", str(log), *eds, "--ratio", "30", "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    n = rec.time_s.size
+    assert (out["frames"], out["samples"], out["corrupt"], out["skipped"], out["unpaired"], out["gaps"]) == (len(frames), n, 0, 0, 0, 0)
+    assert out["backlash_deg"] == pytest.approx(0.5, abs=0.02)
+    with open_log(log, eds=paths[3], node=3, **({"load_node": 4, "load_eds": paths[4]} if 4 in paths else {"load_cpr": 2**LOAD_BITS})) as source:
+        chunk = next(source.iter_chunks(max_samples=10**6))
+        assert source.counters.frames == per_sample * n
+    # the rig's angles through the 32-bit rollover, stamped at the earlier frame of each pair
+    assert np.allclose(chunk.motor_deg - chunk.motor_deg[0], rec.motor_deg - rec.motor_deg[0], atol=360 / 2**MOTOR_BITS)
+    assert np.allclose(chunk.load_deg - chunk.load_deg[0], rec.load_deg - rec.load_deg[0], atol=360 / 2**LOAD_BITS)
+    assert np.allclose(chunk.time_s - 1.7e9, rec.time_s + offsets[3], atol=1e-6)
+
+
+def test_event_driven_tpdos_sent_on_change_count_what_cannot_pair(tmp_path, capsys, rec, event_drives):
+    """Two nodes sending only when their position changed: a value whose partner did not change (the motor at rest at a
+    reversal) waits, is replaced and counted unpaired; the samples lost are gaps the estimator bridges."""
+    paths = {3: event_drives["motor"], 4: event_drives["load"]}
+    log, frames = _event_log(tmp_path, "on-change", rec, paths, two_node_values(rec), {3: 5e-5, 4: 6.3e-4}, on_change=True)
+    argv = ["estimate", str(log), "--eds", str(paths[3]), "--node", "3", "--load-node", "4", "--load-eds", str(paths[4]), "--ratio", "30", "--json"]
+    assert main(argv) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert len(frames) < 2 * rec.time_s.size and out["unpaired"] > 0 and out["samples"] > 0.9 * rec.time_s.size
+    assert out["frames"] == len(frames) == out["skipped"] + out["corrupt"] + out["unpaired"] + 2 * out["samples"]
+    assert out["backlash_deg"] == pytest.approx(0.5, abs=0.02)
+
+
+def test_event_driven_pairing_frame_by_frame(event_drives):
+    """The DBC path's pairing rules on PDOs: within max_skew_s a pair, an orphan replaced, SYNC and others skipped, a short PDO corrupt."""
+    layout = CanopenLayout.from_files(event_drives["motor"], 3, load_node=4, load_eds=event_drives["load"])
+    assert layout.event_driven and layout.names() == {0x183: "TxPDO1_node3: 0x6064.0 Position actual value (motor: 0x6064.0 Position actual value)",
+                                                       0x184: "TxPDO1_node4: 0x6064.0 Position actual value (load: 0x6064.0 Position actual value)"}
+    pipe = canopen_pipeline(layout, max_skew_s=5e-4)
+
+    def frame(cob_id: int, data: bytes, t: float) -> can.Message:
+        return can.Message(arbitration_id=cob_id, data=data, timestamp=t, is_extended_id=False)
+
+    motor, load = (4096).to_bytes(4, "little", signed=True), (-32768).to_bytes(4, "little", signed=True)
+    rows = [pipe.feed_row(f) for f in [
+        frame(0x183, motor, 0.0), frame(0x184, load, 0.0003),  # a pair, 0.3 ms apart
+        frame(0x183, motor, 0.001), frame(0x184, load, 0.0019),  # 0.9 ms apart: no pair, the load value waits
+        frame(0x183, motor, 0.002),  # pairs with the waiting load value; the motor value of 0.001 was an orphan
+        frame(0x80, b"", 0.0025), frame(0x184, load[:3], 0.003),  # a SYNC: not ours; a short PDO: corrupt
+    ]]
+    samples = [r for r in rows if r is not None]
+    assert [s[:3] for s in samples] == [(0.0, 90.0, -90.0), (0.0019, 90.0, -90.0)]
+    pipe.flush()
+    c = pipe.counters
+    assert (c.frames, c.samples, c.corrupt, c.skipped, c.unpaired) == (7, 2, 1, 1, 1)
+    assert c.frames == c.skipped + c.corrupt + c.unpaired + pipe.frames_per_sample * c.samples
+
+
+def test_inspect_lists_the_tpdo_mapping_of_several_nodes(tmp_path, capsys, rec, drives, event_drives):
+    """``inspect --eds A --node 3 --eds B --node 4``: each node's TPDOs from its own dictionary (no log needed), and with
+    a log its COB-IDs named by them; one --eds serves every --node of identical drives."""
+    nodes = ["--eds", str(event_drives["split"]), "--node", "3", "--eds", str(drives["load"]), "--node", "4"]
+    assert main(["inspect", *nodes, "--json"]) == 0
+    listed = {n["node"]: n for n in json.loads(capsys.readouterr().out)["nodes"]}
+    assert [(p["cob_id"], p["transmission_type"], p["trigger"], [o["object"] for o in p["objects"]]) for p in listed[3]["tpdos"]] == [
+        ("0x183", 254, "event", ["0x6064.0"]), ("0x283", 254, "event", ["0x60E4.1"])]
+    assert [(p["cob_id"], p["trigger"], p["objects"][0]["bit_length"]) for p in listed[4]["tpdos"]] == [("0x184", "sync", 32)]
+    assert listed[4]["eds"] == str(drives["load"]) and listed[3]["eds"] == str(event_drives["split"])
+    assert main(["inspect", *nodes]) == 0
+    text = capsys.readouterr().out
+    assert "node 3 (" in text and "0x283   254 (event)  0x60E4.1 Additional position actual value 1 [32 bit]" in text
+    # a log of two event-driven nodes: its COB-IDs named, the mapping listed beside them; one --eds for two --node
+    log, _ = _event_log(tmp_path, "inspect", rec, {3: event_drives["motor"], 4: event_drives["motor"]}, two_node_values(rec), {3: 5e-5, 4: 3e-4})
+    assert main(["inspect", str(log), "--eds", str(event_drives["motor"]), "--node", "3", "--node", "4", "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    ids = {i["id"]: i["message"] for i in out["can_ids"]}
+    assert ids == {"0x183": "TxPDO1_node3: 0x6064.0 Position actual value", "0x184": "TxPDO1_node4: 0x6064.0 Position actual value"}
+    assert [n["node"] for n in out["nodes"]] == [3, 4] and out["nodes"][1]["tpdos"][0]["cob_id"] == "0x184"
+
+
+@pytest.mark.parametrize(
+    ("argv", "message"),
+    [
+        (["--eds", "{a}", "--eds", "{b}", "--node", "3"], "2 --eds for 1 --node: give one --eds per --node, or one for all"),
+        (["--eds", "{a}", "--node", "3", "--node", "3"], "node-ID 3 given twice"),
+        (["--eds", "{a}"], "give --node N"),
+        ([], "give a FILE to inspect, or --eds FILE --node N"),
+        (["--eds", "{a}", "--node", "3", "--load-eds", "{b}"], "--load-eds is the dictionary of --load-node"),
+        (["--eds", "{missing}", "--node", "3"], "{missing}: no such object dictionary"),
+    ],
+)
+def test_inspect_eds_errors_say_what_to_give(tmp_path, capsys, drives, argv, message):
+    paths = {"a": drives["motor"], "b": drives["load"], "missing": tmp_path / "missing.eds"}
+    assert main(["inspect", *(a.format(**paths) for a in argv)]) != 0
+    err = capsys.readouterr().err
+    assert err.startswith("error: ") and message.format(**paths) in err and "Traceback" not in err, err

@@ -17,12 +17,14 @@ import can
 import numpy as np
 import pytest
 
+from online_backlash.bridging import BRIDGE_S, JUMP_DEG, GapPolicy
 from online_backlash.cli import main
 from online_backlash.codecs.dbc import RIG_DBC, DbcDecoder
 from online_backlash.codecs.gaps import GapDetector
 from online_backlash.errors import InvalidParameterError
+from online_backlash.estimators import BacklashRLS
 from online_backlash.fitting import fit_batch, fit_recursive
-from online_backlash.pipeline import BRIDGE_S, JUMP_DEG, GapPolicy, Pipeline
+from online_backlash.pipeline import Pipeline
 from online_backlash.replay import CsvLog, read_csv_arrays
 from online_backlash.rig import simulate_rig
 from online_backlash.rig_logs import rig_can_frames, write_rig_serial_capture
@@ -71,19 +73,9 @@ def test_a_4_row_dropout_every_5_s_is_bridged(dropout_csv, capsys):
     assert abs(json.loads(capsys.readouterr().out)["backlash_deg"] - PLAY_DEG) > 0.02
 
 
-class _Recorder:
-    """A stand-in estimator that records the gap flags it is given."""
-
-    started = False
-
-    def __init__(self) -> None:
-        self.gaps: list[np.ndarray] = []
-
-    def learn_many(self, u, y, after_gap, *, time_s, torque_Nm):
-        self.gaps.append(np.asarray(after_gap).copy())
-
-    def mark_gap(self) -> None:
-        pass
+def _restarts(est: BacklashRLS) -> list[bool]:
+    """The gap flags the estimator kept in its warm-up buffer (True: the reading of the motion restarts)."""
+    return est.state_dict()["buffer"]["gap"]
 
 
 @pytest.mark.parametrize(
@@ -101,11 +93,11 @@ def test_only_a_long_gap_or_a_jump_restarts_the_estimator(lost_s, jump_deg, rest
     chunk = dataclasses.replace(
         rec, time_s=rec.time_s[keep], motor_deg=rec.motor_deg[keep], load_deg=load, torque_Nm=rec.torque_Nm[keep], after_gap=after_gap, seq=None
     )
-    est = _Recorder()
+    est = BacklashRLS(warm_start_samples=20_000)  # still buffering at the end: its buffer shows the restarts
     pipe = Pipeline(est, 30.0, every_s=None)
     for part in (chunk.slice(0, cut), chunk.slice(cut, keep.size)):  # the gap falls at a chunk boundary
         list(pipe.feed(part))
-    assert np.concatenate(est.gaps).tolist() == [i == cut and restarts for i in range(keep.size)]
+    assert _restarts(est) == [i == cut and restarts for i in range(keep.size)]
     assert (pipe.gap_tally.gaps, pipe.gap_tally.bridged) == (1, 0 if restarts else 1)
     assert pipe.gap_tally.longest_s == pytest.approx(lost_s + 0.001, abs=1e-9)
 
@@ -113,12 +105,12 @@ def test_only_a_long_gap_or_a_jump_restarts_the_estimator(lost_s, jump_deg, rest
 def test_a_gap_after_mark_gap_is_never_bridged():
     chunk = simulate_rig(duration_s=1.0, seed=2).to_chunk()
     chunk.after_gap[0] = True
-    est = _Recorder()
+    est = BacklashRLS()
     pipe = Pipeline(est, 30.0, every_s=None)
     list(pipe.feed(chunk.slice(0, 10)))
     pipe.mark_gap()
     list(pipe.feed(dataclasses.replace(chunk.slice(10, 20), after_gap=np.r_[True, np.zeros(9, bool)])))
-    assert est.gaps[0][0] and est.gaps[1][0]
+    assert _restarts(est)[0] and _restarts(est)[10] and (est.gaps_.gaps, est.gaps_.bridged) == (2, 0)
 
 
 @pytest.mark.parametrize("bad", [{"bridge_s": -1.0}, {"jump_deg": float("nan")}, {"bridge_s": True}])

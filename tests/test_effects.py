@@ -8,10 +8,12 @@ import numpy as np
 import pytest
 
 from online_backlash.diagnostics._scoring import DetectionData, score_columns
+from online_backlash.diagnostics.dead_band import DeadBandMotion
 from online_backlash.diagnostics.effects import LIBRARY, VOCABULARY, Compliance, Delay, Drift, TransmissionError
 from online_backlash.diagnostics.generic import GENERIC, AngleHarmonicsPerFlank, VelocityFunction
 from online_backlash.effect_terms import EffectTerms
 from online_backlash.errors import InvalidParameterError
+from online_backlash.model import BacklashParams, simulate_switching
 
 ALL = [
     TransmissionError((2, 5), (1,), 30.0),
@@ -21,6 +23,8 @@ ALL = [
     Drift(2, 40.0),
     AngleHarmonicsPerFlank((1, 3)),
     VelocityFunction((-40.0, -10.0, 0.0, 10.0, 40.0)),
+    DeadBandMotion(1.0, 0.3, 1.0, 0.3, torque=True),
+    DeadBandMotion(0.98, 0.2, 1.01, 0.4, exit_time_constants_s=(), entry_knots_s=(0.0, 0.002, 0.01)),
 ]
 
 
@@ -83,6 +87,12 @@ def test_invalid_settings():
         Drift(0)
     with pytest.raises(InvalidParameterError):
         TransmissionError((1,)).terms(np.zeros(3), np.zeros(2), np.zeros(3))
+    with pytest.raises(InvalidParameterError):
+        DeadBandMotion(entry_knots_s=(0.001, 0.002))
+    with pytest.raises(InvalidParameterError):
+        DeadBandMotion(exit_time_constants_s=(0.0,))
+    with pytest.raises(InvalidParameterError):
+        DeadBandMotion(m_left=1.0, m_right=-1.0)
 
 
 def _data(residual, u, t, q, ratio=30.0):
@@ -180,3 +190,94 @@ def test_score_counts_autocorrelation():
     unrelated = np.cumsum(rng.normal(0, 1e-4, 20000))
     s = score_columns(walk, unrelated)
     assert s.n_eff < 200
+
+
+def test_dead_band_motion_columns_follow_the_switching_functions():
+    """Coast columns only where eq. (5)-(6) engage no flank, entry columns only on engaged samples
+    within the transient, each scaled by the speed of ``u`` at the exit or at the entry."""
+    u, t, q = _record()
+    u = 40.0 * np.sin(2 * np.pi * 0.7 * t)  # smooth, so every dead band is a reversal
+    params = BacklashParams(1.0, 0.3, 1.0, 0.3)
+    effect = DeadBandMotion(*params.__dict__.values(), torque=True, window_samples=1)
+    cols = effect.terms(u, t, q)
+    _, f1, f2 = simulate_switching(u - u[0], params, 0.0)
+    engaged = (f1 + f2) > 0
+    n_exit = len(effect.exit_time_constants_s) + 2
+    assert np.all(cols[engaged, :n_exit] == 0.0) and np.all(cols[~engaged, n_exit:] == 0.0)
+    assert np.count_nonzero(cols[~engaged, 0]) > 100 and np.count_nonzero(cols[engaged, n_exit:]) > 100
+    # the first engaged sample after a dead band: the first hat is the entry speed itself
+    entry = np.flatnonzero(engaged[1:] & ~engaged[:-1]) + 1
+    speed = np.diff(u) / np.diff(t)
+    np.testing.assert_allclose(cols[entry, n_exit], speed[entry - 1], rtol=1e-9)
+    # and the torque at exit is held through the dead band
+    exits = np.flatnonzero(engaged[:-1] & ~engaged[1:])
+    held = cols[exits[0] + 1 : exits[0] + 20, n_exit - 2]
+    assert np.ptp(held) == 0.0 and held[0] == pytest.approx(np.mean(q[exits[0] - 4 : exits[0] + 1]))
+
+
+def test_dead_band_motion_needs_the_backlash_fit_and_is_not_found_on_white_noise():
+    u, t, rng = _rig_motion()
+    q = rng.normal(size=u.size)
+    r = rng.normal(0, 0.005, u.size)
+    assert DeadBandMotion.detect(_data(r, u, t, q)) is None  # no switching functions to run
+    for seed in range(3):
+        r = np.random.default_rng(200 + seed).normal(0, 0.005, u.size)
+        data = DetectionData(u, t, q, r, 30.0, 1e-3, backlash_params=BacklashParams(1.0, 0.25, 1.0, 0.25))
+        det = DeadBandMotion.detect(data)
+        assert det is not None and not det.score.significant()
+
+
+# --- the generic velocity function: a smooth law of the speed (issue 13, item 2) -------------
+
+
+def _speed_law_record(seed: int = 3) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Rig motion (speeds 15-45 deg/s, smooth reversals) and a smooth nonlinear law of the
+    physical speed (``np.gradient``, not the term's causal 10-sample difference): a lag growing
+    with the square of the speed plus a Stribeck-like step, deg, with 0.002 deg of white noise."""
+    from online_backlash.rig import rig_motion
+
+    t, u = rig_motion(60.0, seed=seed)
+    v = np.gradient(u, t)
+    law = 0.02 * np.tanh(v / 15.0) - v * 0.0015 * (v / 30.0) ** 2
+    return u, t, v, law + np.random.default_rng(seed).normal(0, 0.002, u.size)
+
+
+def test_velocity_function_follows_a_smooth_law_of_the_speed_to_the_noise():
+    u, t, v, r = _speed_law_record()
+    data = _data(r, u, t, np.full(u.size, np.nan))
+    det = VelocityFunction.detect(data)
+    assert det is not None and det.score.significant() and det.score.heldout_gain > 0.99
+    assert np.sqrt(det.score.rss_after / u.size) < 1.1 * 0.002  # down to the noise
+    # the control: the piecewise-linear function on an even grid of 9 knots over both directions'
+    # speeds pooled, which it replaces, leaves the law's curvature between its knots and does
+    # not hold on the cycles left out (its outer knots lie beyond the slower direction's speeds)
+    top = np.percentile(np.abs(v), 99)
+    knots = np.linspace(-top, top, 9)
+    hats = np.column_stack([np.interp(np.clip(v, -top, top), knots, np.eye(9)[j]) for j in range(9) if j != 4])
+    pl = data.score(False, hats)
+    assert np.sqrt(pl.rss_after / u.size) > 1.1 * 0.002 and not pl.heldout_gain > 0.9
+
+
+def test_velocity_function_knots_sit_where_the_speeds_are():
+    from online_backlash.diagnostics._speed import speed_knots
+
+    v = _speed_law_record()[2]
+    knots = speed_knots(v, 3)
+    assert len(knots) == 9 and knots[4] == 0.0 and np.all(np.diff(knots) > 0)
+    # each direction up to its own speeds
+    assert knots[-1] == pytest.approx(np.percentile(v[v > 0], 99.5)) and knots[0] == pytest.approx(-np.percentile(-v[v < 0], 99.5))
+    assert speed_knots(np.r_[np.full(100, -20.0), np.full(100, 30.0)], 1) == (-20.0, -10.0, 0.0, 15.0, 30.0)
+    assert speed_knots(np.full(100, 12.0), 2) == (0.0, 4.0, 8.0, 12.0)  # one direction only
+    # the values at the knots are the function's (cardinal splines), 0 at rest
+    f = VelocityFunction((-30.0, -10.0, 0.0, 20.0))
+    cols = f.terms(np.r_[0.0, np.cumsum(np.full(40, 0.02))], np.arange(41) * 1e-3, np.full(41, np.nan))
+    assert cols[-1] @ np.array([1.0, 2.0, 3.0]) == pytest.approx(3.0)  # at 20 deg/s: the value of the knot at 20
+    assert f.describe(np.array([1.0, 2.0, 3.0]))["values_deg"] == [1.0, 2.0, 0.0, 3.0]
+
+
+def test_velocity_function_invalid_knots():
+    for knots in ((0.0,), (0.0, 0.0, 1.0), (-1.0, np.nan, 1.0), (3.0, 1.0)):
+        with pytest.raises(InvalidParameterError):
+            VelocityFunction(knots)
+    with pytest.raises(InvalidParameterError):
+        VelocityFunction((-1.0, 1.0), window_samples=0)

@@ -17,7 +17,7 @@ from online_backlash.cli import main
 from online_backlash.diagnostics import synthetic
 from online_backlash.errors import InvalidParameterError, LogFormatError
 from online_backlash.history.store import ESTIMATE_FIELDS, Estimate, HistoryStore, estimates_table
-from online_backlash.pipeline import DataClock, GapPolicy, Pipeline
+from online_backlash.pipeline import DataClock, Pipeline
 from online_backlash.rig import simulate_rig
 from online_backlash.rows import FIELDS, HISTORY_CSV_COLUMNS, REPORT_KEYS, STORE_COLUMNS, TRACE_COLUMNS, EstimateRow
 from online_backlash.stream import SampleChunk
@@ -82,9 +82,8 @@ def test_the_pipeline_refers_once_and_passes_time_torque_and_gaps_through(rig30)
             self.calls.append((u, y, after_gap, time_s, torque_Nm))
 
     chunk = dataclasses.replace(rig30, torque_Nm=np.linspace(-1.0, 1.0, len(rig30)), after_gap=np.arange(len(rig30)) % 7000 == 0)
-    rec = Recorder()
-    no_bridge = GapPolicy(bridge_s=0.0)  # these flagged 1 ms steps would be bridged (tests/test_dropouts.py)
-    steps = list(Pipeline(rec, -30.0, every_s=3.0, gap_policy=no_bridge).run(pieces(chunk, [4321, 17000])))
+    rec = Recorder()  # every flag reaches the estimator: which gaps are bridged is its decision (tests/test_gap_bridging.py)
+    steps = list(Pipeline(rec, -30.0, every_s=3.0).run(pieces(chunk, [4321, 17000])))
     u, y, gap, t, q = (np.concatenate(c) for c in zip(*rec.calls))
     np.testing.assert_array_equal(u, chunk.motor_deg / -30.0)
     np.testing.assert_array_equal(np.concatenate([s.u_deg for s in steps]), u)
@@ -284,6 +283,7 @@ NEVER_IMPORTS = {
     "stream": ("replay", "drivers", "codecs", "estimators", "pipeline", "tracking", "history", "diagnostics", "cli"),
     "pipeline": ("replay", "drivers", "codecs", "tracking", "history", "cli"),
     "rows": ("replay", "drivers", "codecs", "estimators", "pipeline", "tracking", "history", "diagnostics", "cli"),
+    "bridging": ("replay", "drivers", "codecs", "estimators", "pipeline", "tracking", "history", "diagnostics", "fitting", "cli"),
     "web": ("replay", "drivers", "codecs", "estimators", "pipeline", "tracking", "diagnostics", "fitting", "cli", "publish"),
     "load_aware": ("replay", "drivers", "codecs", "pipeline", "tracking", "history", "diagnostics", "fitting", "cli", "publish", "web"),
     "fleet": ("replay", "drivers", "codecs", "estimators", "pipeline", "tracking", "history", "diagnostics", "fitting", "cli", "publish", "web"),

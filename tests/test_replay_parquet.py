@@ -153,3 +153,21 @@ def test_column_values_are_read_from_the_buffer_with_its_offset(kind):
     np.testing.assert_array_equal(_as_float(part, "motor", "m", "f.parquet", 1, []), np.arange(7, 16, dtype=float))
     with_null = pa.array([1, None, 3], type=getattr(pa, kind)())
     np.testing.assert_array_equal(_as_float(with_null, "motor", "m", "f.parquet", 1, []), [1.0, np.nan, 3.0])
+
+
+def test_a_time_that_never_advances_is_an_error_and_repeated_times_warn(tmp_path):
+    """The end-of-pass checks of CSV logs hold for measurement files too (a pass over the whole file)."""
+    from online_backlash.errors import BacklashWarning
+
+    n = 100
+    frozen = tmp_path / "frozen.parquet"
+    pq.write_table(pa.table({"t": np.zeros(n), "m": np.arange(n, dtype=float), "l": np.arange(n, dtype=float)}), frozen, row_group_size=30)
+    with ParquetLog(frozen, columns=MAP, block_rows=16) as log, pytest.raises(LogFormatError, match="never advances") as err:
+        list(log.iter_chunks())
+    assert "frozen.parquet" in str(err.value)
+    t = np.arange(n) * 1e-3
+    t[10], t[50], t[51] = t[9], t[49], t[49]  # three samples repeat the previous time
+    repeated = tmp_path / "repeated.parquet"
+    pq.write_table(pa.table({"t": t, "m": np.arange(n, dtype=float), "l": np.arange(n, dtype=float)}), repeated, row_group_size=30)
+    with ParquetLog(repeated, columns=MAP, block_rows=16) as log, pytest.warns(BacklashWarning, match="3 of 100 samples repeat"):
+        assert sum(len(c) for c in log.iter_chunks()) == n

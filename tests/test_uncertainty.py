@@ -209,3 +209,15 @@ def test_the_recursive_torque_estimator_keeps_a_bounded_number_of_reversals_and_
     assert 2 <= est.cycle_plays_.n_segments <= MEMORY_SPANS * 0.2 + 3
     twin = TorqueBacklashRLS.from_state(est.state_dict())
     assert twin.backlash_std_ == est.backlash_std_ >= est.backlash_white_std_
+
+
+def test_bootstrap_batches_bound_memory_without_changing_the_draws(monkeypatch):
+    """The block bootstrap resamples in batches of BOOTSTRAP_BATCH plays (memory stays a few MB at the
+    end of a 10-million-sample estimate); the batch size changes no draw, so not the result."""
+    from online_backlash.estimators import uncertainty
+
+    plays = 0.5 + 0.01 * np.random.default_rng(2).standard_normal(3001)
+    reference = uncertainty.play_uncertainty(plays).std_deg
+    for batch in (1, 4000, 10**9):
+        monkeypatch.setattr(uncertainty, "BOOTSTRAP_BATCH", batch)
+        assert uncertainty.play_uncertainty(plays).std_deg == reference

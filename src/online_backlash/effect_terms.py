@@ -71,6 +71,7 @@ EFFECTS: dict[str, str | type] = {
     "delay": "online_backlash.diagnostics.effects:Delay",
     "compliance": "online_backlash.diagnostics.effects:Compliance",
     "drift": "online_backlash.diagnostics.effects:Drift",
+    "dead_band_motion": "online_backlash.diagnostics.dead_band:DeadBandMotion",
 }
 
 

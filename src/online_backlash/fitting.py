@@ -18,12 +18,13 @@ from typing import Any
 
 import numpy as np
 
+from .bridging import GapTally
 from .estimators import BacklashRLS, VorosBacklash
-from .estimators.uncertainty import SCATTER_EVERY_S, RecursivePlayScatter
+from .estimators.uncertainty import SCATTER_EVERY_S, EstimateAt, RecursivePlayScatter
 from .load_aware import DwellTracker, TorqueBacklash, TorqueBacklashRLS
 from .load_aware.engagement import torque_orientation
 from .load_aware.report import batch_keys, has_torque, kinematic_keys, recursive_keys, why_not_observable
-from .pipeline import GapPolicy, GapTally, Pipeline, check_every
+from .pipeline import OrderedWorker, Pipeline, PipelineStep, check_every
 from .rows import ARCMIN_PER_DEG, REPORT_KEYS, TRACE_COLUMNS, EstimateRow, describe_counts, select, source_counts
 from .stream import SampleChunk
 
@@ -31,6 +32,9 @@ from .stream import SampleChunk
 PLAUSIBLE_SLOPE = (0.5, 2.0)
 #: Largest plausible play, degrees on the load side (worn gearboxes have tenths of a degree, not degrees).
 PLAUSIBLE_PLAY_DEG = 5.0
+#: Blocks the bookkeeping of :func:`fit_recursive` (play scatter, dwells) may lag behind the estimator in
+#: its worker thread, with ``ahead`` > 0 (:class:`~online_backlash.pipeline.OrderedWorker`; 0: inline).
+BOOKKEEPING_AHEAD = 2
 
 __all__ = ["ARCMIN_PER_DEG", "TRACE_COLUMNS", "BacklashReport", "describe", "fit_batch", "fit_recursive"]
 
@@ -181,6 +185,14 @@ def recursive_estimator(first: SampleChunk | None, ratio: float, **params: Any) 
     return BacklashRLS(**params)
 
 
+def _keep_books(step: PipelineStep, scatter: RecursivePlayScatter, estimate: EstimateAt, dwells: DwellTracker | None) -> None:
+    """The bookkeeping of one learned block: the play's scatter (with the estimate as it was right
+    after the block) and, for a kinematic estimator, the dwells; reads nothing but its arguments."""
+    scatter.update(step.u_deg, step.chunk.load_deg, step.chunk.after_gap, due=step.due, estimate=estimate)
+    if dwells is not None:
+        dwells.update(step.u_deg, step.chunk.load_deg, step.chunk.after_gap)
+
+
 def fit_recursive(
     chunks: Iterable[SampleChunk],
     ratio: float,
@@ -189,7 +201,6 @@ def fit_recursive(
     trace: Callable[[EstimateRow], None] | None = None,
     estimator: BacklashRLS | None = None,
     source: str | os.PathLike[str] = "<stream>",
-    gap_policy: GapPolicy | None = None,
     ahead: int = 0,
     rated_torque_Nm: float | None = None,
     **params: Any,
@@ -215,15 +226,16 @@ def fit_recursive(
         Continue this estimator (e.g. resumed from a saved state) instead of a new one.
     source : str or PathLike
         Names the log in errors.
-    gap_policy : GapPolicy, optional
-        Which gaps the estimator is carried across (default :class:`~online_backlash.pipeline.GapPolicy`).
     ahead : int
         Chunks read ahead in a reader thread (:func:`~online_backlash.pipeline.read_ahead`; 0: none).
-        For recorded files: the reading overlaps the estimation. Live sources keep 0.
+        For recorded files: the reading overlaps the estimation, and the per-block bookkeeping (the
+        play's scatter, the dwells) runs in a worker thread of its own (:data:`BOOKKEEPING_AHEAD`
+        blocks behind at most, the results identical). Live sources keep 0 (one thread).
     rated_torque_Nm : float, optional
         With torque: lost motion at 3 % of it (N m); else at the torque dead band.
     **params
-        Settings of a new :class:`BacklashRLS` (those it shares with ``TorqueBacklashRLS`` for torque).
+        Settings of a new :class:`BacklashRLS` (those it shares with ``TorqueBacklashRLS`` for torque),
+        e.g. ``gap_policy`` (:class:`~online_backlash.bridging.GapPolicy`: which gaps it is carried across).
 
     Returns
     -------
@@ -237,15 +249,16 @@ def fit_recursive(
     est = estimator if estimator is not None else recursive_estimator(first, ratio, **params)
     check_every(every_s)
     tracker = DwellTracker()
-    # rows cost time: every every_s for a trace, else every SCATTER_EVERY_S (the ticks of the scatter)
-    pipeline = Pipeline(est, ratio, every_s if trace is not None else SCATTER_EVERY_S, gap_policy=gap_policy)
+    # rows cost time: every every_s for a trace, else none, only the ticks of the scatter every SCATTER_EVERY_S
+    pipeline = Pipeline(est, ratio, every_s if trace is not None else SCATTER_EVERY_S, rows=trace is not None)
     scatter = RecursivePlayScatter(est)  # backlash_std_deg: the play's scatter over the reversal cycles too
-    for step in pipeline.run(chunks, os.fspath(source), ahead):
-        scatter.update(step.u_deg, step.chunk.load_deg, step.chunk.after_gap, due=step.row is not None)
-        if not isinstance(est, TorqueBacklashRLS):
-            tracker.update(step.u_deg, step.chunk.load_deg, step.chunk.after_gap)
-        if step.row is not None and trace is not None:
-            trace(step.row)
+    dwells = None if isinstance(est, TorqueBacklashRLS) else tracker
+    # with a reader thread (a recorded file), the bookkeeping overlaps the next block's estimation too
+    with OrderedWorker(BOOKKEEPING_AHEAD if ahead > 0 else 0) as books:
+        for step in pipeline.run(chunks, os.fspath(source), ahead):
+            books.call(_keep_books, step, scatter, scatter.snapshot(step.due), dwells)
+            if step.row is not None and trace is not None:
+                trace(step.row)
     last = pipeline.finish()
     scatter.finish()
     if last is not None and trace is not None:

@@ -214,7 +214,7 @@ def simulate_switching(
 def _sensitivity_loop(u, mL, cL, mR, cR, x0):  # pragma: no cover - compiled
     n = u.shape[0]
     x = np.empty(n)
-    dx = np.zeros((n, 4))
+    dx = np.empty((n, 4))  # every row is written below
     prev = x0
     d0 = d1 = d2 = d3 = 0.0  # d x(t-1) / d [mL, cL, mR, cR]; x(-1) = x0 is given
     for t in range(n):

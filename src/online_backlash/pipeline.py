@@ -11,8 +11,15 @@ all run :class:`Pipeline`:
 3. each block goes to ``estimator.learn_many(u, y, after_gap, time_s=..., torque_Nm=...)``
    (Vörös 2013, eq. 19-25 in :class:`~online_backlash.estimators.BacklashRLS`), with the
    source's time and torque passed through for the estimator's effects;
-4. a :class:`PipelineStep` reports the block (samples, referred input) and, where one is due,
-   the :class:`~online_backlash.rows.EstimateRow`.
+4. a :class:`PipelineStep` reports the block (samples, referred input), whether a row is due
+   after it (``due``) and, where one is due and the pipeline makes rows (``rows=True``), the
+   :class:`~online_backlash.rows.EstimateRow` (a row costs the estimator's standard error: a
+   caller that only needs the instants, as ``estimate`` without ``--trace``, asks for none).
+
+Each chunk is checked once for non-finite angles (a compiled pass) before any of it reaches the
+estimator, which then skips its own per-block check (``learn_many(..., assume_finite=True)``).
+The clock's cutting is compiled too; the loop itself only hands arrays from one compiled pass
+to the next, so the GIL is free most of the time for a reader thread (:func:`read_ahead`).
 
 The clock counts whole nanoseconds in an integer, so where the rows fall does not depend on
 how the stream was cut into chunks (a resumed run, a live stream, a replay of its raw log).
@@ -22,18 +29,64 @@ checkpoints it with each row. The library never prints; the caller decides what 
 
 from __future__ import annotations
 
+import inspect
 import math
 import queue
 import threading
-from collections.abc import Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass
 from typing import Any
 
+import numba
 import numpy as np
 
+from .bridging import GapTally
 from .errors import InvalidParameterError, LogFormatError
-from .rows import GAP_KEYS, EstimateRow
+from .rows import EstimateRow
 from .stream import SampleChunk, refer_to_load
+
+
+@numba.njit(cache=True, nogil=True)
+def _cut(time_s, after_gap, prev, data_ns, has_due, due_ns, every_ns):  # pragma: no cover - compiled
+    """:meth:`DataClock.blocks` in one pass: each block's end, whether a row is due after it, and the
+    clock (data ns, next due ns) there. A step counts ``rint(step * 1e9)`` ns unless it follows a
+    gap, starts a segment (``prev`` NaN) or goes back."""
+    n = time_s.size
+    ends = np.empty(n, dtype=np.int64)
+    dues = np.zeros(n, dtype=np.bool_)
+    datas = np.empty(n, dtype=np.int64)
+    nexts = np.empty(n, dtype=np.int64)
+    k = 0
+    for i in range(n):
+        step = time_s[i] - prev
+        if after_gap[i] or not step > 0.0:  # NaN (start of a segment) and a clock that went back count nothing
+            step = 0.0
+        data_ns += np.int64(np.rint(step * 1e9))
+        prev = time_s[i]
+        if (has_due and data_ns >= due_ns) or i == n - 1:
+            dues[k] = has_due and data_ns >= due_ns
+            while has_due and every_ns > 0 and due_ns <= data_ns:
+                due_ns += every_ns
+            ends[k], datas[k], nexts[k] = i + 1, data_ns, due_ns
+            k += 1
+    return ends[:k], dues[:k], datas[:k], nexts[:k]
+
+
+@numba.njit(cache=True, nogil=True)
+def _first_non_finite(u, y):  # pragma: no cover - compiled
+    """Index of the first sample where ``u`` or ``y`` is not finite, -1 if none."""
+    for i in range(u.size):
+        if not (math.isfinite(u[i]) and math.isfinite(y[i])):
+            return i
+    return -1
+
+
+def _checks_finite(estimator: Any) -> bool:
+    """True if ``estimator.learn_many`` takes ``assume_finite`` (then the pipeline checks each chunk once)."""
+    try:
+        return "assume_finite" in inspect.signature(estimator.learn_many).parameters
+    except (AttributeError, TypeError, ValueError):
+        return False
 
 
 def check_every(every_s: object) -> float:
@@ -78,21 +131,17 @@ class DataClock:
         """
         if self.next_due_ns is None and self.every_ns is not None:
             self.next_due_ns = self.data_ns + self.every_ns
-        previous = np.concatenate(([np.nan if self.prev_time_s is None else self.prev_time_s], time_s[:-1]))
-        step = time_s - previous
-        step[after_gap | ~(step > 0.0)] = 0.0  # NaN (start of a segment) and a clock that went back count nothing
-        data_ns = self.data_ns + np.cumsum(np.rint(step * 1e9).astype(np.int64))
-        n, start = time_s.size, 0
-        while start < n:
-            due_ns = self.next_due_ns
-            reach = n if due_ns is None else start + int(np.searchsorted(data_ns[start:], due_ns, side="left"))
-            due = reach < n
-            end = reach + 1 if due else n
-            self.data_ns = int(data_ns[end - 1])
+        prev = math.nan if self.prev_time_s is None else self.prev_time_s
+        has_due = self.next_due_ns is not None  # (without every_ns, a due instant restored from a state never moves on)
+        ends, dues, data_ns, next_ns = _cut(
+            np.ascontiguousarray(time_s, dtype=float), np.ascontiguousarray(after_gap, dtype=np.bool_), prev, self.data_ns, has_due,
+            self.next_due_ns or 0, self.every_ns or 0,
+        )  # fmt: skip
+        start = 0
+        for end, due, data, next_due in zip(ends.tolist(), dues.tolist(), data_ns.tolist(), next_ns.tolist()):
+            self.data_ns = data
             self.prev_time_s = float(time_s[end - 1])
-            while due_ns is not None and self.every_ns is not None and due_ns <= self.data_ns:
-                due_ns += self.every_ns
-            self.next_due_ns = due_ns
+            self.next_due_ns = next_due if has_due else self.next_due_ns
             yield start, end, due
             start = end
 
@@ -119,13 +168,17 @@ class PipelineStep:
     samples : int
         Samples learned through this pipeline so far, this block included.
     row : EstimateRow or None
-        The estimate, where one is due after this block and the estimator has one.
+        The estimate, where one is due after this block, the estimator has one and the pipeline
+        makes rows (``rows``).
+    due : bool
+        The block ends at a data-clock tick (a row belongs right after it), rows made or not.
     """
 
     chunk: SampleChunk
     u_deg: np.ndarray
     samples: int
     row: EstimateRow | None
+    due: bool = False
 
 
 def _block(chunk: SampleChunk, start: int, end: int) -> SampleChunk:
@@ -139,77 +192,6 @@ def _block(chunk: SampleChunk, start: int, end: int) -> SampleChunk:
 def tail(chunk: SampleChunk, start: int) -> SampleChunk:
     """The samples of ``chunk`` from index ``start`` on."""
     return _block(chunk, start, len(chunk))
-
-
-#: Default longest gap bridged, seconds: 100 nominal periods of a 1 kHz log (a lost frame, a USB
-#: adapter's stall); a longer gap restarts the estimator's reading of the motion.
-BRIDGE_S = 0.1
-#: Default largest step of either angle across a bridged gap, degrees on the load side: more than
-#: a shaft travels in BRIDGE_S at rig speeds (tens of deg/s), so a larger step is a jump in the data
-#: (an encoder re-zeroed, another log) and restarts.
-JUMP_DEG = 5.0
-
-
-@dataclass(frozen=True)
-class GapPolicy:
-    """Which gaps the estimator is carried across (*bridged*) and which restart its reading of the motion.
-
-    A gap (``after_gap`` of a sample) is *short* when the time step across it is at most
-    ``bridge_s`` seconds (and positive), and a *jump* when the referred motor angle ``u`` or the
-    load angle ``y`` changes by more than ``jump_deg`` degrees across it. A short gap without a
-    jump is bridged: the estimator keeps its state (warm-up buffer, flank, covariance) and learns
-    the sample after the gap from the one before it, as one longer step. A long gap, a jump, or a
-    gap before the first sample after :meth:`Pipeline.mark_gap` is passed on as ``after_gap``.
-    ``bridge_s=0`` bridges nothing (every gap restarts, the behaviour before bridging).
-    """
-
-    bridge_s: float = BRIDGE_S
-    jump_deg: float = JUMP_DEG
-
-    def __post_init__(self) -> None:
-        for name in ("bridge_s", "jump_deg"):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) or value < 0:
-                raise InvalidParameterError(f"{name} must be a finite number >= 0, got {value!r}")
-
-    def bridged(self, dt_s: np.ndarray, du_deg: np.ndarray, dy_deg: np.ndarray) -> np.ndarray:
-        """True where a gap with time step ``dt_s`` (s) and angle steps ``du_deg``, ``dy_deg`` (deg) is bridged
-        (NaN steps, i.e. no sample before the gap, are never bridged)."""
-        with np.errstate(invalid="ignore"):
-            return (dt_s > 0.0) & (dt_s <= self.bridge_s) & (np.abs(du_deg) <= self.jump_deg) & (np.abs(dy_deg) <= self.jump_deg)
-
-
-@dataclass
-class GapTally:
-    """The gaps a stream had: count, longest and total time step across them (seconds), and how many were bridged."""
-
-    gaps: int = 0
-    longest_s: float = 0.0
-    total_s: float = 0.0
-    bridged: int = 0
-
-    def add(self, dt_s: np.ndarray, bridged: np.ndarray) -> None:
-        """Count gaps with time steps ``dt_s`` (s; NaN where the step is unknown) and their bridged flags."""
-        known = dt_s[np.isfinite(dt_s)]
-        self.gaps += int(dt_s.size)
-        self.bridged += int(np.count_nonzero(bridged))
-        if known.size:
-            self.longest_s = max(self.longest_s, float(known.max()))
-            self.total_s += float(known.sum())
-
-    def values(self) -> dict[str, float | int]:
-        """The gap figures of a result (:data:`~online_backlash.rows.GAP_KEYS`)."""
-        return dict(zip(GAP_KEYS, (self.longest_s, self.total_s, self.bridged)))
-
-    @classmethod
-    def of_chunk(cls, chunk: SampleChunk) -> GapTally:
-        """The gaps of one whole log in memory (no gap bridged: a batch fit reads no motion across them)."""
-        tally = cls()
-        index = np.flatnonzero(chunk.after_gap[1:]) + 1
-        tally.add(chunk.time_s[index] - chunk.time_s[index - 1], np.zeros(index.size, dtype=bool))
-        if chunk.after_gap.size and chunk.after_gap[0]:
-            tally.add(np.array([np.nan]), np.zeros(1, dtype=bool))
-        return tally
 
 
 #: Blocks a reader thread may hold ready ahead of the estimator (:func:`read_ahead`).
@@ -283,23 +265,93 @@ def read_ahead(chunks: Iterable[SampleChunk], depth: int = READ_AHEAD) -> Iterat
         thread.join()
 
 
+
+class OrderedWorker:
+    """Calls run one at a time, in the order given, in a worker thread at most ``depth`` calls behind.
+
+    For per-block bookkeeping that reads only what it is handed (the block's arrays, a snapshot of
+    the estimator taken when the call was made), so that it overlaps the next block's estimation on
+    a second core. An exception of a call is raised on the caller's thread, at the next
+    :meth:`call` or at :meth:`join`; the calls after it are skipped. ``depth=0`` runs each call at
+    once on the caller's thread (no thread at all). As a context manager: leaving the block
+    normally joins the worker (raising its exception); leaving it by an exception stops the worker
+    (the calls still queued are dropped) and waits for it.
+    """
+
+    def __init__(self, depth: int, name: str = "online-backlash-bookkeeping") -> None:
+        self._calls: queue.Queue[Any] = queue.Queue(maxsize=max(depth, 1))
+        self._error: BaseException | None = None
+        self._stop = False
+        self._thread = threading.Thread(target=self._work, name=name, daemon=True) if depth > 0 else None
+        if self._thread is not None:
+            self._thread.start()
+
+    def _work(self) -> None:
+        while (item := self._calls.get()) is not _END:
+            if self._error is None and not self._stop:
+                fn, args, kwargs = item
+                try:
+                    fn(*args, **kwargs)
+                except BaseException as exc:  # handed over: raised on the caller's thread
+                    self._error = exc
+
+    def call(self, fn: Callable[..., object], *args: Any, **kwargs: Any) -> None:
+        """Run ``fn(*args, **kwargs)`` after the calls given before (waits while ``depth`` are queued)."""
+        if self._thread is None:
+            fn(*args, **kwargs)
+            return
+        self._raise()
+        self._calls.put((fn, args, kwargs))
+
+    def _raise(self) -> None:
+        if self._error is not None:
+            raise self._error
+
+    def _end(self) -> None:
+        """Let the worker run what is queued (unless stopped), then end it and wait for it."""
+        if self._thread is not None and self._thread.is_alive():
+            self._calls.put(_END)
+            self._thread.join()
+
+    def join(self) -> None:
+        """Wait until every call given has run; raise the exception of a call that failed."""
+        self._end()
+        self._raise()
+
+    def __enter__(self) -> OrderedWorker:
+        return self
+
+    def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: Any) -> None:
+        if exc_type is None:
+            self.join()
+        else:  # the caller failed: drop the queued calls, keep the caller's exception
+            self._stop = True
+            self._end()
+
 class Pipeline:
     """Feed chunks of samples to a recursive estimator and emit a row every ``every_s`` seconds of data.
 
     Parameters
     ----------
     estimator : BacklashRLS-like
-        A recursive estimator (``learn_many(u, y, after_gap, time_s=, torque_Nm=)``, ``started``,
-        ``force_start()``, ``mark_gap()`` and the fitted attributes :class:`EstimateRow` reads).
+        A recursive estimator (``learn_many(u, y, after_gap, time_s=, torque_Nm=)``, and
+        ``assume_finite=`` where it takes it: the pipeline then checks each chunk once), ``started``,
+        ``force_start()``, ``mark_gap()``, ``gaps_`` and the fitted attributes :class:`EstimateRow` reads).
     ratio : float
         Gear ratio motor:load (negative for a reversing stage): ``u = motor_deg / ratio``.
     every_s : float or None
         Seconds of data between rows (None: no rows but the one :meth:`finish` gives).
     clock : DataClock, optional
         Continue this clock (e.g. from a checkpoint) instead of a new one.
-    gap_policy : GapPolicy, optional
-        Which gaps are bridged (default: :class:`GapPolicy` with ``BRIDGE_S``, ``JUMP_DEG``).
-        The gaps seen are tallied in ``gap_tally`` (:class:`GapTally`).
+    rows : bool
+        Make the :class:`EstimateRow` of each tick (``PipelineStep.row``). False: the steps only say
+        where a tick falls (``PipelineStep.due``), for a caller that needs the instants but not
+        the rows, which cost time (the estimator's standard error); :meth:`finish` still gives
+        the last row.
+
+    The estimator decides which gaps are bridged (its ``gap_policy``,
+    :class:`~online_backlash.bridging.GapPolicy`) and tallies them (``gaps_``, read here as
+    :attr:`gap_tally`); the pipeline passes every ``after_gap`` on.
 
     Examples
     --------
@@ -320,59 +372,56 @@ class Pipeline:
         ratio: float,
         every_s: float | None = 1.0,
         clock: DataClock | None = None,
-        gap_policy: GapPolicy | None = None,
+        rows: bool = True,
     ) -> None:
         refer_to_load(0.0, ratio)  # validates the ratio now, not at the first chunk
         self.estimator = estimator
         self.ratio = ratio
+        self.rows = rows
+        self._checked = _checks_finite(estimator)  # the estimator may skip its own finiteness check
         self.clock = clock if clock is not None else DataClock(every_s)
-        self.gap_policy = gap_policy if gap_policy is not None else GapPolicy()
-        self.gap_tally = GapTally()
         self.samples = 0
         self.samples_since_row = 0
         self.last_time_s: float | None = None
-        self._last_uy: tuple[float, float] | None = None  # referred angles of the last sample of the segment (deg)
+
+    @property
+    def gap_tally(self) -> GapTally:
+        """The gaps seen (:class:`~online_backlash.bridging.GapTally`): the estimator's ``gaps_``."""
+        tally: GapTally = self.estimator.gaps_
+        return tally
 
     def mark_gap(self) -> None:
         """The next sample does not continue the last one (a new log, a resumed run): never bridged."""
         self.estimator.mark_gap()
         self.clock.mark_gap()
-        self._last_uy = None
-
-    def _restarts(self, chunk: SampleChunk, u: np.ndarray, y: np.ndarray) -> np.ndarray:
-        """The chunk's ``after_gap`` without the gaps :attr:`gap_policy` bridges; tallies every gap."""
-        index = np.flatnonzero(chunk.after_gap)
-        if not index.size:
-            return chunk.after_gap
-        last = (np.nan, np.nan, np.nan) if self._last_uy is None or self.last_time_s is None else (self.last_time_s, *self._last_uy)
-        dt, du, dy = (x[index] - np.concatenate(([x0], x[:-1]))[index] for x, x0 in zip((chunk.time_s, u, y), last))
-        bridged = self.gap_policy.bridged(dt, du, dy)
-        self.gap_tally.add(dt, bridged)
-        restarts = chunk.after_gap.copy()
-        restarts[index[bridged]] = False
-        return restarts
 
     def feed(self, chunk: SampleChunk) -> Iterator[PipelineStep]:
         """Learn one chunk, block by block; yield a :class:`PipelineStep` after each block.
 
-        Gaps that :attr:`gap_policy` bridges reach the estimator as ordinary steps; the data
-        clock counts no time across any gap.
+        Every ``after_gap`` reaches the estimator, which bridges the short ones (its
+        ``gap_policy``); the data clock counts no time across any gap.
         """
         if not len(chunk):
             return
         u, y = chunk.referred(self.ratio)
-        restarts = self._restarts(chunk, u, y)
-        self._last_uy = (float(u[-1]), float(y[-1]))
+        learn: dict[str, Any] = {}
+        if self._checked:  # once per chunk, not per block: a non-finite value never reaches the estimator
+            u, y = np.ascontiguousarray(u, dtype=float), np.ascontiguousarray(y, dtype=float)
+            bad = _first_non_finite(u, y)
+            if bad >= 0:
+                name = "u (motor angle / ratio)" if not math.isfinite(u[bad]) else "y (load angle)"
+                raise InvalidParameterError(f"{name} has non-finite values, first at index {bad} of the chunk (time {chunk.time_s[bad]} s)")
+            learn["assume_finite"] = True
         for start, end, due in self.clock.blocks(chunk.time_s, chunk.after_gap):
             block = _block(chunk, start, end)
-            self.estimator.learn_many(u[start:end], y[start:end], restarts[start:end], time_s=block.time_s, torque_Nm=block.torque_Nm)
+            self.estimator.learn_many(u[start:end], y[start:end], block.after_gap, time_s=block.time_s, torque_Nm=block.torque_Nm, **learn)
             self.samples += end - start
             self.samples_since_row += end - start
             self.last_time_s = float(block.time_s[-1])
-            row = EstimateRow.from_estimator(self.estimator, self.last_time_s) if due else None
-            if row is not None:
+            row = EstimateRow.from_estimator(self.estimator, self.last_time_s) if due and self.rows else None
+            if row is not None or (due and not self.rows and self.estimator.started):
                 self.samples_since_row = 0
-            yield PipelineStep(block, u[start:end], self.samples, row)
+            yield PipelineStep(block, u[start:end], self.samples, row, due)
 
     def run(self, chunks: Iterable[SampleChunk], source: str = "<stream>", ahead: int = 0) -> Iterator[PipelineStep]:
         """:meth:`feed` every chunk; LogFormatError naming ``source`` if there was no sample at all.

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from ..pipeline import GapTally
+from ..bridging import GapTally
 from ..rows import describe_counts, source_counts
 from ._common import add_can_decoding_options, add_log_options, add_ratio_option, check_plot_path, positive_float, print_json
 from .estimate import read_counted, write_trace

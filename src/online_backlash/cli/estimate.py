@@ -8,9 +8,10 @@ import os
 from collections.abc import Iterable
 from typing import Any
 
+from ..bridging import BRIDGE_S, JUMP_DEG, GapPolicy
 from ..errors import InvalidParameterError
 from ..fitting import BacklashReport, describe, fit_batch, fit_recursive
-from ..pipeline import BRIDGE_S, JUMP_DEG, READ_AHEAD, GapPolicy
+from ..pipeline import READ_AHEAD
 from ..rows import TRACE_COLUMNS, EstimateRow
 from ..stream import SampleChunk, SampleSource, read_all
 from ._common import (

@@ -189,6 +189,8 @@ class BlockPipeline(CanPipeline):
     skew_mean_s, skew_max_s : float
     """
 
+    decoder: DbcDecoder  # the block path reads the DBC's scaling (a narrower FrameDecoder)
+
     def __init__(self, decoder: DbcDecoder, period_s: float | None = None, max_skew_s: float = 1e-3) -> None:
         super().__init__(decoder, max_skew_s)
         gaps = GapDetector(decoder.counter_modulus, period_s)  # validates, and holds the rule's settings

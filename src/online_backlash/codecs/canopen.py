@@ -1,4 +1,4 @@
-"""CANopen servo drives: encoder objects found in the TPDO mapping of the object dictionary, samples grouped by SYNC.
+"""CANopen servo drives: encoder objects found in the TPDO mapping of the object dictionary, samples grouped by SYNC or paired in time.
 
 The drive's EDS or DCF file is read with the ``canopen`` library (:func:`load_dictionary`); the
 transmit PDOs are taken from its communication (0x1800 + n) and mapping (0x1A00 + n) parameters
@@ -9,10 +9,19 @@ same node (:func:`find_encoder`). Counts per revolution come from the dictionary
 (:func:`counts_per_rev`: position units per motor revolution = feed constant 0x6092 / gear ratio
 0x6091, else the position encoder resolution 0x608F) or from the options.
 
-One sample is what the SYNC producer asked for: the SYNC frame (COB-ID 0x80 or the dictionary's
-0x1005) opens a period, the TPDOs that carry the two angles complete it, and the sample is
-timestamped at the SYNC frame (:class:`SyncPipeline`). Counting, as on the DBC path
-(:mod:`~online_backlash.codecs.pairing`):
+Synchronous TPDOs (transmission type 0-240): one sample is what the SYNC producer asked for: the
+SYNC frame (COB-ID 0x80 or the dictionary's 0x1005) opens a period, the TPDOs that carry the two
+angles complete it, and the sample is timestamped at the SYNC frame (:class:`SyncPipeline`).
+
+Event-driven TPDOs (transmission type 254 or 255, the common default of drives: sent on change
+or on the event timer 0x1800+n.5, no SYNC): where either angle's TPDO is event-driven, the frames
+are paired exactly as the DBC path pairs two messages without a counter
+(:class:`~online_backlash.codecs.pairing.FramePipeline` with a :class:`PdoDecoder`): a motor value
+and a load value at most ``max_skew_s`` apart form a sample, timestamped at the earlier frame; a
+value replaced before its partner came is ``unpaired``; both angles in one TPDO make one sample
+per frame. :func:`canopen_pipeline` picks the rule from the layout (:attr:`CanopenLayout.event_driven`).
+
+Counting, as on the DBC path (:mod:`~online_backlash.codecs.pairing`); with SYNC:
 
 - ``skipped``: frames that are not ours (other COB-IDs, heartbeats, extended IDs, remote and error frames);
 - ``corrupt``: a SYNC or one of our PDOs with the wrong length (DLC), or a sample with a non-finite value;
@@ -21,7 +30,8 @@ timestamped at the SYNC frame (:class:`SyncPipeline`). Counting, as on the DBC p
 - ``gaps``: the SYNC counter (when the SYNC carries one; it runs 1 .. 0x1019) skips values, or the
   time between SYNCs is too long (the rule of :mod:`~online_backlash.codecs.gaps`).
 
-At the end (after :meth:`SyncPipeline.flush`)::
+Event-driven: SYNC frames and other COB-IDs are ``skipped``, a PDO of ours with the wrong length
+``corrupt``, a value whose partner never came ``unpaired``. At the end (after ``flush()``)::
 
     frames == skipped + corrupt + unpaired + frames_per_sample * samples
 
@@ -47,7 +57,8 @@ from online_backlash.errors import FrameError, InvalidParameterError, LogFormatE
 from online_backlash.stream import Row
 
 from .assemble import SampleAssembler
-from .pairing import CanCounters, PerFramePipeline
+from .dbc import LOAD, MOTOR, DecodedFrame
+from .pairing import CanCounters, FramePipeline, PerFramePipeline
 from .unwrap import Unwrapper
 
 #: Default COB-ID of the SYNC object (CiA 301), used when the dictionary has no 0x1005.
@@ -67,6 +78,8 @@ _N_TPDO = 512
 _PDO_NOT_VALID = 1 << 31
 #: Transmission types 0-240 are synchronous (sent after a SYNC).
 _LAST_SYNCHRONOUS = 240
+#: Transmission types 254 (manufacturer-specific) and 255 (device profile): event-driven, sent on change or on the event timer.
+EVENT_DRIVEN = (254, 255)
 
 
 def load_dictionary(path: str | os.PathLike[str], node_id: int) -> ObjectDictionary:
@@ -140,6 +153,24 @@ class Tpdo:
         """``TxPDO1_node3: 0x6064.0 Position actual value, ...``."""
         return f"{self.name}: " + ", ".join(o.label for o in self.objects)
 
+    @property
+    def trigger(self) -> str:
+        """When the drive sends it (CiA 301 transmission type): ``sync``, ``event``, ``remote request`` or ``reserved``."""
+        if self.transmission_type <= _LAST_SYNCHRONOUS:
+            return "sync"
+        if self.transmission_type in EVENT_DRIVEN:
+            return "event"
+        return "remote request" if self.transmission_type in (252, 253) else "reserved"
+
+    def as_dict(self) -> dict[str, Any]:
+        """The PDO as JSON values (``inspect --json``): number, name, COB-ID, transmission type and trigger, length in
+        bytes, the objects mapped (``0x6064.0``, name, bit offset and length)."""
+        objects = [{"object": f"0x{o.index:04X}.{o.subindex}", "name": o.name, "bit_offset": o.bit_offset, "bit_length": o.bit_length} for o in self.objects]
+        return {
+            "tpdo": self.number, "name": self.name, "cob_id": f"0x{self.cob_id:03X}", "transmission_type": self.transmission_type,
+            "trigger": self.trigger, "length": self.length, "objects": objects,
+        }  # fmt: skip
+
 
 def tpdos(od: ObjectDictionary, node_id: int, path: str | os.PathLike[str] = "") -> list[Tpdo]:
     """The valid transmit PDOs of the dictionary (communication 0x1800 + n, mapping 0x1A00 + n).
@@ -178,10 +209,11 @@ def tpdos(od: ObjectDictionary, node_id: int, path: str | os.PathLike[str] = "")
 def find_encoder(
     od: ObjectDictionary, node_id: int, path: str | os.PathLike[str], index: int, subindex: int | None = None
 ) -> tuple[Tpdo, MappedObject]:
-    """The synchronous TPDO that carries ``index`` (``subindex``, or the first one mapped), and where.
+    """The TPDO that carries ``index`` (``subindex``, or the first one mapped), and where.
 
     LogFormatError naming ``path`` and the object when the dictionary lacks it, when no TPDO maps it,
-    when it is not an integer, or when its PDO is not sent on SYNC.
+    when it is not an integer, or when its PDO is neither synchronous (transmission type 0-240) nor
+    event-driven (254, 255): sent only on a remote request (252, 253) or a reserved type.
     """
     where = f"0x{index:04X}" if subindex is None else f"0x{index:04X}.{subindex}"
     if index not in od:
@@ -194,10 +226,10 @@ def find_encoder(
     var = od.get_variable(obj.index, obj.subindex)
     if not isinstance(var, ODVariable) or var.data_type not in INTEGER_TYPES:
         raise LogFormatError(path, None, f"node {node_id}: {obj.label} is not an integer object")
-    if pdo.transmission_type > _LAST_SYNCHRONOUS:
+    if pdo.transmission_type > _LAST_SYNCHRONOUS and pdo.transmission_type not in EVENT_DRIVEN:
         raise LogFormatError(
             path, None, f"node {node_id}: {pdo.name} (0x{TPDO_COMMUNICATION + pdo.number - 1:04X}) has transmission type "
-            f"{pdo.transmission_type}, not synchronous (0-240): samples are grouped by SYNC"
+            f"{pdo.transmission_type}: neither synchronous (0-240) nor event-driven (254, 255)"
         )
     return pdo, obj
 
@@ -247,7 +279,7 @@ class Encoder:
         """Where the value rolls over: ``2**bits``."""
         return 1 << self.obj.bit_length
 
-    def degrees(self, count: int) -> float:
+    def degrees(self, count: float) -> float:
         """Degrees of the shaft for an unwrapped count."""
         return count * 360.0 / self.counts_per_rev
 
@@ -315,27 +347,51 @@ class CanopenLayout:
         return cls(motor, load, *_sync_settings(od))
 
     @property
+    def event_driven(self) -> bool:
+        """True where either angle's TPDO is event-driven (254, 255): samples are then paired in time, not grouped by SYNC."""
+        return self.motor.pdo.transmission_type in EVENT_DRIVEN or self.load.pdo.transmission_type in EVENT_DRIVEN
+
+    @property
     def pdo_lengths(self) -> dict[int, int]:
         """COB-ID -> length in bytes of each PDO a sample needs."""
         return {self.motor.pdo.cob_id: self.motor.pdo.length, self.load.pdo.cob_id: self.load.pdo.length}
 
     def names(self) -> dict[int, str]:
-        """COB-ID -> what it is, for the frames of this layout (``inspect``): the SYNC and the two PDOs."""
-        out = {self.sync_cob_id: "SYNC"}
+        """COB-ID -> what it is, for the frames of this layout (``inspect``): the SYNC (if used) and the two PDOs."""
+        out = {} if self.event_driven else {self.sync_cob_id: "SYNC"}
         for role, enc in (("motor", self.motor), ("load", self.load)):
             text = f"{enc.pdo.describe()} ({role}: {enc.obj.label})"
             out[enc.pdo.cob_id] = text if enc.pdo.cob_id not in out or role == "motor" else f"{out[enc.pdo.cob_id]}; load: {enc.obj.label}"
         return out
 
 
-def cob_id_names(dictionaries: Sequence[tuple[str | os.PathLike[str], int]]) -> dict[int, str]:
+@dataclass(frozen=True)
+class NodeMapping:
+    """What one node's dictionary says it sends (``inspect --eds``): its valid TPDOs and the SYNC COB-ID it consumes."""
+
+    path: str
+    node_id: int
+    sync_cob_id: int
+    tpdos: tuple[Tpdo, ...]
+
+    @classmethod
+    def read(cls, path: str | os.PathLike[str], node_id: int) -> NodeMapping:
+        """The TPDO mapping of node ``node_id`` in the EDS/DCF at ``path`` (errors name the file: :func:`load_dictionary`, :func:`tpdos`)."""
+        od = load_dictionary(path, node_id)
+        return cls(os.fspath(path), node_id, _sync_settings(od)[0], tuple(tpdos(od, node_id, path)))
+
+    def as_dict(self) -> dict[str, Any]:
+        """JSON values: ``node``, ``eds``, ``sync_cob_id`` and ``tpdos`` (:meth:`Tpdo.as_dict`)."""
+        return {"node": self.node_id, "eds": self.path, "sync_cob_id": f"0x{self.sync_cob_id:03X}", "tpdos": [p.as_dict() for p in self.tpdos]}
+
+
+def cob_id_names(nodes: Sequence[NodeMapping]) -> dict[int, str]:
     """COB-ID -> what it carries, for ``inspect``: the SYNC and every valid TPDO (with its mapped
-    objects) of each ``(EDS/DCF file, node-ID)``; other COB-IDs by :func:`service_name`."""
+    objects) of each node; other COB-IDs by :func:`service_name`."""
     names: dict[int, str] = {}
-    for path, node in dictionaries:
-        od = load_dictionary(path, node)
-        names.setdefault(_sync_settings(od)[0], "SYNC")
-        names.update({pdo.cob_id: pdo.describe() for pdo in tpdos(od, node, path)})
+    for node in nodes:
+        names.setdefault(node.sync_cob_id, "SYNC")
+        names.update({pdo.cob_id: pdo.describe() for pdo in node.tpdos})
     return names
 
 
@@ -459,3 +515,53 @@ class SyncPipeline(PerFramePipeline):
         if self.strict:
             raise FrameError(reason)
         self.counters.corrupt += 1
+
+
+class PdoDecoder:
+    """The angles of event-driven TPDOs, read frame by frame for :class:`~online_backlash.codecs.pairing.FramePipeline`
+    (the DBC path's pairing by time: the decoder interface of :class:`~online_backlash.codecs.dbc.DbcDecoder`).
+
+    ``decode(msg)`` gives a :class:`~online_backlash.codecs.dbc.DecodedFrame` (raw counts, role
+    MOTOR, LOAD, or both where one TPDO maps both angles) for a PDO of ours, None for any other
+    frame (a SYNC included), and raises FrameError for one of ours with the wrong length.
+
+    Attributes
+    ----------
+    motor, load : Encoder
+        ``modulus`` and ``degrees`` of each angle.
+    paired : bool
+        True where the angles come in two TPDOs.
+    counter_modulus : None
+        PDOs carry no rolling counter: pairs are made by time.
+    """
+
+    counter_modulus: int | None = None
+
+    def __init__(self, layout: CanopenLayout) -> None:
+        self.motor, self.load = layout.motor, layout.load
+        self.paired = layout.motor.pdo.cob_id != layout.load.pdo.cob_id
+        roles = {layout.motor.pdo.cob_id: MOTOR}
+        roles[layout.load.pdo.cob_id] = roles.get(layout.load.pdo.cob_id, 0) | LOAD
+        self._by_id = {cob_id: (role, layout.pdo_lengths[cob_id]) for cob_id, role in roles.items()}
+
+    def decode(self, msg: can.Message) -> DecodedFrame | None:
+        """The raw counts ``msg`` carries, None if it is not one of our PDOs; FrameError if its length is wrong."""
+        entry = self._by_id.get(msg.arbitration_id)
+        if entry is None or msg.is_error_frame or msg.is_remote_frame or msg.is_extended_id:
+            return None
+        role, length = entry
+        if msg.dlc != length or len(msg.data) != length:
+            raise FrameError(f"PDO 0x{msg.arbitration_id:03X} has {len(msg.data)} data bytes, its mapping {length}")
+        motor = self.motor.obj.value(msg.data) if role & MOTOR else 0
+        load = self.load.obj.value(msg.data) if role & LOAD else 0
+        return DecodedFrame(msg.timestamp, role, None, motor, load)
+
+
+def canopen_pipeline(layout: CanopenLayout, period_s: float | None = None, max_skew_s: float = 1e-3, strict: bool = False) -> PerFramePipeline:
+    """The frame rule of ``layout``: :class:`SyncPipeline` for synchronous TPDOs, else the DBC path's
+    pairing by time (:class:`~online_backlash.codecs.pairing.FramePipeline` over a :class:`PdoDecoder`;
+    ``max_skew_s``, seconds: the largest time between a motor and a load value of one sample).
+    ``period_s``: the nominal sample period, seconds, for the gap rule (learnt if None)."""
+    if layout.event_driven:
+        return FramePipeline(PdoDecoder(layout), period_s, max_skew_s, strict)
+    return SyncPipeline(layout, period_s, strict)

@@ -22,9 +22,11 @@ so jittery timestamps do not reach the estimator or the data clock.
 
 from __future__ import annotations
 
+import math
 import statistics
 
 import numpy as np
+from numba import njit
 
 from online_backlash.errors import InvalidParameterError
 from online_backlash.stream import GAP_PERIODS, Gap
@@ -107,28 +109,32 @@ class GapDetector:
     def check_times(self, time_s: np.ndarray) -> tuple[np.ndarray, list[Gap]]:
         """:meth:`check` for a block of timestamps (seconds) without counters.
 
-        Returns ``after_gap`` (True where a gap precedes the sample) and the gaps, in order.
+        Returns ``after_gap`` (True where a gap precedes the sample) and the gaps, in order. The
+        steps after the period is known are tested in one compiled pass (:func:`_flag_gaps`,
+        ``nogil``), the same rule as :meth:`check` (tested equal).
         """
+        time_s = np.asarray(time_s, dtype=float)
         n = time_s.shape[0]
         after_gap = np.zeros(n, dtype=bool)
         if n == 0:
             return after_gap, []
-        previous = np.empty(n)
-        previous[0] = np.nan if self._last_time is None else self._last_time
-        previous[1:] = time_s[:-1]
-        dt = time_s - previous
         first = 0 if self._last_time is not None else 1
+        last = self._last_time if self._last_time is not None else math.nan
         self._last_time, self._last_counter = float(time_s[-1]), None
         while self.period_s is None and first < n:
             take = min(self.learn_steps - len(self._steps), n - first)
-            self._learn(dt[first : first + take].tolist())
+            before = time_s[first - 1] if first > 0 else last
+            self._learn(np.diff(time_s[first : first + take], prepend=before).tolist())
             first += take
         if self.period_s is None or first >= n:
             return after_gap, []
-        index = first + np.flatnonzero(step_is_gap(dt[first:], self.period_s, self.gap_periods))
-        after_gap[index] = True
         period = self.period_s
-        return after_gap, [Gap(t, d, missing_in_step(d, period)) for t, d in zip(time_s[index].tolist(), dt[index].tolist())]
+        start = time_s[first - 1] if first > 0 else last
+        if not _flag_gaps(time_s, first, start, period * self.gap_periods, after_gap):
+            return after_gap, []
+        index = np.flatnonzero(after_gap)
+        steps = time_s[index] - np.where(index > 0, time_s[index - 1], start)
+        return after_gap, [Gap(t, d, missing_in_step(d, period)) for t, d in zip(time_s[index].tolist(), steps.tolist())]
 
     def _learn(self, steps: list[float]) -> None:
         """Take steps (seconds) towards the learnt period: the median of the first ``learn_steps``, or with a
@@ -138,6 +144,21 @@ class GapDetector:
             period = statistics.median(self._steps) if self.counter_modulus is None else statistics.fmean(self._steps)
             self.period_s = period if period > 0 else None
             self._steps.clear()
+
+
+@njit(cache=True, nogil=True)
+def _flag_gaps(time_s: np.ndarray, first: int, before: float, longest_s: float, after_gap: np.ndarray) -> int:  # pragma: no cover - compiled
+    """Set ``after_gap[i]`` for ``i >= first`` where the step to ``time_s[i]`` (from ``time_s[i - 1]``, or
+    ``before`` for ``i == 0``) is longer than ``longest_s`` seconds (:func:`step_is_gap`); returns how many."""
+    found = 0
+    previous = before
+    for i in range(first, time_s.shape[0]):
+        if i > 0:
+            previous = time_s[i - 1]
+        if time_s[i] - previous > longest_s:
+            after_gap[i] = True
+            found += 1
+    return found
 
 
 class CounterClock:

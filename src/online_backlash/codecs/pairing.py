@@ -29,6 +29,7 @@ from __future__ import annotations
 from abc import ABC, abstractmethod
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Protocol
 
 import can
 
@@ -36,7 +37,7 @@ from online_backlash.errors import FrameError, InvalidParameterError
 from online_backlash.stream import Row, Sample, SampleChunk, StreamCounters, rows_to_chunk
 
 from .assemble import SampleAssembler
-from .dbc import BOTH, MOTOR, DbcDecoder, DecodedFrame
+from .dbc import BOTH, MOTOR, DecodedFrame
 from .unwrap import Unwrapper
 
 
@@ -52,6 +53,34 @@ class CanCounters(StreamCounters):
         return out
 
 
+class AngleScale(Protocol):
+    """How a decoder's raw angle becomes degrees: where it rolls over (None: never) and the scale."""
+
+    @property
+    def modulus(self) -> int | None: ...
+
+    def degrees(self, count: float, /) -> float: ...
+
+
+class FrameDecoder(Protocol):
+    """What :class:`FramePipeline` needs of a decoder: :class:`~online_backlash.codecs.dbc.DbcDecoder`
+    (a DBC's messages) or :class:`~online_backlash.codecs.canopen.PdoDecoder` (event-driven CANopen TPDOs)."""
+
+    @property
+    def paired(self) -> bool: ...
+
+    @property
+    def counter_modulus(self) -> int | None: ...
+
+    @property
+    def motor(self) -> AngleScale: ...
+
+    @property
+    def load(self) -> AngleScale: ...
+
+    def decode(self, msg: can.Message) -> DecodedFrame | None: ...
+
+
 class CanPipeline(ABC):
     """What the per-frame and the block pipeline share: CAN frames in, samples and counters out.
 
@@ -64,7 +93,7 @@ class CanPipeline(ABC):
         Mean and largest absolute time between the frames of a pair, seconds (0 for one message).
     """
 
-    def __init__(self, decoder: DbcDecoder, max_skew_s: float) -> None:
+    def __init__(self, decoder: FrameDecoder, max_skew_s: float) -> None:
         if not max_skew_s >= 0:
             raise InvalidParameterError(f"max_skew_s must be >= 0, got {max_skew_s!r}")
         self.decoder = decoder
@@ -141,7 +170,8 @@ class FramePipeline(PerFramePipeline):
 
     Parameters
     ----------
-    decoder : DbcDecoder
+    decoder : DbcDecoder or PdoDecoder
+        Any :class:`FrameDecoder`: a DBC's messages, or event-driven CANopen TPDOs (no counter: paired by time).
     period_s : float, optional
         Nominal sample period (learnt from the first steps if None), for gap detection.
     max_skew_s : float
@@ -167,7 +197,7 @@ class FramePipeline(PerFramePipeline):
     {'frames': 2, 'samples': 1, 'corrupt': 0, 'skipped': 0, 'gaps': 0, 'unpaired': 0}
     """
 
-    def __init__(self, decoder: DbcDecoder, period_s: float | None = None, max_skew_s: float = 1e-3, strict: bool = False) -> None:
+    def __init__(self, decoder: FrameDecoder, period_s: float | None = None, max_skew_s: float = 1e-3, strict: bool = False) -> None:
         super().__init__(decoder, max_skew_s)
         self.strict = strict
         self._pending: list[DecodedFrame | None] = [None, None]  # [motor, load]

@@ -15,6 +15,7 @@ Units: degrees.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
@@ -47,6 +48,14 @@ class Folds:
     n_folds: int
     n_cycles: int
     kind: str
+
+    @cached_property
+    def segments(self) -> list[tuple[int, int, int]]:
+        """The record as contiguous runs of one fold: ``(fold, start, stop)`` sample ranges, in order."""
+        cuts = np.flatnonzero(np.diff(self.fold)) + 1
+        starts = np.concatenate(([0], cuts))
+        stops = np.concatenate((cuts, [self.fold.size]))
+        return [(int(self.fold[a]), int(a), int(b)) for a, b in zip(starts, stops)] if self.fold.size else []
 
     def as_dict(self) -> dict[str, object]:
         """For the JSON evidence: ``{"folds", "cycles", "split"}``."""

@@ -20,10 +20,13 @@ on the other folds and the squared error on the fold is summed (``heldout_gain``
 from :data:`MIN_FOLDS` folds on (two: a record of two cycles is held out one against the other).
 
 Speed. Every quantity is a function of cross-products: the per-fold Gram matrices of the
-nuisance columns and the residual are formed once per :class:`DetectionData`, and a candidate
-only adds its own products with them (``O(n q (p + q))`` for ``q`` columns and ``p`` nuisance
-columns) before small solves; the lag-1 autocorrelation of what is left takes one combination of
-the columns (``O(n (p + q))``). Nothing of length ``n`` is refitted per candidate.
+nuisance columns and the residual are formed once per :class:`DetectionData` (summed over each
+fold's contiguous reversal cycles, no column gathered into fold order), and a candidate only adds
+its own products with them (``O(n q (p + q))`` for ``q`` columns and ``p`` nuisance columns)
+before small solves (:mod:`._normal_equations`); :meth:`DetectionData.with_nuisance` adds the new
+columns' products to those it has (a rank-``q`` update). The lag-1 autocorrelation of what is
+left takes one compiled pass over one combination of the columns (``O(n (p + q))``). Nothing of
+length ``n`` is refitted per candidate.
 """
 
 from __future__ import annotations
@@ -32,8 +35,11 @@ from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 
 import numpy as np
+from numba import njit
 
+from ..model import BacklashParams
 from ._folds import Folds, cycle_folds
+from ._normal_equations import fit_rss, solve
 
 #: delta_bic must fall below this for a term to count as detected
 BIC_THRESHOLD = -10.0
@@ -46,8 +52,6 @@ MIN_GAIN = 0.05
 MIN_OWN_SHARE = 0.1
 #: the held-out gain gates a term over at least this many folds (reversal cycles or time blocks)
 MIN_FOLDS = 2
-#: relative size below which a direction of the (scaled) normal equations counts as degenerate
-_RCOND = 1e-10
 
 
 @dataclass(frozen=True)
@@ -107,50 +111,70 @@ def _n_eff(n: int, rho: float) -> float:
     return max(n * (1.0 - rho) / (1.0 + rho), 2.0)
 
 
-def _solve(gram: np.ndarray, rhs: np.ndarray) -> np.ndarray:
-    """Least-squares coefficients from the normal equations, scaled to unit diagonal and solved by a
-    truncated eigen-decomposition (degenerate directions get no weight)."""
-    d = np.sqrt(np.maximum(np.diag(gram), 1e-300))
-    a = gram / d[:, None] / d[None, :]
-    w, v = np.linalg.eigh(a)
-    keep = w > _RCOND * max(float(w[-1]), 1e-300)
-    c = v[:, keep] @ ((v[:, keep].T @ (rhs / d)) / w[keep])
-    return c / d
-
-
 class _Grams:
-    """Cross-products of ``Z = [nuisance, residual]``: per fold and in total."""
+    """Cross-products of ``Z = [nuisance, residual]``: per fold and in total.
 
-    def __init__(self, z: np.ndarray, folds: Folds) -> None:
-        self.order = np.argsort(folds.fold, kind="stable")
-        counts = np.bincount(folds.fold, minlength=folds.n_folds)
-        self.bounds = np.concatenate(([0], np.cumsum(counts)))
+    A fold is a set of whole reversal cycles, each a contiguous run of samples
+    (:attr:`._folds.Folds.segments`): its cross-products are summed over its runs, so no column is
+    ever gathered into fold order.
+    """
+
+    def __init__(self, z: np.ndarray, folds: Folds, per_fold: np.ndarray | None = None) -> None:
+        self.folds = folds
+        #: the nuisance columns and the residual these are the cross-products of (set by DetectionData)
+        self.nuisance: np.ndarray | None = None
+        self.residual: np.ndarray | None = None
         self.z = z
-        self.zs = z[self.order]
-        self.per_fold = np.stack([self._block(self.zs, self.zs, k) for k in range(folds.n_folds)])
+        self.per_fold = self._per_fold(z, z) if per_fold is None else per_fold
         self.total = self.per_fold.sum(axis=0)
 
-    def _block(self, a: np.ndarray, b: np.ndarray, k: int) -> np.ndarray:
-        s = slice(self.bounds[k], self.bounds[k + 1])
-        return a[s].T @ b[s]
+    def _per_fold(self, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+        """``a^T b`` over the samples of every fold, ``(n_folds, a columns, b columns)``."""
+        out = np.zeros((self.folds.n_folds, a.shape[1], b.shape[1]))
+        for k, start, stop in self.folds.segments:
+            out[k] += a[start:stop].T @ b[start:stop]
+        return out
+
+    def with_columns(self, x: np.ndarray) -> _Grams:
+        """The cross-products of ``[nuisance, x, residual]``: those of ``x`` added to these (a rank-``q``
+        update, ``O(n q (p + q))``), nothing of the nuisance recomputed."""
+        per_fold, _ = self.extended(x)
+        p = self.z.shape[1] - 1
+        return _Grams(np.column_stack((self.z[:, :p], x, self.z[:, p])), self.folds, per_fold)
 
     def extended(self, x: np.ndarray, heldout: bool = True) -> tuple[np.ndarray, np.ndarray]:
         """Per-fold (empty without ``heldout``) and total Grams of ``W = [nuisance, x, residual]`` (residual last)."""
         p, q, k = self.z.shape[1], x.shape[1], self.per_fold.shape[0]
         if not heldout:
             return np.empty((0, p + q, p + q)), _assemble(self.total, self.z.T @ x, x.T @ x)
-        xs = x[self.order]
+        zx, xx = self._per_fold(self.z, x), self._per_fold(x, x)
         out = np.empty((k, p + q, p + q))
         for j in range(k):
-            out[j] = _assemble(self.per_fold[j], self._block(self.zs, xs, j), self._block(xs, xs, j))
+            out[j] = _assemble(self.per_fold[j], zx[j], xx[j])
         return out, out.sum(axis=0)
 
     def lag_product(self, x: np.ndarray, e: np.ndarray) -> float:
         """``sum_t w(t+1) w(t)`` for ``w = W e``, ``W = [nuisance, x, residual]``: the lag-1 product of a
-        combination of W's columns, formed as one vector (``O(n (p + q))``, no lag-1 Gram of ``x``)."""
+        combination of W's columns, in one compiled pass (``O(n (p + q))``, no lag-1 Gram of ``x``)."""
         p = self.z.shape[1] - 1
-        w = self.z @ np.concatenate((e[:p], e[-1:])) + x @ e[p:-1]
-        return float(np.dot(w[1:], w[:-1]))
+        return float(_lag_product(self.z, np.concatenate((e[:p], e[-1:])), np.ascontiguousarray(x), np.ascontiguousarray(e[p:-1])))
+
+
+@njit(cache=True)
+def _lag_product(z, ez, x, ex):  # pragma: no cover - compiled
+    """``sum_t w(t) w(t-1)`` for ``w = z @ ez + x @ ex``, in one pass without forming ``w``."""
+    total = 0.0
+    prev = 0.0
+    for t in range(z.shape[0]):
+        w = 0.0
+        for j in range(z.shape[1]):
+            w += z[t, j] * ez[j]
+        for j in range(x.shape[1]):
+            w += x[t, j] * ex[j]
+        if t:
+            total += w * prev
+        prev = w
+    return total
 
 
 def _assemble(zz: np.ndarray, zx: np.ndarray, xx: np.ndarray) -> np.ndarray:
@@ -164,12 +188,6 @@ def _assemble(zz: np.ndarray, zx: np.ndarray, xx: np.ndarray) -> np.ndarray:
     g[np.ix_(np.arange(p, p + q), sel)] = zx.T
     g[p : p + q, p : p + q] = xx
     return g
-
-
-def _fit_rss(gram: np.ndarray, cols: np.ndarray) -> tuple[np.ndarray, float]:
-    """Coefficients on the columns ``cols`` of W and the RSS of the residual (W's last column)."""
-    c = _solve(gram[np.ix_(cols, cols)], gram[cols, -1])
-    return c, float(gram[-1, -1] - c @ gram[cols, -1])
 
 
 def _test_sse(gram: np.ndarray, cols: np.ndarray, c: np.ndarray) -> float:
@@ -187,8 +205,8 @@ def _score_grams(per_fold: np.ndarray, total: np.ndarray, lag: Callable[[np.ndar
     m = total.shape[0] - 1
     q = m - p
     base, full = np.arange(p), np.arange(m)
-    _, rss0 = _fit_rss(total, base)
-    c, rss1 = _fit_rss(total, full)
+    _, rss0 = fit_rss(total, base)
+    c, rss1 = fit_rss(total, full)
     rss0, rss1 = max(rss0, 0.0), max(rss1, 0.0)
     # lag-1 autocorrelation of what is left, e = r - W c (zero mean: the constant is a column)
     e = np.concatenate((-c, [1.0]))
@@ -209,8 +227,8 @@ def _score_grams(per_fold: np.ndarray, total: np.ndarray, lag: Callable[[np.ndar
         sse0 = sse1 = 0.0
         for g in per_fold:
             train = total - g
-            sse0 += _test_sse(g, base, _fit_rss(train, base)[0])
-            sse1 += _test_sse(g, full, _fit_rss(train, full)[0])
+            sse0 += _test_sse(g, base, fit_rss(train, base)[0])
+            sse1 += _test_sse(g, full, fit_rss(train, full)[0])
         held = 1.0 - sse1 / sse0 if sse0 > 0 else 0.0
     k = per_fold.shape[0]
     if rss0 <= 0:
@@ -220,7 +238,7 @@ def _score_grams(per_fold: np.ndarray, total: np.ndarray, lag: Callable[[np.ndar
 
 
 def _solve_many(gram: np.ndarray, rhs: np.ndarray) -> np.ndarray:
-    return np.column_stack([_solve(gram, rhs[:, j]) for j in range(rhs.shape[1])]) if rhs.shape[1] else rhs
+    return np.column_stack([solve(gram, rhs[:, j]) for j in range(rhs.shape[1])]) if rhs.shape[1] else rhs
 
 
 def score_columns(residual: np.ndarray, columns: np.ndarray, nuisance: np.ndarray | None = None) -> Score:
@@ -262,17 +280,32 @@ class DetectionData:
     folds: Folds | None = None
     #: the current backlash model's output, eq. (1)-(3), deg (for effects defined on it)
     model_output_deg: np.ndarray | None = None
-    #: the cross-products of the nuisance columns and the residual, set in __post_init__
-    grams: _Grams = field(init=False, repr=False)
+    #: the current backlash fit, eq. (1), in the frame of ``u_deg`` minus its first sample (for
+    #: effects that run the model's switching functions themselves)
+    backlash_params: BacklashParams | None = None
+    #: the cross-products of the nuisance columns and the residual (formed in __post_init__ unless
+    #: given for exactly these nuisance columns, residual and folds, as :meth:`with_nuisance` does)
+    grams: _Grams | None = field(default=None, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         n = self.residual_deg.size
+        given = self.grams
+        if given is not None and not (given.nuisance is self.nuisance and given.residual is self.residual_deg and given.folds is self.folds):
+            given = None  # made for other data (a replace() of something else): formed afresh
         base = np.ones((n, 1)) if self.nuisance is None else np.asarray(self.nuisance, dtype=float).reshape(n, -1)
         if self.folds is None:
             object.__setattr__(self, "folds", cycle_folds(self.u_deg))
         assert self.folds is not None
         object.__setattr__(self, "nuisance", base)
-        object.__setattr__(self, "grams", _Grams(np.column_stack((base, self.residual_deg)), self.folds))
+        if given is None:
+            given = _Grams(np.column_stack((base, self.residual_deg)), self.folds)
+        given.nuisance, given.residual = base, self.residual_deg
+        object.__setattr__(self, "grams", given)
+
+    @property
+    def _cross(self) -> _Grams:
+        assert self.grams is not None
+        return self.grams
 
     @property
     def engaged(self) -> np.ndarray:
@@ -290,16 +323,19 @@ class DetectionData:
         (held through the dead band when ``input_side``). Without ``heldout`` the cross-validation
         is skipped (``heldout_gain`` NaN; a cheaper screening score)."""
         x = self.hold(columns) if input_side else np.asarray(columns, dtype=float).reshape(self.residual_deg.size, -1)
-        per_fold, total = self.grams.extended(x, heldout)
+        per_fold, total = self._cross.extended(x, heldout)
         assert self.nuisance is not None
         p = self.nuisance.shape[1]
         terms = np.r_[0, np.arange(max(self.n_backlash, 1), p)] if self.n_backlash else np.arange(p)
-        return _score_grams(per_fold, total, lambda e: self.grams.lag_product(x, e), self.residual_deg.size, p, terms)
+        return _score_grams(per_fold, total, lambda e: self._cross.lag_product(x, e), self.residual_deg.size, p, terms)
 
     def with_nuisance(self, columns: np.ndarray) -> DetectionData:
-        """The same data with ``columns`` added to the nuisance columns."""
+        """The same data with ``columns`` added to the nuisance columns (their cross-products updated, not recomputed)."""
         assert self.nuisance is not None
-        return replace(self, nuisance=np.column_stack((self.nuisance, columns)))
+        x = np.asarray(columns, dtype=float).reshape(self.residual_deg.size, -1)
+        grams = self._cross.with_columns(x)
+        grams.nuisance = grams.z[:, :-1]  # a view: the nuisance columns are not copied twice
+        return replace(self, nuisance=grams.nuisance, grams=grams)
 
     def fold_info(self) -> dict[str, object]:
         """How the held-out cycles were chosen (for the evidence)."""

@@ -34,7 +34,6 @@ array([[ 0.,  1.],
 
 from __future__ import annotations
 
-import inspect
 from collections.abc import Callable, Sequence
 from dataclasses import replace
 from typing import Any
@@ -43,69 +42,20 @@ import numpy as np
 
 from ..errors import InvalidParameterError
 from ..load_aware.engagement import engaged_flank, torque_deadband
-from ._causal import CausalWindow, acceleration_deg_s2, lagged_difference, velocity_deg_s
+from ._causal import acceleration_deg_s2, lagged_difference, velocity_deg_s
+from ._effect_base import EffectBase
 from ._scoring import Detection, DetectionData, best_detection
+from ._speed import speed_columns
+from .dead_band import DeadBandMotion
 
 #: the names an effect of the library may carry (the ``name`` of the JSON contract)
-VOCABULARY = ("transmission_error", "delay", "compliance", "drift")
+VOCABULARY = ("transmission_error", "delay", "compliance", "drift", "dead_band_motion")
 
 _RAD = np.pi / 180.0
 #: share of the residual one harmonic order must explain on its own to be kept
 MIN_ORDER_GAIN = 0.01
 #: a transmission error claims a repeating pattern: its order must repeat at least this often in the record
 PERIODIC_MIN_PERIODS = 2.0
-
-
-class EffectBase:
-    """Parameters from ``__init__`` (river style), a causal window, ``clone`` and ``reset``."""
-
-    name = "effect"
-    history = 0
-    #: True for an effect on the input side of the backlash (held through the dead band in
-    #: the output-error fit, see :mod:`.joint`); False for one on the load reading itself
-    input_side = True
-
-    def __init__(self) -> None:
-        self._window = CausalWindow(self.history)
-        self.reset()
-
-    def get_params(self) -> dict[str, Any]:
-        """The constructor arguments of this effect."""
-        names = [p for p in inspect.signature(type(self).__init__).parameters if p != "self"]
-        return {n: getattr(self, n) for n in names}
-
-    def clone(self) -> EffectBase:
-        """A fresh copy with the same settings and no stream history."""
-        return type(self)(**self.get_params())
-
-    def reset(self) -> None:
-        """Forget the stream history (start of a record or after a gap)."""
-        self._window.reset()
-
-    @property
-    def n_terms(self) -> int:
-        """Number of regressor columns."""
-        raise NotImplementedError
-
-    def terms(self, u_deg: np.ndarray, time_s: np.ndarray, torque_Nm: np.ndarray) -> np.ndarray:
-        """Regressor columns ``(len(u_deg), n_terms)`` for consecutive samples (causal)."""
-        u, t, q, n_past = self._window.extend(u_deg, time_s, torque_Nm)
-        if u.size == 0:
-            return np.empty((0, self.n_terms))
-        cols = self._columns(u, t, q)
-        self._window.keep(u, t, q)
-        return np.ascontiguousarray(cols[n_past:]).reshape(-1, self.n_terms)
-
-    def _columns(self, u: np.ndarray, t: np.ndarray, q: np.ndarray) -> np.ndarray:
-        raise NotImplementedError
-
-    def describe(self, coef: np.ndarray) -> dict[str, Any]:
-        """The effect's parameters with units in their names, from its fitted coefficients."""
-        raise NotImplementedError
-
-    def __repr__(self) -> str:
-        args = ", ".join(f"{k}={v!r}" for k, v in self.get_params().items())
-        return f"{type(self).__name__}({args})"
 
 
 def harmonic_columns(angle_deg: np.ndarray, orders: Sequence[float]) -> np.ndarray:
@@ -151,10 +101,19 @@ def select_orders(
         return []
     resolution = 360.0 / span_deg
     remaining = [n for n in range(1, max_order + 1) if n >= min_periods * resolution]
-    # forward selection among the strongest orders on their own (a cheap first pass)
-    first = sorted((data.score(True, columns(n), heldout=False).delta_bic, n) for n in remaining)
-    remaining = [n for _, n in first[: 2 * max_orders]]
+    # forward selection among the strongest orders on their own (a cheap first pass); the held
+    # columns of the strongest so far are kept for it (a long record rebuilds them instead)
     held: dict[int, np.ndarray] = {}  # the candidates' columns held through the dead band, built once
+    first = []
+    for n in remaining:
+        x = data.hold(columns(n))
+        first.append((data.score(False, x, heldout=False).delta_bic, n))
+        if x.nbytes * 2 * max_orders <= SELECT_CACHE_BYTES:
+            held[n] = x
+            if len(held) > 2 * max_orders:
+                del held[max((b, m) for b, m in first if m in held)[1]]  # the weakest kept
+    first.sort()
+    remaining = [n for _, n in first[: 2 * max_orders]]
 
     def candidate(n: int) -> np.ndarray:
         if n in held:
@@ -482,38 +441,55 @@ class Drift(EffectBase):
 
         A rig that turns steadily while it reverses makes time nearly collinear with the angle:
         a drift in time and anything that grows with the angle (a slope error, a long-period
-        error of the shaft) then explain the same part of the residual. The drift is scored with
-        the polynomial of degree ``max_degree`` of the net rotation ``u - u[0]`` among the
-        nuisance columns: it is claimed
-        only if time explains a share of the residual that the net rotation does not (in sample
-        and on the held-out cycles). If it was significant in time alone, it is returned with
-        ``rivals=("net_rotation",)``: the loop reports the two as not separable.
+        error of the shaft) then explain the same part of the residual. And a polynomial in time
+        picks up what a function of the speed leaves from one stretch of constant speed to the
+        next (the rig's speed changes at every reversal). The drift is therefore scored with two
+        rivals among the nuisance columns: the polynomial of degree ``max_degree`` of the net
+        rotation ``u - u[0]``, and the most flexible smooth function of the speed
+        (:func:`._speed.speed_columns`, held through the dead band). It is claimed only if time
+        explains a share of the residual that neither does (in sample and on the held-out cycles).
+
+        If it was significant in time alone, the rivals that take it away are named:
+        ``"net_rotation"`` (the loop reports the two as not separable) and ``"velocity_function"``
+        when a function of the speed is a finding of its own on this residual. When only the
+        speed takes it away and the speed's columns are not significant themselves (a velocity
+        term already in the model leaves this: they keep less than ``MIN_OWN_SHARE`` of their
+        variance beyond it, or explain too little), what the polynomial fits is that term's
+        leftover, and nothing is claimed: the non-significant score is returned.
         """
         span = float(data.time_s[-1] - data.time_s[0]) or 1.0
         rotation = data.u_deg - data.u_deg[0]
         scale = float(np.max(np.abs(rotation))) or 1.0
-        beyond = data.with_nuisance(np.column_stack([(rotation / scale) ** j for j in range(1, max_degree + 1)]))
+        rivals = {
+            "net_rotation": np.column_stack([(rotation / scale) ** j for j in range(1, max_degree + 1)]),
+            "velocity_function": data.hold(speed_columns(data.u_deg, data.time_s)),
+        }
+        beyond = data.with_nuisance(np.column_stack(list(rivals.values())))
         found, alone = [], []
         for degree in range(1, max_degree + 1):
             effect = cls(degree, span)
             cols = effect.clone().terms(data.u_deg, data.time_s, data.torque_Nm)
             in_time = data.score(effect.input_side, cols)
-            # what time explains beyond the rotation decides; the collinearity test is against the terms only
+            # what time explains beyond its rivals decides; the collinearity test is against the terms only
             s = replace(beyond.score(effect.input_side, cols), own_share=in_time.own_share)
-            found.append(Detection(effect, s, f"residual drifts in time (degree {degree} over {span:.0f} s), beyond the net rotation"))
+            found.append(Detection(effect, s, f"residual drifts in time (degree {degree} over {span:.0f} s), beyond the net rotation and the speed"))
             alone.append(Detection(effect, in_time, "in time alone"))
         best = best_detection(found)
-        if best is not None and not best.score.significant():
-            # significant in time alone but not beyond the net rotation: the two are not separable
-            confounded = best_detection([d for d in alone if d.score.significant()])
-            if confounded is not None:
-                return Detection(
-                    confounded.effect, confounded.score,
-                    f"residual drifts in time (degree {getattr(confounded.effect, 'degree', 0)}), but time is collinear with the net rotation",
-                    rivals=("net_rotation",),
-                )
-        return best
+        confounded = best_detection([d for d in alone if d.score.significant()])
+        if best is None or best.score.significant() or confounded is None:
+            return best
+        cols = confounded.effect.clone().terms(data.u_deg, data.time_s, data.torque_Nm)  # type: ignore[attr-defined]
+        named = tuple(k for k, x in rivals.items() if x.shape[1] and not data.with_nuisance(x).score(False, cols).significant())
+        if "velocity_function" in named and not data.score(False, rivals["velocity_function"]).significant():
+            named = tuple(k for k in named if k != "velocity_function")  # the leftover of a velocity term already in
+            if not named:
+                return best
+        return Detection(
+            confounded.effect, confounded.score,
+            f"residual drifts in time (degree {getattr(confounded.effect, 'degree', 0)}), but time is collinear with {' and '.join(named or tuple(rivals))}",
+            rivals=named or tuple(rivals),
+        )
 
 
 #: the named effects, in the order they are tried
-LIBRARY = (TransmissionError, Delay, Compliance, Drift)
+LIBRARY = (TransmissionError, Delay, Compliance, Drift, DeadBandMotion)

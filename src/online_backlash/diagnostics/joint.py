@@ -34,6 +34,7 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from ..model import BacklashParams, backlash_sensitivity, simulate_switching
+from ._normal_equations import Projector, left_sum_of_squares
 from ._scoring import effective_samples
 
 #: an effect may move the play only if the play's standard error stays below this share of it
@@ -91,35 +92,11 @@ def hold_columns(columns: np.ndarray, held: np.ndarray, index: np.ndarray) -> np
     """``columns`` with the ``held`` ones (boolean per column) taken at ``index`` (see :func:`engaged_index`)."""
     if not np.any(held):
         return columns
+    if np.all(held):
+        return np.take(columns, index, axis=0)
     out = columns.copy()
     out[:, held] = np.take(columns[:, held], index, axis=0)
     return out
-
-
-class _Projector:
-    """Least squares on fixed columns: ``coef(v)`` and the part of ``v`` they leave."""
-
-    def __init__(self, columns: np.ndarray) -> None:
-        self.q: np.ndarray
-        self.r: np.ndarray
-        self.q, self.r = np.linalg.qr(columns) if columns.shape[1] else (columns, np.empty((0, 0)))
-
-    def leave(self, v: np.ndarray) -> np.ndarray:
-        return v - self.q @ (self.q.T @ v) if self.q.shape[1] else v
-
-    def coef(self, v: np.ndarray) -> np.ndarray:
-        return np.linalg.solve(self.r, self.q.T @ v) if self.q.shape[1] else np.empty(0)
-
-
-def _left(target: np.ndarray, basis: np.ndarray) -> np.ndarray:
-    """What the least squares of ``target`` on ``basis`` leaves."""
-    coef, *_ = np.linalg.lstsq(basis, target, rcond=None)
-    return target - basis @ coef
-
-
-def _r2(target: np.ndarray, left: np.ndarray) -> float:
-    """Share of ``target`` explained, from what its least squares left (``left``)."""
-    return 1.0 - float(np.dot(left, left)) / float(np.dot(target, target))
 
 
 def play_sensitivity(uc: np.ndarray, params: BacklashParams) -> tuple[np.ndarray, np.ndarray]:
@@ -161,10 +138,21 @@ def fit_joint(
 def _fit_fixed_columns(
     uc: np.ndarray, yc: np.ndarray, columns: np.ndarray, start: BacklashParams, hold_play: float | None
 ) -> JointFit:
-    """:func:`fit_joint` for columns that do not depend on the backlash parameters."""
-    proj = _Projector(columns)
+    """:func:`fit_joint` for columns that do not depend on the backlash parameters.
+
+    The search is scipy's trust-region least squares on the variable-projection residual
+    ``r = P (yc - x(p))`` (``P`` projects off ``columns``) with Jacobian ``-P dx/dp``. It uses them
+    only through ``J^T J``, ``J^T r`` and ``|r|^2``, so each point is handed to it as a factor
+    ``R`` of ``k + 1`` rows with ``R^T R`` the Gram matrix of ``P [dx/dp, yc - x]`` (``k`` searched
+    parameters): the same steps and the same stopping as on all ``n`` rows, at ``O(n (q + k) k)``
+    per point for ``q`` columns, with no ``n``-row SVD. (trf's full-rank test of ``J`` scales with
+    the row count: the two differ only for a Jacobian singular to about 1e-10 of its largest value.)
+    """
+    proj = Projector(columns)
+    n = uc.size
     # p = dp_dv @ v (+ the held play on cR)
     dp_dv = np.array([[1.0, 0, 0], [0, 1, 0], [0, 0, 1], [0, -1, 0]]) if hold_play is not None else np.eye(4)
+    k = dp_dv.shape[1]
 
     def unpack(v: np.ndarray) -> np.ndarray:
         return dp_dv @ v + (np.array([0, 0, 0, hold_play]) if hold_play is not None else 0.0)
@@ -174,42 +162,49 @@ def _fit_fixed_columns(
 
     last: dict[bytes, tuple[np.ndarray, np.ndarray]] = {}
 
-    def simulate(p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """:func:`_simulate`, run once for the residual and the Jacobian at the same point."""
-        key = p.tobytes()
+    def factor(v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``(r, J)`` of ``k + 1`` rows with the ``J^T J``, ``J^T r`` and ``|r|^2`` of the full problem."""
+        key = v.tobytes()
         if key not in last:
             last.clear()
-            last[key] = _simulate(uc, p)
+            p = unpack(v)
+            if not valid(p):
+                # the same cost as n rows of 1e6
+                last[key] = (np.full(k + 1, 1e6 * np.sqrt(n / (k + 1))), np.zeros((k + 1, k)))
+            else:
+                x, dx = _simulate(uc, p)
+                a = np.empty((n, k + 1))
+                a[:, :k] = dx if hold_play is None else dx @ dp_dv
+                np.subtract(yc, x, out=a[:, k])
+                w, vec = np.linalg.eigh(proj.left_gram(a))
+                r = np.sqrt(np.maximum(w, 0.0))[:, None] * vec.T  # r^T r = the Gram of P a
+                last[key] = (r[:, k], -r[:, :k])
         return last[key]
 
     def residual(v: np.ndarray) -> np.ndarray:
-        p = unpack(v)
-        if not valid(p):
-            return np.full(uc.size, 1e6)
-        return proj.leave(yc - simulate(p)[0])
+        return factor(v)[0]
 
     def jacobian(v: np.ndarray) -> np.ndarray:
-        p = unpack(v)
-        if not valid(p):
-            return np.zeros((uc.size, v.size))
-        dx = simulate(p)[1]
-        return -proj.leave(dx if hold_play is None else dx @ dp_dv)
+        return factor(v)[1]
 
     p0 = np.array([start.m_left, start.c_left, start.m_right, start.c_right])
     v0 = p0[:3] if hold_play is not None else p0
+    cost0 = float(np.sum(residual(v0) ** 2))
     result = least_squares(residual, v0, jac=jacobian, x_scale="jac")
-    v = result.x if np.sum(result.fun**2) < np.sum(residual(v0) ** 2) else v0
+    v = result.x if np.sum(result.fun**2) < cost0 else v0
     p = unpack(v)
     params = BacklashParams(*p)
-    x = simulate(p)[0]
+    x, dx = _simulate(uc, p)
     coef = proj.coef(yc - x)
-    left = proj.leave(yc - x)
-    g, others = play_sensitivity(uc, params)
-    r2_base = _r2(g, _left(g, others))
-    g_left = _left(g, np.column_stack((others, columns)))
-    inflation = (1.0 - r2_base) / max(1.0 - _r2(g, g_left), 1e-12)
+    left = yc - x - columns @ coef if columns.shape[1] else yc - x
+    # the play's direction dx/d(play) and the other backlash directions (as play_sensitivity)
+    basis = np.column_stack((np.ones(n), dx[:, 0], dx[:, 2], 0.5 * (dx[:, 1] + dx[:, 3])))
+    g2 = float(np.dot(basis[:, 3], basis[:, 3]))
+    g_left_base = left_sum_of_squares(basis.T @ basis)
+    g_left_joint = left_sum_of_squares(proj.left_gram(basis))  # beyond the columns too
+    inflation = (g_left_base / g2) / max(g_left_joint / g2, 1e-12)
     sigma2 = float(np.dot(left, left)) / effective_samples(left)
-    play_std = float(np.sqrt(sigma2 / max(float(np.dot(g_left, g_left)), 1e-300)))
+    play_std = float(np.sqrt(sigma2 / max(g_left_joint, 1e-300)))
     return JointFit(params, coef, left, float(inflation), play_std, hold_play is not None)
 
 

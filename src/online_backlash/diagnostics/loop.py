@@ -208,7 +208,7 @@ class Diagnosis:
     def axis(self, step: Step) -> tuple[str, str, np.ndarray]:
         """The variable a term acts along, ``(name, unit, values)``: load angle (transmission error,
         per-flank harmonics), velocity (delay, velocity function), torque or acceleration
-        (compliance), time (drift)."""
+        (compliance), time (drift), time since the switching functions changed (dead band motion)."""
         name = step.effect.name
         period = float(np.median(np.diff(self.time_s))) if self.time_s.size > 1 else 1.0
         if name == "compliance":
@@ -217,6 +217,8 @@ class Diagnosis:
             return "acceleration", "deg/s^2", np.gradient(np.gradient(self.u_deg, period), period)
         if name == "drift":
             return "time", "s", self.time_s
+        if name == "dead_band_motion":
+            return "time since the flank left (< 0) or engaged (> 0)", "s", step.effect.switch_clock(self.u_deg, self.time_s)
         if name in ("delay", "velocity_function"):
             return "velocity", "deg/s", np.gradient(self.u_deg, period)
         return "load angle", "deg", self.load_deg
@@ -412,7 +414,7 @@ def _detection_data(
     nuisance = np.column_stack((others, g))
     if done:
         nuisance = np.column_stack((nuisance, hold_columns(_columns(done, u, t, q, engaged, x), _held(done), index)))
-    return DetectionData(u, t, q, current.residual_deg, ratio, period, nuisance, index, others.shape[1] + 1, folds, x), engaged
+    return DetectionData(u, t, q, current.residual_deg, ratio, period, nuisance, index, others.shape[1] + 1, folds, x, current.params), engaged
 
 
 def _hold_out_final(

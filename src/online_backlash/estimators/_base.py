@@ -1,8 +1,9 @@
 """The declared base of the recursive (online) estimators, river style: ``learn_one`` / ``learn_many``.
 
 :class:`RecursiveEstimator` holds the parameters every recursive estimator shares, the warm-up
-buffer, the dispatch of ``learn_one`` (interpreted) and ``learn_many`` (compiled), gaps, the
-saved state and ``clone``; an estimator fills in the hooks it declares abstract (its own
+buffer, the dispatch of ``learn_one`` (interpreted) and ``learn_many`` (compiled), gaps (which
+are bridged and which restart: ``gap_policy``, :class:`~online_backlash.bridging.GapPolicy`; the
+tally ``gaps_``), the saved state and ``clone``; an estimator fills in the hooks it declares abstract (its own
 parameters, warm fit, start, the two learning paths, its attributes). All state is created in
 :meth:`RecursiveEstimator.reset` (called by ``__init__``); the parameters are validated on the
 first ``learn_one`` / ``learn_many`` (scikit-learn style).
@@ -31,6 +32,7 @@ from typing import Any, Generic, TypeVar
 
 import numpy as np
 
+from ..bridging import UNKNOWN, GapPolicy, GapTally
 from ..effect_terms import EffectTerms
 from ..errors import ConvergenceWarning, InvalidParameterError, NotExcitedError, NotFittedError
 from ._effect_stream import EffectStream, check_effects, effects_from_records
@@ -44,6 +46,7 @@ _WARM_ATTEMPTS = 4  # batch attempts (at 1x..4x warm_start_samples) before a col
 STATE_FORMAT = 3
 _READ_FORMATS = (2, 3)
 _BUFFER_KEYS = ("u", "y", "gap", "time", "torque")
+_DEFAULT_GAP_POLICY = GapPolicy()
 
 T = TypeVar("T")
 
@@ -111,10 +114,20 @@ class RecursiveEstimator(ABC):
 
     Parameters shared by every recursive estimator (see :class:`~.backlash_rls.BacklashRLS`):
     ``memory_s``, ``memory_reversals``, ``sample_period_s``, ``start``, ``warm_start_samples``,
-    ``origin``, ``noise_window``. A subclass stores its own parameters in ``__init__``, then
+    ``origin``, ``noise_window``, ``gap_policy``. A subclass stores its own parameters in ``__init__``, then
     passes the shared ones to this ``__init__`` (which calls :meth:`reset`), and declares
     ``_layout`` and ``_consts`` (offsets of its state and constants vectors, with fields
     ``N_SEEN``, ``U0``, ``Y0``, ``NOISE_VAR``, ``N_REV`` and ``FREEZE``).
+
+    Attributes
+    ----------
+    gaps_ : GapTally
+        The gaps flagged (``after_gap``) since the estimator was made, reset or restored from a
+        saved state (like a source's counters, a run's own): count, longest and total time step
+        across them (s) and how many were bridged (:class:`~online_backlash.bridging.GapTally`).
+        The last sample's time and angles, which decide whether the next gap is bridged, are
+        saved with the state (:meth:`state_dict`), so a resumed run bridges a gap right after
+        its checkpoint.
     """
 
     memory_s: float | None
@@ -124,6 +137,8 @@ class RecursiveEstimator(ABC):
     warm_start_samples: int
     origin: str
     noise_window: int
+    #: Which gaps are bridged (None: the default :class:`~online_backlash.bridging.GapPolicy`)
+    gap_policy: GapPolicy | None = None
     effects: Sequence[EffectTerms] | None = None
     #: True for an estimator whose model needs the torque of every sample (``_learn_arrays`` then gets it without effects)
     takes_torque: bool = False
@@ -144,8 +159,10 @@ class RecursiveEstimator(ABC):
         warm_start_samples: int,
         origin: str,
         noise_window: int,
+        gap_policy: GapPolicy | None = None,
     ) -> None:
         """Store the shared parameters (after the subclass stored its own) and :meth:`reset`."""
+        self.gap_policy = gap_policy
         self.memory_s = memory_s
         self.memory_reversals = memory_reversals
         self.sample_period_s = sample_period_s
@@ -241,6 +258,8 @@ class RecursiveEstimator(ABC):
         self._c_arr = np.empty(0)
         self._fx = EffectStream(list(self.effects or []))  # checked with the parameters
         self._pending_gap = False
+        self._last = UNKNOWN  # (time_s, u, y) of the last sample learned, for the gap rule
+        self.gaps_ = GapTally()
         self._buf: dict[str, list] = {k: [] for k in _BUFFER_KEYS}
         self._next_attempt = self.warm_start_samples
         self._attempts = 0
@@ -261,6 +280,8 @@ class RecursiveEstimator(ABC):
         check_option("origin", self.origin, _ORIGINS)
         check_int("warm_start_samples", self.warm_start_samples, 8)
         check_int("noise_window", self.noise_window, 1)
+        if self.gap_policy is not None and not isinstance(self.gap_policy, GapPolicy):
+            raise InvalidParameterError(f"gap_policy must be a GapPolicy or None, got {self.gap_policy!r}")
 
     def _ensure_valid(self) -> None:
         """Validate the parameters on the first call that learns (a cold start begins then)."""
@@ -282,18 +303,26 @@ class RecursiveEstimator(ABC):
 
     # -- public learning API ---------------------------------------------------------------------
     def mark_gap(self) -> None:
-        """The source saw a gap: the next sample is not read as motion from the previous one."""
+        """The next sample does not continue the last one (a new log, a resumed stream): it is not read
+        as motion from the previous one, whatever ``gap_policy`` says (a short gap of one stream is
+        flagged with ``after_gap`` instead, and may be bridged)."""
         self._ensure_valid()
+        self._last = UNKNOWN
         if self._started:
             self._gap_now()
         else:
             self._pending_gap = True
 
-    def learn_one(self, u: float, y: float, *, time_s: float | None = None, torque_Nm: float | None = None) -> None:
+    def learn_one(
+        self, u: float, y: float, *, time_s: float | None = None, torque_Nm: float | None = None, after_gap: bool = False
+    ) -> None:
         """Learn one sample: input ``u`` (motor angle referred to the load side) and output ``y`` (load angle).
 
         ``time_s`` (s) and ``torque_Nm`` (N m) are passed to the effects (if any); without
-        ``time_s`` the time is ``n_samples_seen_ * sample_period_s``.
+        ``time_s`` the time is ``n_samples_seen_ * sample_period_s``. ``after_gap`` True: samples
+        are missing just before this one; :attr:`gap_policy` bridges the gap (the sample is
+        learned from the one before it) if it is short (from ``time_s``) and neither angle jumps,
+        else it restarts the reading of the motion (as :meth:`mark_gap`). Tallied in ``gaps_``.
 
         Raises
         ------
@@ -304,12 +333,19 @@ class RecursiveEstimator(ABC):
         u, y = finite("u", u), finite("y", y)
         t = self._time(time_s)
         q = math.nan if torque_Nm is None else float(torque_Nm)
+        restart = False
+        if after_gap:
+            restart = bool(self._bridge(np.array([True]), None if time_s is None else np.array([t]), np.array([u]), np.array([y]))[0])
+        else:
+            self._remember(math.nan if time_s is None else t, u, y)
         if not self._started:
-            self._buffer([u], [y], [self._pending_gap], [t], [q])
+            self._buffer([u], [y], [restart or self._pending_gap], [t], [q])
             self._pending_gap = False
             if len(self._buf["u"]) >= self._next_attempt:
                 self._try_start(compiled=False)
             return
+        if restart:
+            self._gap_now()
         self._learn_py(u, y, t, q)
 
     def learn_many(
@@ -320,11 +356,17 @@ class RecursiveEstimator(ABC):
         *,
         time_s: np.ndarray | None = None,
         torque_Nm: np.ndarray | None = None,
+        assume_finite: bool = False,
     ) -> None:
         """Learn consecutive samples (arrays); the same estimates as a loop of :meth:`learn_one`.
 
-        ``after_gap[i]`` True means samples are missing just before ``i`` (as :meth:`mark_gap`).
-        Runs compiled (numba) where the estimator has a compiled loop.
+        ``after_gap[i]`` True means samples are missing just before ``i``: :attr:`gap_policy`
+        bridges a short gap without a jump (the time step from ``time_s``, s; the angle steps, deg)
+        and restarts the reading of the motion at any other (as :meth:`mark_gap`); ``gaps_`` tallies
+        them. Without ``time_s`` no gap is bridged. Runs compiled (numba) where the estimator has a
+        compiled loop. ``assume_finite=True`` skips the check that ``u`` and ``y`` are finite
+        (scikit-learn's ``assume_finite``), for a caller that checked them already
+        (:class:`~online_backlash.pipeline.Pipeline` checks each chunk once, not each block).
 
         Raises
         ------
@@ -332,20 +374,24 @@ class RecursiveEstimator(ABC):
             If the arrays differ in shape or ``u`` or ``y`` has a non-finite value.
         """
         self._ensure_valid()
-        u = finite_array("u", u)
-        y = finite_array("y", y)
+        u = np.ascontiguousarray(u, dtype=float) if assume_finite else finite_array("u", u)
+        y = np.ascontiguousarray(y, dtype=float) if assume_finite else finite_array("y", y)
         if u.ndim != 1 or u.shape != y.shape:
             raise InvalidParameterError(f"u and y must be 1-D arrays of equal length, got shapes {u.shape} and {y.shape}")
         n = u.size
         gap = np.zeros(n, dtype=bool) if after_gap is None else np.ascontiguousarray(after_gap, dtype=bool)
         if gap.shape != u.shape:
             raise InvalidParameterError(f"after_gap must be as long as u, got {gap.size} and {n}")
+        time: np.ndarray | None = None if time_s is None else np.ascontiguousarray(time_s, dtype=float)
+        if time is not None and time.shape != u.shape:
+            raise InvalidParameterError(f"time_s must be as long as u, got {time.size} and {n}")
+        if n:
+            gap = self._bridge(gap, time, u, y)
         if n and self._pending_gap:
             gap = gap.copy()
             gap[0] = True
             self._pending_gap = False
         n0 = self._n_seen_total()
-        time: np.ndarray | None = None if time_s is None else np.ascontiguousarray(time_s, dtype=float)
         torque: np.ndarray | None = None if torque_Nm is None else np.ascontiguousarray(torque_Nm, dtype=float)
 
         def times(lo: int, hi: int) -> tuple[np.ndarray, np.ndarray]:
@@ -383,6 +429,21 @@ class RecursiveEstimator(ABC):
         if len(self._buf["u"]) < 8:
             raise NotExcitedError(f"only {len(self._buf['u'])} samples buffered; need at least 8 to start")
         self._try_start(compiled=True, fallback=False)
+
+    # -- gaps --------------------------------------------------------------------------------------
+    def _bridge(self, gap: np.ndarray, time: np.ndarray | None, u: np.ndarray, y: np.ndarray) -> np.ndarray:
+        """``gap`` without the gaps :attr:`gap_policy` bridges (the one rule, :meth:`GapPolicy.split`);
+        tallies them in ``gaps_`` and remembers the block's last sample. ``gap`` is not modified."""
+        if gap.any():
+            policy = self.gap_policy if self.gap_policy is not None else _DEFAULT_GAP_POLICY
+            gap, dt, bridged = policy.split(gap, time, u, y, self._last)
+            self.gaps_.add(dt, bridged)
+        self._remember(math.nan if time is None else float(time[-1]), float(u[-1]), float(y[-1]))
+        return gap
+
+    def _remember(self, time_s: float, u: float, y: float) -> None:
+        """The last sample learned: its time (s; NaN if none was given) and angles, for the next gap."""
+        self._last = (time_s, u, y)
 
     # -- warm start ------------------------------------------------------------------------------
     def _n_seen_total(self) -> int:
@@ -475,12 +536,16 @@ class RecursiveEstimator(ABC):
         params = self.get_params()
         if "effects" in params:
             params["effects"] = self._fx.state_dict()["effects"]
+        if isinstance(params.get("gap_policy"), GapPolicy):
+            params["gap_policy"] = params["gap_policy"].as_dict()
         d: dict[str, Any] = {
             "estimator": type(self).__name__,
             "format": STATE_FORMAT,
             "params": params,
             "started": self._started,
             "warm_start": dict(self.warm_start_),
+            # the sample before the next one, so a gap right after a checkpoint is bridged (NaN: None)
+            "last_sample": [v if math.isfinite(v) else None for v in self._last],
         }
         if self._started:
             d["origin"] = {"u_ref": self.u_ref_, "y_ref": self.y_ref_}
@@ -512,9 +577,13 @@ class RecursiveEstimator(ABC):
             params["effects"] = effects_from_records(params["effects"] or [], effects)
         elif effects:
             raise InvalidParameterError(f"a saved {cls.__name__} takes no effects")
+        if isinstance(params.get("gap_policy"), dict):
+            params["gap_policy"] = GapPolicy(**params["gap_policy"])
         est = cls(**params)
         est._ensure_valid()
         est.warm_start_ = dict(d.get("warm_start", {}))
+        t_last, u_last, y_last = (math.nan if v is None else float(v) for v in d.get("last_sample") or [None] * 3)
+        est._last = (t_last, u_last, y_last)  # unknown in states saved before bridging
         if d["started"]:
             est._begin(est._cold_params(None, None))
             est._st = [float(v) for v in d["state"]]

@@ -19,6 +19,7 @@ from typing import Any
 
 import numpy as np
 
+from ..bridging import GapPolicy
 from ..effect_terms import EffectTerms
 from ..errors import NotExcitedError, NotFittedError
 from ..model import BacklashParams
@@ -135,6 +136,11 @@ class BacklashRLS(RecursiveEstimator):
         such as a delay describe the measured output sample by sample, and the corrected
         measurement classifies the samples around a reversal better: with a delay effect
         ``"model"`` left a 3 % bias in ``tests/test_diagnostics.py``).
+    gap_policy : GapPolicy or None
+        Which flagged gaps (``after_gap``) are bridged, the state kept across them, and which
+        restart the reading of the motion (:class:`~online_backlash.bridging.GapPolicy`; None:
+        its defaults, gaps up to 0.1 s without a jump over 5 deg are bridged). Tallied in ``gaps_``
+        (:class:`~online_backlash.bridging.GapTally`: gaps since made, reset or restored).
 
     Attributes
     ----------
@@ -214,13 +220,14 @@ class BacklashRLS(RecursiveEstimator):
         noise_window: int = 10_000,
         effects: Sequence[EffectTerms] | None = None,
         switching: str | None = None,
+        gap_policy: GapPolicy | None = None,
     ) -> None:
         self.min_step_deg = min_step_deg
         self.wear_horizon_s = wear_horizon_s
         self.info_floor = info_floor
         self.effects = effects
         self.switching = switching
-        super().__init__(memory_s, memory_reversals, sample_period_s, start, warm_start_samples, origin, noise_window)
+        super().__init__(memory_s, memory_reversals, sample_period_s, start, warm_start_samples, origin, noise_window, gap_policy)
 
     def _reset_own(self) -> None:
         # the joint information matrix of [mL, bL, mR, bR, beta] (effects only), beta, and the

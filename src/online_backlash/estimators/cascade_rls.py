@@ -16,6 +16,7 @@ from typing import Any
 
 import numpy as np
 
+from ..bridging import GapPolicy
 from ..errors import NotFittedError
 from ..model import BacklashParams
 from . import _rls_kernels as K
@@ -54,7 +55,7 @@ class CascadeRLS(RecursiveEstimator):
     ----------
     n_a, n_b : int
         As in :class:`VorosCascade`: ``A = q^-1 + a2 q^-2 + ... + a_{n_a} q^-n_a``, ``B = 1 + b1 q^-1 + ... + b_{n_b} q^-n_b``.
-    memory_s, memory_reversals, sample_period_s, start, warm_start_samples, origin, noise_window
+    memory_s, memory_reversals, sample_period_s, start, warm_start_samples, origin, noise_window, gap_policy
         As in :class:`BacklashRLS` (``memory_s`` counts updates, ``memory_reversals`` changes of
         the active flank of ``x_hat``).
     p0 : float
@@ -128,13 +129,14 @@ class CascadeRLS(RecursiveEstimator):
         trace_max: float | None = None,
         noise_window: int = 10_000,
         regressor: str = "prediction_error",
+        gap_policy: GapPolicy | None = None,
     ) -> None:
         self.n_a = n_a
         self.n_b = n_b
         self.p0 = p0
         self.trace_max = trace_max
         self.regressor = regressor
-        super().__init__(memory_s, memory_reversals, sample_period_s, start, warm_start_samples, origin, noise_window)
+        super().__init__(memory_s, memory_reversals, sample_period_s, start, warm_start_samples, origin, noise_window, gap_policy)
 
     def _reset_own(self) -> None:
         """No state beside the state vector."""

@@ -66,10 +66,10 @@ import numpy as np
 
 from ..errors import InvalidParameterError
 from ._base import finite_array
-from .cycle_plays import CyclePlays, MotionFlanks, OutputNoise, kinematic_offsets
+from .cycle_plays import CyclePlays, MotionFlanks, OutputNoise, kinematic_offsets, kinematic_update
 
 __all__ = [
-    "CyclePlays", "KinematicPlayScatter", "MotionFlanks", "OutputNoise", "PlayUncertainty", "RecursivePlayScatter",
+    "CyclePlays", "EstimateAt", "KinematicPlayScatter", "MotionFlanks", "OutputNoise", "PlayUncertainty", "RecursivePlayScatter",
     "forgetting_weights", "kinematic_offsets", "model_misfit", "play_std", "play_uncertainty",
 ]
 
@@ -208,6 +208,11 @@ def model_misfit(residual_rms_deg: float, noise_var_deg2: float) -> float:
     return math.sqrt(excess) if math.isfinite(excess) and excess > 0 else 0.0
 
 
+#: Resampled plays held at once by :func:`_block_bootstrap_sd` (its arrays stay near 2 MB each; the
+#: draws, and so the result, do not depend on it)
+BOOTSTRAP_BATCH = 250_000
+
+
 def _block_bootstrap_sd(plays: np.ndarray, w: np.ndarray, block: int, n_boot: int, seed: int) -> float:
     """Standard deviation of the weighted mean over moving-block bootstrap resamples (Künsch 1989).
 
@@ -219,7 +224,7 @@ def _block_bootstrap_sd(plays: np.ndarray, w: np.ndarray, block: int, n_boot: in
     n_blocks = -(-n // block)
     offsets = np.arange(block)
     means = np.empty(n_boot)
-    step = max(1, 2_000_000 // max(n, 1))  # replicates per batch: bounded memory on long logs
+    step = max(1, BOOTSTRAP_BATCH // max(n, 1))  # replicates per batch: bounded memory on long logs
     for lo in range(0, n_boot, step):
         hi = min(n_boot, lo + step)
         starts = rng.integers(0, n - block + 1, size=(hi - lo, n_blocks))
@@ -244,15 +249,13 @@ class KinematicPlayScatter:
         self._flanks: MotionFlanks | None = None
 
     def update(self, u: np.ndarray, y: np.ndarray, gap: np.ndarray | None, play_deg: float, m_left: float, m_right: float) -> None:
-        """Add a block of input ``u`` and output ``y`` (degrees) with the current estimate."""
+        """Add a block of input ``u`` and output ``y`` (degrees) with the current estimate (one
+        compiled pass, :func:`~.cycle_plays.kinematic_update`)."""
         if self._flanks is None:
             self._flanks = MotionFlanks.for_play(play_deg)
         else:  # follow the estimate (wear), keep the motion state
-            fresh = MotionFlanks.for_play(play_deg)
-            self._flanks.travel, self._flanks.hysteresis = fresh.travel, fresh.hysteresis
-        side = self._flanks.update(u, gap)
-        self.cycles.update(side, kinematic_offsets(np.asarray(u, float), np.asarray(y, float), side, m_left, m_right), gap)
-        self.noise.update(y, gap)
+            self._flanks.follow(play_deg)
+        kinematic_update(self._flanks, self.cycles, self.noise, u, y, gap, m_left, m_right)
 
     @property
     def plays_deg(self) -> np.ndarray:
@@ -274,6 +277,26 @@ class KinematicPlayScatter:
             plays, forgetting_weights(plays.size, memory_reversals), noise_var_deg2=self.noise_var_deg2, floor_deg=floor_deg,
             misfit_deg=model_misfit(residual_rms_deg, self.noise.var_deg2),
         )
+
+
+@dataclass(frozen=True)
+class EstimateAt:
+    """What :class:`RecursivePlayScatter` reads from a recursive estimator, as it was at one instant.
+
+    Attributes
+    ----------
+    started : bool
+        The estimator had started (before that the play and slopes are NaN, not read).
+    backlash_deg : float
+        Its play, degrees (load side).
+    m_left, m_right : float
+        Its flank slopes, eq. (1).
+    """
+
+    started: bool
+    backlash_deg: float
+    m_left: float
+    m_right: float
 
 
 class RecursivePlayScatter:
@@ -309,27 +332,47 @@ class RecursivePlayScatter:
     def _kinematic(self) -> bool:
         return not getattr(self.estimator, "takes_torque", False)
 
-    def update(self, u: np.ndarray, y: np.ndarray, gap: np.ndarray | None = None, due: bool = True) -> None:
+    def snapshot(self, due: bool = True) -> EstimateAt:
+        """What :meth:`update` and :meth:`finish` read from the estimator, as it is now: hand it to
+        them (``estimate=``) where they run later than the estimator learned (a worker thread).
+        ``due`` False (for :meth:`update` of a block that ends between ticks): ``started`` alone, the
+        play and slopes NaN (not read there; this saves reading them after every block)."""
+        est = self.estimator
+        if not due or not est.started:  # the play and slopes are not read before the start
+            return EstimateAt(bool(est.started), math.nan, math.nan, math.nan)
+        return EstimateAt(True, float(est.backlash_), float(est.m_left_), float(est.m_right_))
+
+    def update(
+        self, u: np.ndarray, y: np.ndarray, gap: np.ndarray | None = None, due: bool = True, estimate: EstimateAt | None = None
+    ) -> None:
         """Add a block the estimator has just learned: input ``u`` and output ``y`` (degrees, load
-        side); ``due``: the block ends at a data-clock tick (measure what is held now)."""
+        side); ``due``: the block ends at a data-clock tick (measure what is held now, if the
+        estimator has started and has a finite play; else hold it for the next tick).
+        ``estimate``: the estimator as it was right after this block (:meth:`snapshot`; default: as it is now)."""
         if self._given_up or not self._kinematic:
             return
         self._held.append((np.asarray(u, dtype=float), np.asarray(y, dtype=float), None if gap is None else np.asarray(gap, dtype=bool)))
         self._n_held += len(u)
+        at = estimate if estimate is not None else self.snapshot(due)
         if due:
-            self.finish()
-        elif not self.estimator.started and self._n_held > MAX_HELD_SAMPLES:
+            if at.started and math.isfinite(at.backlash_deg):
+                self.finish(at)
+        elif not at.started and self._n_held > MAX_HELD_SAMPLES:
             self._given_up, self._held, self._n_held = True, [], 0
 
-    def finish(self) -> None:
-        """Measure the samples held with the estimator's current estimate (at a tick, or at the end)."""
-        est = self.estimator
-        if not self._held or not est.started:
+    def finish(self, estimate: EstimateAt | None = None) -> None:
+        """Measure the samples held with the estimator's estimate (at a tick, or at the end):
+        ``estimate`` (:meth:`snapshot`), by default the current one."""
+        at = estimate if estimate is not None else self.snapshot()
+        if not self._held or not at.started:
             return
-        u, y = (np.concatenate([h[k] for h in self._held]) for k in (0, 1))
-        gaps = [h[2] if h[2] is not None else np.zeros(len(h[0]), dtype=bool) for h in self._held]
-        self._held, self._n_held = [], 0
-        self.scatter.update(u, y, np.concatenate(gaps), float(est.backlash_), float(est.m_left_), float(est.m_right_))
+        held, self._held, self._n_held = self._held, [], 0
+        if len(held) == 1:  # one block since the last tick (the usual case): no copy
+            u, y, gap = held[0]
+        else:
+            u, y = (np.concatenate([h[k] for h in held]) for k in (0, 1))
+            gap = np.concatenate([h[2] if h[2] is not None else np.zeros(len(h[0]), dtype=bool) for h in held])
+        self.scatter.update(u, y, gap, at.backlash_deg, at.m_left, at.m_right)
 
     def uncertainty(self) -> PlayUncertainty:
         """The parts of :attr:`std_deg` (the estimator's own standard error alone for a torque estimator)."""

@@ -36,40 +36,39 @@ _N_STATE = 10
 
 @njit(cache=True, nogil=True)
 def _dwell_run(st, u, y, gap, h_u, h_y, threshold):  # pragma: no cover - compiled
+    """The dwell search over a block (the state ``st`` as laid out above, kept in locals in the loop)."""
+    d, u_ext, y_ext, dwelling, n_rev, max_dwell, n_gap, have, u_turn, y_turn = (
+        st[0], st[1], st[2], st[3], st[4], st[5], st[6], st[7], st[8], st[9]
+    )  # fmt: skip
     for i in range(u.shape[0]):
-        if gap[i] or st[7] == 0.0:  # (re)start: no direction, no dwell
-            st[0] = 0.0
-            st[1] = u[i]
-            st[2] = y[i]
-            st[3] = 0.0
-            st[7] = 1.0
+        ui, yi = u[i], y[i]
+        if gap[i] or have == 0.0:  # (re)start: no direction, no dwell
+            d, u_ext, y_ext, dwelling, have = 0.0, ui, yi, 0.0, 1.0
             continue
-        d = st[0]
         if d == 0.0:
-            if abs(u[i] - st[1]) > h_u:
-                st[0] = 1.0 if u[i] > st[1] else -1.0
-                st[1] = u[i]
-                st[2] = y[i]
+            if abs(ui - u_ext) > h_u:
+                d = 1.0 if ui > u_ext else -1.0
+                u_ext, y_ext = ui, yi
             continue
-        if (u[i] - st[1]) * d >= 0.0:  # on in the same direction: the extreme moves
-            st[1] = u[i]
-            st[2] = y[i]
-        elif abs(u[i] - st[1]) > h_u:  # turned back beyond the noise band: a reversal at the extreme
-            st[4] += 1.0
-            st[3] = 1.0
-            st[8] = st[1]
-            st[9] = st[2]
-            st[0] = -d
-            st[1] = u[i]
-            st[2] = y[i]
-        if st[3] != 0.0:
-            travel = abs(u[i] - st[8])
-            if travel > st[5]:
-                st[5] = travel
-            if abs(y[i] - st[9]) > h_y:  # the load moved: the dwell ends
+        if (ui - u_ext) * d >= 0.0:  # on in the same direction: the extreme moves
+            u_ext, y_ext = ui, yi
+        elif abs(ui - u_ext) > h_u:  # turned back beyond the noise band: a reversal at the extreme
+            n_rev += 1.0
+            dwelling = 1.0
+            u_turn, y_turn = u_ext, y_ext
+            d = -d
+            u_ext, y_ext = ui, yi
+        if dwelling != 0.0:
+            travel = abs(ui - u_turn)
+            if travel > max_dwell:
+                max_dwell = travel
+            if abs(yi - y_turn) > h_y:  # the load moved: the dwell ends
                 if travel > threshold:
-                    st[6] += 1.0
-                st[3] = 0.0
+                    n_gap += 1.0
+                dwelling = 0.0
+    st[0], st[1], st[2], st[3], st[4], st[5], st[6], st[7], st[8], st[9] = (
+        d, u_ext, y_ext, dwelling, n_rev, max_dwell, n_gap, have, u_turn, y_turn
+    )  # fmt: skip
 
 
 def still_band(x_deg: np.ndarray) -> float:

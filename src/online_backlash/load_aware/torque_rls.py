@@ -15,6 +15,7 @@ from typing import Any
 
 import numpy as np
 
+from ..bridging import GapPolicy
 from ..errors import InvalidParameterError, NotExcitedError
 from ..estimators._base import RecursiveEstimator, StateField, finite_array, memory_factors
 from ..estimators._layout import pack
@@ -84,6 +85,8 @@ class TorqueBacklashRLS(FlankPairFigures, RecursiveEstimator):
     torque_sign : {1.0, -1.0}
         Multiplies the torque so that the right flank carries positive torque (-1 for a sensor
         mounted the other way round; :func:`~.engagement.torque_orientation` tells from data).
+    gap_policy : GapPolicy or None
+        Which flagged gaps are bridged (as :class:`~online_backlash.estimators.BacklashRLS`).
 
     Attributes
     ----------
@@ -143,13 +146,14 @@ class TorqueBacklashRLS(FlankPairFigures, RecursiveEstimator):
         noise_window: int = 10_000,
         prior_var: float = 1e6,
         torque_sign: float = 1.0,
+        gap_policy: GapPolicy | None = None,
     ) -> None:
         self.torque_sign = torque_sign
         self.deadband_Nm = deadband_Nm
         self.n_sigma = n_sigma
         self.min_step_deg = min_step_deg
         self.prior_var = prior_var
-        super().__init__(memory_s, memory_reversals, sample_period_s, "cold", 8, origin, noise_window)
+        super().__init__(memory_s, memory_reversals, sample_period_s, "cold", 8, origin, noise_window, gap_policy)
 
     # -- hooks -------------------------------------------------------------------------------------
     def _reset_own(self) -> None:

@@ -1,0 +1,78 @@
+"""Least squares from cross-products (normal equations), for full-length columns fitted many times.
+
+A record of a few minutes at 1 kHz has 10^5-10^6 samples and a few dozen candidate columns. Every
+least-squares quantity the loop needs (coefficients, the sum of squares left, the Gram matrix
+of what some columns leave of others) follows from the Gram matrix ``W^T W`` of the columns
+involved, which is formed once (``O(n k^2)``); each fit after that is a small solve. The
+solves scale the Gram matrix to unit diagonal and use a truncated eigen-decomposition, so
+degenerate directions get no weight instead of a huge one.
+
+Units: whatever the columns carry (degrees in this package).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+#: relative size below which a direction of the (scaled) normal equations counts as degenerate
+RCOND = 1e-10
+
+
+def pinv_factor(gram: np.ndarray) -> np.ndarray:
+    """``F`` with ``F F^T`` the pseudo-inverse of the Gram matrix ``gram`` (scaled to unit diagonal,
+    directions below :data:`RCOND` of the largest dropped)."""
+    d = np.sqrt(np.maximum(np.diag(gram), 1e-300))
+    w, v = np.linalg.eigh(gram / d[:, None] / d[None, :])
+    keep = w > RCOND * max(float(w[-1]), 1e-300) if w.size else np.zeros(0, bool)
+    return (v[:, keep] / np.sqrt(w[keep])) / d[:, None]
+
+
+def solve(gram: np.ndarray, rhs: np.ndarray) -> np.ndarray:
+    """Least-squares coefficients ``c`` from the normal equations ``gram c = rhs``, scaled to unit
+    diagonal and solved by a truncated eigen-decomposition (degenerate directions get no weight)."""
+    d = np.sqrt(np.maximum(np.diag(gram), 1e-300))
+    w, v = np.linalg.eigh(gram / d[:, None] / d[None, :])
+    keep = w > RCOND * max(float(w[-1]), 1e-300)
+    c = v[:, keep] @ ((v[:, keep].T @ (rhs / d)) / w[keep])
+    return c / d
+
+
+def fit_rss(gram: np.ndarray, cols: np.ndarray) -> tuple[np.ndarray, float]:
+    """Coefficients on the columns ``cols`` of ``W`` and the sum of squares they leave of ``W``'s
+    last column, from ``gram = W^T W``."""
+    c = solve(gram[np.ix_(cols, cols)], gram[cols, -1])
+    return c, float(gram[-1, -1] - c @ gram[cols, -1])
+
+
+def left_sum_of_squares(gram: np.ndarray) -> float:
+    """What the least squares of ``W``'s last column on the others leaves, ``|r|^2``, from ``W^T W``."""
+    return max(fit_rss(gram, np.arange(gram.shape[0] - 1))[1], 0.0)
+
+
+class Projector:
+    """Least squares on fixed columns ``C`` (n x q), from their Gram matrix formed once.
+
+    ``coef(v)``: the coefficients of ``v`` on ``C``; ``leave(v)``: the part of ``v`` they leave;
+    ``left_gram(a)``: the Gram matrix of what they leave of every column of ``a`` (n x k),
+    ``O(n q k)`` without forming it.
+    """
+
+    def __init__(self, columns: np.ndarray) -> None:
+        self.columns = columns
+        self.factor = pinv_factor(columns.T @ columns) if columns.shape[1] else np.empty((0, 0))
+
+    def coef(self, v: np.ndarray) -> np.ndarray:
+        if not self.columns.shape[1]:
+            return np.empty(0)
+        return self.factor @ (self.factor.T @ (self.columns.T @ v))
+
+    def leave(self, v: np.ndarray) -> np.ndarray:
+        return v - self.columns @ self.coef(v) if self.columns.shape[1] else v
+
+    def left_gram(self, a: np.ndarray, cross: np.ndarray | None = None) -> np.ndarray:
+        """``(P a)^T (P a)`` with ``P`` the projection off ``C``; ``cross`` is ``C^T a`` if known."""
+        ata = a.T @ a
+        if not self.columns.shape[1]:
+            return ata
+        b = self.factor.T @ (self.columns.T @ a if cross is None else cross)
+        return ata - b.T @ b

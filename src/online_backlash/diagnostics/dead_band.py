@@ -1,0 +1,233 @@
+"""The load's motion inside the dead band, and the transient when a flank engages again.
+
+Eq. (1)-(3) hold the load still while neither flank is engaged (``f1 = f2 = 0`` in eq. 5-6,
+``x(t) = x(t-1)`` in eq. 7). A real output does not stop when the driving flank leaves it: it
+coasts on from where the flank left it, slowed by its friction, and the measured torque on it
+(a reaction torque, a cable stage) keeps pushing it. When the motor reaches the other flank,
+the teeth meet at the motor's speed: the load is kicked, and on a compliant gear it rings
+before it settles on the flank line. Neither sits in the paper's model; both show in the
+simulation residual as spikes at the reversals.
+
+:class:`DeadBandMotion` describes them with columns that are linear in their coefficients, so
+the loop's joint fit (eq. 8 and 14 with appended columns) and its held-out scoring apply:
+
+* **in the dead band** (zero on engaged samples): the exit velocity ``v_x`` of ``u`` at the
+  last engaged sample times ``1 - exp(-s / tau_j)``, ``s`` the time since that sample, for a
+  few time constants ``tau_j`` (a load that leaves the flank at ``v_x`` and is braked by
+  viscous friction coasts ``v_x tau (1 - exp(-s / tau))``); with a measured torque, also the
+  torque at exit (held) and the change of the torque since exit;
+* **after a flank engages** (zero elsewhere): the entry velocity ``v_e`` of ``u`` at the first
+  engaged sample times hat functions of the time since engagement (the impact's response,
+  scaled by the speed of the impact), up to the last knot.
+
+Engaged or not is decided by the model's own switching functions, eq. (5)-(6), run on ``u``
+with the backlash parameters the effect is given (the loop's current fit, in its frame: ``u``
+minus its first sample, the output starting at 0). Coefficients are in seconds (deg of load
+angle per deg/s of motor speed) and deg per N m. The columns are causal and give the same rows
+for a record passed whole or in pieces.
+
+Units: degrees (load side), seconds, newton metres.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from ..errors import InvalidParameterError
+from ..model import BacklashParams, simulate_switching
+from ._causal import CausalWindow, velocity_deg_s
+from ._effect_base import EffectBase
+from ._scoring import Detection, DetectionData, best_detection
+
+#: time constants of the coast after the flank leaves the load, in sample periods (a factor of 8
+#: apart: closer ones are nearly collinear over a dead band of a few hundred samples)
+EXIT_TIME_CONSTANTS = (4, 32, 256)
+#: knots of the entry transient's hat functions, in sample periods (the last one ends it): an
+#: octave apart, from the impact of a stiff gear (a few samples) to a closed loop's settling
+ENTRY_KNOTS = (0, 2, 4, 8, 16, 32, 64, 128)
+
+def _at_period(samples: tuple[int, ...], period_s: float) -> tuple[float, ...]:
+    """Sample counts as times, s."""
+    return tuple(period_s * k for k in samples)
+
+
+
+class DeadBandMotion(EffectBase):
+    """The load's motion inside the dead band and its transient when a flank engages again.
+
+    Parameters
+    ----------
+    m_left, c_left_deg, m_right, c_right_deg : float
+        The backlash parameters (eq. 1) whose switching functions (eq. 5-6) decide where a flank
+        is engaged, in the frame of ``u`` minus its first sample (deg).
+    exit_time_constants_s : tuple of float
+        Time constants of the coast columns in the dead band, s (empty: no coast columns).
+    entry_knots_s : tuple of float
+        Knots of the entry transient, s, increasing from 0; the transient ends at the last one
+        (fewer than two: no entry columns).
+    torque : bool
+        Add the measured torque at exit (held) and its change since exit, in the dead band.
+    window_samples : int
+        Span of the causal velocity of ``u``, samples.
+    smooth_samples : int
+        Causal moving average of the torque, samples.
+    """
+
+    name = "dead_band_motion"
+    input_side = False  # the columns are built for the dead band itself, not held through it
+    #: the state reaches back to the last reversal, beyond any fixed window: not restorable from
+    #: the last samples (``effect_terms.stream_history`` gives None, an estimator restarts it)
+    history = None  # type: ignore[assignment]
+
+    def __init__(
+        self,
+        m_left: float = 1.0,
+        c_left_deg: float = 0.25,
+        m_right: float = 1.0,
+        c_right_deg: float = 0.25,
+        exit_time_constants_s: tuple[float, ...] = _at_period(EXIT_TIME_CONSTANTS, 1e-3),
+        entry_knots_s: tuple[float, ...] = _at_period(ENTRY_KNOTS, 1e-3),
+        torque: bool = False,
+        window_samples: int = 5,
+        smooth_samples: int = 5,
+    ) -> None:
+        self.m_left, self.c_left_deg, self.m_right, self.c_right_deg = float(m_left), float(c_left_deg), float(m_right), float(c_right_deg)
+        self._params = BacklashParams(self.m_left, self.c_left_deg, self.m_right, self.c_right_deg)
+        self.exit_time_constants_s = tuple(float(v) for v in exit_time_constants_s)
+        self.entry_knots_s = tuple(float(v) for v in entry_knots_s)
+        if any(not v > 0 for v in self.exit_time_constants_s):
+            raise InvalidParameterError(f"exit_time_constants_s must be > 0, got {exit_time_constants_s!r}")
+        if self.entry_knots_s and (self.entry_knots_s[0] != 0.0 or np.any(np.diff(self.entry_knots_s) <= 0)):
+            raise InvalidParameterError(f"entry_knots_s must start at 0 and increase, got {entry_knots_s!r}")
+        self.torque = bool(torque)
+        if int(window_samples) < 1 or int(smooth_samples) < 1:
+            raise InvalidParameterError(f"window_samples and smooth_samples must be >= 1, got {window_samples!r}, {smooth_samples!r}")
+        self.window_samples = int(window_samples)
+        self.smooth_samples = int(smooth_samples)
+        self._window = CausalWindow(max(self.window_samples, self.smooth_samples))
+        self.reset()
+
+    def reset(self) -> None:
+        super().reset()
+        self._u0: float | None = None
+        self._x = 0.0
+        # the last sample seen: engaged, time, velocity, smoothed torque
+        self._last = (False, np.nan, 0.0, 0.0)
+        # the last exit (time, velocity, torque) and entry (time, velocity)
+        self._exit = (np.nan, 0.0, 0.0)
+        self._entry = (np.nan, 0.0)
+
+    @property
+    def n_entry(self) -> int:
+        """Columns of the entry transient."""
+        return max(len(self.entry_knots_s) - 1, 0)
+
+    @property
+    def n_terms(self) -> int:
+        return len(self.exit_time_constants_s) + 2 * self.torque + self.n_entry
+
+    def engaged(self, u_deg: np.ndarray) -> np.ndarray:
+        """Where a flank is engaged by the switching functions, eq. (5)-(6), continuing the stream (advances it)."""
+        if self._u0 is None:
+            self._u0 = float(u_deg[0])
+        x, f1, f2 = simulate_switching(np.asarray(u_deg, dtype=float) - self._u0, self._params, self._x)
+        self._x = float(x[-1])
+        return (f1 + f2) > 0
+
+    def switch_clock(self, u_deg: np.ndarray, time_s: np.ndarray, limit_s: float = 0.25) -> np.ndarray:
+        """Time since a flank left (negative, in the dead band) or engaged (positive), s, clipped to
+        ``limit_s``: the axis this effect acts along (a fresh stream over a whole record)."""
+        e = self.clone().engaged(np.asarray(u_deg, dtype=float))  # type: ignore[attr-defined]
+        t = np.asarray(time_s, dtype=float)
+        i = np.arange(e.size)
+        since = t - t[np.maximum.accumulate(np.where(np.r_[True, e[1:] != e[:-1]], i, 0))]
+        return np.clip(np.where(e, since, -since), -limit_s, limit_s)
+
+    def terms(self, u_deg: np.ndarray, time_s: np.ndarray, torque_Nm: np.ndarray) -> np.ndarray:
+        """Regressor columns ``(len(u_deg), n_terms)``: coast, torque and entry columns (causal)."""
+        ue, te, qe, n_past = self._window.extend(u_deg, time_s, torque_Nm)
+        if ue.size == 0:
+            return np.empty((0, self.n_terms))
+        v = velocity_deg_s(ue, te, self.window_samples)[n_past:]
+        qz = np.nan_to_num(qe, nan=0.0)
+        w = self.smooth_samples
+        qs = (np.convolve(qz, np.ones(w) / w)[: qz.size] if w > 1 else qz)[n_past:]
+        self._window.keep(ue, te, qe)
+        u, t = ue[n_past:], te[n_past:]
+        e = self.engaged(u)
+        # the previous sample in front, so that an exit or entry at the chunk's first sample is seen
+        e_all = np.concatenate(([self._last[0]], e))
+        t_all, v_all, q_all = (np.concatenate(([p], a)) for p, a in zip(self._last[1:], (t, v, qs)))
+        i = np.arange(1, u.size + 1)
+        at_exit = np.maximum.accumulate(np.where(e_all[:-1] & ~e_all[1:], i - 1, -1))  # the last engaged sample
+        at_entry = np.maximum.accumulate(np.where(~e_all[:-1] & e_all[1:], i, -1))  # the first engaged sample
+        seen = at_exit >= 0
+        t_x, v_x, q_x = (np.where(seen, a[at_exit], p) for a, p in zip((t_all, v_all, q_all), self._exit))
+        seen = at_entry >= 0
+        t_e, v_e = (np.where(seen, a[at_entry], p) for a, p in zip((t_all, v_all), self._entry))
+        self._last = (bool(e[-1]), float(t[-1]), float(v[-1]), float(qs[-1]))
+        self._exit = (float(t_x[-1]), float(v_x[-1]), float(q_x[-1]))
+        self._entry = (float(t_e[-1]), float(v_e[-1]))
+
+        cols = np.zeros((u.size, self.n_terms))
+        dead = ~e & np.isfinite(t_x)
+        s = np.where(dead, t - np.nan_to_num(t_x), 0.0)
+        k = 0
+        for tau in self.exit_time_constants_s:
+            cols[:, k] = np.where(dead, v_x * -np.expm1(-s / tau), 0.0)
+            k += 1
+        if self.torque:
+            cols[:, k] = np.where(dead, q_x, 0.0)
+            cols[:, k + 1] = np.where(dead, qs - q_x, 0.0)
+            k += 2
+        if self.n_entry:
+            knots = np.asarray(self.entry_knots_s)
+            s = t - np.nan_to_num(t_e)
+            on = e & np.isfinite(t_e) & (s < knots[-1])
+            basis = np.eye(knots.size)
+            for j in range(self.n_entry):
+                cols[:, k + j] = np.where(on, v_e * np.interp(s, knots, basis[j]), 0.0)
+        return cols
+
+    def describe(self, coef: np.ndarray) -> dict[str, Any]:
+        c = [float(v) for v in coef]
+        n_exit = len(self.exit_time_constants_s)
+        coast = c[:n_exit]
+        out: dict[str, Any] = {
+            "model": "in the dead band: the load coasts on from where the flank left it; after a flank engages: "
+            "a transient scaled by the speed of the impact",
+            "active_on": "dead band and the first entry_knots_s[-1] s after a flank engages, by the model's switching functions (eq. 5-6)",
+            "dead_band_deg": self.c_left_deg + self.c_right_deg,
+            "coast": [{"time_constant_s": tau, "deg_per_deg_s": b} for tau, b in zip(self.exit_time_constants_s, coast)],
+            "coast_per_exit_speed_s": float(sum(coast)),
+        }
+        k = n_exit
+        if self.torque:
+            out["torque_at_exit_deg_per_Nm"] = c[k]
+            out["torque_change_in_dead_band_deg_per_Nm"] = c[k + 1]
+            k += 2
+        entry = c[k:]
+        out["entry_transient"] = {"knots_s": list(self.entry_knots_s), "deg_per_deg_s": [*entry, 0.0] if entry else []}
+        out["entry_peak_deg_per_deg_s"] = max(entry, key=abs) if entry else 0.0
+        return out
+
+    @classmethod
+    def detect(cls, data: DetectionData) -> Detection | None:
+        """The coast in the dead band and the entry transient, together or alone, whichever scores best.
+
+        Needs the current backlash fit (``data.backlash_params``); without it nothing is tried.
+        """
+        p = data.backlash_params
+        if p is None:
+            return None
+        dt = data.sample_period_s
+        torque = bool(np.mean(np.isfinite(data.torque_Nm)) > 0.5)
+        taus, knots = _at_period(EXIT_TIME_CONSTANTS, dt), _at_period(ENTRY_KNOTS, dt)
+        found = []
+        for what, exit_taus, entry in (("coast and entry", taus, knots), ("coast", taus, ()), ("entry", (), knots)):
+            effect = cls(p.m_left, p.c_left, p.m_right, p.c_right, exit_taus, entry, torque and bool(exit_taus))
+            s = data.score(False, effect.clone().terms(data.u_deg, data.time_s, data.torque_Nm))
+            found.append(Detection(effect, s, f"residual at the reversals follows the load's {what} (dead band {p.play:.4g} deg)"))
+        return best_detection([d for d in found if d.score.significant()]) or best_detection(found)

@@ -1,0 +1,94 @@
+"""The loop's least squares from cross-products give what the full-length computations give.
+
+The diagnostics loop scores candidates and refits the backlash with effect columns from Gram
+matrices (``diagnostics._normal_equations``, ``_scoring``, ``joint``) instead of full-length
+QR, SVD and refits; these tests hold each shortcut against the direct computation on data it
+was not shaped for (random columns, a simulated backlash with an effect and noise).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.optimize import least_squares
+
+from online_backlash.diagnostics._normal_equations import Projector, left_sum_of_squares
+from online_backlash.diagnostics._scoring import DetectionData, effective_samples, score_columns
+from online_backlash.diagnostics.joint import fit_joint
+from online_backlash.model import BacklashParams, backlash_sensitivity, simulate_backlash
+
+
+def _random(n: int, k: int, seed: int) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    return rng.normal(size=(n, k)) @ rng.normal(size=(k, k))  # correlated columns
+
+
+def test_projector_matches_lstsq():
+    c, a = _random(3000, 5, 0), _random(3000, 3, 1)
+    proj = Projector(c)
+    coef, *_ = np.linalg.lstsq(c, a[:, 0], rcond=None)
+    left = a - c @ np.linalg.lstsq(c, a, rcond=None)[0]
+    np.testing.assert_allclose(proj.coef(a[:, 0]), coef, rtol=1e-9)
+    np.testing.assert_allclose(proj.leave(a[:, 0]), left[:, 0], atol=1e-9 * np.abs(a).max())
+    np.testing.assert_allclose(proj.left_gram(a), left.T @ left, rtol=1e-8)
+    w = np.column_stack((c, a[:, :1]))
+    assert np.isclose(left_sum_of_squares(w.T @ w), float(left[:, 0] @ left[:, 0]), rtol=1e-8)
+
+
+def test_score_lag_and_rss_match_the_explicit_residual():
+    rng = np.random.default_rng(2)
+    n = 4000
+    t = np.arange(n) * 1e-3
+    cols = np.column_stack((np.sin(7 * t), np.cos(3 * t)))
+    r = 0.01 * cols[:, 0] + np.cumsum(rng.normal(0, 1e-4, n))  # autocorrelated: n_eff well below n
+    s = score_columns(r, cols)
+    w = np.column_stack((np.ones(n), cols))
+    e = r - w @ np.linalg.lstsq(w, r, rcond=None)[0]
+    assert np.isclose(s.rss_after, float(e @ e), rtol=1e-9)
+    assert np.isclose(s.n_eff, effective_samples(e), rtol=1e-9)
+    assert s.n_eff < 0.5 * n
+
+
+def test_with_nuisance_updates_the_grams_as_a_fresh_build_would():
+    rng = np.random.default_rng(3)
+    n = 6000
+    u = 20 * np.sin(np.linspace(0, 12 * np.pi, n))  # six reversal cycles: five folds
+    t = np.arange(n) * 1e-3
+    r = 0.01 * np.sin(np.radians(5 * u)) + rng.normal(0, 1e-3, n)
+    extra, cand = np.column_stack((np.sin(np.radians(2 * u)), u)), np.sin(np.radians(5 * u))[:, None]
+    data = DetectionData(u, t, np.full(n, np.nan), r, 30.0, 1e-3)
+    updated = data.with_nuisance(extra)
+    fresh = DetectionData(u, t, np.full(n, np.nan), r, 30.0, 1e-3, nuisance=np.column_stack((np.ones(n), extra)))
+    a, b = updated.score(False, cand), fresh.score(False, cand)
+    assert a.heldout_folds == b.heldout_folds == 5
+    for name in ("rss_before", "rss_after", "n_eff", "delta_bic", "own_share", "heldout_gain"):
+        assert np.isclose(getattr(a, name), getattr(b, name), rtol=1e-9), name
+
+
+def test_joint_fit_equals_the_full_length_search():
+    """The search handed the (k + 1)-row factor stops where least squares on all n rows stops."""
+    rng = np.random.default_rng(4)
+    n = 20000
+    uc = 3.0 * np.sin(np.linspace(0, 16 * np.pi, n)) + 0.3 * np.sin(np.linspace(0, 5 * np.pi, n))
+    true = BacklashParams(1.02, 0.21, 0.98, 0.29)
+    cols = np.column_stack((np.sin(np.radians(40 * uc)), np.cos(np.radians(17 * uc))))
+    yc = simulate_backlash(uc, true) + cols @ np.array([0.004, -0.002]) + rng.normal(0, 2e-3, n)
+    start = BacklashParams(1.0, 0.2, 1.0, 0.3)
+    fit = fit_joint(uc, yc, cols, start)
+
+    q, rr = np.linalg.qr(cols)
+
+    def residual(p: np.ndarray) -> np.ndarray:
+        e = yc - backlash_sensitivity(uc, BacklashParams(*p))[0]
+        return e - q @ (q.T @ e)
+
+    def jacobian(p: np.ndarray) -> np.ndarray:
+        dx = backlash_sensitivity(uc, BacklashParams(*p))[1]
+        return -(dx - q @ (q.T @ dx))
+
+    p0 = np.array([start.m_left, start.c_left, start.m_right, start.c_right])
+    ref = least_squares(residual, p0, jac=jacobian, x_scale="jac")
+    got = np.array([fit.params.m_left, fit.params.c_left, fit.params.m_right, fit.params.c_right])
+    np.testing.assert_allclose(got, ref.x, rtol=1e-7, atol=1e-9)
+    np.testing.assert_allclose(fit.residual_deg, residual(ref.x), atol=1e-8)
+    np.testing.assert_allclose(fit.coef, np.linalg.solve(rr, q.T @ (yc - simulate_backlash(uc, BacklashParams(*ref.x)))), rtol=1e-6)
+    assert abs(fit.params.play - true.play) < 0.01

@@ -1,0 +1,106 @@
+"""The pipeline's fast path: the compiled data clock, ticks without rows, one finiteness check per chunk.
+
+The clock's blocks equal those of the numpy reference below (the clock before it was compiled)
+on streams with gaps, repeated and backward timestamps, cut anywhere; a pipeline that makes no
+rows ticks at the same samples as one that does; a non-finite sample stops the pipeline before
+the estimator sees any of its chunk.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from online_backlash import BacklashRLS
+from online_backlash.errors import InvalidParameterError
+from online_backlash.estimators.uncertainty import SCATTER_EVERY_S
+from online_backlash.fitting import fit_recursive
+from online_backlash.pipeline import DataClock, Pipeline
+from online_backlash.rig import simulate_rig
+from online_backlash.stream import SampleChunk
+
+
+def reference_blocks(clock: DataClock, time_s: np.ndarray, after_gap: np.ndarray) -> list[tuple[int, int, bool, int, int | None]]:
+    """The numpy clock: ``(start, end, due, data_ns, next_due_ns)`` per block, ``clock`` advanced."""
+    out = []
+    if clock.next_due_ns is None and clock.every_ns is not None:
+        clock.next_due_ns = clock.data_ns + clock.every_ns
+    previous = np.concatenate(([np.nan if clock.prev_time_s is None else clock.prev_time_s], time_s[:-1]))
+    step = time_s - previous
+    step[after_gap | ~(step > 0.0)] = 0.0
+    data_ns = clock.data_ns + np.cumsum(np.rint(step * 1e9).astype(np.int64))
+    n, start = time_s.size, 0
+    while start < n:
+        due_ns = clock.next_due_ns
+        reach = n if due_ns is None else start + int(np.searchsorted(data_ns[start:], due_ns, side="left"))
+        due = reach < n
+        end = reach + 1 if due else n
+        clock.data_ns, clock.prev_time_s = int(data_ns[end - 1]), float(time_s[end - 1])
+        while due_ns is not None and clock.every_ns is not None and due_ns <= clock.data_ns:
+            due_ns += clock.every_ns
+        clock.next_due_ns = due_ns
+        out.append((start, end, due, clock.data_ns, clock.next_due_ns))
+        start = end
+    return out
+
+
+@pytest.mark.parametrize("seed", range(12))
+def test_the_compiled_clock_cuts_where_the_numpy_clock_cut(seed):
+    rng = np.random.default_rng(seed)
+    n = int(rng.integers(1, 20_000))
+    steps = rng.choice([1e-3, 1e-3, 1e-3, 0.0, -0.004, 0.25, 1e-3 / 3], size=n)  # repeats, a clock that went back, jumps
+    time_s = 1000.0 + np.cumsum(steps)
+    after_gap = rng.random(n) < 0.01
+    every_s = float(rng.choice([0.05, 0.7, 10.0]))
+    ours, ref = DataClock(every_s), DataClock(every_s)
+    if seed % 3 == 0:  # mark_gap and restored clocks
+        ours.mark_gap()
+        ref.mark_gap()
+    cuts = np.sort(rng.choice(np.arange(1, max(2, n)), size=min(5, max(0, n - 1)), replace=False)).tolist() if n > 1 else []
+    for a, b in zip([0, *cuts], [*cuts, n]):
+        got = [(a + s, a + e, due, ours.data_ns, ours.next_due_ns) for s, e, due in ours.blocks(time_s[a:b], after_gap[a:b])]
+        want = [(a + s, a + e, due, d, nd) for s, e, due, d, nd in reference_blocks(ref, time_s[a:b], after_gap[a:b])]
+        assert got == want
+        assert ours.state_dict() == ref.state_dict()
+    quiet, ref_quiet = DataClock(None), DataClock(None)  # no rows: one block per chunk, the clock still counts
+    assert [(s, e, d) for s, e, d in quiet.blocks(time_s, after_gap)] == [(s, e, d) for s, e, d, *_ in reference_blocks(ref_quiet, time_s, after_gap)]
+    assert quiet.state_dict() == ref_quiet.state_dict()
+
+
+def test_a_pipeline_without_rows_ticks_where_one_with_rows_does():
+    chunk = simulate_rig(duration_s=40.0, ratio=30.0, play_deg=0.4, seed=2).to_chunk()
+    parts = [chunk.slice(a, a + 6000) for a in range(0, len(chunk), 6000)]
+    with_rows, without = Pipeline(BacklashRLS(), 30.0, every_s=3.0), Pipeline(BacklashRLS(), 30.0, every_s=3.0, rows=False)
+    a, b = list(with_rows.run(parts)), list(without.run(parts))
+    assert [(s.samples, s.due) for s in a] == [(s.samples, s.due) for s in b]
+    assert all(s.row is None for s in b) and sum(s.row is not None for s in a) == sum(s.due for s in a) - 3  # none before the 10 s warm start
+    assert with_rows.finish() == without.finish()
+
+
+def test_the_std_does_not_depend_on_whether_rows_are_traced():
+    """Without a trace the scatter ticks at the clock's due flags, with one at the rows: the same instants."""
+    chunk = simulate_rig(duration_s=90.0, ratio=30.0, play_deg=0.5, seed=4).to_chunk()
+    quiet, _ = fit_recursive([chunk], 30.0)
+    rows: list = []
+    traced, _ = fit_recursive([chunk], 30.0, every_s=SCATTER_EVERY_S, trace=rows.append)
+    assert len(rows) > 5
+    assert quiet.extra["backlash_std_deg"] == traced.extra["backlash_std_deg"] and quiet.backlash_deg == traced.backlash_deg
+
+
+@pytest.mark.parametrize("column", ["motor_deg", "load_deg"])
+def test_a_non_finite_sample_stops_the_pipeline_before_the_estimator_sees_its_chunk(column):
+    chunk = simulate_rig(duration_s=20.0, ratio=30.0, seed=1).to_chunk()
+    est = BacklashRLS()
+    pipe = Pipeline(est, 30.0, every_s=1.0)
+    first = chunk.slice(0, 12000)
+    bad = SampleChunk(*(getattr(chunk, k)[12000:].copy() for k in ("time_s", "motor_deg", "load_deg", "torque_Nm", "after_gap")))
+    getattr(bad, column)[4321] = math.inf if column == "motor_deg" else math.nan
+    list(pipe.feed(first))
+    seen = est.n_samples_seen_
+    with pytest.raises(InvalidParameterError, match=rf"^{'u' if column == 'motor_deg' else 'y'} .* first at index 4321 of the chunk \(time 16.321 s\)"):
+        list(pipe.feed(bad))
+    assert est.n_samples_seen_ == seen  # nothing of the chunk was learned
+    with pytest.raises(InvalidParameterError, match="non-finite"):  # learn_many called directly keeps its own check
+        est.learn_many(bad.motor_deg / 30.0, bad.load_deg)
