@@ -281,3 +281,18 @@ def test_velocity_function_invalid_knots():
             VelocityFunction(knots)
     with pytest.raises(InvalidParameterError):
         VelocityFunction((-1.0, 1.0), window_samples=0)
+
+
+def test_causal_velocity_of_a_record_that_starts_in_motion():
+    """Before its first sample a record is at rest at its first value, for the velocity of a whole
+    array as for the effects' streaming window: the speed is there from the second sample on."""
+    from online_backlash.diagnostics._causal import CausalWindow, velocity_deg_s
+
+    t = np.arange(40) * 1e-3
+    u = 0.3 + 30.0 * t
+    v = velocity_deg_s(u, t, 10)
+    assert v[0] == 0.0
+    np.testing.assert_allclose(v[1:], 30.0)
+    window = CausalWindow(10)
+    ue, te, _, n_past = window.extend(u, t, np.zeros_like(t))
+    np.testing.assert_array_equal(velocity_deg_s(ue, te, 10)[n_past:], v)

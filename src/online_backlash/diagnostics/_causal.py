@@ -51,6 +51,14 @@ class CausalWindow:
             self._past = (u[u.size - h :].copy(), t[t.size - h :].copy(), q[q.size - h :].copy())
 
 
+def _difference_from_rest(a: np.ndarray, lag: int) -> np.ndarray:
+    """``a[i] - a[max(i - lag, 0)]``: :func:`lagged_difference` with the record at rest at ``a[0]`` before it starts."""
+    out = lagged_difference(a, lag)
+    head = min(lag, a.size)
+    out[:head] = a[:head] - a[0] if a.size else out[:head]
+    return out
+
+
 def lagged_difference(a: np.ndarray, lag: int) -> np.ndarray:
     """``a[i] - a[i - lag]`` for ``i >= lag`` (the first ``lag`` entries are 0)."""
     out = np.zeros_like(a)
@@ -59,9 +67,14 @@ def lagged_difference(a: np.ndarray, lag: int) -> np.ndarray:
 
 
 def velocity_deg_s(u: np.ndarray, t: np.ndarray, window: int) -> np.ndarray:
-    """Causal velocity ``(u[i] - u[i-w]) / (t[i] - t[i-w])``, deg/s; 0 where no time has passed."""
-    du = lagged_difference(u, window)
-    dt = lagged_difference(t, window)
+    """Causal velocity ``(u[i] - u[i-w]) / (t[i] - t[i-w])``, deg/s; 0 where no time has passed.
+
+    Before the first sample the record is at rest at its first value (as in :class:`CausalWindow`),
+    so the first ``w`` samples get ``(u[i] - u[0]) / (t[i] - t[0])``: a record that starts in
+    motion has its speed from its second sample on, not 0 for ``w`` samples.
+    """
+    du = _difference_from_rest(u, window)
+    dt = _difference_from_rest(t, window)
     return np.divide(du, dt, out=np.zeros_like(du), where=dt > 0)
 
 
