@@ -324,7 +324,6 @@ class TabularSource(SampleSource):
             reason = f"time goes backwards in {self.columns['time']!r} ({columns[0][row]:g} s after {found.backwards_from:g} s)"
         raise LogFormatError(self.path, int(numbers + row if isinstance(numbers, int) else numbers[row]), reason)
 
-
     def _end_of_pass(self, last_time: float) -> None:
         """After the last block: LogFormatError if the time column never advanced (two samples or more,
         all at one time), and one BacklashWarning counting the samples that repeat the previous time."""

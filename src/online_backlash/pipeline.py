@@ -265,7 +265,6 @@ def read_ahead(chunks: Iterable[SampleChunk], depth: int = READ_AHEAD) -> Iterat
         thread.join()
 
 
-
 class OrderedWorker:
     """Calls run one at a time, in the order given, in a worker thread at most ``depth`` calls behind.
 
@@ -327,6 +326,7 @@ class OrderedWorker:
         else:  # the caller failed: drop the queued calls, keep the caller's exception
             self._stop = True
             self._end()
+
 
 class Pipeline:
     """Feed chunks of samples to a recursive estimator and emit a row every ``every_s`` seconds of data.

@@ -212,7 +212,6 @@ class FramePipeline(PerFramePipeline):
         row = self.feed_row(msg)
         return None if row is None else Sample(row[0], row[1], row[2], None, row[3], row[4])
 
-
     def _decode(self, msg: can.Message) -> Row | None:
         """The sample ``msg`` completes, if any, as a row (the frame is counted by the caller)."""
         try:

@@ -48,10 +48,10 @@ EXIT_TIME_CONSTANTS = (4, 32, 256)
 #: octave apart, from the impact of a stiff gear (a few samples) to a closed loop's settling
 ENTRY_KNOTS = (0, 2, 4, 8, 16, 32, 64, 128)
 
+
 def _at_period(samples: tuple[int, ...], period_s: float) -> tuple[float, ...]:
     """Sample counts as times, s."""
     return tuple(period_s * k for k in samples)
-
 
 
 class DeadBandMotion(EffectBase):

@@ -583,7 +583,7 @@ class RecursiveEstimator(ABC):
         est._ensure_valid()
         est.warm_start_ = dict(d.get("warm_start", {}))
         t_last, u_last, y_last = (math.nan if v is None else float(v) for v in d.get("last_sample") or [None] * 3)
-        est._last = (t_last, u_last, y_last)  # unknown in states saved before bridging
+        est._remember(t_last, u_last, y_last)  # unknown in states saved before bridging
         if d["started"]:
             est._begin(est._cold_params(None, None))
             est._st = [float(v) for v in d["state"]]

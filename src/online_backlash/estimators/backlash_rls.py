@@ -200,7 +200,6 @@ class BacklashRLS(RecursiveEstimator):
     0.5
     """
 
-
     _layout = K.S
     _consts = K.KC
 

@@ -111,7 +111,6 @@ class CascadeRLS(RecursiveEstimator):
     (1.3, array([-0.2 ,  0.35]))
     """
 
-
     _layout = K.CS
     _consts = K.QC
 

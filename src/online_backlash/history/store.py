@@ -185,6 +185,7 @@ runs_table = Table(
 #: SQL type of each kind of estimate column (online_backlash.rows.RowField.kind).
 _SQL_TYPES: dict[type, Any] = {float: Double, int: BigInteger, bool: Boolean}
 
+
 def _estimate_column(key: str) -> Column:
     """The store column of field ``key``; ``play_observable`` defaults to true (rows written without it)."""
     f = FIELDS[key]
