@@ -162,3 +162,25 @@ def test_simulated_rig_logs_for_the_readme_examples(tmp_path):
     write_rig_serial_capture(tmp_path / "rig.serial", "binary", duration_s=0.5)
     cap = open_log(tmp_path / "rig.serial", serial_format="binary", motor_cpr=2**14, load_cpr=2**17)
     assert len(list(cap)) == 500 and cap.counters.frames == 500
+
+
+def test_estimate_max_skew_pairs_frames_further_apart_than_the_default(tmp_path, capsys):
+    """Paired by time (``--counter-signal none``): the load frame 3 ms after the motor's is an orphan
+    under the default 1 ms, a pair under ``--max-skew 0.004``."""
+    import json
+
+    from online_backlash.cli import main
+
+    rec = simulate_rig(duration_s=20.0, rate_hz=100.0, seed=3, reversal_s=(2.0, 4.0))
+    path = write_log(tmp_path / "skewed.blf", rig_can_frames(rec, DbcDecoder(RIG_DBC, SPLIT["motor_signal"], SPLIT["load_signal"]), T0, skew_s=3e-3))
+    argv = ["estimate", str(path), "--dbc", "rig", "--motor-signal", SPLIT["motor_signal"], "--load-signal", SPLIT["load_signal"],
+            "--counter-signal", "none", "--ratio", "30", "--json", "--method", "batch"]
+    assert main(argv) != 0  # every frame an orphan: no samples
+    assert "error:" in capsys.readouterr().err
+    assert main([*argv, "--max-skew", "0.004"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert (out["samples"], out["unpaired"]) == (rec.time_s.size, 0)
+    assert out["backlash_deg"] == pytest.approx(0.5, abs=0.02)
+    with pytest.raises(SystemExit) as usage:  # argparse's usage error, no traceback
+        main([*argv, "--max-skew", "-1"])
+    assert usage.value.code == 2 and "--max-skew: expected a positive number" in capsys.readouterr().err

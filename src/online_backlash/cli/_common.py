@@ -181,6 +181,11 @@ def add_can_decoding_options(parser: argparse.ArgumentParser, required: bool) ->
     )
     group.add_argument("--counter-signal", default="Counter", metavar="NAME", help="rolling counter signal in those messages ('none': pair by time)")
     group.add_argument("--checksum-signal", default="Checksum", metavar="NAME", help="CRC-8/SAE-J1850 checksum byte in those messages ('none': no check)")
+    group.add_argument(
+        "--max-skew", type=positive_float, metavar="S",
+        help="pairing by time (no counter signal; event-driven CANopen TPDOs): "
+        "the largest time between the motor's and the load's frame of one sample, seconds (default 1 ms)",
+    )
     add_canopen_options(parser)
 
 
@@ -203,9 +208,10 @@ def can_decoding_options(args: argparse.Namespace) -> dict[str, Any]:
     def optional(name: str) -> str | None:
         return None if name.lower() == "none" else name
 
+    skew = {} if args.max_skew is None else {"max_skew_s": args.max_skew}
     if getattr(args, "eds", None) is not None:
-        return canopen_options(args)
-    return {
+        return canopen_options(args) | skew
+    return skew | {
         "dbc": RIG_DBC if args.dbc == "rig" else args.dbc,
         "motor_signal": args.motor_signal,
         "load_signal": args.load_signal,

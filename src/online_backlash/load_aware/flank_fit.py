@@ -178,6 +178,10 @@ class TorqueBacklash(FlankPairFigures):
     J. Vörös, Automatica 46 (2010) 369-374 (eq. 1, 5-9, 11).
     """
 
+    noise_var_: float
+    play_observable_: bool
+    windup_separable_: bool
+
     def __init__(
         self,
         deadband_Nm: float | None = None,
@@ -267,15 +271,6 @@ class TorqueBacklash(FlankPairFigures):
 
     def _y_level(self) -> float:
         return self.y_level_
-
-    def _noise_var(self) -> float:
-        return self.noise_var_
-
-    def _observable(self) -> bool:
-        return self.play_observable_
-
-    def _all_separable(self) -> bool:
-        return self.windup_separable_
 
     def _raw_pair(self) -> tuple[FlankLine | None, FlankLine | None]:
         return tuple(None if f is None else f.line for f in (self.raw_fits_[-1], self.raw_fits_[1]))  # type: ignore[return-value]

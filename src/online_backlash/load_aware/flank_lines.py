@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -147,8 +148,8 @@ class FlankPairFigures:
     The estimator supplies :meth:`_flank_pair` (the lines the play is measured between, left and
     right, None for a flank never engaged; its "not fitted" check goes there), :meth:`_pair_covs`
     (their unscaled covariances of ``[m, a, s]``), ``_y_level()`` (the output level of the play,
-    deg), ``_noise_var()`` (residual variance, deg^2), ``_observable()`` (the play is observable)
-    and ``_all_separable()`` (the wind-up of every engaged flank is separable); for the standard error
+    deg), ``noise_var_`` (residual variance, deg^2), ``play_observable_`` (the play is observable)
+    and ``windup_separable_`` (the wind-up of every engaged flank is separable); for the standard error
     that covers repeat runs, ``cycle_plays_`` (per-reversal plays, :class:`CyclePlays` fed with
     :func:`sample_offsets`), ``memory_reversals`` (None: equal weights), :meth:`_raw_pair` and
     :meth:`_misfit_deg`.
@@ -166,20 +167,22 @@ class FlankPairFigures:
     def _y_level(self) -> float:
         raise NotImplementedError
 
-    def _noise_var(self) -> float:
-        raise NotImplementedError
+    if TYPE_CHECKING:  # the estimator's own: a fitted attribute (batch) or a property of its state (recursive)
 
-    def _observable(self) -> bool:
-        raise NotImplementedError
+        @property
+        def noise_var_(self) -> float: ...
 
-    def _all_separable(self) -> bool:
-        raise NotImplementedError
+        @property
+        def play_observable_(self) -> bool: ...
+
+        @property
+        def windup_separable_(self) -> bool: ...
 
     @property
     def backlash_(self) -> float:
         """The play, degrees (NaN while not observable)."""
         left, right = self._flank_pair()
-        if not self._observable() or left is None or right is None:
+        if not self.play_observable_ or left is None or right is None:
             return math.nan
         return play_between(left, right, self._y_level())
 
@@ -197,7 +200,7 @@ class FlankPairFigures:
         to zero torque, degrees: the data cannot tell the two apart, so repeat runs that fall on either
         side of the separability test differ by about this much. 0 where the wind-up is separable."""
         left, right = self._raw_pair()
-        if self._all_separable() or left is None or right is None or not self._observable():
+        if self.windup_separable_ or left is None or right is None or not self.play_observable_:
             return 0.0
         folded = self.backlash_
         raw = play_between(left, right, self._y_level())
@@ -206,7 +209,7 @@ class FlankPairFigures:
     @property
     def uncertainty_(self) -> PlayUncertainty | None:
         """The parts of :attr:`backlash_std_` (None while the play is not observable)."""
-        if not self._observable():
+        if not self.play_observable_:
             return None
         cycles = self.cycle_plays_
         plays = cycles.plays_deg
@@ -235,11 +238,11 @@ class FlankPairFigures:
     def backlash_white_std_(self) -> float:
         """Standard error of the play from the lines' covariance and the residual variance (delta method), degrees."""
         left, right = self._flank_pair()
-        if not self._observable() or left is None or right is None:
+        if not self.play_observable_ or left is None or right is None:
             return math.nan
         gl, gr = play_gradient(left, right, self._y_level())
         cov_left, cov_right = self._pair_covs()
-        return math.sqrt(max(self._noise_var() * float(gl @ cov_left @ gl + gr @ cov_right @ gr), 0.0))
+        return math.sqrt(max(self.noise_var_ * float(gl @ cov_left @ gl + gr @ cov_right @ gr), 0.0))
 
     def _offsets(self) -> tuple[float, float]:
         left, right = self._flank_pair()
@@ -270,7 +273,7 @@ class FlankPairFigures:
         return math.nan if right is None else right.m
 
     def _stiffness(self, line: FlankLine | None) -> float:
-        return math.nan if line is None or not self._all_separable() else line.stiffness_nm_per_arcmin
+        return math.nan if line is None or not self.windup_separable_ else line.stiffness_nm_per_arcmin
 
     @property
     def stiffness_left_nm_per_arcmin_(self) -> float:

@@ -394,15 +394,6 @@ class TorqueBacklashRLS(FlankPairFigures, RecursiveEstimator):
     def _y_level(self) -> float:
         return self._st[S.Y_LEVEL]
 
-    def _noise_var(self) -> float:
-        return self.noise_var_
-
-    def _observable(self) -> bool:
-        return self.play_observable_
-
-    def _all_separable(self) -> bool:
-        return self.windup_separable_
-
     @property
     def deadband_Nm_(self) -> float:
         self._check_started()
