@@ -103,8 +103,10 @@ class MdfLog(MeasurementLog):
     skip_bad : bool
         Count and skip non-finite or out-of-order samples instead of raising.
     fragment_bytes : int
-        Size hint of the blocks read from the file (memory stays bounded by it; 1 MiB reads as
-        fast as 4 MiB and holds less in the blocks read ahead).
+        Size hint of the blocks read from the file (memory stays bounded by it). 2 MiB (87,381
+        samples of motor, load and time in 24-byte records): fewer blocks than 1 MiB cost less
+        per-block work on the reader's, the estimator's and the bookkeeping's threads; 4 MiB gains
+        a little more but takes the peak RSS of ``estimate`` near 300 MB.
 
     Attributes
     ----------
@@ -122,7 +124,7 @@ class MdfLog(MeasurementLog):
         motor_cpr: float | None = None,
         load_cpr: float | None = None,
         skip_bad: bool = False,
-        fragment_bytes: int = 1 << 20,
+        fragment_bytes: int = 2 << 20,
     ) -> None:
         super().__init__(path, columns, units, motor_cpr, load_cpr, skip_bad)
         self.fragment_bytes = int(fragment_bytes)

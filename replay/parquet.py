@@ -6,10 +6,11 @@ columns are read as floats (a null is a non-finite value). A column's unit is ta
 field metadata key ``unit`` where present (else degrees, seconds, N m), and ``units=`` overrides
 the angles' units (:func:`~online_backlash.replay.tabular.channel_scales`).
 
-Parquet files stream by batches of ``block_rows`` (``ParquetFile.iter_batches``); Arrow IPC
-files (``.arrow``, ``.feather``, ``.ipc``) by their record batches, memory-mapped. A file
-pyarrow cannot read raises :class:`~online_backlash.errors.LogFormatError` naming the file
-(and the row of the batch that failed).
+Parquet files stream by batches of ``block_rows`` (``ParquetFile.iter_batches``, a batch's columns
+decoded in pyarrow's thread pool; a column's values are handed on without a copy); Arrow IPC
+files (``.arrow``, ``.feather``, ``.ipc``) by their record batches, of which only the named columns
+are read (and decompressed). A file pyarrow cannot read raises
+:class:`~online_backlash.errors.LogFormatError` naming the file (and the row of the batch that failed).
 """
 
 from __future__ import annotations
@@ -40,13 +41,15 @@ class _Table:
         self._arrow = os.path.splitext(path.lower())[1] in ARROW_SUFFIXES
         try:
             if self._arrow:
-                self._source = pa.memory_map(path, "r")
+                # read, not memory-mapped: a map counts every page of the file it touched as resident
+                self._source = pa.OSFile(path, "rb")
                 self._reader: Any = pa.ipc.open_file(self._source)
             else:
-                # pyarrow's own file, read without the GIL (a Python file object takes it for every read)
+                # pyarrow's own file, read without the GIL (a Python file object takes it for every read);
+                # buffered column reads, no pre-buffering: memory stays one batch, not one row group
+                # (bench/parquet_read.py: whole row groups or pre-buffering cost 50-180 MB more, memory maps
+                # count the file's pages as resident, and none of them saves more than a tenth of the CPU)
                 self._source = pa.OSFile(path, "rb")
-                # buffered column reads, decoded on this thread: memory stays one batch, not one row group
-                # (decoding a whole row group takes 15 % less CPU but 80 MB more for row groups of 1 M rows)
                 self._reader = pq.ParquetFile(self._source, pre_buffer=False, buffer_size=1 << 20)
             self.schema = self._reader.schema_arrow if not self._arrow else self._reader.schema
         except OSError as exc:
@@ -60,23 +63,36 @@ class _Table:
 
     @property
     def rows(self) -> int:
-        if self._arrow:
-            return sum(self._reader.get_batch(i).num_rows for i in range(self._reader.num_record_batches))
+        if self._arrow:  # the row count of each batch, reading one column of it
+            reader = self._ipc_reader([0] if len(self.schema) else [])
+            return sum(reader.get_batch(i).num_rows for i in range(reader.num_record_batches))
         return int(self._reader.metadata.num_rows)
+
+    def _ipc_reader(self, fields: list[int]) -> Any:
+        """An Arrow IPC reader of the open file that reads and decompresses only the ``fields`` (indices;
+        empty: all), in pyarrow's thread pool."""
+        import pyarrow as pa
+
+        return pa.ipc.open_file(self._source, options=pa.ipc.IpcReadOptions(use_threads=True, included_fields=fields))
 
     def batches(self, names: list[str], block_rows: int) -> Iterator[Any]:
         """Record batches of the named columns, at most ``block_rows`` rows each."""
         row = 0
         try:
             if self._arrow:
-                for i in range(self._reader.num_record_batches):
-                    batch = self._reader.get_batch(i).select(names)
+                fields = [self.schema.get_field_index(name) for name in names]  # -1: a name held twice
+                reader = self._ipc_reader(sorted(set(fields)) if min(fields) >= 0 else [])
+                for i in range(reader.num_record_batches):
+                    batch = reader.get_batch(i).select(names)
                     for start in range(0, batch.num_rows, block_rows):
                         part = batch.slice(start, block_rows)
                         row += part.num_rows
                         yield part
             else:
-                for batch in self._reader.iter_batches(batch_size=block_rows, columns=names, use_threads=False):
+                # the columns of a batch are decoded side by side in pyarrow's thread pool, without the GIL: three
+                # quarters of the decode is snappy's decompression, which no option makes cheaper, so the reader's
+                # thread hands it to cores the estimator leaves idle instead of doing it all on its own
+                for batch in self._reader.iter_batches(batch_size=block_rows, columns=names, use_threads=True):
                     row += batch.num_rows
                     yield batch
         except (OSError, Exception) as exc:  # a damaged page or batch

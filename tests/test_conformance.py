@@ -124,6 +124,36 @@ def test_learn_many_in_chunks_equals_a_learn_one_loop(case):
     np.testing.assert_allclose(_snapshot(many), _snapshot(one), rtol=1e-12, atol=1e-15)
 
 
+def test_snapshots_inside_one_call_equal_cutting_the_block_at_them(case):
+    """``learn_many(..., snapshot_at=)`` gives the estimate after each mark (before, at and after the
+    warm start, across gaps) that cutting the block there and reading ``estimate_now()`` gives, and
+    the same final state (the compiled BacklashRLS records them inside its loop)."""
+    n = case.u.size
+    gap = np.zeros(n, dtype=bool)
+    gap[[case.warm // 3, case.warm + 500, n - 200]] = True
+    marks = [1, case.warm // 2, case.warm - 1, case.warm, case.warm + 1, case.warm + 499, case.warm + 500, n // 2, n - 201, n - 200, n - 1, n]
+    cut = case.make()
+    want = []
+    for lo, hi in itertools.pairwise([0, *marks]):
+        _learn_many(cut, case, lo, hi, gap)
+        want.append(cut.estimate_now())
+    whole = case.make()
+    got = whole.learn_many(case.u, case.y, gap, time_s=case.time_s, torque_Nm=case.q(0, n), snapshot_at=np.array(marks))
+    assert [a.started for a in want] == [a.started for a in got] and sum(a.started for a in got) >= 4
+    assert repr(got) == repr(want)  # bit for bit (NaN before the start compared as text)
+    assert _state(whole) == _state(cut)
+    more = whole.learn_many(case.u[:5], case.y[:5], time_s=case.time_s[:5] + 100.0, torque_Nm=case.q(0, 5), snapshot_at=[])
+    assert more == [] and cut.learn_many(case.u[:5], case.y[:5], time_s=case.time_s[:5] + 100.0, torque_Nm=case.q(0, 5)) is None
+    assert _state(whole) == _state(cut)
+
+
+@pytest.mark.parametrize("marks", [[0], [5, 5], [3, 2], [10**9]], ids=["zero", "repeated", "descending", "beyond"])
+def test_snapshot_marks_outside_the_block_are_refused(case, marks):
+    est = case.make()
+    with pytest.raises(InvalidParameterError, match="snapshot_at"):
+        est.learn_many(case.u[:100], case.y[:100], time_s=case.time_s[:100], torque_Nm=case.q(0, 100), snapshot_at=marks)
+
+
 def test_clone_is_a_fresh_estimator_with_the_same_parameters(case):
     est = case.make()
     _learn_many(est, case, 0, case.u.size)

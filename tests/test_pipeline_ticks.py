@@ -13,9 +13,9 @@ import math
 import numpy as np
 import pytest
 
-from online_backlash import BacklashRLS
+from online_backlash import BacklashRLS, fitting
 from online_backlash.errors import InvalidParameterError
-from online_backlash.estimators.uncertainty import SCATTER_EVERY_S
+from online_backlash.estimators.uncertainty import SCATTER_EVERY_S, RecursivePlayScatter
 from online_backlash.fitting import fit_recursive
 from online_backlash.pipeline import DataClock, Pipeline
 from online_backlash.rig import simulate_rig
@@ -74,19 +74,40 @@ def test_a_pipeline_without_rows_ticks_where_one_with_rows_does():
     parts = [chunk.slice(a, a + 6000) for a in range(0, len(chunk), 6000)]
     with_rows, without = Pipeline(BacklashRLS(), 30.0, every_s=3.0), Pipeline(BacklashRLS(), 30.0, every_s=3.0, rows=False)
     a, b = list(with_rows.run(parts)), list(without.run(parts))
-    assert [(s.samples, s.due) for s in a] == [(s.samples, s.due) for s in b]
-    assert all(s.row is None for s in b) and sum(s.row is not None for s in a) == sum(s.due for s in a) - 3  # none before the 10 s warm start
+    ticks = [s.samples for s in a if s.due]
+    assert [s.samples - len(s.chunk) + t for s in b for t in s.ticks] == ticks  # whole chunks, the same ticks inside them
+    assert [s.samples for s in b] == [6000 * (k + 1) for k in range(len(parts) - 1)] + [len(chunk)]
+    assert all(s.row is None for s in b) and sum(s.row is not None for s in a) == len(ticks) - 3  # none before the 10 s warm start
+    # the estimate at each tick, recorded inside the estimator's loop, is the row's
+    at_ticks = [at for s in b for at in s.estimates]
+    rows = {s.samples: s.row for s in a if s.due}
+    assert [at.started for at in at_ticks] == [rows[t] is not None for t in ticks]
+    assert [(at.backlash_deg, at.m_left, at.m_right) for at in at_ticks if at.started] == [
+        (r.backlash_deg, r.m_left, r.m_right) for r in rows.values() if r is not None
+    ]
     assert with_rows.finish() == without.finish()
+    assert with_rows.samples_since_row == without.samples_since_row == 0
 
 
-def test_the_std_does_not_depend_on_whether_rows_are_traced():
-    """Without a trace the scatter ticks at the clock's due flags, with one at the rows: the same instants."""
+@pytest.mark.parametrize("size", [None, 7_777, 100_000], ids=["one-chunk", "chunks-of-7777", "chunks-of-100000"])
+@pytest.mark.parametrize("ahead", [0, 1], ids=["inline", "threaded"])
+def test_the_std_does_not_depend_on_whether_rows_are_traced(monkeypatch, size, ahead):
+    """Without a trace the scatter ticks at the clock's due flags, with one at the rows: the same instants.
+    Without a trace the ticks do not cut the chunks (the estimate is recorded at each inside the
+    estimator's loop); with one they do: the per-cycle plays and the whole report are the same, bit for bit."""
+    scatters: list[RecursivePlayScatter] = []
+    monkeypatch.setattr(fitting, "RecursivePlayScatter", lambda est: scatters.append(RecursivePlayScatter(est)) or scatters[-1])
     chunk = simulate_rig(duration_s=90.0, ratio=30.0, play_deg=0.5, seed=4).to_chunk()
-    quiet, _ = fit_recursive([chunk], 30.0)
+    parts = [chunk] if size is None else [chunk.slice(a, min(a + size, len(chunk))) for a in range(0, len(chunk), size)]
+    quiet, _ = fit_recursive(parts, 30.0, ahead=ahead)
     rows: list = []
-    traced, _ = fit_recursive([chunk], 30.0, every_s=SCATTER_EVERY_S, trace=rows.append)
+    traced, _ = fit_recursive(parts, 30.0, every_s=SCATTER_EVERY_S, trace=rows.append, ahead=ahead)
     assert len(rows) > 5
     assert quiet.extra["backlash_std_deg"] == traced.extra["backlash_std_deg"] and quiet.backlash_deg == traced.backlash_deg
+    assert repr(quiet.as_dict()) == repr(traced.as_dict())
+    plays = [s.scatter.plays_deg for s in scatters]
+    assert plays[0].size >= 10 and plays[0].tobytes() == plays[1].tobytes()
+    assert scatters[0].scatter.noise.total == scatters[1].scatter.noise.total
 
 
 @pytest.mark.parametrize("column", ["motor_deg", "load_deg"])

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import os
 import re
 
 import numpy as np
@@ -171,3 +172,77 @@ def test_a_time_that_never_advances_is_an_error_and_repeated_times_warn(tmp_path
     pq.write_table(pa.table({"t": t, "m": np.arange(n, dtype=float), "l": np.arange(n, dtype=float)}), repeated, row_group_size=30)
     with ParquetLog(repeated, columns=MAP, block_rows=16) as log, pytest.warns(BacklashWarning, match="3 of 100 samples repeat"):
         assert sum(len(c) for c in log.iter_chunks()) == n
+
+
+def test_the_columns_are_decoded_in_pyarrows_threads_not_the_readers(tmp_path):
+    """The decode (mostly snappy's decompression) runs in pyarrow's thread pool, without the GIL: the thread
+    that iterates the reader spends a small part of the CPU the read costs, and the samples are the file's."""
+    import threading
+    import time
+
+    rng = np.random.default_rng(5)
+    n = 1_000_000
+    table = pa.table({"time": np.arange(n) * 1e-3, "motor": np.cumsum(rng.normal(size=n)), "load": rng.normal(size=n)})
+    path = tmp_path / "lake.parquet"
+    pq.write_table(table, path, row_group_size=250_000)  # pyarrow's defaults: snappy, dictionary pages
+    cpus = pa.cpu_count()
+    pa.set_cpu_count(2)  # a pool of two threads even on a one-core machine
+    try:
+        with ParquetLog(path) as log:
+            next(iter(log.iter_chunks()))  # the compiled checks loaded outside the count
+            spent = {}
+
+            def read() -> None:
+                start, thread_start = time.process_time(), time.thread_time()
+                spent["chunks"] = list(log.iter_chunks())
+                spent["thread"], spent["process"] = time.thread_time() - thread_start, time.process_time() - start
+
+            reader = threading.Thread(target=read)
+            reader.start()
+            reader.join()
+    finally:
+        pa.set_cpu_count(cpus)
+    chunks = spent["chunks"]
+    np.testing.assert_array_equal(np.concatenate([c.motor_deg for c in chunks]), table.column("motor").to_numpy())
+    np.testing.assert_array_equal(np.concatenate([c.time_s for c in chunks]), table.column("time").to_numpy())
+    assert spent["thread"] < 0.5 * spent["process"], spent
+
+
+@pytest.mark.parametrize("compression", ["lz4", "uncompressed"])
+def test_an_arrow_file_is_read_by_its_named_columns_in_any_order(tmp_path, compression):
+    """Only the mapped columns of an Arrow IPC file are read (and decompressed), whatever their order in the
+    file; the others may hold anything; ``inspect`` counts every batch's rows."""
+    from online_backlash.replay.parquet import describe
+
+    n = 300
+    t = np.arange(n) * 1e-3
+    table = pa.table({"l": np.cos(t), "note": [f"row {i}" for i in range(n)], "m": 30 * np.sin(t), "t": t})
+    path = tmp_path / "wide.arrow"
+    feather.write_feather(table, path, chunksize=64, compression=compression)
+    values, counters = read_all(path, columns=MAP, block_rows=50)
+    np.testing.assert_array_equal(values[:, 0], t)
+    np.testing.assert_array_equal(values[:, 1], 30 * np.sin(t))
+    np.testing.assert_array_equal(values[:, 2], np.cos(t))
+    assert counters.frames == counters.samples == n
+    assert [(c.name, c.samples) for c in describe(path)] == [(name, n) for name in ("l", "note", "m", "t")]
+
+
+def test_an_arrow_file_streams_with_flat_memory(tmp_path):
+    """An Arrow IPC file is read batch by batch, not memory-mapped (a map counts every page read as resident):
+    reading 96 MB of samples leaves the resident memory within a few batches of where it started."""
+    n = 4_000_000
+    path = tmp_path / "big.arrow"
+    feather.write_feather(pa.table({"time": np.arange(n) * 1e-3, "motor": np.zeros(n), "load": np.zeros(n)}), path, compression="uncompressed")
+
+    def resident_mb() -> float:
+        with open("/proc/self/statm") as statm:
+            return int(statm.read().split()[1]) * os.sysconf("SC_PAGE_SIZE") / 2**20
+
+    with ParquetLog(path) as log:
+        chunks = log.iter_chunks()
+        rows = len(next(chunks))
+        start = resident_mb()
+        rows += sum(len(chunk) for chunk in chunks)
+        grown = resident_mb() - start
+    assert rows == n
+    assert grown < 30, f"resident memory grew {grown:.0f} MB over a 96 MB file"

@@ -12,7 +12,7 @@ import inspect
 import itertools
 import math
 import os
-from collections.abc import Callable, Iterable, Mapping
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -185,10 +185,13 @@ def recursive_estimator(first: SampleChunk | None, ratio: float, **params: Any) 
     return BacklashRLS(**params)
 
 
-def _keep_books(step: PipelineStep, scatter: RecursivePlayScatter, estimate: EstimateAt, dwells: DwellTracker | None) -> None:
-    """The bookkeeping of one learned block: the play's scatter (with the estimate as it was right
-    after the block) and, for a kinematic estimator, the dwells; reads nothing but its arguments."""
-    scatter.update(step.u_deg, step.chunk.load_deg, step.chunk.after_gap, due=step.due, estimate=estimate)
+def _keep_books(
+    step: PipelineStep, scatter: RecursivePlayScatter, estimates: Sequence[EstimateAt], end: EstimateAt, dwells: DwellTracker | None
+) -> None:
+    """The bookkeeping of one learned block: the play's scatter (with the estimate at each of its
+    ticks, ``estimates``, and as it was right after the block, ``end``) and, for a kinematic
+    estimator, the dwells; reads nothing but its arguments."""
+    scatter.update_ticks(step.u_deg, step.chunk.load_deg, step.chunk.after_gap, step.ticks, estimates, end)
     if dwells is not None:
         dwells.update(step.u_deg, step.chunk.load_deg, step.chunk.after_gap)
 
@@ -256,7 +259,8 @@ def fit_recursive(
     # with a reader thread (a recorded file), the bookkeeping overlaps the next block's estimation too
     with OrderedWorker(BOOKKEEPING_AHEAD if ahead > 0 else 0) as books:
         for step in pipeline.run(chunks, os.fspath(source), ahead):
-            books.call(_keep_books, step, scatter, scatter.snapshot(step.due), dwells)
+            end = scatter.snapshot(step.due)
+            books.call(_keep_books, step, scatter, step.estimates if step.estimates is not None else [end] * step.due, end, dwells)
             if step.row is not None and trace is not None:
                 trace(step.row)
     last = pipeline.finish()

@@ -14,7 +14,9 @@ all run :class:`Pipeline`:
 4. a :class:`PipelineStep` reports the block (samples, referred input), whether a row is due
    after it (``due``) and, where one is due and the pipeline makes rows (``rows=True``), the
    :class:`~online_backlash.rows.EstimateRow` (a row costs the estimator's standard error: a
-   caller that only needs the instants, as ``estimate`` without ``--trace``, asks for none).
+   caller that only needs the instants, as ``estimate`` without ``--trace``, asks for none; then
+   the estimator learns each chunk in one call and records its estimate at the ticks inside it,
+   ``learn_many(..., snapshot_at=)``, so the ticks do not cut its compiled loop).
 
 Each chunk is checked once for non-finite angles (a compiled pass) before any of it reaches the
 estimator, which then skips its own per-block check (``learn_many(..., assume_finite=True)``).
@@ -81,10 +83,11 @@ def _first_non_finite(u, y):  # pragma: no cover - compiled
     return -1
 
 
-def _checks_finite(estimator: Any) -> bool:
-    """True if ``estimator.learn_many`` takes ``assume_finite`` (then the pipeline checks each chunk once)."""
+def _learn_many_takes(estimator: Any, name: str) -> bool:
+    """True if ``estimator.learn_many`` takes the keyword ``name``: ``assume_finite`` (then the pipeline
+    checks each chunk once), ``snapshot_at`` (then ticks without rows do not cut its blocks)."""
     try:
-        return "assume_finite" in inspect.signature(estimator.learn_many).parameters
+        return name in inspect.signature(estimator.learn_many).parameters
     except (AttributeError, TypeError, ValueError):
         return False
 
@@ -172,6 +175,14 @@ class PipelineStep:
         makes rows (``rows``).
     due : bool
         The block ends at a data-clock tick (a row belongs right after it), rows made or not.
+    ticks : tuple of int
+        The data-clock ticks in the block, as counts of its samples (a tick falls right after
+        sample ``ticks[k] - 1``), ascending: ``(len(chunk),)`` or ``()`` for a block cut at the
+        ticks; a pipeline without rows over an estimator that records snapshots hands whole chunks
+        with every tick in them.
+    estimates : list or None
+        Where the block was not cut at its ticks: the estimator's estimate at each tick, as its
+        ``learn_many(..., snapshot_at=ticks)`` gave it (``started``, the play and slopes); else None.
     """
 
     chunk: SampleChunk
@@ -179,6 +190,8 @@ class PipelineStep:
     samples: int
     row: EstimateRow | None
     due: bool = False
+    ticks: tuple[int, ...] = ()
+    estimates: list[Any] | None = None
 
 
 def _block(chunk: SampleChunk, start: int, end: int) -> SampleChunk:
@@ -347,7 +360,9 @@ class Pipeline:
         Make the :class:`EstimateRow` of each tick (``PipelineStep.row``). False: the steps only say
         where a tick falls (``PipelineStep.due``), for a caller that needs the instants but not
         the rows, which cost time (the estimator's standard error); :meth:`finish` still gives
-        the last row.
+        the last row. An estimator whose ``learn_many`` takes ``snapshot_at`` then learns each chunk
+        in one call, its estimate recorded at every tick inside it (``PipelineStep.ticks`` and
+        ``estimates``): a tick does not cut the compiled loop.
 
     The estimator decides which gaps are bridged (its ``gap_policy``,
     :class:`~online_backlash.bridging.GapPolicy`) and tallies them (``gaps_``, read here as
@@ -378,7 +393,9 @@ class Pipeline:
         self.estimator = estimator
         self.ratio = ratio
         self.rows = rows
-        self._checked = _checks_finite(estimator)  # the estimator may skip its own finiteness check
+        self._checked = _learn_many_takes(estimator, "assume_finite")  # the estimator may skip its own finiteness check
+        # without rows, a tick needs only the estimate there: recorded inside one call per chunk
+        self._whole_chunks = not rows and _learn_many_takes(estimator, "snapshot_at")
         self.clock = clock if clock is not None else DataClock(every_s)
         self.samples = 0
         self.samples_since_row = 0
@@ -412,6 +429,9 @@ class Pipeline:
                 name = "u (motor angle / ratio)" if not math.isfinite(u[bad]) else "y (load angle)"
                 raise InvalidParameterError(f"{name} has non-finite values, first at index {bad} of the chunk (time {chunk.time_s[bad]} s)")
             learn["assume_finite"] = True
+        if self._whole_chunks:
+            yield self._feed_whole(chunk, u, y, learn)
+            return
         for start, end, due in self.clock.blocks(chunk.time_s, chunk.after_gap):
             block = _block(chunk, start, end)
             self.estimator.learn_many(u[start:end], y[start:end], block.after_gap, time_s=block.time_s, torque_Nm=block.torque_Nm, **learn)
@@ -421,7 +441,22 @@ class Pipeline:
             row = EstimateRow.from_estimator(self.estimator, self.last_time_s) if due and self.rows else None
             if row is not None or (due and not self.rows and self.estimator.started):
                 self.samples_since_row = 0
-            yield PipelineStep(block, u[start:end], self.samples, row, due)
+            yield PipelineStep(block, u[start:end], self.samples, row, due, (end - start,) if due else ())
+
+    def _feed_whole(self, chunk: SampleChunk, u: np.ndarray, y: np.ndarray, learn: dict[str, Any]) -> PipelineStep:
+        """:meth:`feed` of a pipeline without rows over an estimator that records snapshots: the whole
+        chunk in one ``learn_many`` call, the estimate recorded at each tick (``snapshot_at``); the
+        same estimates, ticks and counts as cutting the chunk at the ticks."""
+        ticks = tuple(end for _, end, due in self.clock.blocks(chunk.time_s, chunk.after_gap) if due)
+        estimates = self.estimator.learn_many(
+            u, y, chunk.after_gap, time_s=chunk.time_s, torque_Nm=chunk.torque_Nm, snapshot_at=np.array(ticks, dtype=np.int64), **learn
+        )
+        n = len(chunk)
+        self.samples += n
+        started = [tick for tick, at in zip(ticks, estimates) if at.started]  # a tick of a started estimator makes its row
+        self.samples_since_row = n - started[-1] if started else self.samples_since_row + n
+        self.last_time_s = float(chunk.time_s[-1])
+        return PipelineStep(chunk, u, self.samples, None, bool(ticks) and ticks[-1] == n, ticks, estimates)
 
     def run(self, chunks: Iterable[SampleChunk], source: str = "<stream>", ahead: int = 0) -> Iterator[PipelineStep]:
         """:meth:`feed` every chunk; LogFormatError naming ``source`` if there was no sample at all.

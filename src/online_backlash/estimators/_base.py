@@ -28,6 +28,7 @@ import math
 import warnings
 from abc import ABC, abstractmethod
 from collections.abc import Callable, Sequence
+from dataclasses import dataclass
 from typing import Any, Generic, TypeVar
 
 import numpy as np
@@ -84,6 +85,31 @@ def finite_array(name: str, value: Any) -> np.ndarray:
     if not math.isfinite(float(np.sum(arr))) and not np.all(np.isfinite(arr)):
         raise InvalidParameterError(f"{name} has non-finite values, first at index {int(np.flatnonzero(~np.isfinite(arr))[0])}")
     return arr
+
+
+@dataclass(frozen=True)
+class EstimateAt:
+    """A recursive estimator's estimate as it was at one instant (what the play's per-cycle scatter
+    reads, :class:`~.uncertainty.RecursivePlayScatter`; ``learn_many(..., snapshot_at=)`` records it).
+
+    Attributes
+    ----------
+    started : bool
+        The estimator had started (before that the play and slopes are NaN, not read).
+    backlash_deg : float
+        Its play, degrees (load side).
+    m_left, m_right : float
+        Its flank slopes, eq. (1).
+    """
+
+    started: bool
+    backlash_deg: float
+    m_left: float
+    m_right: float
+
+
+#: The estimate of an estimator that has not started (:class:`EstimateAt`).
+NOT_STARTED = EstimateAt(False, math.nan, math.nan, math.nan)
 
 
 class StateField(Generic[T]):
@@ -201,6 +227,22 @@ class RecursiveEstimator(ABC):
     def _learn_arrays(self, u: np.ndarray, y: np.ndarray, gap: np.ndarray, t: np.ndarray | None, q: np.ndarray | None) -> None:
         """Consecutive samples by the compiled loop; the same estimates as :meth:`_learn_py`
         (time ``t`` and torque ``q`` are given where there are effects, else None)."""
+
+    def _learn_arrays_marked(
+        self, u: np.ndarray, y: np.ndarray, gap: np.ndarray, t: np.ndarray | None, q: np.ndarray | None, marks: np.ndarray
+    ) -> list[EstimateAt]:
+        """:meth:`_learn_arrays` (the estimator has started) with the estimate after the first
+        ``marks[k]`` samples (strictly ascending, 1..n): here by learning up to each mark in turn and reading
+        the estimate there; an estimator with a compiled loop overrides it to record the marks inside it."""
+        out: list[EstimateAt] = []
+        lo = 0
+        for hi in [*marks.tolist(), u.size]:
+            if hi > lo:
+                self._learn_arrays(u[lo:hi], y[lo:hi], gap[lo:hi], None if t is None else t[lo:hi], None if q is None else q[lo:hi])
+            if len(out) < marks.size:
+                out.append(self.estimate_now())
+            lo = hi
+        return out
 
     @abstractmethod
     def _gap_now(self) -> None:
@@ -357,7 +399,8 @@ class RecursiveEstimator(ABC):
         time_s: np.ndarray | None = None,
         torque_Nm: np.ndarray | None = None,
         assume_finite: bool = False,
-    ) -> None:
+        snapshot_at: np.ndarray | None = None,
+    ) -> list[EstimateAt] | None:
         """Learn consecutive samples (arrays); the same estimates as a loop of :meth:`learn_one`.
 
         ``after_gap[i]`` True means samples are missing just before ``i``: :attr:`gap_policy`
@@ -368,10 +411,17 @@ class RecursiveEstimator(ABC):
         (scikit-learn's ``assume_finite``), for a caller that checked them already
         (:class:`~online_backlash.pipeline.Pipeline` checks each chunk once, not each block).
 
+        ``snapshot_at`` (strictly ascending sample counts, each in ``1..len(u)``): also return the estimate
+        after the first ``snapshot_at[k]`` samples of this call (:class:`EstimateAt`; not started
+        before the warm start), the same as learning the block cut at those counts and reading
+        :meth:`estimate_now` after each piece, but in one compiled loop where the estimator has one
+        (the play's scatter measures at data-clock ticks without cutting the estimator's block).
+
         Raises
         ------
         InvalidParameterError
-            If the arrays differ in shape or ``u`` or ``y`` has a non-finite value.
+            If the arrays differ in shape, ``u`` or ``y`` has a non-finite value, or
+            ``snapshot_at`` is not strictly ascending within ``1..len(u)``.
         """
         self._ensure_valid()
         u = np.ascontiguousarray(u, dtype=float) if assume_finite else finite_array("u", u)
@@ -393,6 +443,8 @@ class RecursiveEstimator(ABC):
             self._pending_gap = False
         n0 = self._n_seen_total()
         torque: np.ndarray | None = None if torque_Nm is None else np.ascontiguousarray(torque_Nm, dtype=float)
+        marks = None if snapshot_at is None else _marks(snapshot_at, n)
+        found: list[EstimateAt] = []
 
         def times(lo: int, hi: int) -> tuple[np.ndarray, np.ndarray]:
             """Time (default: ``n_samples_seen_ * sample_period_s``) and torque (default: NaN) of
@@ -409,11 +461,17 @@ class RecursiveEstimator(ABC):
             i += take
             if len(self._buf["u"]) >= self._next_attempt:
                 self._try_start(compiled=True)
+            if marks is not None:  # the marks inside this piece fell before any start; one at its end sees the attempt
+                reached = int(np.searchsorted(marks, i, side="right"))
+                at_end = reached > len(found) and int(marks[reached - 1]) == i
+                found += [NOT_STARTED] * (reached - len(found) - at_end) + [self.estimate_now()] * at_end
         if i < n:
-            if self._fx.effects or self.takes_torque:
-                self._learn_arrays(u[i:], y[i:], gap[i:], *times(i, n))
+            rest_t, rest_q = times(i, n) if self._fx.effects or self.takes_torque else (None, None)
+            if marks is None:
+                self._learn_arrays(u[i:], y[i:], gap[i:], rest_t, rest_q)
             else:
-                self._learn_arrays(u[i:], y[i:], gap[i:], None, None)
+                found += self._learn_arrays_marked(u[i:], y[i:], gap[i:], rest_t, rest_q, marks[len(found) :] - i)
+        return None if marks is None else found
 
     def force_start(self) -> None:
         """Run the warm start now on the samples buffered so far (e.g. at the end of a short log).
@@ -599,6 +657,12 @@ class RecursiveEstimator(ABC):
         return est
 
     # -- fitted attributes -----------------------------------------------------------------------
+    def estimate_now(self) -> EstimateAt:
+        """The estimate as it is now (:class:`EstimateAt`): the play and slopes, degrees."""
+        if not self._started:
+            return NOT_STARTED
+        return EstimateAt(True, float(self.backlash_), float(self.m_left_), float(self.m_right_))
+
     @property
     def started(self) -> bool:
         """True once the estimator has started (warm start done, cold start, or resumed state)."""
@@ -632,6 +696,14 @@ class RecursiveEstimator(ABC):
     def m_right_(self) -> float:
         """Slope of the right flank, eq. (1)."""
         return float(self.theta_[2])
+
+
+def _marks(snapshot_at: Any, n: int) -> np.ndarray:
+    """``snapshot_at`` as int64 sample counts, or InvalidParameterError unless strictly ascending within ``1..n``."""
+    marks = np.ascontiguousarray(snapshot_at, dtype=np.int64)
+    if marks.ndim != 1 or (marks.size and (marks[0] < 1 or marks[-1] > n or np.any(np.diff(marks) <= 0))):
+        raise InvalidParameterError(f"snapshot_at must be strictly ascending sample counts within 1..{n}, got {snapshot_at!r}")
+    return marks
 
 
 def _fresh(effect: EffectTerms) -> EffectTerms:

@@ -42,6 +42,7 @@ from __future__ import annotations
 
 from typing import NamedTuple
 
+import numpy as np
 from numba import njit
 
 from ._layout import offsets
@@ -319,16 +320,40 @@ _JIT = njit(cache=True, nogil=True, inline="always", error_model="numpy")
     close_update,
     backlash_step,
 ) = _make_backlash_steps(_identity)
-_backlash_step_nb = _make_backlash_steps(_JIT)[-1]
+_compiled_steps = _make_backlash_steps(_JIT)
+_backlash_step_nb = _compiled_steps[-1]
+_flank_width_nb = _compiled_steps[2]
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
-def backlash_run(st, c, u, y, after_gap):  # pragma: no cover - compiled
-    """``learn_many``'s loop: :func:`backlash_step` over arrays, honouring gaps."""
-    for i in range(u.shape[0]):
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _run_span(st, c, u, y, after_gap, lo, hi):  # pragma: no cover - compiled
+    """:func:`backlash_step` over samples ``lo:hi`` of the arrays, honouring gaps."""
+    for i in range(lo, hi):
         if after_gap[i]:
             st[S.HAVE_PREV] = 0.0
         _backlash_step_nb(st, c, u[i], y[i])
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def backlash_run(st, c, u, y, after_gap, marks, out):  # pragma: no cover - compiled
+    """``learn_many``'s loop: :func:`backlash_step` over arrays, honouring gaps, recording the estimate
+    after the first ``marks[k]`` samples (ascending, 1..n; none: :data:`NO_MARKS`) in ``out[k]``: the
+    play at the current output level (:func:`flank_width`, input units) and the slopes ``mL``, ``mR``
+    of eq. (1) -- what the estimator's ``backlash_``, ``m_left_`` and ``m_right_`` would read there,
+    without cutting the loop. One compiled loop for both uses: one load from numba's cache."""
+    lo = 0
+    for k in range(marks.shape[0]):
+        hi = marks[k]
+        _run_span(st, c, u, y, after_gap, lo, hi)
+        out[k, 0] = _flank_width_nb(st, st[S.Y_PREV])
+        out[k, 1] = st[S.LEFT + F.M]
+        out[k, 2] = st[S.RIGHT + F.M]
+        lo = hi
+    _run_span(st, c, u, y, after_gap, lo, u.shape[0])
+
+
+#: ``marks`` and ``out`` of :func:`backlash_run` without marks
+NO_MARKS = (np.empty(0, dtype=np.int64), np.empty((0, 3)))
 
 
 # ---- CascadeRLS state layout -----------------------------------------------------------------

@@ -24,7 +24,7 @@ from ..effect_terms import EffectTerms
 from ..errors import NotExcitedError, NotFittedError
 from ..model import BacklashParams
 from . import _rls_kernels as K
-from ._base import RecursiveEstimator, StateField, finite, memory_factors
+from ._base import EstimateAt, RecursiveEstimator, StateField, finite, memory_factors
 from ._layout import pack
 from ._validation import check_option, check_real
 from .batch import VorosBacklash, _direction_guess, _levenberg_marquardt, _start_params
@@ -316,7 +316,7 @@ class BacklashRLS(RecursiveEstimator):
     def _learn_arrays(self, u: np.ndarray, y: np.ndarray, gap: np.ndarray, t: np.ndarray | None, q: np.ndarray | None) -> None:
         if t is None or q is None:  # no effects: compiled
             st = np.asarray(self._st, dtype=float)
-            K.backlash_run(st, self._c_arr, u, y, gap)
+            K.backlash_run(st, self._c_arr, u, y, gap, *K.NO_MARKS)
             self._st = st.tolist()
             return
         # segment by gap: effects keep a history that a gap must reset
@@ -327,6 +327,17 @@ class BacklashRLS(RecursiveEstimator):
             rows = self._fx.feed(u[lo:hi], t[lo:hi], q[lo:hi])
             for i in range(lo, hi):
                 self._step_effects(float(u[i]), float(y[i]), rows[i - lo])
+
+    def _learn_arrays_marked(
+        self, u: np.ndarray, y: np.ndarray, gap: np.ndarray, t: np.ndarray | None, q: np.ndarray | None, marks: np.ndarray
+    ) -> list[EstimateAt]:
+        if t is not None or q is not None:  # effects: the interpreted path, cut at the marks
+            return super()._learn_arrays_marked(u, y, gap, t, q, marks)
+        st = np.asarray(self._st, dtype=float)
+        out = np.empty((marks.size, 3))
+        K.backlash_run(st, self._c_arr, u, y, gap, marks, out)  # (play, mL, mR) at each mark
+        self._st = st.tolist()
+        return [EstimateAt(True, play, m_left, m_right) for play, m_left, m_right in out.tolist()]
 
     def _step_effects(self, u: float, y: float, terms: np.ndarray) -> None:
         """:func:`_rls_kernels.backlash_step` with the effect columns in the regressor (numpy).

@@ -59,13 +59,14 @@ the ratio of the mean square successive difference to the variance", Ann. Math. 
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
 from ..errors import InvalidParameterError
-from ._base import finite_array
+from ._base import NOT_STARTED, EstimateAt, finite_array
 from .cycle_plays import CyclePlays, MotionFlanks, OutputNoise, kinematic_offsets, kinematic_update
 
 __all__ = [
@@ -279,26 +280,6 @@ class KinematicPlayScatter:
         )
 
 
-@dataclass(frozen=True)
-class EstimateAt:
-    """What :class:`RecursivePlayScatter` reads from a recursive estimator, as it was at one instant.
-
-    Attributes
-    ----------
-    started : bool
-        The estimator had started (before that the play and slopes are NaN, not read).
-    backlash_deg : float
-        Its play, degrees (load side).
-    m_left, m_right : float
-        Its flank slopes, eq. (1).
-    """
-
-    started: bool
-    backlash_deg: float
-    m_left: float
-    m_right: float
-
-
 class RecursivePlayScatter:
     """The standard error of a recursive kinematic estimator's play, widened by the per-cycle scatter.
 
@@ -339,7 +320,7 @@ class RecursivePlayScatter:
         play and slopes NaN (not read there; this saves reading them after every block)."""
         est = self.estimator
         if not due or not est.started:  # the play and slopes are not read before the start
-            return EstimateAt(bool(est.started), math.nan, math.nan, math.nan)
+            return EstimateAt(True, math.nan, math.nan, math.nan) if est.started else NOT_STARTED
         return EstimateAt(True, float(est.backlash_), float(est.m_left_), float(est.m_right_))
 
     def update(
@@ -359,6 +340,20 @@ class RecursivePlayScatter:
                 self.finish(at)
         elif not at.started and self._n_held > MAX_HELD_SAMPLES:
             self._given_up, self._held, self._n_held = True, [], 0
+
+    def update_ticks(
+        self, u: np.ndarray, y: np.ndarray, gap: np.ndarray | None, ticks: Sequence[int], estimates: Sequence[EstimateAt], end: EstimateAt
+    ) -> None:
+        """:meth:`update` of a block with data-clock ticks inside it: the samples up to each tick
+        (``ticks``, counts of the block's samples, ascending) with the estimate there
+        (``estimates``), the rest (ending between ticks) with ``end``, the estimate after the block
+        (``started`` alone is read there): the same as cutting the block at its ticks."""
+        lo = 0
+        for tick, at in zip(ticks, estimates):
+            self.update(u[lo:tick], y[lo:tick], None if gap is None else gap[lo:tick], due=True, estimate=at)
+            lo = tick
+        if lo < len(u):
+            self.update(u[lo:], y[lo:], None if gap is None else gap[lo:], due=False, estimate=end)
 
     def finish(self, estimate: EstimateAt | None = None) -> None:
         """Measure the samples held with the estimator's estimate (at a tick, or at the end):
