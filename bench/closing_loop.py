@@ -16,15 +16,16 @@ each figure of the issue holds:
   outside the library: something is reported and the RMS falls by at least 30 %),
 * **<= 1.5 floor**: ``rms_after_deg <= 1.5 * noise_floor_deg``,
 * **<= 1.1 clean**: ``rms_after_deg`` at most 1.1 times what the loop leaves on the clean log of
-  the same seed (on the two-mass rig the clean log itself sits at 1.2-1.5 times the floor: the
-  load coasts through the dead band, which no term models),
+  the same seed (what a perfect term leaves),
 * **<= 1/2 before**: ``rms_after_deg <= 0.5 * rms_before_deg`` (not applicable to the clean log),
 * **play 2 %**: ``|backlash_after_deg - 0.5| <= 0.01``,
 * **dead band motion**: ``dead_band_motion`` named (on the two-mass rig the load really moves in
   the dead band and rings when a flank engages: physics of that rig, counted here and allowed on
   its clean log; on ``--generator rig`` logs nothing may be named on the clean log),
 * **after / floor past start**: the RMS after over the log without its first ``START_S`` seconds,
-  over the noise floor (the rig starts with the load moving inside the dead band, the model at rest),
+  over the noise floor (the rig starts with the load moving inside the dead band: the loop estimates
+  that as the model's initial state, ``diagnostics/_initial_state.py``, but the first flank's impact
+  after it is left in the residual),
 
 with the medians of the RMS and of the play before and after, and the time per log.
 
@@ -53,7 +54,7 @@ from online_backlash.rig import simulate_rig
 
 PLAY_DEG = 0.5
 #: the record's start, left out of the "past start" figure: the two-mass rig starts with the load moving
-#: inside the dead band while the model starts at rest (one event per log, which no term can hold out)
+#: inside the dead band (estimated as the model's initial state) and the first flank then hits it at speed
 START_S = 0.2
 
 

@@ -5,6 +5,8 @@ For every length (default 2, 10 and 60 minutes), a two-mass rig log (30:1, 1 kHz
 ``bench/closing_loop.py``) is written as CSV; then ``online-backlash estimate --method batch
 --json`` and ``online-backlash diagnose --json`` run on it one after the other, in this process
 through ``main(argv)`` (CSV reading included in both), wall clock and CPU time of this process.
+Both commands are run once untimed first (the batch fit on the same log, ``diagnose`` once on a
+30 s log), so that neither pays its imports or the loading of its compiled functions.
 Prints a markdown table with the ratio diagnose / batch (the issue's figure: within 4x), and the
 1-minute load average after each row (on a shared machine CPU seconds are the steadier figure).
 
@@ -27,6 +29,8 @@ from online_backlash.cli import main as cli
 from online_backlash.two_mass_rig import simulate_two_mass
 
 COLUMNS = ["--columns", "time=time,motor=motor,load=load,torque=torque"]
+#: length of the log of the warm-up ``diagnose`` run (imports and compiled caches, not timed), minutes
+WARM_MINUTES = 0.5
 
 
 def write_log(minutes: float, directory: Path) -> Path:
@@ -60,11 +64,15 @@ def main() -> None:
     print(f"machine: {platform.processor() or platform.machine()}, {os.cpu_count()} CPUs, Python {platform.python_version()}, load average {load}\n")
     print("| log | samples | batch wall, s | batch CPU, s | diagnose wall, s | diagnose CPU, s | ratio (wall) | ratio (CPU) | terms found | load after |")
     print("|---|---|---|---|---|---|---|---|---|---|")
+    warm = False
     for minutes in (float(m) for m in args.minutes.split(",")):
         path = write_log(minutes, directory)
         common = [str(path), "--ratio", "30", *COLUMNS]
         with contextlib.redirect_stdout(io.StringIO()):  # compile caches and imports outside the timing
             cli(["estimate", *common, "--method", "batch", "--json"])
+            if not warm:  # diagnose's own imports (scipy.optimize, scipy.interpolate) and compiled caches
+                cli(["diagnose", str(write_log(WARM_MINUTES, directory)), "--ratio", "30", *COLUMNS, "--json"])
+                warm = True
         bw, bc, _ = timed(["estimate", *common, "--method", "batch", "--json"])
         dw, dc, text = timed(["diagnose", *common, "--json"])
         d = json.loads(text)

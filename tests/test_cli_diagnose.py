@@ -62,6 +62,16 @@ def test_text_output(te_log, capsys):
     assert out.startswith("# Residual diagnosis") and "no effect was added" in out
 
 
+def test_floor_ratio_stops_the_loop_sooner(te_log, capsys):
+    """--floor-ratio R: no term once the residual is within R times the floor; below 1 is an error line."""
+    assert main(["diagnose", str(te_log), "--ratio", "30", "--json", "--floor-ratio", "1e6"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["effects"] == [] and out["rms_after_deg"] == out["rms_before_deg"]
+    assert main(["diagnose", str(te_log), "--ratio", "30", "--floor-ratio", "0.5"]) == 1
+    err = capsys.readouterr().err
+    assert err.startswith("error: ") and "floor_ratio" in err and "Traceback" not in err
+
+
 def test_errors_are_one_line(tmp_path, capsys):
     assert main(["diagnose", str(tmp_path / "missing.csv"), "--ratio", "30"]) == 1
     assert capsys.readouterr().err.startswith("error: ")

@@ -10,6 +10,7 @@ import pytest
 from online_backlash.diagnostics._scoring import DetectionData, score_columns
 from online_backlash.diagnostics.dead_band import DeadBandMotion
 from online_backlash.diagnostics.effects import LIBRARY, VOCABULARY, Compliance, Delay, Drift, TransmissionError
+from online_backlash.diagnostics.flank_profile import FlankProfile
 from online_backlash.diagnostics.generic import GENERIC, AngleHarmonicsPerFlank, VelocityFunction
 from online_backlash.effect_terms import EffectTerms
 from online_backlash.errors import InvalidParameterError
@@ -25,6 +26,7 @@ ALL = [
     VelocityFunction((-40.0, -10.0, 0.0, 10.0, 40.0)),
     DeadBandMotion(1.0, 0.3, 1.0, 0.3, torque=True),
     DeadBandMotion(0.98, 0.2, 1.01, 0.4, exit_time_constants_s=(), entry_knots_s=(0.0, 0.002, 0.01)),
+    FlankProfile(tuple(np.linspace(-30.0, 30.0, 13))),
 ]
 
 

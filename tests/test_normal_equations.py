@@ -60,6 +60,9 @@ def test_with_nuisance_updates_the_grams_as_a_fresh_build_would():
     fresh = DetectionData(u, t, np.full(n, np.nan), r, 30.0, 1e-3, nuisance=np.column_stack((np.ones(n), extra)))
     a, b = updated.score(False, cand), fresh.score(False, cand)
     assert a.heldout_folds == b.heldout_folds == 5
+    assert all(np.array_equal(getattr(a, k), getattr(b, k)) for k in vars(a))  # bit for bit
+    # the cross-products formed by with_nuisance are the ones used (not thrown away and formed again)
+    assert updated.grams is not None and np.shares_memory(updated.grams.z, updated.nuisance)
     for name in ("rss_before", "rss_after", "n_eff", "delta_bic", "own_share", "heldout_gain"):
         assert np.isclose(getattr(a, name), getattr(b, name), rtol=1e-9), name
 

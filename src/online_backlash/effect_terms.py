@@ -72,6 +72,7 @@ EFFECTS: dict[str, str | type] = {
     "compliance": "online_backlash.diagnostics.effects:Compliance",
     "drift": "online_backlash.diagnostics.effects:Drift",
     "dead_band_motion": "online_backlash.diagnostics.dead_band:DeadBandMotion",
+    "flank_profile": "online_backlash.diagnostics.flank_profile:FlankProfile",
 }
 
 

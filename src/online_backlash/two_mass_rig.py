@@ -95,6 +95,8 @@ def _integrate(
     viscous: float,
     coulomb: float,
     coulomb_width: float,
+    coulomb_at_rad: np.ndarray,
+    coulomb_scale: np.ndarray,
     y0: float,
     v0: float,
 ) -> tuple[np.ndarray, np.ndarray]:  # pragma: no cover - compiled
@@ -113,7 +115,8 @@ def _integrate(
             tau = 0.0
         y_out[i] = y
         tau_out[i] = tau
-        acc = (tau - viscous * v - coulomb * math.tanh(v / coulomb_width) - tau_ext[i]) / inertia
+        friction = coulomb * np.interp(y, coulomb_at_rad, coulomb_scale)
+        acc = (tau - viscous * v - friction * math.tanh(v / coulomb_width) - tau_ext[i]) / inertia
         v += acc * dt
         y += v * dt
     return y_out, tau_out
@@ -137,6 +140,7 @@ def simulate_two_mass(
     load_inertia_kgm2: float = 0.002,
     viscous_nms_per_rad: float = 0.3,
     coulomb_nm: float = 0.0,
+    coulomb_profile: Callable[[np.ndarray], np.ndarray] | None = None,
     external_torque_nm: float | Callable[[np.ndarray], np.ndarray] = 0.0,
     torque_noise_nm: float = 0.005,
     motion: str = "sine",
@@ -160,6 +164,10 @@ def simulate_two_mass(
         Torsional stiffness of the engaged gear, N m/arcmin.
     contact_damping_ratio : float
         Damping of the engaged gear as a fraction of critical damping ``2 sqrt(k J)``.
+    coulomb_profile : callable, optional
+        The output's Coulomb friction as a multiple of ``coulomb_nm``, a function of the load angle
+        (deg, the frame of the motion before the encoder offsets): a tight spot of a bearing or a
+        cable stage. Tabulated every 0.05 deg over the motion's range (constant beyond it).
     external_torque_nm : float or callable
         External load torque, N m (a constant, or a function of time in seconds). A constant
         torque larger than the largest torque the motion needs holds the output against one
@@ -194,9 +202,16 @@ def simulate_two_mass(
     # start moving with the motor, wound up on the flank the external torque pushes against (mid-gap without one)
     y0 = u_fine[0] + (c_left if tau_ext[0] < 0 else -c_right if tau_ext[0] > 0 else 0.0) - tau_ext[0] / k
     damping = 2.0 * contact_damping_ratio * math.sqrt(k * load_inertia_kgm2)
+    if coulomb_profile is None:
+        at_deg, scale = np.zeros(1), np.ones(1)
+    else:
+        at_deg = np.arange(u_deg.min() - 5.0, u_deg.max() + 5.0, 0.05)
+        scale = np.asarray(coulomb_profile(at_deg), dtype=float)
+        if scale.shape != at_deg.shape or not np.all(np.isfinite(scale)) or np.any(scale < 0):
+            raise InvalidParameterError("coulomb_profile must return one finite multiple >= 0 per angle")
     y_fine, tau_fine = _integrate(
         u_fine, du_fine, tau_ext, 1.0 / (rate_hz * substeps), k, damping, c_left, c_right,
-        load_inertia_kgm2, viscous_nms_per_rad, coulomb_nm, 1e-3, y0, du_fine[0],
+        load_inertia_kgm2, viscous_nms_per_rad, coulomb_nm, 1e-3, np.radians(at_deg), scale, y0, du_fine[0],
     )
     pick = slice(0, None, substeps)  # the fine steps at the output instants
     y_deg, tau_true = np.degrees(y_fine[pick]), tau_fine[pick]

@@ -31,6 +31,11 @@ def add_subparser(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("--report", metavar="FILE.md", help="write a Markdown report")
     parser.add_argument("--max-terms", type=int, default=6, help="most terms (named or generic) to add")
     parser.add_argument(
+        "--floor-ratio", type=positive_float, metavar="R",
+        help="stop adding terms once the residual RMS is within R times the noise floor (the loop's default: 1.25; "
+        "a larger R stops sooner, e.g. 1.5)",
+    )
+    parser.add_argument(
         "--trace",
         metavar="FILE.csv",
         help="also track the backlash over the log with the named effects found (recursive estimator) and write "
@@ -52,12 +57,13 @@ def run(args: argparse.Namespace) -> int:
     check_plot_path(args.plot)
     chunk, source = read_counted(args)
     counts = {**source_counts(source.counters.as_dict()), **GapTally.of_chunk(chunk).values()}
-    result = diagnose(chunk, args.ratio, max_terms=args.max_terms)
+    stop = {} if args.floor_ratio is None else {"floor_ratio": args.floor_ratio}
+    result = diagnose(chunk, args.ratio, max_terms=args.max_terms, **stop)
     if args.trace:
         write_trace(args.trace, [chunk], args.ratio, args.every, args.log, effects=result.effects)
     if args.plot:
         plot_diagnosis(result, args.plot)
-    text = markdown_report(result, args.log, plot=args.plot)
+    text = markdown_report(result, args.log, plot=args.plot) if args.report or not args.json else ""
     if args.report:
         with open(args.report, "w", encoding="utf-8") as f:
             f.write(text + "\n")

@@ -23,16 +23,17 @@ Speed. Every quantity is a function of cross-products: the per-fold Gram matrice
 nuisance columns and the residual are formed once per :class:`DetectionData` (summed over each
 fold's contiguous reversal cycles, no column gathered into fold order), and a candidate only adds
 its own products with them (``O(n q (p + q))`` for ``q`` columns and ``p`` nuisance columns)
-before small solves (:mod:`._normal_equations`); :meth:`DetectionData.with_nuisance` adds the new
-columns' products to those it has (a rank-``q`` update). The lag-1 autocorrelation of what is
+before small solves (:mod:`._normal_equations`); :meth:`DetectionData.with_nuisance` writes the
+new columns once into the block whose cross-products it forms (and hands on). The lag-1 autocorrelation of what is
 left takes one compiled pass over one combination of the columns (``O(n (p + q))``). Nothing of
 length ``n`` is refitted per candidate.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Hashable, Sequence
 from dataclasses import dataclass, field, replace
+from typing import Any
 
 import numpy as np
 from numba import njit
@@ -40,6 +41,7 @@ from numba import njit
 from ..model import BacklashParams
 from ._folds import Folds, cycle_folds
 from ._normal_equations import fit_rss, solve
+from ._record_cache import RecordCache
 
 #: delta_bic must fall below this for a term to count as detected
 BIC_THRESHOLD = -10.0
@@ -135,12 +137,22 @@ class _Grams:
             out[k] += a[start:stop].T @ b[start:stop]
         return out
 
-    def with_columns(self, x: np.ndarray) -> _Grams:
-        """The cross-products of ``[nuisance, x, residual]``: those of ``x`` added to these (a rank-``q``
-        update, ``O(n q (p + q))``), nothing of the nuisance recomputed."""
-        per_fold, _ = self.extended(x)
-        p = self.z.shape[1] - 1
-        return _Grams(np.column_stack((self.z[:, :p], x, self.z[:, p])), self.folds, per_fold)
+    def with_columns(self, parts: Sequence[np.ndarray]) -> _Grams:
+        """The cross-products of ``[nuisance, x, residual]`` with ``x`` the ``parts`` side by side (each
+        ``n x q_i``), the parts written once, into the new block itself. They are formed over the whole
+        block (one product per cycle, ``O(n (p + q)^2)``): the same numbers, bit for bit, as a
+        :class:`DetectionData` made with these nuisance columns, and no slower than adding ``x``'s
+        products to these (a rank-``q`` update: two products per cycle, and other rounding)."""
+        n, p = self.z.shape[0], self.z.shape[1] - 1
+        q = sum(a.shape[1] for a in parts)
+        z = np.empty((n, p + q + 1))
+        z[:, :p] = self.z[:, :p]
+        j = p
+        for a in parts:
+            z[:, j : j + a.shape[1]] = a
+            j += a.shape[1]
+        z[:, j] = self.z[:, p]
+        return _Grams(z, self.folds)
 
     def extended(self, x: np.ndarray, heldout: bool = True) -> tuple[np.ndarray, np.ndarray]:
         """Per-fold (empty without ``heldout``) and total Grams of ``W = [nuisance, x, residual]`` (residual last)."""
@@ -286,6 +298,9 @@ class DetectionData:
     #: the cross-products of the nuisance columns and the residual (formed in __post_init__ unless
     #: given for exactly these nuisance columns, residual and folds, as :meth:`with_nuisance` does)
     grams: _Grams | None = field(default=None, repr=False, compare=False)
+    #: columns built once per record and shared by the detectors (see :meth:`memo`; the loop
+    #: passes one cache to every round)
+    cache: RecordCache | None = field(default=None, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         n = self.residual_deg.size
@@ -301,6 +316,41 @@ class DetectionData:
             given = _Grams(np.column_stack((base, self.residual_deg)), self.folds)
         given.nuisance, given.residual = base, self.residual_deg
         object.__setattr__(self, "grams", given)
+        if self.cache is None:
+            object.__setattr__(self, "cache", RecordCache())
+
+    @classmethod
+    def stacked(cls, nuisance_parts: Sequence[np.ndarray], residual_deg: np.ndarray, **fields: Any) -> DetectionData:
+        """The data with the nuisance columns ``nuisance_parts`` side by side (a 1-D part is one column),
+        written once into the block their cross-products are formed from (no intermediate copies of
+        full-length columns); ``fields`` are the other fields (``u_deg``, ``time_s``, ...)."""
+        n = residual_deg.size
+        parts = [np.asarray(a, dtype=float).reshape(n, -1) for a in nuisance_parts]
+        p = sum(a.shape[1] for a in parts)
+        z = np.empty((n, p + 1))
+        j = 0
+        for a in parts:
+            z[:, j : j + a.shape[1]] = a
+            j += a.shape[1]
+        z[:, p] = residual_deg
+        folds = fields.pop("folds", None)
+        folds = cycle_folds(fields["u_deg"]) if folds is None else folds
+        grams = _Grams(z, folds)
+        grams.nuisance, grams.residual = z[:, :p], residual_deg
+        return cls(residual_deg=residual_deg, nuisance=grams.nuisance, folds=folds, grams=grams, **fields)
+
+    def can_memo(self, key: Hashable, nbytes: int) -> bool:
+        """True when :meth:`memo` keeps (or has kept) an array of ``nbytes`` for ``key``."""
+        assert self.cache is not None
+        return self.cache.can_hold(key, nbytes)
+
+    def memo(self, key: Hashable, build: Callable[[], np.ndarray], held: bool = False) -> np.ndarray:
+        """``build()``, computed once per record for ``key`` (a function of ``u_deg``, ``time_s`` and
+        ``torque_Nm``, and with ``held`` of the engaged samples too; anything else it depends on,
+        such as the ratio, belongs in ``key``); read-only."""
+        assert self.cache is not None
+        sources: tuple[object, ...] = (self.u_deg, self.time_s, self.torque_Nm)
+        return self.cache.get(key, (*sources, self.engaged_index) if held else sources, build)
 
     @property
     def _cross(self) -> _Grams:
@@ -329,12 +379,14 @@ class DetectionData:
         terms = np.r_[0, np.arange(max(self.n_backlash, 1), p)] if self.n_backlash else np.arange(p)
         return _score_grams(per_fold, total, lambda e: self._cross.lag_product(x, e), self.residual_deg.size, p, terms)
 
-    def with_nuisance(self, columns: np.ndarray) -> DetectionData:
-        """The same data with ``columns`` added to the nuisance columns (their cross-products updated, not recomputed)."""
+    def with_nuisance(self, *columns: np.ndarray) -> DetectionData:
+        """The same data with ``columns`` (one or more arrays, side by side) added to the nuisance columns
+        (written once into the block their cross-products are formed from; handed on, not formed again)."""
         assert self.nuisance is not None
-        x = np.asarray(columns, dtype=float).reshape(self.residual_deg.size, -1)
-        grams = self._cross.with_columns(x)
+        n = self.residual_deg.size
+        grams = self._cross.with_columns([np.asarray(c, dtype=float).reshape(n, -1) for c in columns])
         grams.nuisance = grams.z[:, :-1]  # a view: the nuisance columns are not copied twice
+        grams.residual = self.residual_deg  # so that __post_init__ takes these grams as they are
         return replace(self, nuisance=grams.nuisance, grams=grams)
 
     def fold_info(self) -> dict[str, object]:

@@ -7,9 +7,11 @@ function of the speed could explain instead (:meth:`~.effects.Drift.detect`). Ve
 from __future__ import annotations
 
 import numpy as np
+from numba import njit
 from scipy.interpolate import CubicSpline
 
 from ._causal import velocity_deg_s
+from ._scoring import DetectionData
 
 #: the outer knot of each direction is this percentile of the speed in that direction (beyond it
 #: the function is held constant), %
@@ -62,11 +64,53 @@ def zero_knot(knots_deg_s: tuple[float, ...]) -> int:
     return int(np.argmin(np.abs(np.asarray(knots_deg_s, dtype=float))))
 
 
-def speed_columns(u_deg: np.ndarray, time_s: np.ndarray, inner: int = MAX_INNER_KNOTS) -> np.ndarray:
-    """The columns of the most flexible smooth function of speed that is 0 at rest, for this record
-    (knots by :func:`speed_knots`; velocity of ``u_deg`` over :data:`VELOCITY_WINDOW` samples)."""
-    v = velocity_deg_s(np.asarray(u_deg, dtype=float), np.asarray(time_s, dtype=float), VELOCITY_WINDOW)
-    knots = speed_knots(v, inner)
-    if len(knots) < 2:
-        return np.empty((v.size, 0))
-    return np.delete(cardinal_splines(knots, v), zero_knot(knots), axis=1)
+def record_velocity(data: DetectionData) -> np.ndarray:
+    """The velocity of the record's ``u_deg`` over :data:`VELOCITY_WINDOW` samples, deg/s (built once per record)."""
+    return data.memo(("velocity", VELOCITY_WINDOW), lambda: velocity_deg_s(data.u_deg, data.time_s, VELOCITY_WINDOW))
+
+
+def held_spline_columns(data: DetectionData, knots_deg_s: tuple[float, ...]) -> np.ndarray:
+    """:func:`cardinal_splines` of the record's velocity (:func:`record_velocity`) at ``knots_deg_s``, the
+    column of the knot nearest 0 left out, held through the dead band (:meth:`DetectionData.hold`):
+    the columns of the drift's speed rival and of the generic velocity function, built once per round.
+
+    Holding a column takes its value at an earlier sample, so the splines are evaluated at the held
+    velocity, in one compiled pass (the piecewise cubics of :class:`scipy.interpolate.CubicSpline` in
+    its power form, as it evaluates them: the same numbers, bit for bit, on the bench and measured logs).
+    """
+
+    def build() -> np.ndarray:
+        if len(knots_deg_s) < 2:
+            return np.empty((data.u_deg.size, 0))
+        k = np.asarray(knots_deg_s, dtype=float)
+        coef = np.ascontiguousarray(CubicSpline(k, np.eye(k.size), bc_type="not-a-knot").c)
+        kept = np.delete(np.arange(k.size), zero_knot(knots_deg_s))
+        v = record_velocity(data)
+        index = np.arange(v.size) if data.engaged_index is None else np.ascontiguousarray(data.engaged_index, dtype=np.int64)
+        out = np.empty((v.size, kept.size))
+        # the kept columns' coefficients per interval, lowest power first: (intervals, powers, columns)
+        _cardinal_at(np.ascontiguousarray(coef[::-1][:, :, kept].transpose(1, 0, 2)), k, v, index, out)
+        return out
+
+    return data.memo(("held speed columns", tuple(knots_deg_s)), build, held=True)
+
+
+@njit(cache=True)
+def _cardinal_at(coef, knots, v, index, out):  # pragma: no cover - compiled
+    """``out[t, j]``: the piecewise cubic with coefficients ``coef[:, :, j]`` (interval, power from the
+    lowest, on the intervals of ``knots``) at ``v[index[t]]`` clipped to the outer knots; every column
+    summed from the lowest power up, the powers formed once per sample."""
+    m = knots.size
+    for t in range(index.size):
+        s = min(max(v[index[t]], knots[0]), knots[m - 1])
+        i = 0
+        while i < m - 2 and s >= knots[i + 1]:
+            i += 1
+        d = s - knots[i]
+        row = out[t]
+        row[:] = 0.0
+        z = 1.0
+        for p in range(coef.shape[1]):
+            for j in range(row.size):
+                row[j] += coef[i, p, j] * z
+            z *= d

@@ -226,8 +226,14 @@ class DeadBandMotion(EffectBase):
         torque = bool(np.mean(np.isfinite(data.torque_Nm)) > 0.5)
         taus, knots = _at_period(EXIT_TIME_CONSTANTS, dt), _at_period(ENTRY_KNOTS, dt)
         found = []
-        for what, exit_taus, entry in (("coast and entry", taus, knots), ("coast", taus, ()), ("entry", (), knots)):
+        both = cls(p.m_left, p.c_left, p.m_right, p.c_right, taus, knots, torque)
+        # the coast (and torque) columns come first, the entry columns last: each alone is a slice
+        every = both.clone().terms(data.u_deg, data.time_s, data.torque_Nm)
+        split = both.n_terms - both.n_entry
+        for what, exit_taus, entry, cols in (
+            ("coast and entry", taus, knots, every), ("coast", taus, (), every[:, :split]), ("entry", (), knots, every[:, split:])
+        ):
             effect = cls(p.m_left, p.c_left, p.m_right, p.c_right, exit_taus, entry, torque and bool(exit_taus))
-            s = data.score(False, effect.clone().terms(data.u_deg, data.time_s, data.torque_Nm))
+            s = data.score(False, np.ascontiguousarray(cols))
             found.append(Detection(effect, s, f"residual at the reversals follows the load's {what} (dead band {p.play:.4g} deg)"))
         return best_detection([d for d in found if d.score.significant()]) or best_detection(found)

@@ -44,27 +44,20 @@ from ..errors import InvalidParameterError
 from ..load_aware.engagement import engaged_flank, torque_deadband
 from ._causal import acceleration_deg_s2, lagged_difference, velocity_deg_s
 from ._effect_base import EffectBase
-from ._scoring import Detection, DetectionData, best_detection
-from ._speed import speed_columns
+from ._harmonics import harmonic_columns, shaft_harmonic
+from ._scoring import Detection, DetectionData, Score, best_detection
+from ._speed import MAX_INNER_KNOTS, held_spline_columns, record_velocity, speed_knots
 from .dead_band import DeadBandMotion
+from .flank_profile import FlankProfile
 
 #: the names an effect of the library may carry (the ``name`` of the JSON contract)
-VOCABULARY = ("transmission_error", "delay", "compliance", "drift", "dead_band_motion")
+VOCABULARY = ("transmission_error", "delay", "compliance", "drift", "dead_band_motion", "flank_profile")
 
 _RAD = np.pi / 180.0
 #: share of the residual one harmonic order must explain on its own to be kept
 MIN_ORDER_GAIN = 0.01
 #: a transmission error claims a repeating pattern: its order must repeat at least this often in the record
 PERIODIC_MIN_PERIODS = 2.0
-
-
-def harmonic_columns(angle_deg: np.ndarray, orders: Sequence[float]) -> np.ndarray:
-    """``[sin(n a), cos(n a)]`` for every order ``n`` (cycles per revolution of ``angle_deg``)."""
-    a = np.asarray(angle_deg, dtype=float)[:, None] * (np.asarray(orders, dtype=float)[None, :] * _RAD)
-    out = np.empty((a.shape[0], 2 * a.shape[1]))
-    out[:, 0::2] = np.sin(a)
-    out[:, 1::2] = np.cos(a)
-    return out
 
 
 def amplitudes_phases(coef: np.ndarray) -> list[tuple[float, float]]:
@@ -79,11 +72,12 @@ SELECT_CACHE_BYTES = 256 * 2**20
 
 def select_orders(
     data: DetectionData,
-    columns: Callable[[float], np.ndarray],
+    columns: Callable[[int], np.ndarray],
     max_order: int,
     span_deg: float,
     max_orders: int,
     min_periods: float = 1.0,
+    held: bool = False,
 ) -> list[int]:
     """Harmonic orders chosen by forward selection (at most ``max_orders``), strongest first.
 
@@ -95,38 +89,41 @@ def select_orders(
     ``2 max_orders`` orders strongest on their own take part. At each step every remaining order is scored given the orders
     already chosen; the best is kept if it passes the information criterion and explains at
     least :data:`MIN_ORDER_GAIN` of what is left (so the leakage of a strong order into its
-    neighbours is not kept).
+    neighbours is not kept). ``columns(n)`` gives the columns of order ``n``; with ``held`` they
+    are already held through the dead band (else they are held here).
     """
     if span_deg <= 0:
         return []
     resolution = 360.0 / span_deg
     remaining = [n for n in range(1, max_order + 1) if n >= min_periods * resolution]
-    # forward selection among the strongest orders on their own (a cheap first pass); the held
-    # columns of the strongest so far are kept for it (a long record rebuilds them instead)
-    held: dict[int, np.ndarray] = {}  # the candidates' columns held through the dead band, built once
+
+    def build(n: int) -> np.ndarray:
+        return columns(n) if held else data.hold(columns(n))
+
+    # forward selection among the strongest orders on their own (a cheap first pass, whose scores
+    # are the selection's first step: no columns are kept from it, fresh memory costs more than
+    # building them again)
     first = []
+    alone: dict[int, Score] = {}  # the scores on their own: the first step of the selection below
     for n in remaining:
-        x = data.hold(columns(n))
-        first.append((data.score(False, x, heldout=False).delta_bic, n))
-        if x.nbytes * 2 * max_orders <= SELECT_CACHE_BYTES:
-            held[n] = x
-            if len(held) > 2 * max_orders:
-                del held[max((b, m) for b, m in first if m in held)[1]]  # the weakest kept
+        alone[n] = data.score(False, build(n), heldout=False)
+        first.append((alone[n].delta_bic, n))
     first.sort()
     remaining = [n for _, n in first[: 2 * max_orders]]
+    kept: dict[int, np.ndarray] = {}  # the candidates' columns held through the dead band, built once
 
     def candidate(n: int) -> np.ndarray:
-        if n in held:
-            return held[n]
-        x = data.hold(columns(n))
+        if n in kept:
+            return kept[n]
+        x = build(n)
         if x.nbytes * len(remaining) <= SELECT_CACHE_BYTES:  # a long record rebuilds them instead
-            held[n] = x
+            kept[n] = x
         return x
 
     chosen: list[int] = []
     current = data
     while remaining and len(chosen) < max_orders:
-        scored = [(current.score(False, candidate(n), heldout=False), n) for n in remaining]
+        scored = [(current.score(False, candidate(n), heldout=False) if chosen else alone[n], n) for n in remaining]
         _, best = min(scored, key=lambda item: item[0].delta_bic)
         if not current.score(False, candidate(best)).significant(min_gain=MIN_ORDER_GAIN):  # held out too
             break
@@ -184,7 +181,9 @@ class TransmissionError(EffectBase):
     def detect(cls, data: DetectionData, max_load_order: int = 24, max_motor_order: int = 3, max_orders: int = 6) -> Detection | None:
         """Significant harmonics of the residual against the load and motor angles."""
         u = data.u_deg
-        load = select_orders(data, lambda n: harmonic_columns(u, [n]), max_load_order, float(np.ptp(u)), max_orders, PERIODIC_MIN_PERIODS)
+        load = select_orders(
+            data, lambda n: shaft_harmonic(data, "load", u, n, max_load_order), max_load_order, float(np.ptp(u)), max_orders, PERIODIC_MIN_PERIODS
+        )
         motor: list[int] = []
         if abs(data.ratio) > 1:
             motor_deg = u * data.ratio
@@ -192,7 +191,9 @@ class TransmissionError(EffectBase):
             # a few held-out cycles
             given = data.with_nuisance(data.hold(harmonic_columns(u, load))) if load else data
             motor = select_orders(
-                given, lambda n: harmonic_columns(motor_deg, [n]), max_motor_order, float(np.ptp(motor_deg)), max_orders, PERIODIC_MIN_PERIODS
+                given,
+                lambda n: shaft_harmonic(data, "motor", motor_deg, n, max_motor_order),
+                max_motor_order, float(np.ptp(motor_deg)), max_orders, PERIODIC_MIN_PERIODS,
             )
         if not load and not motor:
             return None
@@ -446,7 +447,7 @@ class Drift(EffectBase):
         next (the rig's speed changes at every reversal). The drift is therefore scored with two
         rivals among the nuisance columns: the polynomial of degree ``max_degree`` of the net
         rotation ``u - u[0]``, and the most flexible smooth function of the speed
-        (:func:`._speed.speed_columns`, held through the dead band). It is claimed only if time
+        (:func:`._speed.held_spline_columns` with the most inner knots). It is claimed only if time
         explains a share of the residual that neither does (in sample and on the held-out cycles).
 
         If it was significant in time alone, the rivals that take it away are named:
@@ -462,9 +463,9 @@ class Drift(EffectBase):
         scale = float(np.max(np.abs(rotation))) or 1.0
         rivals = {
             "net_rotation": np.column_stack([(rotation / scale) ** j for j in range(1, max_degree + 1)]),
-            "velocity_function": data.hold(speed_columns(data.u_deg, data.time_s)),
+            "velocity_function": held_spline_columns(data, speed_knots(record_velocity(data), MAX_INNER_KNOTS)),
         }
-        beyond = data.with_nuisance(np.column_stack(list(rivals.values())))
+        beyond = data.with_nuisance(*rivals.values())
         found, alone = [], []
         for degree in range(1, max_degree + 1):
             effect = cls(degree, span)
@@ -492,4 +493,4 @@ class Drift(EffectBase):
 
 
 #: the named effects, in the order they are tried
-LIBRARY = (TransmissionError, Delay, Compliance, Drift, DeadBandMotion)
+LIBRARY = (TransmissionError, Delay, Compliance, Drift, DeadBandMotion, FlankProfile)

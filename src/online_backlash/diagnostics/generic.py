@@ -24,9 +24,10 @@ import numpy as np
 from ..errors import InvalidParameterError
 from ._causal import motion_direction, velocity_deg_s
 from ._effect_base import EffectBase
+from ._harmonics import harmonic_columns, held_per_flank, shaft_harmonic
 from ._scoring import Detection, DetectionData, Score
-from ._speed import MAX_INNER_KNOTS, VELOCITY_WINDOW, cardinal_splines, speed_knots, zero_knot
-from .effects import amplitudes_phases, harmonic_columns, select_orders
+from ._speed import MAX_INNER_KNOTS, VELOCITY_WINDOW, cardinal_splines, held_spline_columns, record_velocity, speed_knots, zero_knot
+from .effects import amplitudes_phases, select_orders
 
 
 class AngleHarmonicsPerFlank(EffectBase):
@@ -86,16 +87,12 @@ class AngleHarmonicsPerFlank(EffectBase):
         """Significant harmonics of the residual against the load angle, on either flank."""
         u = data.u_deg
         d = motion_direction(u, 10, 0.005, 0.0)
-        up, down = (d > 0)[:, None], (d < 0)[:, None]
+        up, down = d > 0, d < 0
 
-        def cols(n: float) -> np.ndarray:
-            h = harmonic_columns(u, [n])
-            out = np.empty((h.shape[0], 2 * h.shape[1]))
-            np.multiply(h, up, out=out[:, : h.shape[1]])
-            np.multiply(h, down, out=out[:, h.shape[1] :])
-            return out
+        def held(n: int) -> np.ndarray:  # the columns of order n, held through the dead band
+            return held_per_flank(shaft_harmonic(data, "load", u, n, max_order), up, down, data.engaged_index)
 
-        orders = select_orders(data, cols, max_order, float(np.ptp(u)), max_orders)
+        orders = select_orders(data, held, max_order, float(np.ptp(u)), max_orders, held=True)
         if not orders:
             return None
         effect = cls(tuple(sorted(int(n) for n in orders)))
@@ -184,14 +181,15 @@ class VelocityFunction(EffectBase):
         needs only blur the play: on the two-mass rig 4 inner knots per direction got the play
         held where 1 closes the same law).
         """
-        v = velocity_deg_s(data.u_deg, data.time_s, VELOCITY_WINDOW)
+        v = record_velocity(data)
         scored: list[tuple[tuple[float, ...], VelocityFunction, Score]] = []
         for n in knots_per_direction:
             knots = speed_knots(v, n)
             if len(knots) < 2 or any(knots == k for k, _, _ in scored):
                 continue
-            effect = cls(knots)
-            scored.append((knots, effect, data.score(effect.input_side, effect.clone().terms(data.u_deg, data.time_s, data.torque_Nm))))
+            effect = cls(knots, VELOCITY_WINDOW)
+            # its columns (the same numbers as effect.terms on the record), held through the dead band
+            scored.append((knots, effect, data.score(False, held_spline_columns(data, knots))))
         if not scored:
             return None
         # the fewest knots that hold out within KNOT_GAIN of the best count (the information

@@ -161,6 +161,7 @@ def _fit_fixed_columns(
         return p[0] * p[2] > 0 and p[1] + p[3] >= 0
 
     last: dict[bytes, tuple[np.ndarray, np.ndarray]] = {}
+    a = np.empty((n, k + 1))  # [P's input: dx/dv, yc - x], rewritten at every point (not allocated anew)
 
     def factor(v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``(r, J)`` of ``k + 1`` rows with the ``J^T J``, ``J^T r`` and ``|r|^2`` of the full problem."""
@@ -173,7 +174,6 @@ def _fit_fixed_columns(
                 last[key] = (np.full(k + 1, 1e6 * np.sqrt(n / (k + 1))), np.zeros((k + 1, k)))
             else:
                 x, dx = _simulate(uc, p)
-                a = np.empty((n, k + 1))
                 a[:, :k] = dx if hold_play is None else dx @ dp_dv
                 np.subtract(yc, x, out=a[:, k])
                 w, vec = np.linalg.eigh(proj.left_gram(a))

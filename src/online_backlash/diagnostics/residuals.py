@@ -22,7 +22,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..model import BacklashParams, simulate_backlash, switching_functions
+from ..model import BacklashParams, switching_functions
+from ._initial_state import simulate_with_coast
 
 #: 1.4826 * MAD is the standard deviation of a Gaussian
 _MAD_TO_STD = 1.4826
@@ -64,15 +65,20 @@ def noise_floor(load_deg: np.ndarray) -> NoiseFloor:
     return NoiseFloor(step, noise, max(step / np.sqrt(12.0), noise))
 
 
-def simulation_residual(params: BacklashParams, u_deg: np.ndarray, y_deg: np.ndarray) -> np.ndarray:
+def simulation_residual(
+    params: BacklashParams, u_deg: np.ndarray, y_deg: np.ndarray, start_path_deg: np.ndarray | None = None
+) -> np.ndarray:
     """``y - x_hat``: the measured load angle minus the model of eq. (1)-(3) run freely on ``u``, deg.
 
-    The model starts from the first measured output (``x(-1) = y[0]``). ``u_deg`` and ``y_deg``
-    are in the frame the parameters were fitted in (for ``VorosBacklash(origin="first")``,
-    subtract ``u_ref_`` and ``y_ref_`` first).
+    The model starts from the first measured output at rest (``x(-1) = y[0]``), or, with
+    ``start_path_deg`` (the load's estimated path while it coasts in the dead band at the
+    record's start, :attr:`._initial_state.InitialState.path_deg`), follows that path until a
+    flank first catches the load and eq. (1)-(3) from there. ``u_deg`` and ``y_deg`` are in the
+    frame the parameters were fitted in (for ``VorosBacklash(origin="first")``, subtract
+    ``u_ref_`` and ``y_ref_`` first).
     """
     y = np.asarray(y_deg, dtype=float)
-    return y - simulate_backlash(u_deg, params, float(y[0]))
+    return y - simulate_with_coast(np.asarray(u_deg, dtype=float), params, np.empty(0) if start_path_deg is None else start_path_deg, float(y[0]))
 
 
 def one_step_residual(params: BacklashParams, u_deg: np.ndarray, y_deg: np.ndarray) -> np.ndarray:

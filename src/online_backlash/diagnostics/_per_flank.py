@@ -1,0 +1,38 @@
+"""Columns split by the flank that drives: one set while ``u`` increases, one while it decreases.
+
+The direction of motion is the sign of the change of ``u`` over a window, held inside a dead zone
+(:func:`._causal.motion_direction`), carried between calls so that a record passed whole or in
+pieces gives the same rows. Units: degrees.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ._causal import motion_direction
+from ._effect_base import EffectBase
+
+
+class PerFlankTerms(EffectBase):
+    """An effect whose columns are ``shape(u) * [moving up]`` then ``shape(u) * [moving down]``.
+
+    Subclasses set ``window_samples`` (samples) and ``deadzone_deg`` (deg) before calling
+    ``super().__init__()`` and define :meth:`_shape`.
+    """
+
+    window_samples: int
+    deadzone_deg: float
+
+    def reset(self) -> None:
+        super().reset()
+        self._direction = 0.0
+
+    def _shape(self, u: np.ndarray) -> np.ndarray:
+        """The columns of one flank, ``(len(u), n_terms // 2)``."""
+        raise NotImplementedError
+
+    def _columns(self, u: np.ndarray, t: np.ndarray, q: np.ndarray) -> np.ndarray:
+        d = motion_direction(u, self.window_samples, self.deadzone_deg, self._direction)
+        self._direction = float(d[-1])
+        h = self._shape(u)
+        return np.column_stack((h * (d > 0)[:, None], h * (d < 0)[:, None]))

@@ -1,0 +1,114 @@
+"""The shortcuts that make ``diagnose`` fast give the numbers of the plain computations they replace."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from online_backlash.diagnostics._harmonics import harmonic_columns, harmonic_stack, held_per_flank, shaft_harmonic
+from online_backlash.diagnostics._record_cache import RecordCache
+from online_backlash.diagnostics._scoring import DetectionData
+from online_backlash.diagnostics._speed import cardinal_splines, held_spline_columns, record_velocity, speed_knots, zero_knot
+from online_backlash.diagnostics.dead_band import ENTRY_KNOTS, EXIT_TIME_CONSTANTS, DeadBandMotion, _at_period
+
+
+def _record(n: int = 4000, seed: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """A reversing motion (deg, load side), its time (s), a torque (N m) and an engaged index."""
+    rng = np.random.default_rng(seed)
+    t = np.arange(n) * 1e-3
+    u = 40.0 * np.sin(2 * np.pi * 0.7 * t) + 3.0 * t + rng.normal(0, 1e-3, n)
+    q = np.cos(2 * np.pi * 0.7 * t) + rng.normal(0, 0.01, n)
+    index = np.maximum.accumulate(np.where(rng.random(n) < 0.7, np.arange(n), 0))
+    return u, t, q, index
+
+
+def _data(index: np.ndarray | None = None, cache: RecordCache | None = None) -> DetectionData:
+    u, t, q, _ = _record()
+    return DetectionData(u, t, q, np.sin(0.01 * np.arange(u.size)), 30.0, 1e-3, engaged_index=index, cache=cache)
+
+
+def test_cache_serves_only_for_the_same_sources() -> None:
+    cache = RecordCache()
+    a, b = np.zeros(5), np.zeros(5)
+    calls = []
+
+    def build() -> np.ndarray:
+        calls.append(1)
+        return np.arange(3.0)
+
+    first = cache.get("k", (a,), build)
+    assert cache.get("k", (a,), build) is first and len(calls) == 1
+    assert not first.flags.writeable  # shared: nobody may write into it
+    cache.get("k", (b,), build)  # equal but not the same array: built again
+    assert len(calls) == 2
+    assert cache.used_bytes == first.nbytes  # the stale one was replaced, not added
+
+
+def test_cache_keeps_nothing_beyond_its_budget() -> None:
+    cache = RecordCache(budget_bytes=100)
+    big = cache.get("big", (), lambda: np.zeros(20))  # 160 bytes
+    assert big.flags.writeable and cache.used_bytes == 0
+    assert not cache.can_hold("big", 160) and cache.can_hold("small", 80)
+
+
+def test_harmonic_stack_matches_numpy() -> None:
+    u, *_ = _record()
+    stack = harmonic_stack(u * 30.0, 24)
+    for order in (1, 2, 7, 24):
+        np.testing.assert_allclose(stack[order - 1], harmonic_columns(u * 30.0, [order]), rtol=0, atol=1e-12)
+
+
+def test_shaft_harmonic_shared_and_falls_back_beyond_the_budget() -> None:
+    data = _data()
+    x = shaft_harmonic(data, "load", data.u_deg, 5, 24)
+    assert shaft_harmonic(data, "load", data.u_deg, 5, 24).base is x.base  # one stack for the record
+    np.testing.assert_allclose(x, harmonic_columns(data.u_deg, [5]), rtol=0, atol=1e-12)
+    small = _data(cache=RecordCache(budget_bytes=1000))
+    np.testing.assert_array_equal(shaft_harmonic(small, "load", small.u_deg, 5, 24), harmonic_columns(small.u_deg, [5]))
+
+
+@pytest.mark.parametrize("held", [False, True])
+def test_held_per_flank_is_mask_stack_and_hold(held: bool) -> None:
+    u, _, _, index = _record()
+    h = harmonic_columns(u, [3, 4])
+    up, down = np.diff(u, prepend=u[0]) > 0, np.diff(u, prepend=u[0]) < 0
+    plain = np.column_stack((h * up[:, None], h * down[:, None]))
+    if held:
+        plain = np.take(plain, index, axis=0)
+    np.testing.assert_array_equal(held_per_flank(h, up, down, index if held else None), plain)
+
+
+@pytest.mark.parametrize("held", [False, True])
+def test_held_spline_columns_are_the_held_cardinal_splines(held: bool) -> None:
+    data = _data(_record()[3] if held else None)
+    v = record_velocity(data)
+    for inner in (1, 3, 5):
+        knots = speed_knots(v, inner)
+        plain = data.hold(np.delete(cardinal_splines(knots, v), zero_knot(knots), axis=1))
+        np.testing.assert_array_equal(held_spline_columns(data, knots), plain)
+    assert held_spline_columns(data, (0.0,)).shape == (v.size, 0)
+
+
+@pytest.mark.parametrize("torque", [False, True])
+def test_dead_band_columns_alone_are_slices_of_both(torque: bool) -> None:
+    u, t, q, _ = _record()
+    taus, knots = _at_period(EXIT_TIME_CONSTANTS, 1e-3), _at_period(ENTRY_KNOTS, 1e-3)
+    both = DeadBandMotion(1.0, 0.5, 1.0, 0.5, taus, knots, torque).terms(u, t, q)
+    coast = DeadBandMotion(1.0, 0.5, 1.0, 0.5, taus, (), torque).terms(u, t, q)
+    entry = DeadBandMotion(1.0, 0.5, 1.0, 0.5, (), knots, False).terms(u, t, q)
+    assert np.abs(coast).sum() > 0 and np.abs(entry).sum() > 0
+    np.testing.assert_array_equal(both[:, : coast.shape[1]], coast)
+    np.testing.assert_array_equal(both[:, coast.shape[1] :], entry)
+
+
+def test_stacked_data_scores_like_column_stacked_nuisance() -> None:
+    u, t, q, index = _record()
+    r = np.sin(0.01 * np.arange(u.size)) + 0.1 * np.cos(0.05 * u)
+    parts = [np.column_stack((np.ones_like(u), u)), np.cos(u)]
+    fields = {"u_deg": u, "time_s": t, "torque_Nm": q, "ratio": 30.0, "sample_period_s": 1e-3, "engaged_index": index}
+    stacked = DetectionData.stacked(parts, r, **fields)
+    plain = DetectionData(residual_deg=r, nuisance=np.column_stack((*parts,)), **fields)
+    x = harmonic_columns(u, [2])
+    a, b = stacked.score(True, x), plain.score(True, x)
+    assert (a.rss_after, a.delta_bic, a.heldout_gain) == (b.rss_after, b.delta_bic, b.heldout_gain)
+    np.testing.assert_array_equal(stacked.nuisance, plain.nuisance)
