@@ -125,3 +125,23 @@ def test_a_non_finite_sample_stops_the_pipeline_before_the_estimator_sees_its_ch
     assert est.n_samples_seen_ == seen  # nothing of the chunk was learned
     with pytest.raises(InvalidParameterError, match="non-finite"):  # learn_many called directly keeps its own check
         est.learn_many(bad.motor_deg / 30.0, bad.load_deg)
+
+
+@pytest.mark.parametrize("rows", [False, True])
+def test_with_a_reader_thread_the_chunks_are_referred_there_and_a_bad_one_stops_at_its_place(rows):
+    """``run(..., ahead=1)`` refers and checks each chunk in the reader thread: the same steps as on one
+    thread, and a non-finite chunk raises when the estimator reaches it, the chunks before it learned."""
+    chunk = simulate_rig(duration_s=30.0, ratio=30.0, seed=4).to_chunk()
+    pieces = [chunk.slice(i, min(i + 7000, len(chunk))) for i in range(0, len(chunk), 7000)]
+    steps = {}
+    for ahead in (0, 1):
+        pipe = Pipeline(BacklashRLS(), 30.0, every_s=2.0, rows=rows)
+        steps[ahead] = [(s.samples, s.due, s.ticks, s.u_deg.tobytes()) for s in pipe.run(pieces, "log", ahead)]
+        assert pipe.estimator.n_samples_seen_ == len(chunk)
+    assert steps[0] == steps[1]
+    bad = SampleChunk(*(getattr(pieces[2], k).copy() for k in ("time_s", "motor_deg", "load_deg", "torque_Nm", "after_gap")))
+    bad.load_deg[17] = math.nan
+    est = BacklashRLS()
+    with pytest.raises(InvalidParameterError, match=r"^y .* first at index 17 of the chunk"):
+        list(Pipeline(est, 30.0, every_s=2.0, rows=rows).run([*pieces[:2], bad, *pieces[3:]], "log", 1))
+    assert est.n_samples_seen_ == 14000  # the two chunks before it, nothing of it

@@ -37,7 +37,7 @@ import queue
 import threading
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, NamedTuple, TypeVar
 
 import numba
 import numpy as np
@@ -158,6 +158,15 @@ class DataClock:
         return cls(every_s, d["data_ns"], d["next_estimate_ns"], d["prev_time_s"])
 
 
+class _Referred(NamedTuple):
+    """A chunk ready for the estimator: ``u`` (motor / ratio) and ``y``, deg, and ``learn_many``'s options."""
+
+    chunk: SampleChunk
+    u_deg: np.ndarray
+    y_deg: np.ndarray
+    learn: dict[str, Any]
+
+
 @dataclass(frozen=True)
 class PipelineStep:
     """One block just learned.
@@ -221,8 +230,12 @@ class _Raised:
 _END = object()
 
 
-def read_ahead(chunks: Iterable[SampleChunk], depth: int = READ_AHEAD) -> Iterator[SampleChunk]:
-    """The chunks of ``chunks``, read in a thread of their own at most ``depth`` chunks ahead.
+_Item = TypeVar("_Item")
+
+
+def read_ahead(chunks: Iterable[_Item], depth: int = READ_AHEAD) -> Iterator[_Item]:
+    """The items of ``chunks`` (chunks, or chunks made ready for the estimator: :meth:`Pipeline.run`),
+    read in a thread of their own at most ``depth`` items ahead.
 
     The compiled estimator releases the GIL while it learns a block (``nogil``), and the file
     readers' libraries (pyarrow, asammdf, numpy) do most of their work without it, so on two
@@ -418,8 +431,14 @@ class Pipeline:
         Every ``after_gap`` reaches the estimator, which bridges the short ones (its
         ``gap_policy``); the data clock counts no time across any gap.
         """
+        yield from self._learn(self._refer(chunk))
+
+    def _refer(self, chunk: SampleChunk) -> _Referred | None:
+        """A chunk's estimator input and output (``u = motor / ratio``, ``y``), checked finite once
+        for the whole chunk where the estimator then skips its own check; None for an empty chunk.
+        Depends on nothing the estimator changes: :meth:`run` calls it in the reader thread."""
         if not len(chunk):
-            return
+            return None
         u, y = chunk.referred(self.ratio)
         learn: dict[str, Any] = {}
         if self._checked:  # once per chunk, not per block: a non-finite value never reaches the estimator
@@ -429,6 +448,13 @@ class Pipeline:
                 name = "u (motor angle / ratio)" if not math.isfinite(u[bad]) else "y (load angle)"
                 raise InvalidParameterError(f"{name} has non-finite values, first at index {bad} of the chunk (time {chunk.time_s[bad]} s)")
             learn["assume_finite"] = True
+        return _Referred(chunk, u, y, learn)
+
+    def _learn(self, referred: _Referred | None) -> Iterator[PipelineStep]:
+        """The estimator learns a referred chunk, block by block (or whole, see :meth:`_feed_whole`)."""
+        if referred is None:
+            return
+        chunk, u, y, learn = referred
         if self._whole_chunks:
             yield self._feed_whole(chunk, u, y, learn)
             return
@@ -462,11 +488,13 @@ class Pipeline:
         """:meth:`feed` every chunk; LogFormatError naming ``source`` if there was no sample at all.
 
         ``ahead`` > 0 reads the chunks in a thread of their own, that many ahead (:func:`read_ahead`):
-        for recorded files, whose reading then overlaps the estimation.
+        for recorded files, whose reading then overlaps the estimation; that thread also refers each
+        chunk to the load side and checks it finite (:meth:`_refer`), so the estimator's thread only learns.
         """
         seen = self.samples
-        for chunk in read_ahead(chunks, ahead):
-            yield from self.feed(chunk)
+        # with a reader thread, the chunks are referred and checked there too (beside the decoding)
+        for referred in read_ahead(map(self._refer, chunks), ahead):
+            yield from self._learn(referred)
         if self.samples == seen:
             raise LogFormatError(source, None, "no data rows")
 
