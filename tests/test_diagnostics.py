@@ -7,7 +7,7 @@ import pytest
 
 from online_backlash import BacklashRLS, VorosBacklash
 from online_backlash.diagnostics import synthetic
-from online_backlash.diagnostics.generic import motion_direction
+from online_backlash.diagnostics._causal import motion_direction
 from online_backlash.diagnostics.joint import MAX_PLAY_INFLATION, fit_guarded, fit_joint, separable
 from online_backlash.diagnostics.loop import diagnose_arrays
 from online_backlash.diagnostics.plot import plot_diagnosis

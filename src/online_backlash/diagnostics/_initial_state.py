@@ -51,7 +51,7 @@ from typing import Any
 
 import numpy as np
 
-from ..model import BacklashParams, simulate_backlash
+from ..model import BacklashParams, simulate_backlash, switching_functions
 from ._scoring import BIC_THRESHOLD
 
 #: viscous time constants of the coast tried, in sample periods
@@ -178,8 +178,8 @@ def first_engagement(uc_deg: np.ndarray, load_deg: np.ndarray, params: BacklashP
     """The first sample where a flank catches the load at ``load_deg`` (the switching test of
     eq. 1-3: ``u >= x / mR + cR`` or ``u <= x / mL - cL``); ``len(load_deg)`` if none does."""
     n = min(len(uc_deg), len(load_deg))
-    u, x = np.asarray(uc_deg[:n], dtype=float), np.asarray(load_deg[:n], dtype=float)
-    hit = (u >= x / params.m_right + params.c_right) | (u <= x / params.m_left - params.c_left)
+    f1, f2 = switching_functions(np.asarray(uc_deg[:n], dtype=float), np.asarray(load_deg[:n], dtype=float), params)  # eq. (5)-(6)
+    hit = (f1 + f2) > 0
     return int(np.argmax(hit)) if hit.any() else n
 
 

@@ -11,6 +11,14 @@ import numpy as np
 
 from ._causal import motion_direction
 from ._effect_base import EffectBase
+from ._folds import DEADZONE_DEG, DIRECTION_WINDOW
+from ._scoring import DetectionData
+
+
+def record_direction(data: DetectionData) -> np.ndarray:
+    """+1 / -1, the direction of motion of the record's ``u_deg`` (the folds' window and dead zone,
+    :func:`._causal.motion_direction`), built once per record for every detector that splits by flank."""
+    return data.memo(("direction", DIRECTION_WINDOW, DEADZONE_DEG), lambda: motion_direction(data.u_deg, DIRECTION_WINDOW, DEADZONE_DEG, 0.0))
 
 
 class PerFlankTerms(EffectBase):

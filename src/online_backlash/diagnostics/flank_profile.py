@@ -34,8 +34,8 @@ from typing import Any
 import numpy as np
 
 from ..errors import InvalidParameterError
-from ._causal import motion_direction
-from ._per_flank import PerFlankTerms
+from ._folds import DEADZONE_DEG, DIRECTION_WINDOW
+from ._per_flank import PerFlankTerms, record_direction
 from ._scoring import BIC_THRESHOLD, MIN_GAIN, Detection, DetectionData
 
 #: knot spacings tried by :meth:`FlankProfile.detect`, deg of load angle (an octave apart)
@@ -45,9 +45,6 @@ MAX_KNOTS = 64
 #: a finer spacing is worth its columns only if it removes this much more of the held-out squared
 #: error (share of the residual's) than the coarser one
 SPACING_GAIN = 0.01
-#: the direction of motion: the same window and dead zone as the per-flank harmonics and the folds
-DIRECTION_WINDOW = 10
-DIRECTION_DEADZONE_DEG = 0.005
 #: a knot's neighbourhood must be visited on each flank by at least this share of the record's samples
 MIN_KNOT_SHARE = 0.001
 
@@ -91,7 +88,7 @@ class FlankProfile(PerFlankTerms):
     name = "flank_profile"
 
     def __init__(
-        self, knots_deg: tuple[float, ...] = (0.0, 1.0, 2.0), window_samples: int = DIRECTION_WINDOW, deadzone_deg: float = DIRECTION_DEADZONE_DEG
+        self, knots_deg: tuple[float, ...] = (0.0, 1.0, 2.0), window_samples: int = DIRECTION_WINDOW, deadzone_deg: float = DEADZONE_DEG
     ) -> None:
         knots = np.asarray(knots_deg, dtype=float)
         if knots.ndim != 1 or knots.size < 3 or not np.all(np.isfinite(knots)) or np.any(np.diff(knots) <= 0):
@@ -137,7 +134,7 @@ class FlankProfile(PerFlankTerms):
         between the flanks is significant beyond the same map common to both (else the deviation is
         a transmission error's: fewer columns and a periodic law, :class:`~.effects.TransmissionError`)."""
         u = data.u_deg
-        d = motion_direction(u, DIRECTION_WINDOW, DIRECTION_DEADZONE_DEG, 0.0)
+        d = record_direction(data)
         engaged = data.engaged
         found: list[tuple[Detection, float]] = []
         for spacing in SPACINGS_DEG:
@@ -163,6 +160,7 @@ class FlankProfile(PerFlankTerms):
             return None
         best = max(g for _, g in found)
         return next(det for det, g in found if g >= best - SPACING_GAIN)
+
 
 def _covered_knots(u: np.ndarray, direction: np.ndarray, spacing: float) -> np.ndarray | None:
     """Knots ``spacing`` apart over the range of ``u`` that both directions of motion cover (every

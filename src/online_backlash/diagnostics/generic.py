@@ -22,15 +22,17 @@ from typing import Any
 import numpy as np
 
 from ..errors import InvalidParameterError
-from ._causal import motion_direction, velocity_deg_s
+from ._causal import velocity_deg_s
 from ._effect_base import EffectBase
+from ._folds import DEADZONE_DEG, DIRECTION_WINDOW
 from ._harmonics import harmonic_columns, held_per_flank, shaft_harmonic
+from ._per_flank import PerFlankTerms, record_direction
 from ._scoring import Detection, DetectionData, Score
 from ._speed import MAX_INNER_KNOTS, VELOCITY_WINDOW, cardinal_splines, held_spline_columns, record_velocity, speed_knots, zero_knot
 from .effects import amplitudes_phases, select_orders
 
 
-class AngleHarmonicsPerFlank(EffectBase):
+class AngleHarmonicsPerFlank(PerFlankTerms):
     """A harmonic series in the load angle (approximated by ``u``), one set per direction of motion.
 
     Columns ``[sin(n u), cos(n u)] * [moving up]`` and ``... * [moving down]`` for every order.
@@ -47,26 +49,19 @@ class AngleHarmonicsPerFlank(EffectBase):
 
     name = "angle_harmonics_per_flank"
 
-    def __init__(self, orders: tuple[int, ...] = (1,), window_samples: int = 10, deadzone_deg: float = 0.005) -> None:
+    def __init__(self, orders: tuple[int, ...] = (1,), window_samples: int = DIRECTION_WINDOW, deadzone_deg: float = DEADZONE_DEG) -> None:
         self.orders = tuple(orders)
         self.window_samples = int(window_samples)
         self.deadzone_deg = deadzone_deg
         self.history = self.window_samples
         super().__init__()
 
-    def reset(self) -> None:
-        super().reset()
-        self._direction = 0.0
-
     @property
     def n_terms(self) -> int:
         return 4 * len(self.orders)
 
-    def _columns(self, u: np.ndarray, t: np.ndarray, q: np.ndarray) -> np.ndarray:
-        d = motion_direction(u, self.window_samples, self.deadzone_deg, self._direction)
-        self._direction = float(d[-1])
-        h = harmonic_columns(u, self.orders)
-        return np.column_stack((h * (d > 0)[:, None], h * (d < 0)[:, None]))
+    def _shape(self, u: np.ndarray) -> np.ndarray:
+        return harmonic_columns(u, self.orders)
 
     def describe(self, coef: np.ndarray) -> dict[str, Any]:
         k = 2 * len(self.orders)
@@ -86,7 +81,7 @@ class AngleHarmonicsPerFlank(EffectBase):
     def detect(cls, data: DetectionData, max_order: int = 24, max_orders: int = 6) -> Detection | None:
         """Significant harmonics of the residual against the load angle, on either flank."""
         u = data.u_deg
-        d = motion_direction(u, 10, 0.005, 0.0)
+        d = record_direction(data)
         up, down = d > 0, d < 0
 
         def held(n: int) -> np.ndarray:  # the columns of order n, held through the dead band

@@ -321,7 +321,7 @@ class RecursivePlayScatter:
         est = self.estimator
         if not due or not est.started:  # the play and slopes are not read before the start
             return EstimateAt(True, math.nan, math.nan, math.nan) if est.started else NOT_STARTED
-        return EstimateAt(True, float(est.backlash_), float(est.m_left_), float(est.m_right_))
+        return est.estimate_now()
 
     def update(
         self, u: np.ndarray, y: np.ndarray, gap: np.ndarray | None = None, due: bool = True, estimate: EstimateAt | None = None
