@@ -64,6 +64,14 @@ def test_the_compiled_clock_cuts_where_the_numpy_clock_cut(seed):
         want = [(a + s, a + e, due, d, nd) for s, e, due, d, nd in reference_blocks(ref, time_s[a:b], after_gap[a:b])]
         assert got == want
         assert ours.state_dict() == ref.state_dict()
+    ticking, ref_ticks = DataClock(every_s), DataClock(every_s)  # DataClock.ticks: the due blocks' ends, the clock at the chunk's end
+    if seed % 3 == 0:
+        ticking.mark_gap()
+        ref_ticks.mark_gap()
+    for a, b in zip([0, *cuts], [*cuts, n]):
+        want_ticks = tuple(e for _, e, due, *_ in reference_blocks(ref_ticks, time_s[a:b], after_gap[a:b]) if due)
+        assert ticking.ticks(time_s[a:b], after_gap[a:b]) == want_ticks
+        assert ticking.state_dict() == ref_ticks.state_dict()
     quiet, ref_quiet = DataClock(None), DataClock(None)  # no rows: one block per chunk, the clock still counts
     assert [(s, e, d) for s, e, d in quiet.blocks(time_s, after_gap)] == [(s, e, d) for s, e, d, *_ in reference_blocks(ref_quiet, time_s, after_gap)]
     assert quiet.state_dict() == ref_quiet.state_dict()
@@ -145,3 +153,19 @@ def test_with_a_reader_thread_the_chunks_are_referred_there_and_a_bad_one_stops_
     with pytest.raises(InvalidParameterError, match=r"^y .* first at index 17 of the chunk"):
         list(Pipeline(est, 30.0, every_s=2.0, rows=rows).run([*pieces[:2], bad, *pieces[3:]], "log", 1))
     assert est.n_samples_seen_ == 14000  # the two chunks before it, nothing of it
+
+
+@pytest.mark.parametrize("dtype", ["float64", "float32", "int64", "strided"])
+@pytest.mark.parametrize("ratio", [30.0, -35, 7.3])
+def test_the_compiled_referral_gives_the_numbers_of_sample_chunk_referred(dtype, ratio):
+    """The pipeline divides and checks in one compiled pass: the same ``u`` as ``SampleChunk.referred``, bit for bit,
+    whatever the motor column's dtype (numpy divides float32 in float32) and layout, with and without rows."""
+    chunk = simulate_rig(duration_s=15.0, ratio=30.0, seed=3).to_chunk()
+    motor = {"float64": chunk.motor_deg, "float32": chunk.motor_deg.astype(np.float32), "int64": np.rint(chunk.motor_deg * 100).astype(np.int64),
+             "strided": np.repeat(chunk.motor_deg, 2)[::2]}[dtype]  # fmt: skip
+    source = SampleChunk(chunk.time_s, motor, chunk.load_deg, chunk.torque_Nm, chunk.after_gap)
+    want = np.asarray(source.referred(ratio)[0], dtype=float)
+    for rows in (False, True):
+        steps = list(Pipeline(BacklashRLS(), ratio, every_s=2.0, rows=rows).feed(source))
+        got = np.concatenate([s.u_deg for s in steps])
+        assert got.dtype == np.float64 and got.tobytes() == want.tobytes()

@@ -18,8 +18,9 @@ all run :class:`Pipeline`:
    the estimator learns each chunk in one call and records its estimate at the ticks inside it,
    ``learn_many(..., snapshot_at=)``, so the ticks do not cut its compiled loop).
 
-Each chunk is checked once for non-finite angles (a compiled pass) before any of it reaches the
-estimator, which then skips its own per-block check (``learn_many(..., assume_finite=True)``).
+Each chunk is referred and checked once for non-finite angles (one compiled pass,
+:func:`_refer_checked`, the same division as :meth:`SampleChunk.referred`) before any of it reaches
+the estimator, which then skips its own per-block check (``learn_many(..., assume_finite=True)``).
 The clock's cutting is compiled too; the loop itself only hands arrays from one compiled pass
 to the next, so the GIL is free most of the time for a reader thread (:func:`read_ahead`).
 
@@ -75,12 +76,18 @@ def _cut(time_s, after_gap, prev, data_ns, has_due, due_ns, every_ns):  # pragma
 
 
 @numba.njit(cache=True, nogil=True)
-def _first_non_finite(u, y):  # pragma: no cover - compiled
-    """Index of the first sample where ``u`` or ``y`` is not finite, -1 if none."""
-    for i in range(u.size):
-        if not (math.isfinite(u[i]) and math.isfinite(y[i])):
-            return i
-    return -1
+def _refer_checked(motor_deg, load_deg, ratio):  # pragma: no cover - compiled
+    """``u = motor_deg / ratio`` (:func:`~online_backlash.stream.refer_to_load`, the same IEEE division, so the
+    same numbers) and the index of the first sample where ``u`` or ``load_deg`` is not finite (-1 if none),
+    in one pass over the chunk instead of a division pass and a checking pass."""
+    n = motor_deg.size
+    u = np.empty(n)
+    bad = -1
+    for i in range(n):
+        u[i] = motor_deg[i] / ratio
+        if bad < 0 and not (math.isfinite(u[i]) and math.isfinite(load_deg[i])):
+            bad = i
+    return u, bad
 
 
 def _learn_many_takes(estimator: Any, name: str) -> bool:
@@ -132,14 +139,7 @@ class DataClock:
         True: a row belongs right after it) or at the end of the chunk. The clock stands at the
         end of a block when it is yielded: the caller learns the block before asking for the next.
         """
-        if self.next_due_ns is None and self.every_ns is not None:
-            self.next_due_ns = self.data_ns + self.every_ns
-        prev = math.nan if self.prev_time_s is None else self.prev_time_s
-        has_due = self.next_due_ns is not None  # (without every_ns, a due instant restored from a state never moves on)
-        ends, dues, data_ns, next_ns = _cut(
-            np.ascontiguousarray(time_s, dtype=float), np.ascontiguousarray(after_gap, dtype=np.bool_), prev, self.data_ns, has_due,
-            self.next_due_ns or 0, self.every_ns or 0,
-        )  # fmt: skip
+        ends, dues, data_ns, next_ns, has_due = self._cut(time_s, after_gap)
         start = 0
         for end, due, data, next_due in zip(ends.tolist(), dues.tolist(), data_ns.tolist(), next_ns.tolist()):
             self.data_ns = data
@@ -147,6 +147,31 @@ class DataClock:
             self.next_due_ns = next_due if has_due else self.next_due_ns
             yield start, end, due
             start = end
+
+    def ticks(self, time_s: np.ndarray, after_gap: np.ndarray) -> tuple[int, ...]:
+        """The ticks in a chunk, as counts of its samples (a tick falls right after sample ``ticks[k] - 1``),
+        ascending: the ends of the due blocks of :meth:`blocks`, and the clock at the chunk's end, as after
+        iterating them all (one compiled pass, no Python per block)."""
+        ends, dues, data_ns, next_ns, has_due = self._cut(time_s, after_gap)
+        if not ends.size:
+            return ()
+        self.data_ns = int(data_ns[-1])
+        self.prev_time_s = float(time_s[ends[-1] - 1])
+        self.next_due_ns = int(next_ns[-1]) if has_due else self.next_due_ns
+        return tuple(ends[dues].tolist())
+
+    def _cut(self, time_s: np.ndarray, after_gap: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, bool]:
+        """:func:`_cut` from the clock's state: each block's end, due, data ns and next due ns; and whether
+        the clock has a due instant (without ``every_s``, one restored from a state never moves on)."""
+        if self.next_due_ns is None and self.every_ns is not None:
+            self.next_due_ns = self.data_ns + self.every_ns
+        prev = math.nan if self.prev_time_s is None else self.prev_time_s
+        has_due = self.next_due_ns is not None
+        ends, dues, data_ns, next_ns = _cut(
+            np.ascontiguousarray(time_s, dtype=float), np.ascontiguousarray(after_gap, dtype=np.bool_), prev, self.data_ns, has_due,
+            self.next_due_ns or 0, self.every_ns or 0,
+        )  # fmt: skip
+        return ends, dues, data_ns, next_ns, has_due
 
     def state_dict(self) -> dict[str, Any]:
         """The clock as JSON-serialisable values (``every_s`` is the caller's setting, not state)."""
@@ -159,12 +184,14 @@ class DataClock:
 
 
 class _Referred(NamedTuple):
-    """A chunk ready for the estimator: ``u`` (motor / ratio) and ``y``, deg, and ``learn_many``'s options."""
+    """A chunk ready for the estimator: ``u`` (motor / ratio) and ``y``, deg, ``learn_many``'s options, and
+    for a pipeline that learns whole chunks (:meth:`Pipeline._feed_whole`) the data-clock ticks in it."""
 
     chunk: SampleChunk
     u_deg: np.ndarray
     y_deg: np.ndarray
     learn: dict[str, Any]
+    ticks: tuple[int, ...] | None = None
 
 
 @dataclass(frozen=True)
@@ -435,28 +462,35 @@ class Pipeline:
 
     def _refer(self, chunk: SampleChunk) -> _Referred | None:
         """A chunk's estimator input and output (``u = motor / ratio``, ``y``), checked finite once
-        for the whole chunk where the estimator then skips its own check; None for an empty chunk.
-        Depends on nothing the estimator changes: :meth:`run` calls it in the reader thread."""
+        for the whole chunk where the estimator then skips its own check (the division and the check in
+        one compiled pass, :func:`_refer_checked`); None for an empty chunk. For a pipeline that learns
+        whole chunks, the data clock's ticks in the chunk too (:meth:`DataClock.ticks`). Depends on nothing
+        the estimator changes: :meth:`run` calls it in the reader thread (the clock then runs up to the
+        chunks read ahead beyond the estimator until the run ends)."""
         if not len(chunk):
             return None
-        u, y = chunk.referred(self.ratio)
         learn: dict[str, Any] = {}
         if self._checked:  # once per chunk, not per block: a non-finite value never reaches the estimator
-            u, y = np.ascontiguousarray(u, dtype=float), np.ascontiguousarray(y, dtype=float)
-            bad = _first_non_finite(u, y)
+            y = np.ascontiguousarray(chunk.load_deg, dtype=float)
+            if chunk.motor_deg.dtype == np.float64:
+                u, bad = _refer_checked(np.ascontiguousarray(chunk.motor_deg), y, float(self.ratio))
+            else:  # numpy divides other dtypes in their own precision: referred as such, then checked (/ 1.0 is exact)
+                u, bad = _refer_checked(np.ascontiguousarray(chunk.referred(self.ratio)[0], dtype=float), y, 1.0)
             if bad >= 0:
                 name = "u (motor angle / ratio)" if not math.isfinite(u[bad]) else "y (load angle)"
                 raise InvalidParameterError(f"{name} has non-finite values, first at index {bad} of the chunk (time {chunk.time_s[bad]} s)")
             learn["assume_finite"] = True
-        return _Referred(chunk, u, y, learn)
+        else:
+            u, y = chunk.referred(self.ratio)
+        return _Referred(chunk, u, y, learn, self.clock.ticks(chunk.time_s, chunk.after_gap) if self._whole_chunks else None)
 
     def _learn(self, referred: _Referred | None) -> Iterator[PipelineStep]:
         """The estimator learns a referred chunk, block by block (or whole, see :meth:`_feed_whole`)."""
         if referred is None:
             return
-        chunk, u, y, learn = referred
-        if self._whole_chunks:
-            yield self._feed_whole(chunk, u, y, learn)
+        chunk, u, y, learn, ticks = referred
+        if ticks is not None:
+            yield self._feed_whole(chunk, u, y, learn, ticks)
             return
         for start, end, due in self.clock.blocks(chunk.time_s, chunk.after_gap):
             block = _block(chunk, start, end)
@@ -469,11 +503,10 @@ class Pipeline:
                 self.samples_since_row = 0
             yield PipelineStep(block, u[start:end], self.samples, row, due, (end - start,) if due else ())
 
-    def _feed_whole(self, chunk: SampleChunk, u: np.ndarray, y: np.ndarray, learn: dict[str, Any]) -> PipelineStep:
+    def _feed_whole(self, chunk: SampleChunk, u: np.ndarray, y: np.ndarray, learn: dict[str, Any], ticks: tuple[int, ...]) -> PipelineStep:
         """:meth:`feed` of a pipeline without rows over an estimator that records snapshots: the whole
-        chunk in one ``learn_many`` call, the estimate recorded at each tick (``snapshot_at``); the
-        same estimates, ticks and counts as cutting the chunk at the ticks."""
-        ticks = tuple(end for _, end, due in self.clock.blocks(chunk.time_s, chunk.after_gap) if due)
+        chunk in one ``learn_many`` call, the estimate recorded at each of its ``ticks`` (``snapshot_at``);
+        the same estimates, ticks and counts as cutting the chunk at the ticks."""
         estimates = self.estimator.learn_many(
             u, y, chunk.after_gap, time_s=chunk.time_s, torque_Nm=chunk.torque_Nm, snapshot_at=np.array(ticks, dtype=np.int64), **learn
         )
