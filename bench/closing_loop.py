@@ -30,7 +30,7 @@ each figure of the issue holds:
 with the medians of the RMS and of the play before and after, and the time per log.
 
 Run: ``python bench/closing_loop.py`` (10 seeds of 180 s logs: about 10 minutes on 2 cores);
-``--seeds``, ``--duration-s`` and ``--cases`` shrink it, ``--verbose`` prints every log.
+``--seeds`` (or ``--seed-list 0,4``), ``--duration-s`` and ``--cases`` shrink it, ``--verbose`` prints every log.
 
 ``--tracker`` prints instead, per seed, the play tracked by ``BacklashRLS`` on a log with a
 delay and on one with a load-shaft transmission error, without and with the effects the loop
@@ -135,9 +135,15 @@ def count(rows: list[dict], key: str) -> str:
     return f"{sum(values)}/{len(values)}" if values else "n/a"
 
 
+def _seed_range(seeds: list[int]) -> str:
+    """``0..9`` for consecutive seeds from 0, else the list."""
+    return f"0..{len(seeds) - 1}" if seeds == list(range(len(seeds))) else ",".join(map(str, seeds))
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seeds", type=int, default=10)
+    parser.add_argument("--seed-list", default=None, help="comma-separated seeds to run instead of 0..SEEDS-1 (e.g. 0 or 0,4)")
     parser.add_argument("--duration-s", type=float, default=180.0)
     parser.add_argument("--cases", default=",".join(INJECTORS), help="comma-separated subset of " + ",".join(INJECTORS))
     parser.add_argument("--verbose", action="store_true", help="print one line per log")
@@ -147,18 +153,19 @@ def main() -> None:
     )
     parser.add_argument("--tracker", action="store_true", help="run the recursive-estimator check instead")
     args = parser.parse_args()
+    seeds = [int(v) for v in args.seed_list.split(",")] if args.seed_list else list(range(args.seeds))
     if args.tracker:
         tracker(args.seeds, args.duration_s)
         return
     print(f"machine: {platform.processor() or platform.machine()}, {os.cpu_count()} CPUs, Python {platform.python_version()}")
-    print(f"logs: {args.generator}, {args.duration_s:.0f} s at 1 kHz, play {PLAY_DEG} deg, seeds 0..{args.seeds - 1}\n")
+    print(f"logs: {args.generator}, {args.duration_s:.0f} s at 1 kHz, play {PLAY_DEG} deg, seeds {_seed_range(seeds)}\n")
     print(
         "| case | named first | <= 1.5 floor | <= 1.1 clean | <= 1/2 before | play 2 % | dead band motion | RMS before, deg | RMS after, deg | floor, deg "
         "| after / floor past start | play before, deg | play after, deg | terms found (seed 0) | s per log |"
     )
     print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
     for name in args.cases.split(","):
-        rows = [run_case(name, seed, args.duration_s, args.generator) for seed in range(args.seeds)]
+        rows = [run_case(name, seed, args.duration_s, args.generator) for seed in seeds]
         if args.verbose:
             for r in rows:
                 print(

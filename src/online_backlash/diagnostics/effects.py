@@ -294,7 +294,12 @@ class Compliance(EffectBase):
     * ``proxy="torque"``: the measured transmitted torque (N m), averaged over the last
       ``smooth_samples`` samples against the sensor's noise, where a flank is engaged by the
       torque's sign (:func:`online_backlash.load_aware.engagement.engaged_flank` with
-      ``deadband_Nm``), 0 elsewhere; coefficient in deg/N m (``-1 / k``).
+      ``deadband_Nm``), 0 elsewhere; coefficient in deg/N m (``-1 / k``). The causal mean
+      delays the column by ``(smooth_samples - 1) / 2`` samples, and the twist does lag the
+      measured torque: the contact's damping carries part of it while the flank winds up
+      (``tau = k theta + d theta'``, a lag of ``d / k``). How long a mean trades the sensor's
+      noise against that lag is the rig's, so the loop fits it in the joint refit
+      (:meth:`neighbours`, from :data:`SMOOTHING_GRID`), as it fits the delay's lag.
     * ``proxy="motion"`` (no torque measured): the torque the output needs, from the motion of the
       load side: its acceleration (deg/s^2, the inertia's share) and velocity (deg/s, the viscous
       share), over ``window_samples``; coefficients in deg per deg/s^2 and deg per deg/s.
@@ -317,6 +322,8 @@ class Compliance(EffectBase):
 
     name = "compliance"
     input_side = False  # the twist is read on the load side
+    #: the torque's averaging windows the joint refit may choose from, samples
+    SMOOTHING_GRID: tuple[int, ...] = (1, 2, 3, 4, 5, 6, 8, 11, 16)
 
     def __init__(self, proxy: str = "torque", window_samples: int = 10, deadband_Nm: float = 0.0, smooth_samples: int = 5) -> None:
         if proxy not in ("torque", "motion", "acceleration"):
@@ -363,6 +370,8 @@ class Compliance(EffectBase):
                 "stiffness_Nm_per_deg": stiffness,
                 "stiffness_Nm_per_arcmin": stiffness / 60.0,
                 "torque_deadband_Nm": self.deadband_Nm,
+                "torque_smoothing_samples": self.smooth_samples,
+                "torque_column_lag_samples": (self.smooth_samples - 1) / 2.0,
             }
         out: dict[str, Any] = {
             "proxy": "load-side acceleration" + (" and velocity (inertial and viscous torque)" if self.proxy == "motion" else " (inertial torque)"),
@@ -378,16 +387,30 @@ class Compliance(EffectBase):
         """The measured torque when the log has one, else the load side's motion (gated by the model's engagement)."""
         q = np.nan_to_num(data.torque_Nm, nan=0.0)
         if np.mean(np.isfinite(data.torque_Nm)) > 0.5 and q.size >= 3:
-            effect = cls("torque", deadband_Nm=torque_deadband(q))
+            return cls("torque", deadband_Nm=torque_deadband(q)).detection(data)
+        return cls("motion").detection(data)
+
+    def detection(self, data: DetectionData) -> Detection:
+        """This effect's columns scored on the residual (gated by the model's engagement for the motion proxies)."""
+        if self.proxy == "torque":
             what = "the measured torque on engaged samples"
         else:
-            effect = cls("motion")
             what = "the load side's acceleration and velocity on engaged samples"
-        cols = effect.clone().terms(data.u_deg, data.time_s, data.torque_Nm)
-        if effect.engaged_only:
+        cols = self.clone().terms(data.u_deg, data.time_s, data.torque_Nm)
+        if self.engaged_only:
             cols = cols * data.engaged[:, None]
-        s = data.score(effect.input_side, cols)
-        return Detection(effect, s, f"residual is proportional to {what} (correlation {np.sqrt(max(s.gain, 0.0)):.2f})")
+        s = data.score(self.input_side, cols)
+        return Detection(self, s, f"residual is proportional to {what} (correlation {np.sqrt(max(s.gain, 0.0)):.2f})")
+
+    def neighbours(self) -> list[Compliance]:
+        """The same term with the next shorter and the next longer torque average of :data:`SMOOTHING_GRID`
+        (``proxy="torque"`` only; the motion proxies have no setting to tune): what the joint refit tries."""
+        if self.proxy != "torque":
+            return []
+        grid = sorted({*self.SMOOTHING_GRID, self.smooth_samples})
+        i = grid.index(self.smooth_samples)
+        near = grid[max(i - 1, 0) : i] + grid[i + 1 : i + 2]
+        return [type(self)(self.proxy, self.window_samples, self.deadband_Nm, w) for w in near]
 
 
 class Drift(EffectBase):

@@ -31,6 +31,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from numba import njit
 from scipy.optimize import least_squares
 
 from ..model import BacklashParams, backlash_sensitivity, simulate_switching
@@ -94,8 +95,18 @@ def hold_columns(columns: np.ndarray, held: np.ndarray, index: np.ndarray) -> np
         return columns
     if np.all(held):
         return np.take(columns, index, axis=0)
-    out = columns.copy()
-    out[:, held] = np.take(columns[:, held], index, axis=0)
+    return _hold_some(np.asarray(columns, dtype=float), np.asarray(held, dtype=np.bool_), np.asarray(index, dtype=np.int64))
+
+
+@njit(cache=True)
+def _hold_some(columns, held, index):  # pragma: no cover - compiled
+    """``out[t, j] = columns[index[t], j]`` for the held columns ``j``, ``columns[t, j]`` for the others (one pass)."""
+    n, k = columns.shape
+    out = np.empty((n, k))
+    for t in range(n):
+        s = index[t]
+        for j in range(k):
+            out[t, j] = columns[s, j] if held[j] else columns[t, j]
     return out
 
 
@@ -128,10 +139,17 @@ def fit_joint(
     start parameters, refreshed once after the first search.
     """
     held = np.zeros(columns.shape[1], dtype=bool) if held is None else np.asarray(held, dtype=bool)
-    result_params = start
-    for _ in range(2 if np.any(held) else 1):
-        fit = _fit_fixed_columns(uc, yc, hold_columns(columns, held, engaged_index(uc, result_params)), result_params, hold_play)
-        result_params = fit.params
+    return _fit_held(uc, yc, columns, held, start, hold_play, hold_columns(columns, held, engaged_index(uc, start)) if np.any(held) else columns)
+
+
+def _fit_held(
+    uc: np.ndarray, yc: np.ndarray, columns: np.ndarray, held: np.ndarray, start: BacklashParams, hold_play: float | None, first: np.ndarray
+) -> JointFit:
+    """:func:`fit_joint` given ``first``, the columns held through the dead band of ``start`` (the
+    first search's; :func:`fit_guarded` hands the same to its second fit instead of forming it again)."""
+    fit = _fit_fixed_columns(uc, yc, first, start, hold_play)
+    if np.any(held):  # once more through the dead band of the fitted model
+        fit = _fit_fixed_columns(uc, yc, hold_columns(columns, held, engaged_index(uc, fit.params)), fit.params, hold_play)
     return fit
 
 
@@ -221,8 +239,10 @@ def fit_guarded(
 
     The held fit keeps the variance inflation and standard error measured with the play free.
     """
-    fit = fit_joint(uc, yc, columns, start, held=held)
+    held = np.zeros(columns.shape[1], dtype=bool) if held is None else np.asarray(held, dtype=bool)
+    first = hold_columns(columns, held, engaged_index(uc, start)) if np.any(held) else columns
+    fit = _fit_held(uc, yc, columns, held, start, None, first)
     if separable(fit, start):
         return fit
-    kept = fit_joint(uc, yc, columns, start, hold_play=start.play, held=held)
+    kept = _fit_held(uc, yc, columns, held, start, start.play, first)
     return JointFit(kept.params, kept.coef, kept.residual_deg, fit.play_inflation, fit.play_std_deg, True)

@@ -18,7 +18,9 @@
    play is held).
    The two named effects that explain most are both refitted and the better refit is the
    candidate; if the other refits about as well and neither adds ``min_gain`` once the other is
-   in, the two are reported together as *not separable* (and neither is claimed).
+   in, the two are reported together as *not separable* (and neither is claimed). A term with a
+   setting of its own (the compliance's torque average) has it fitted in the refit, and retuned
+   when a later term comes in (:func:`_tuned`), as the delay's lag is refitted.
 4. Repeat until nothing is significant or the residual is within ``floor_ratio`` of the noise
    floor. Then every term is held out once more, given all the others in the final model.
 
@@ -27,9 +29,9 @@ Angles in degrees on the load side, time in seconds.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field, replace
-from typing import Any
+from typing import Any, Protocol
 
 import numpy as np
 
@@ -41,6 +43,7 @@ from ._folds import Folds, cycle_folds
 from ._initial_state import InitialState, estimate_initial_state
 from ._record_cache import RecordCache
 from ._scoring import BIC_THRESHOLD, MIN_GAIN, Detection, DetectionData
+from ._term_columns import TermColumns
 from .effects import LIBRARY
 from .generic import GENERIC
 from .joint import MAX_PLAY_INFLATION, MAX_PLAY_STD_SHARE, JointFit, engaged_index, fit_guarded, hold_columns, play_sensitivity
@@ -246,18 +249,23 @@ class Diagnosis:
         }
 
 
-def _columns(terms: Sequence[Any], u: np.ndarray, t: np.ndarray, q: np.ndarray, engaged: np.ndarray, x: np.ndarray) -> np.ndarray:
-    """The terms' columns. Those of effects that act only on engaged samples are zeroed where
-    ``engaged`` (the model's switching functions, eq. 5-6) is False; an effect defined on the
-    model's output (``output_columns``, the delay) is built on ``x``, the current backlash output."""
-    cols = []
+def _columns(terms: Sequence[Any], built: TermColumns, engaged: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """The terms' columns (a new array). Those of effects that act only on engaged samples are zeroed
+    where ``engaged`` (the model's switching functions, eq. 5-6) is False; an effect defined on the
+    model's output (``output_columns``, the delay) is built on ``x``, the current backlash output;
+    the others come from ``built`` (once per record)."""
+    n = built.u_deg.size
+    out = np.empty((n, sum(e.n_terms for e in terms)))
+    j = 0
     for e in terms:
-        if hasattr(e, "output_columns"):
-            c = e.output_columns(x)
+        k = e.n_terms
+        c = np.reshape(e.output_columns(x) if hasattr(e, "output_columns") else built.get(e), (n, k))
+        if getattr(e, "engaged_only", False):
+            np.multiply(c, engaged[:, None], out=out[:, j : j + k])
         else:
-            c = e.clone().terms(u, t, q)
-        cols.append(c * engaged[:, None] if getattr(e, "engaged_only", False) else c)
-    return np.column_stack(cols) if cols else np.empty((u.size, 0))
+            out[:, j : j + k] = c
+        j += k
+    return out
 
 
 def _held(terms: Sequence[Any]) -> np.ndarray:
@@ -273,22 +281,26 @@ def _significant(found: list[Detection | None], bic_threshold: float, min_gain: 
     return sorted(ok, key=lambda d: -d.score.gain)
 
 
-def _prepared(data: DetectionData, effect: Any, engaged: np.ndarray) -> np.ndarray:
+def _prepared(data: DetectionData, effect: Any, built: TermColumns, engaged: np.ndarray) -> np.ndarray:
     """An effect's columns as the scoring sees them: held through the dead band or gated by engagement."""
     assert data.model_output_deg is not None
-    x = _columns([effect], data.u_deg, data.time_s, data.torque_Nm, engaged, data.model_output_deg)
+    x = _columns([effect], built, engaged, data.model_output_deg)
     return data.hold(x) if _held([effect]).any() else x
 
 
-def _rivals(data: DetectionData, chosen: Detection, others: list[Detection], engaged: np.ndarray, min_gain: float) -> tuple[str, ...]:
+def _rivals(
+    data: DetectionData, chosen: Detection, others: list[Detection], engaged: np.ndarray, min_gain: float, built: TermColumns | None = None
+) -> tuple[str, ...]:
     """Named effects that explain the same part of the residual as the chosen one: neither
-    removes ``min_gain`` of the residual's mean square once the other is in."""
-    xa = _prepared(data, chosen.effect, engaged)
+    removes ``min_gain`` of the residual's mean square once the other is in. ``built``: the loop's
+    term columns of this record (else built here)."""
+    built = TermColumns(data.u_deg, data.time_s, data.torque_Nm) if built is None else built
+    xa = _prepared(data, chosen.effect, built, engaged)
     names = []
     for d in others:
         if d is chosen:
             continue
-        xb = _prepared(data, d.effect, engaged)
+        xb = _prepared(data, d.effect, built, engaged)
         if data.with_nuisance(xb).score(False, xa).gain < min_gain and data.with_nuisance(xa).score(False, xb).gain < min_gain:
             names.append(str(getattr(d.effect, "name", "")))
     return tuple(names)
@@ -348,43 +360,63 @@ def diagnose(
     period = round(float(np.median(np.diff(t))), 12) if t.size > 1 else 1.0  # 0.001, not 0.000999999...
     folds = cycle_folds(u)
     cache = RecordCache()  # columns that depend on the record only, shared by every round
+    built = TermColumns(u, t, q)  # the columns of the terms taken, built once
     current = JointFit(base.params_, np.empty(0), before, 1.0, float("nan"), False)
     steps: list[Step] = []
     refused: set[type] = set()
     while len(steps) < max_terms and current.rms_deg > floor_ratio * noise.floor_deg:
         taken = {type(s.effect) for s in steps} | refused
-        data, engaged = _detection_data(u, t, q, uc, current, [s.effect for s in steps], float(ratio), period, folds, cache)
+        data, engaged = _detection_data(u, t, q, uc, current, [s.effect for s in steps], float(ratio), period, folds, built, cache)
         named_all = _significant([c.detect(data) for c in LIBRARY if c not in taken], bic_threshold, min_gain)
         generic_all = _significant([c.detect(data) for c in GENERIC if c not in taken], bic_threshold, min_gain)
-        named = named_all[0] if named_all else None
         generic = generic_all[0] if generic_all else None
-        if named is None and generic is None:
+        if not named_all and generic is None:
             break
         done = [s.effect for s in steps]
 
         x_now = data.model_output_deg  # the current backlash output, simulated once for this round
         assert x_now is not None
 
-        def refit(found: Detection, done: list = done, current: JointFit = current, engaged: np.ndarray = engaged, x_now: np.ndarray = x_now) -> JointFit:
-            terms = [*done, found.effect]
-            fit = fit_guarded(uc, yc, _columns(terms, u, t, q, engaged, x_now), current.params, _held(terms))
+        def refit_with(terms: list[Any], current: JointFit = current, engaged: np.ndarray = engaged, x_now: np.ndarray = x_now) -> JointFit:
+            fit = fit_guarded(uc, yc, _columns(terms, built, engaged, x_now), current.params, _held(terms))
             if any(hasattr(e, "output_columns") for e in terms):  # built on the model's output: once more on the refitted one
                 x = simulate_backlash(uc, fit.params, 0.0)
-                fit = fit_guarded(uc, yc, _columns(terms, u, t, q, engaged, x), fit.params, _held(terms))
+                fit = fit_guarded(uc, yc, _columns(terms, built, engaged, x), fit.params, _held(terms))
             return fit
 
+        def tuned(terms: list[Any], fit: JointFit, which: Iterable[int]) -> tuple[list[Any], JointFit]:
+            """The settings of the terms at ``which`` walked on the joint refit linearised at ``fit``
+            (:func:`_linearised_refit`), then confirmed by one joint refit: kept only if it is better."""
+            for i in which:
+                if not hasattr(terms[i], "neighbours"):
+                    continue
+                walk = _linearised_refit(terms, i, fit, uc, u, t, q, float(ratio), period, folds, built)
+                walked, _ = _tuned(terms, walk(terms), walk, [i])
+                if walked[i] is not terms[i]:
+                    trial = refit_with(walked)
+                    if trial.rms_deg < fit.rms_deg:
+                        terms, fit = walked, trial
+            return terms, fit
+
+        def refit(found: Detection, done: list = done, data: DetectionData = data) -> tuple[Detection, JointFit]:
+            terms = [*done, found.effect]
+            terms, fit = tuned(terms, refit_with(terms), [len(done)])  # the candidate's own setting
+            return (found if terms[-1] is found.effect else replace(terms[-1].detection(data), rivals=found.rivals)), fit
+
         # the two named effects that explain most are both refitted: the better joint fit is named
-        fit_named = None
+        named: Detection | None = None
+        fit_named: JointFit | None = None
         refits: list[tuple[Detection, JointFit]] = []
         for candidate in named_all[:2]:
             if fit_named is not None and candidate.score.gain < RUNNER_UP_SHARE * named_all[0].score.gain:
                 break
-            f = refit(candidate)
-            refits.append((candidate, f))
-            if fit_named is None or f.rms_deg < fit_named.rms_deg:
-                named, fit_named = candidate, f
+            refits.append(refit(candidate))
+            if fit_named is None or refits[-1][1].rms_deg < fit_named.rms_deg:
+                named, fit_named = refits[-1]
         # a named effect must do about as well as a flexible generic term in the joint refit
-        fit_generic = refit(generic) if generic is not None else None
+        fit_generic: JointFit | None = None
+        if generic is not None:
+            generic, fit_generic = refit(generic)
         kind: str
         chosen: Detection
         fit: JointFit
@@ -399,7 +431,11 @@ def diagnose(
             continue
         # rivals: refitted about as well as the chosen one, and explaining the same part of the residual
         close = [d for d, f in refits if d is not chosen and f.rms_deg**2 <= label_ratio * fit.rms_deg**2]
-        rivals = (*chosen.rivals, *_rivals(data, chosen, close, engaged, min_gain)) if kind == "effect" else ()
+        rivals = (*chosen.rivals, *_rivals(data, chosen, close, engaged, min_gain, built)) if kind == "effect" else ()
+        # the settings of the terms already in, retuned with the new one in (the compliance's torque average)
+        terms, fit = tuned([*done, chosen.effect], fit, range(len(done)))
+        for step, effect in zip(steps, terms):
+            step.effect = effect
         steps.append(
             Step(
                 "not_separable" if rivals else kind, chosen.effect, chosen, current.rms_deg, fit.rms_deg, current.params.play,
@@ -409,51 +445,141 @@ def diagnose(
         )
         current = fit
     _describe(steps, current)
-    _hold_out_final(steps, current, u, t, q, uc, float(ratio), period, folds)
+    _hold_out_final(steps, current, u, t, q, uc, float(ratio), period, folds, built)
     return Diagnosis(base, current, steps, noise, before, current.residual_deg, u, y, t, float(ratio), q, start)
+
+
+@dataclass(frozen=True)
+class _ModelView:
+    """What the detectors need of one backlash fit (eq. 1-6), centred frame, degrees: the play's
+    sensitivity ``g`` and the other directions (:func:`.joint.play_sensitivity`), the last engaged
+    sample of every sample (:func:`.joint.engaged_index`) and the model's output ``x``."""
+
+    g: np.ndarray
+    others: np.ndarray
+    index: np.ndarray
+    x: np.ndarray
+
+    @classmethod
+    def of(cls, uc: np.ndarray, params: Any) -> _ModelView:
+        g, others = play_sensitivity(uc, params)
+        return cls(g, others, engaged_index(uc, params), simulate_backlash(uc, params, 0.0))
+
+    @property
+    def engaged(self) -> np.ndarray:
+        return self.index == np.arange(self.index.size)
+
+
+class _Fitted(Protocol):
+    """A fit's residual RMS (deg): a :class:`.joint.JointFit`, or :class:`_Linearised`."""
+
+    @property
+    def rms_deg(self) -> float: ...
+
+
+@dataclass(frozen=True)
+class _Linearised:
+    """The RMS (deg) of a joint refit linearised at fixed backlash parameters (:func:`_linearised_refit`)."""
+
+    rms_deg: float
+
+
+def _tuned(terms: list[Any], fit: _Fitted, refit_with: Callable[[list[Any]], _Fitted], which: Iterable[int]) -> tuple[list[Any], _Fitted]:
+    """The settings of the terms at ``which`` fitted in the joint refit, as the delay's lag is.
+
+    ``fit`` is the (joint or linearised) fit of ``terms`` as they are. A term with
+    ``neighbours()`` (the compliance's torque average, :class:`.effects.Compliance`) is refitted
+    by ``refit_with`` with each neighbouring setting, the other terms as they are, and moves to the
+    one that leaves the smallest residual while that is smaller than where it stands. Returns the
+    terms (a term that did not move is the same object) and their fit.
+    """
+    for i in which:
+        tried = {repr(terms[i])}
+        while hasattr(terms[i], "neighbours"):
+            options = [e for e in terms[i].neighbours() if repr(e) not in tried]
+            tried.update(repr(e) for e in options)
+            trials = [(refit_with([*terms[:i], e, *terms[i + 1 :]]), e) for e in options]
+            best = min(trials, key=lambda pair: pair[0].rms_deg, default=None)
+            if best is None or best[0].rms_deg >= fit.rms_deg:
+                break
+            fit, terms = best[0], [*terms[:i], best[1], *terms[i + 1 :]]
+    return terms, fit
+
+
+def _linearised_refit(
+    terms: list[Any], i: int, fit: JointFit, uc: np.ndarray, u: np.ndarray, t: np.ndarray, q: np.ndarray, ratio: float, period: float, folds: Folds,
+    built: TermColumns,
+) -> Callable[[list[Any]], _Linearised]:
+    """The joint refit of ``terms`` with the ``i``-th term swapped, linearised at ``fit``: the backlash
+    parameters fixed at ``fit.params`` with their sensitivities as free directions (one Gauss-Newton
+    step of the quasi-linear fit, eq. 8), the other terms as they are fitted. The ``i``-th term's part
+    is put back into the residual, and each setting's columns are scored beyond the rest (the same
+    least squares as the detectors', no cross-validation): a cheap way to walk a setting, which the
+    caller confirms with one joint refit. Returns ``terms -> _Linearised`` (RMS, deg)."""
+    view = _ModelView.of(uc, fit.params)
+    cols = hold_columns(_columns(terms, built, view.engaged, view.x), _held(terms), view.index)
+    start = sum(e.n_terms for e in terms[:i])
+    mine = np.s_[start : start + terms[i].n_terms]
+    restored = fit.residual_deg + cols[:, mine] @ fit.coef[mine]
+    data, _ = _detection_data(
+        u, t, q, uc, replace(fit, residual_deg=restored), [*terms[:i], *terms[i + 1 :]], ratio, period, folds, built, view=view,
+        done_columns=np.delete(cols, mine, axis=1),
+    )
+
+    def refit(swapped: list[Any]) -> _Linearised:
+        rss = data.score(False, _prepared(data, swapped[i], built, view.engaged), heldout=False).rss_after
+        return _Linearised(float(np.sqrt(max(rss, 0.0) / restored.size)))
+
+    return refit
 
 
 def _detection_data(
     u: np.ndarray, t: np.ndarray, q: np.ndarray, uc: np.ndarray, current: JointFit, done: list[Any], ratio: float, period: float, folds: Folds,
-    cache: RecordCache | None = None,
+    built: TermColumns, cache: RecordCache | None = None, view: _ModelView | None = None, done_columns: np.ndarray | None = None,
 ) -> tuple[DetectionData, np.ndarray]:
     """What the detectors see given the current fit, and the model's engaged samples (eq. 5-6).
 
     The nuisance columns are the backlash's own directions (a constant, ``dx/dmL``,
-    ``dx/dmR``, ``dx/d(play)``) and the terms already added (they may move too).
+    ``dx/dmR``, ``dx/d(play)``) and the terms already added (they may move too). ``view`` is
+    :class:`_ModelView` of ``current.params`` and ``done_columns`` the held columns of ``done``,
+    when already at hand (the same numbers; formed here otherwise).
     """
-    g, others = play_sensitivity(uc, current.params)
-    index = engaged_index(uc, current.params)
-    engaged = index == np.arange(index.size)
-    x = simulate_backlash(uc, current.params, 0.0)
-    parts = [others, g, *([hold_columns(_columns(done, u, t, q, engaged, x), _held(done), index)] if done else [])]
+    view = _ModelView.of(uc, current.params) if view is None else view
+    engaged = view.engaged
+    parts = [view.others, view.g]
+    if done:
+        parts.append(hold_columns(_columns(done, built, engaged, view.x), _held(done), view.index) if done_columns is None else done_columns)
     data = DetectionData.stacked(
-        parts, current.residual_deg, u_deg=u, time_s=t, torque_Nm=q, ratio=ratio, sample_period_s=period, engaged_index=index,
-        n_backlash=others.shape[1] + 1, folds=folds, model_output_deg=x, backlash_params=current.params, cache=cache,
+        parts, current.residual_deg, u_deg=u, time_s=t, torque_Nm=q, ratio=ratio, sample_period_s=period, engaged_index=view.index,
+        n_backlash=view.others.shape[1] + 1, folds=folds, model_output_deg=view.x, backlash_params=current.params, cache=cache,
     )
     return data, engaged
 
 
 def _hold_out_final(
-    steps: list[Step], final: JointFit, u: np.ndarray, t: np.ndarray, q: np.ndarray, uc: np.ndarray, ratio: float, period: float, folds: Folds
+    steps: list[Step], final: JointFit, u: np.ndarray, t: np.ndarray, q: np.ndarray, uc: np.ndarray, ratio: float, period: float, folds: Folds,
+    built: TermColumns,
 ) -> None:
     """Each term's held-out gain given all the others in the final model (blocked over cycles).
 
     The term's part is put back into the final residual, and its columns are scored with the
-    backlash directions and the other terms as nuisance.
+    backlash directions and the other terms as nuisance. The final model's view and the terms'
+    held columns are formed once (holding acts column by column: the others' block is a slice).
     """
     if not steps:
         return
-    index = engaged_index(uc, final.params)
-    engaged = index == np.arange(index.size)
+    view = _ModelView.of(uc, final.params)
     terms = [s.effect for s in steps]
-    cols = hold_columns(_columns(terms, u, t, q, engaged, simulate_backlash(uc, final.params, 0.0)), _held(terms), index)
+    cols = hold_columns(_columns(terms, built, view.engaged, view.x), _held(terms), view.index)
     start = 0
     for i, s in enumerate(steps):
         n = s.effect.n_terms
         mine = cols[:, start : start + n]
         restored = final.residual_deg + mine @ final.coef[start : start + n]
-        data, _ = _detection_data(u, t, q, uc, replace(final, residual_deg=restored), [*terms[:i], *terms[i + 1 :]], ratio, period, folds)
+        others = np.delete(cols, np.s_[start : start + n], axis=1)
+        data, _ = _detection_data(
+            u, t, q, uc, replace(final, residual_deg=restored), [*terms[:i], *terms[i + 1 :]], ratio, period, folds, built, view=view, done_columns=others,
+        )
         s.heldout_gain_final = data.score(False, mine).heldout_gain
         start += n
 

@@ -1,0 +1,44 @@
+"""The columns of the terms the loop has taken, built once per record.
+
+Every round of :func:`.loop.diagnose` refits the backlash with all the terms added so far
+(:func:`.joint.fit_guarded`), hands them to the next round's detectors as nuisance columns, and at
+the end holds each one out given the others: the same term's columns over the same record are
+needed many times. A term's columns depend on the record only (``u``, ``t``, ``q``, a fresh
+stream: :meth:`EffectBase.terms` of a clone), so :class:`TermColumns` builds them once per term
+object and serves the same (read-only) array after that. What depends on the current backlash
+fit (gating by the engaged samples of eq. 5-6, holding through the dead band, a term built on the
+model's output such as the delay) is applied by the caller on every use.
+
+Units: those of the term's columns (degrees of load angle per unit coefficient).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+
+class TermColumns:
+    """``get(effect)``: ``effect.clone().terms(u_deg, time_s, torque_Nm)``, built once per effect object.
+
+    Parameters
+    ----------
+    u_deg, time_s, torque_Nm : arrays
+        The referred motor angle (deg), time (s) and torque (N m, NaN where none) of the record.
+    """
+
+    def __init__(self, u_deg: np.ndarray, time_s: np.ndarray, torque_Nm: np.ndarray) -> None:
+        self.u_deg, self.time_s, self.torque_Nm = u_deg, time_s, torque_Nm
+        # keyed by id(): the effect itself is kept beside its columns, so the id is not reused
+        self._built: dict[int, tuple[Any, np.ndarray]] = {}
+
+    def get(self, effect: Any) -> np.ndarray:
+        """The effect's columns ``(n, effect.n_terms)`` over the whole record (read-only)."""
+        hit = self._built.get(id(effect))
+        if hit is not None and hit[0] is effect:
+            return hit[1]
+        cols = np.asarray(effect.clone().terms(self.u_deg, self.time_s, self.torque_Nm), dtype=float)
+        cols.flags.writeable = False
+        self._built[id(effect)] = (effect, cols)
+        return cols

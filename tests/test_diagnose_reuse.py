@@ -1,0 +1,122 @@
+"""What the loop builds once and reuses gives the very numbers it would form afresh.
+
+The term columns (:class:`TermColumns`), the columns held through the dead band (``hold_columns``'
+compiled pass), the first hold shared by the two fits of ``fit_guarded``, and the final model's
+view shared by the held-out gains of ``_hold_out_final``: each is compared bit for bit with the
+direct computation it replaces.
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from online_backlash import VorosBacklash
+from online_backlash.diagnostics import synthetic
+from online_backlash.diagnostics._causal import motion_direction
+from online_backlash.diagnostics._folds import cycle_folds
+from online_backlash.diagnostics._term_columns import TermColumns
+from online_backlash.diagnostics.dead_band import DeadBandMotion
+from online_backlash.diagnostics.effects import Compliance, Drift
+from online_backlash.diagnostics.joint import engaged_index, fit_guarded, fit_joint, hold_columns, separable
+from online_backlash.diagnostics.loop import _columns, _detection_data, _held, diagnose_arrays
+from online_backlash.model import BacklashParams, simulate_backlash
+
+
+@pytest.fixture(scope="module")
+def two_steps():
+    """A compliant two-mass log on which the loop adds two terms (compliance, dead band motion)."""
+    t, m, y, q = synthetic.TWO_MASS_INJECTORS["compliance"](seed=1, duration_s=60.0)
+    return diagnose_arrays(t, m, y, 30.0, torque_Nm=q)
+
+
+def test_term_columns_are_built_once_per_effect_and_equal_a_fresh_build() -> None:
+    rng = np.random.default_rng(3)
+    t = np.arange(4000) * 1e-3
+    u = np.cumsum(rng.normal(0, 0.01, t.size))
+    q = rng.normal(0, 1, t.size)
+    built = TermColumns(u, t, q)
+    effect = DeadBandMotion()
+    first = built.get(effect)
+    np.testing.assert_array_equal(first, effect.clone().terms(u, t, q))
+    assert built.get(effect) is first and not first.flags.writeable
+    twin = DeadBandMotion()  # the same settings, another object: built for itself
+    assert built.get(twin) is not first
+    np.testing.assert_array_equal(built.get(Drift(2, 4.0)), Drift(2, 4.0).terms(u, t, q))
+
+
+def test_columns_gate_engaged_only_terms_and_stack_in_order() -> None:
+    rng = np.random.default_rng(4)
+    n = 3000
+    t = np.arange(n) * 1e-3
+    u = np.cumsum(rng.normal(0, 0.01, n))
+    q = rng.normal(0, 1, n)
+    engaged = rng.random(n) < 0.6
+    terms = [Drift(2, 3.0), Compliance("torque")]
+    got = _columns(terms, TermColumns(u, t, q), engaged, np.zeros(n))
+    comp = Compliance("torque").terms(u, t, q)
+    expected = np.column_stack([Drift(2, 3.0).terms(u, t, q), comp * engaged[:, None] if terms[1].engaged_only else comp])
+    np.testing.assert_array_equal(got, expected)
+
+
+@pytest.mark.parametrize("order", ["C", "F"])
+def test_hold_columns_of_some_held_columns_equals_the_gather(order: str) -> None:
+    rng = np.random.default_rng(5)
+    cols = np.asarray(rng.normal(size=(2000, 5)), order=order)
+    index = np.maximum.accumulate(np.where(rng.random(2000) < 0.4, np.arange(2000), 0))
+    held = np.array([True, False, True, True, False])
+    expected = cols.copy()
+    expected[:, held] = np.take(cols[:, held], index, axis=0)
+    np.testing.assert_array_equal(hold_columns(cols, held, index), expected)
+    np.testing.assert_array_equal(hold_columns(cols, np.ones(5, bool), index), np.take(cols, index, axis=0))
+    assert hold_columns(cols, np.zeros(5, bool), index) is cols
+
+
+def test_fit_guarded_with_held_columns_equals_its_two_fits() -> None:
+    """The play-held refit reuses the first fit's held columns: the same result as fitting from scratch."""
+    t = np.arange(20000) * 1e-3
+    u = 30 * np.sin(2 * np.pi * 0.5 * t)
+    x = simulate_backlash(u, BacklashParams(1.0, 0.25, 1.0, 0.25), 0.0)
+    switching = motion_direction(x, 1, 0.0, 1.0)
+    y = x - 0.02 * switching + 0.003 * np.sin(np.radians(3 * u)) + np.random.default_rng(1).normal(0, 0.002, t.size)
+    base = VorosBacklash().fit(u, y)
+    uc, yc = u - base.u_ref_, y - base.y_ref_
+    cols = np.column_stack((switching, np.sin(np.radians(3 * uc))))
+    held = np.array([False, True])
+    free = fit_joint(uc, yc, cols, base.params_, held=held)
+    assert not separable(free, base.params_)  # the held path is the one exercised
+    kept = fit_joint(uc, yc, cols, base.params_, hold_play=base.params_.play, held=held)
+    guarded = fit_guarded(uc, yc, cols, base.params_, held)
+    assert guarded.play_held
+    assert guarded.params == kept.params
+    np.testing.assert_array_equal(guarded.coef, kept.coef)
+    np.testing.assert_array_equal(guarded.residual_deg, kept.residual_deg)
+    assert (guarded.play_inflation, guarded.play_std_deg) == (free.play_inflation, free.play_std_deg)
+
+
+def test_final_heldout_gains_equal_those_formed_afresh(two_steps) -> None:
+    """``_hold_out_final`` shares the final model's view and slices the others' columns: the gains
+    are those of a detection data formed from scratch for every term."""
+    d = two_steps
+    assert len(d.steps) >= 2
+    u, t, q = d.u_deg, d.time_s, d.torque_Nm
+    uc = u - d.base.u_ref_
+    period = round(float(np.median(np.diff(t))), 12)
+    folds = cycle_folds(u)
+    final = d.final
+    index = engaged_index(uc, final.params)
+    terms = [s.effect for s in d.steps]
+    fresh = TermColumns(u, t, q)
+    cols = hold_columns(_columns(terms, fresh, index == np.arange(index.size), simulate_backlash(uc, final.params, 0.0)), _held(terms), index)
+    start = 0
+    for i, s in enumerate(d.steps):
+        n = s.effect.n_terms
+        mine = cols[:, start : start + n]
+        restored = final.residual_deg + mine @ final.coef[start : start + n]
+        others = [*terms[:i], *terms[i + 1 :]]
+        data, _ = _detection_data(u, t, q, uc, replace(final, residual_deg=restored), others, d.ratio, period, folds, TermColumns(u, t, q))
+        assert s.heldout_gain_final == data.score(False, mine).heldout_gain
+        assert np.isfinite(s.heldout_gain_final)
+        start += n
