@@ -4,7 +4,9 @@ never claimed as an effect (issue 13, the two-mass bench's "<= 1.5 floor")."""
 
 from __future__ import annotations
 
+import itertools
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -168,3 +170,81 @@ def test_a_load_that_runs_on_with_the_motor_is_not_taken_for_a_coast():
     y = np.where(u >= y + 0.25, u - 0.25, y)
     state = estimate_initial_state(p, u, y, t)
     assert state.samples <= 4 * 9 + 64  # at most MAX_STRETCH times the rest model's engagement (9 samples), plus MIN_EXTRA
+
+
+#: the kicked rig's record starts 2 ms before the top of its 0.5 Hz sine (motor at rest), and a
+#: 3 ms torque pulse sets the resting load moving 10 ms into the record (a preload released)
+_TOP_S, _KICK_S = 0.5, 0.508
+
+
+def _kicked_from_rest(duration_s: float = 20.0) -> tuple[np.ndarray, ...]:
+    """The stiff two-mass rig (play 1.75 deg, as the measured tool), logged from the top of a
+    stroke, where the load rests on a flank, with a kick that throws it 0.5 deg into the gap:
+    it stops there and waits until the other flank catches it (as the measured run49 starts)."""
+    def kick(s: np.ndarray) -> np.ndarray:  # N m, pushing the load up the gap
+        return np.where((s >= _KICK_S) & (s < _KICK_S + 0.003), -1.2, 0.0)
+
+    rec = simulate_two_mass(
+        duration_s=duration_s + _TOP_S, seed=0, play_deg=1.75, stiffness_nm_per_arcmin=10.0, substeps=40, coulomb_nm=0.05,
+        external_torque_nm=kick, frequency_hz=0.5, amplitude_deg=30.0,
+    )
+    keep = rec.time_s >= _TOP_S - 0.002
+    return rec.time_s[keep] - rec.time_s[keep][0], rec.motor_deg[keep], rec.load_deg[keep], rec.torque_Nm[keep]
+
+
+def test_a_load_kicked_from_rest_is_estimated_with_the_time_it_starts_to_move(monkeypatch):
+    t, m, y, q = _kicked_from_rest()
+    d = diagnose_arrays(t, m, y, 30.0, torque_Nm=q)
+    state, floor = d.as_dict()["initial_state"], d.noise.floor_deg
+    assert state["estimated"]
+    assert state["starts_moving_after_s"] == pytest.approx(_KICK_S - (_TOP_S - 0.002), abs=0.003)
+    # at rest where the record starts (the pulse's 3 ms of push, taken for a kick at one sample, leave a few steps)
+    assert abs(state["offset_deg"]) < 0.02
+    assert state["stops_after_s"] is not None and state["velocity_deg_s"] > 0  # thrown up the gap, and stopped there
+    assert state["rms_at_rest_deg"] > 300 * floor and state["rms_deg"] < 0.03 * state["rms_at_rest_deg"]
+    assert d.rms_after_deg < 1.5 * floor
+    # until the flank catches the load, the residual after is the start's own, the same as before
+    n = state["samples"]
+    np.testing.assert_array_equal(d.residual_after_deg[:n], d.residual_before_deg[:n])
+    assert "initial_state" not in {e["name"] for e in d.as_dict()["effects"] + d.as_dict()["unexplained"]}
+    # the start model moving from the first sample does not describe it: nothing estimated, the kick left in
+    with monkeypatch.context() as ctx:
+        ctx.setattr("online_backlash.diagnostics._initial_state.MAX_STARTS", 0)
+        old = diagnose_arrays(t, m, y, 30.0, torque_Nm=q)
+    assert not old.initial_state.estimated
+    assert np.sqrt(np.mean(old.residual_after_deg[:n] ** 2)) > 10 * np.sqrt(np.mean(d.residual_after_deg[:n] ** 2))
+
+
+def test_the_measured_run49_start_is_a_kick_from_rest_that_waits_in_the_gap(capsys):
+    # the tool's run at full reaction torque: the spindle rests for 8 ms, is thrown 1 deg ahead of the motor,
+    # stops there, and waits until the motor's reversal brings the other flank to it (0.155 s)
+    data = Path(__file__).resolve().parents[2] / "shared" / "data" / "davinci_tool_gearhead_backlash"
+    path = next(data.glob("tool4_L_run49_*.csv"))
+    columns = "time=time_s,motor=motor_counts,load=spindle_counts,torque=backend_torque_Nm"
+    args = ["diagnose", str(path), "--ratio", "-35", "--units", "counts", "--motor-cpr", "4096", "--load-cpr", "8192", "--columns", columns, "--json"]
+    assert main(args) == 0
+    out = json.loads(capsys.readouterr().out)
+    state = out["initial_state"]
+    assert state["estimated"] and state["delta_bic"] < -100
+    assert 0.005 <= state["starts_moving_after_s"] <= 0.012
+    assert state["stops_after_s"] < 0.05 and 100 <= state["samples"] <= 200
+    assert state["rms_at_rest_deg"] > 0.5 and state["rms_deg"] < 0.1
+    # the steps' figures take the start as the whole does: each step starts where the last ended, the last ends at the whole's
+    steps = out["effects"] + out["unexplained"]
+    assert steps and steps[0]["rms_before_deg"] == out["rms_before_deg"]
+    assert all(a["rms_after_deg"] == b["rms_before_deg"] for a, b in itertools.pairwise(steps))
+    assert steps[-1]["rms_after_deg"] == pytest.approx(out["rms_after_deg"], rel=1e-12)
+
+
+def test_a_load_that_starts_late_and_runs_on_until_caught_is_not_taken_for_a_kick():
+    # the load rests for 20 ms, then moves at 0.8 times the motor's speed inside the gap until the flank catches it
+    # (87 ms): as much a lag behind the motor as a kick, so no start later than the first sample is estimated
+    p = BacklashParams(1.0, 1.0, 1.0, 1.0)
+    t = np.arange(3000) * 1e-3
+    u = 30.0 * t
+    y = np.where(t < 0.02, 0.0, 0.8 * (u - u[20]))
+    caught = int(np.argmax(u >= y + 1.0))
+    y[caught:] = u[caught:] - 1.0
+    assert 80 < caught < 95
+    state = estimate_initial_state(p, u, y, t)
+    assert not state.estimated or state.coast.start_s == 0.0

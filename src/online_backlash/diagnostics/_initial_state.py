@@ -11,13 +11,16 @@ model estimated with the parameters; MATLAB's ``InitialState = 'estimate'``): es
 the samples it acts on, applied to the residual before and after alike, never claimed as an
 effect.
 
-The model of the start. Until the first flank engagement the load coasts from its offset
-``x0`` (deg, in the frame of the fit: relative to the first measured load angle) at its
-velocity ``v`` (deg/s), braked by viscous friction (time constant ``tau``, s, as the coast of
-:mod:`.dead_band`) and by a constant (Coulomb) deceleration ``a`` (deg/s^2, opposing ``v``),
-until it stops at ``s*`` and static friction holds it::
+The model of the start. Until the first flank engagement the load rests at its offset ``x0``
+(deg, in the frame of the fit: relative to the first measured load angle) until it starts to
+move at ``s0`` (s after the first sample; 0: already moving when the record starts; later: a
+kick that sets a resting load moving, e.g. a preload released as the motor starts, which is
+how the measured run49 starts), then coasts at velocity ``v`` (deg/s), braked by viscous
+friction (time constant ``tau``, s, as the coast of :mod:`.dead_band`) and by a constant
+(Coulomb) deceleration ``a`` (deg/s^2, opposing ``v``), until it stops at ``s*`` and static
+friction holds it::
 
-    x(s) = x0 + v g(s') + a tau (g(s') - s'),   g(s) = tau (1 - exp(-s / tau)),   s' = min(s, s*)
+    x(s) = x0 + v g(s') + a tau (g(s') - s'),   g(s) = tau (1 - exp(-s / tau)),   s' = min(max(s - s0, 0), s* - s0)
 
 with ``s = t - t[0]``; the stop is where the velocity ``(v + a tau) exp(-s / tau) - a tau``
 reaches 0, ``v = a tau (exp(s* / tau) - 1)`` (``s* = inf``: still moving when the flank
@@ -27,25 +30,34 @@ switching test of eq. (1)-(3) holds against the coasting load (``u >= x / mR + c
 (:func:`simulate_with_coast`). With no estimated state the coast is empty and the model is the
 one of today, starting at rest.
 
-The fit. For every ``tau`` of a grid (0.5 to 1024 sample periods, a factor of ``sqrt(2)``
+The fit. For every start ``s0`` of a grid (the first sample and up to :data:`MAX_STARTS` samples
+before the model at rest engages: a kick after a flank has caught the load is no longer the
+initial state), every ``tau`` of a grid (0.5 to 1024 sample periods, a factor of ``sqrt(2)``
 apart) and every stop on a grid of the samples before the engagement (and no stop), the
 coefficients are fitted by least squares on the samples before the first engagement only, and
 the best of them kept; the engagement is recomputed from that fit and the fit repeated until the
 engagement stays where it is. Friction brakes the load, it never drives it (``a`` opposes
-``v``), and a coast lasts at most :data:`MAX_STRETCH` times as long as the model at rest takes
-to engage (plus :data:`MIN_EXTRA` samples): a load that runs on with the motor is not coasting,
-and such a ``tau`` is dropped. The ``tau`` whose model leaves the smallest simulation residual
-over the record is kept, and kept only if it beats the load at rest by an information criterion
-over the samples the two models differ on, ``n ln(RSS / RSS_rest) + 4 ln(n)`` below
-:data:`._scoring.BIC_THRESHOLD` (four parameters: ``x0``, ``tau``, ``a`` and ``s*`` or ``v``). A
-record that starts at rest, or engaged, has nothing to estimate and keeps the model of today
-exactly.
+``v``), and a load still moving :data:`MAX_STRETCH` times as long as the model at rest takes to
+engage (plus :data:`MIN_EXTRA` samples) is dropped: a load that runs on with the motor is not
+coasting. One that has stopped by then waits in the gap (eq. 7) until a flank catches it, however
+long that takes. A load kicked from rest (``s0 > 0``) must have stopped before a flank catches
+it: one that starts late and runs on until caught is as much a lag of the load behind the motor
+(an effect the loop looks for everywhere) as a kick, and is not taken for the start. Of each
+kind (moving from the first sample, kicked later), the start whose model leaves the smallest
+simulation residual over the record is kept; the kicked one replaces the other only if it beats
+it by the information criterion over the samples either changes (one parameter more), and the
+one kept is kept only if it beats the load at rest by an information criterion over the samples
+the two models differ on, ``n ln(RSS / RSS_rest) + p ln(n)`` below
+:data:`._scoring.BIC_THRESHOLD` (``p = 4`` parameters: ``x0``, ``tau``, ``a`` and ``s*`` or
+``v``; ``p = 5`` with ``s0 > 0``). A record that starts at rest, or engaged, has nothing to
+estimate and keeps the model of today exactly.
 
 Units: degrees (load side), seconds.
 """
 
 from __future__ import annotations
 
+import itertools
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -68,7 +80,11 @@ MIN_EXTRA = 64
 #: a stop is tried only up to this many time constants after the start (beyond it the velocity
 #: before the stop would dwarf the deceleration by ``exp(40)``)
 MAX_STOP_TAUS = 40.0
+#: at most this many times tried for the load to start moving (spread geometrically over the
+#: samples before the model at rest engages; the load moving from the first sample is always tried)
+MAX_STARTS = 16
 #: parameters of the start: offset, time constant, deceleration, and the stop or the velocity
+#: (one more, the time it starts to move, when that is not the first sample)
 _N_PARAMS = 4
 #: the first window searched for the engagement, samples (grown fourfold until one is found)
 _FIRST_WINDOW = 1024
@@ -78,9 +94,11 @@ _FIRST_WINDOW = 1024
 class Coast:
     """The load's path from the record's start while no flank holds it (see the module docstring).
 
-    ``offset_deg`` (deg), ``velocity_deg_s`` (deg/s) and ``deceleration_deg_s2`` (deg/s^2) at the
-    first sample, the viscous ``time_constant_s`` (s), and ``stop_s`` (s after the first sample,
-    ``inf``: no stop before the flank catches the load).
+    ``offset_deg`` (deg): where the load is at the first sample; ``start_s`` (s after the first
+    sample): when it starts to move (0: already moving at the first sample; later: at rest until a
+    kick sets it moving, e.g. a preload released as the motor starts); ``velocity_deg_s`` (deg/s)
+    and ``deceleration_deg_s2`` (deg/s^2) from then on, the viscous ``time_constant_s`` (s), and
+    ``stop_s`` (s after the first sample, ``inf``: no stop before the flank catches the load).
     """
 
     offset_deg: float = 0.0
@@ -88,10 +106,11 @@ class Coast:
     deceleration_deg_s2: float = 0.0
     time_constant_s: float = float("inf")
     stop_s: float = float("inf")
+    start_s: float = 0.0
 
     def path_deg(self, time_s: np.ndarray) -> np.ndarray:
         """The coasting load angle at ``time_s`` (from the record's first sample), deg."""
-        s = np.minimum(np.asarray(time_s, dtype=float) - float(time_s[0]), self.stop_s)
+        s = np.clip(np.asarray(time_s, dtype=float) - float(time_s[0]), self.start_s, self.stop_s) - self.start_s
         g, h = _shapes(s, self.time_constant_s)
         return self.offset_deg + self.velocity_deg_s * g + self.deceleration_deg_s2 * h
 
@@ -144,6 +163,18 @@ class InitialState:
         out[: x.size] = x - rest[: x.size]
         return out
 
+    def coasting(self, start_residual_deg: np.ndarray, residual_deg: np.ndarray) -> np.ndarray:
+        """``residual_deg`` (deg) with its first :attr:`samples` values taken from
+        ``start_residual_deg``, the simulation residual with this start (:func:`simulate_with_coast`).
+
+        Until a flank first catches the load, the load follows the estimated path and nothing of
+        the contact acts on it: not the flank lines of eq. (1), which a joint refit may shift, nor
+        the effects, which act through the engaged flank. Those samples' residual is the start's
+        own, whatever the model fitted after it (a copy; unchanged when nothing was estimated)."""
+        out = np.array(residual_deg, dtype=float)
+        out[: self.samples] = np.asarray(start_residual_deg, dtype=float)[: self.samples]
+        return out
+
     def as_dict(self) -> dict[str, Any]:
         """The JSON object ``initial_state`` of ``diagnose --json``."""
         c = self.coast
@@ -155,10 +186,12 @@ class InitialState:
             "deceleration_deg_s2": c.deceleration_deg_s2,
             "time_constant_s": c.time_constant_s if self.estimated else None,
             "stops_after_s": c.stop_s if self.estimated and np.isfinite(c.stop_s) else None,
+            "starts_moving_after_s": c.start_s if self.estimated else None,
             "rms_at_rest_deg": self.rms_at_rest_deg,
             "rms_deg": self.rms_deg,
             "delta_bic": self.delta_bic if self.estimated else None,
-            "model": "until a flank first engages, the load coasts from offset_deg at velocity_deg_s, braked by viscous "
+            "model": "until a flank first engages, the load rests at offset_deg until starts_moving_after_s (0: moving at "
+            "the first sample), then coasts from there at velocity_deg_s, braked by viscous "
             "friction (time_constant_s) and deceleration_deg_s2, and stays where it stops; eq. (1)-(3) from then on. "
             "The model's initial condition, estimated as a nuisance of the base fit and applied to the residual "
             "before and after alike; not an effect",
@@ -214,19 +247,23 @@ def _engagement_of(uc: np.ndarray, t: np.ndarray, params: BacklashParams, coast:
         cap = min(n, 4 * cap)
 
 
-def _best_coast(y: np.ndarray, s: np.ndarray, tau: float) -> Coast:
-    """The coast with time constant ``tau`` closest to ``y`` at times ``s`` (least squares), over a
-    grid of stops and no stop."""
+def _best_coast(y: np.ndarray, s_record: np.ndarray, tau: float, start: float = 0.0) -> Coast:
+    """The coast with time constant ``tau`` that starts to move at ``start`` (s), closest to ``y``
+    at times ``s_record`` (s from the first sample; least squares), over a grid of stops and no stop."""
     k = y.size
+    j0 = int(np.searchsorted(s_record, start))  # the first sample at or after the start
+    s = np.maximum(s_record - start, 0.0)  # time since the load started to move
     g, h = _shapes(s, tau)
     free = np.column_stack((np.ones(k), g, h))
     coef, *_ = np.linalg.lstsq(free, y, rcond=None)
     if coef[1] * coef[2] < 0:  # friction brakes the load, it does not drive it: viscous only
         coef = np.r_[np.linalg.lstsq(free[:, :2], y, rcond=None)[0], 0.0]
-    best = (float(np.sum((y - free @ coef) ** 2)), Coast(float(coef[0]), float(coef[1]), float(coef[2]), tau))
+    best = (float(np.sum((y - free @ coef) ** 2)), Coast(float(coef[0]), float(coef[1]), float(coef[2]), tau, start_s=start))
     # a stop at s[j]: v = a tau (exp(s[j] / tau) - 1), and the path held from there
-    stops = np.unique(np.round(np.geomspace(1, k - 1, min(MAX_STOPS, k - 1))).astype(int))
-    stops = stops[s[stops] <= MAX_STOP_TAUS * tau]
+    if k - 1 - j0 < 1:
+        return best[1]
+    stops = j0 + np.unique(np.round(np.geomspace(1, k - 1 - j0, min(MAX_STOPS, k - 1 - j0))).astype(int))
+    stops = stops[(s[stops] > 0) & (s[stops] <= MAX_STOP_TAUS * tau)]
     if stops.size == 0:
         return best[1]
     gs, hs = _shapes(np.minimum(s[None, :], s[stops, None]), tau)
@@ -239,22 +276,28 @@ def _best_coast(y: np.ndarray, s: np.ndarray, tau: float) -> Coast:
     j = int(np.argmin(rss))
     if rss[j] < best[0]:
         offset = float(y.mean() - a[j] * per_a[j].mean())
-        best = (float(rss[j]), Coast(offset, float(a[j] * tau * np.expm1(s[stops[j]] / tau)), float(a[j]), tau, float(s[stops[j]])))
+        stop = float(s[stops[j]])
+        best = (float(rss[j]), Coast(offset, float(a[j] * tau * np.expm1(stop / tau)), float(a[j]), tau, stop + start, start))
     return best[1]
 
 
-def _fit_for(uc: np.ndarray, yc: np.ndarray, t: np.ndarray, params: BacklashParams, tau: float, k: int) -> tuple[Coast, int, np.ndarray] | None:
-    """The coast fitted on the samples before the first engagement, the engagement recomputed
-    until it stays put (or repeats); None when fewer than :data:`MIN_SAMPLES` remain."""
+def _fit_for(
+    uc: np.ndarray, yc: np.ndarray, t: np.ndarray, params: BacklashParams, tau: float, k: int, start: float = 0.0
+) -> tuple[Coast, int, np.ndarray] | None:
+    """The coast that starts to move at ``start`` (s after the first sample) fitted on the samples
+    before the first engagement, the engagement recomputed until it stays put (or repeats); None
+    when fewer than :data:`MIN_SAMPLES` remain or the load would run on with the motor."""
     seen: set[int] = set()
     found = None
     s = t - t[0]
     longest = max(MAX_STRETCH * k, k + MIN_EXTRA)
     while k >= MIN_SAMPLES and k not in seen:
         seen.add(k)
-        coast = _best_coast(yc[:k], s[:k], tau)
+        coast = _best_coast(yc[:k], s[:k], tau, start)
         k, path = _engagement_of(uc, t, params, coast)
-        if k > longest:  # runs on with the motor: not a coast
+        # a load still moving long after the model at rest engages runs on with the motor: not a
+        # coast; one that has stopped waits in the gap (eq. 7) until a flank catches it
+        if k > longest and not coast.stop_s <= s[min(longest, s.size - 1)]:
             return None
         found = (coast, k, path)
     return found
@@ -297,12 +340,15 @@ def estimate_initial_state(params: BacklashParams, uc_deg: np.ndarray, yc_deg: n
     if k_rest < MIN_SAMPLES or t.size < 2:
         return InitialState()
     period = float(np.median(np.diff(t)))
-    best: tuple[float, InitialState] | None = None
-    for tau in (period * j for j in TIME_CONSTANTS):
-        found = _fit_for(uc, yc, t, params, tau, k_rest)
+    best: dict[bool, tuple[float, int, InitialState]] = {}  # per kind (moving at the first sample, kicked later)
+    starts = np.unique(np.round(np.geomspace(1, k_rest - 1, min(MAX_STARTS, k_rest - 1))).astype(int))
+    for j, tau in itertools.product((0, *starts), (period * j for j in TIME_CONSTANTS)):
+        found = _fit_for(uc, yc, t, params, tau, k_rest, float(t[j] - t[0]))
         if found is None:
             continue
         coast, k, path = found
+        if j > 0 and not np.isfinite(coast.stop_s):  # kicked, never stopped: a lag of the load behind the motor as well
+            continue
         x = _until_agreed(uc, params, path, rest)
         differ = np.flatnonzero(x != rest[: x.size])
         if differ.size == 0:
@@ -311,10 +357,31 @@ def estimate_initial_state(params: BacklashParams, uc_deg: np.ndarray, yc_deg: n
         rss, rss_rest = float(np.sum((yc[:n] - x[:n]) ** 2)), float(np.sum((yc[:n] - rest[:n]) ** 2))
         if rss_rest <= 0.0 or rss >= rss_rest:
             continue
-        delta = n * float(np.log(max(rss, 1e-300) / rss_rest)) + _N_PARAMS * float(np.log(n))
+        delta = n * float(np.log(max(rss, 1e-300) / rss_rest)) + (_N_PARAMS + (j > 0)) * float(np.log(n))
         state = InitialState(k, coast, float(np.sqrt(rss_rest / n)), float(np.sqrt(rss / n)), delta, path)
-        if best is None or rss - rss_rest < best[0]:  # the change of the whole record's squared error
-            best = (rss - rss_rest, state)
-    if best is None or not best[1].delta_bic < BIC_THRESHOLD:
+        kind = bool(j > 0)
+        if kind not in best or rss - rss_rest < best[kind][0]:  # the change of the whole record's squared error
+            best[kind] = (rss - rss_rest, n, state)
+    chosen = _simpler_unless_beaten(best.get(False), best.get(True), yc - rest)
+    if chosen is None or not chosen.delta_bic < BIC_THRESHOLD:
         return InitialState()
-    return best[1]
+    return chosen
+
+
+def _simpler_unless_beaten(
+    moving: tuple[float, int, InitialState] | None, kicked: tuple[float, int, InitialState] | None, residual_at_rest: np.ndarray
+) -> InitialState | None:
+    """The start moving from the first sample, unless the one kicked later (one parameter more,
+    the time it starts to move) beats it by the information criterion over the samples either
+    changes, ``N ln(RSS_kicked / RSS_moving) + ln(N) < BIC_THRESHOLD``. Each candidate is (change
+    of the record's squared error against the load at rest, deg^2; the samples it changes; the state)."""
+    if moving is None or kicked is None:
+        one = moving or kicked
+        return None if one is None else one[2]
+    n = max(moving[1], kicked[1])
+    rss_rest = float(np.sum(residual_at_rest[:n] ** 2))
+    rss_moving, rss_kicked = rss_rest + moving[0], rss_rest + kicked[0]
+    if rss_moving > 0.0 and n * float(np.log(max(rss_kicked, 1e-300) / rss_moving)) + float(np.log(n)) < BIC_THRESHOLD:
+        return kicked[2]
+    return moving[2]
+

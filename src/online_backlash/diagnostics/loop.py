@@ -446,7 +446,22 @@ def diagnose(
         current = fit
     _describe(steps, current)
     _hold_out_final(steps, current, u, t, q, uc, float(ratio), period, folds, built)
-    return Diagnosis(base, current, steps, noise, before, current.residual_deg, u, y, t, float(ratio), q, start)
+    _start_as_estimated(steps, start, before)
+    after = start.coasting(before, current.residual_deg)  # until a flank first catches the load, the start's own path
+    return Diagnosis(base, current, steps, noise, before, after, u, y, t, float(ratio), q, start)
+
+
+def _start_as_estimated(steps: list[Step], start: InitialState, before: np.ndarray) -> None:
+    """Each step's residual after it (and its RMS before and after, deg) with the record's start as
+    estimated until a flank first catches the load (:meth:`.InitialState.coasting`), as the final
+    residual is: the figures of the steps and of the whole agree. Unchanged when no start was estimated."""
+    if not start.estimated:
+        return
+    rms_before = float(np.sqrt(np.mean(before**2)))
+    for s in steps:
+        s.residual_after_deg = start.coasting(before, s.residual_after_deg)
+        s.rms_before_deg, s.rms_after_deg = rms_before, float(np.sqrt(np.mean(s.residual_after_deg**2)))
+        rms_before = s.rms_after_deg
 
 
 @dataclass(frozen=True)

@@ -50,7 +50,8 @@ def markdown_report(diagnosis: Diagnosis, source: str | os.PathLike[str] | None 
     if start["estimated"]:
         lines += [
             f"Record start: the load was moving in the dead band ({start['velocity_deg_s']:.3g} deg/s, offset "
-            f"{start['offset_deg']:.2g} deg) for {start['samples']} samples before a flank caught it. Estimated as the "
+            f"{start['offset_deg']:.2g} deg, from {start['starts_moving_after_s']:.3g} s) for {start['samples']} samples "
+            "before a flank caught it. Estimated as the "
             f"model's initial state (residual there {start['rms_at_rest_deg']:.4f} -> {start['rms_deg']:.4f} deg RMS) and "
             "taken out of the residual before and after alike; not an effect.",
             "",
