@@ -34,6 +34,7 @@ from dataclasses import dataclass, field, replace
 from typing import Any, Protocol
 
 import numpy as np
+from threadpoolctl import threadpool_limits
 
 from ..estimators import VorosBacklash
 from ..estimators._validation import check_int, check_real
@@ -306,6 +307,17 @@ def _rivals(
     return tuple(names)
 
 
+#: The loop's least squares run on one BLAS thread. Its truncated eigen-solves of the normal
+#: equations (:mod:`._normal_equations`) drop directions below a relative cut-off; a term with
+#: nearly collinear columns (the dead band's coast and entry transient) can have an eigenvalue near
+#: it, and the sums a multi-threaded BLAS forms in another order can move it across: on run20 of
+#: the shared recordings the dead band's coefficients, and whether a third term is significant,
+#: changed with the number of BLAS threads. On one thread the result is the same on a machine
+#: whatever its core count (and the 600,000 x 30 products here gain little from a second thread).
+ONE_BLAS_THREAD = threadpool_limits.wrap(limits=1, user_api="blas")
+
+
+@ONE_BLAS_THREAD
 def diagnose(
     chunk: SampleChunk,
     ratio: float,
