@@ -143,7 +143,7 @@ def simulate_two_mass(
     coulomb_profile: Callable[[np.ndarray], np.ndarray] | None = None,
     external_torque_nm: float | Callable[[np.ndarray], np.ndarray] = 0.0,
     torque_noise_nm: float = 0.005,
-    motion: str = "sine",
+    motion: str | Callable[[float, float], tuple[np.ndarray, np.ndarray]] = "sine",
     amplitude_deg: float = 30.0,
     frequency_hz: float = 0.5,
     speed_deg_s: float = 30.0,
@@ -174,7 +174,8 @@ def simulate_two_mass(
         flank all the time (a preloaded drive: the torque never reverses).
     motion : ``"sine"`` or ``"rig"``
         ``"sine"``: ``amplitude_deg * sin(2 pi frequency_hz t)`` (the measured rig's test);
-        ``"rig"``: :func:`.rig.rig_motion`, continuous rotation with reversals at ``speed_deg_s``.
+        ``"rig"``: :func:`.rig.rig_motion`, continuous rotation with reversals at ``speed_deg_s``;
+        a callable ``(duration_s, rate_hz) -> (time_s, angle_deg)``: that load-side reference.
     substeps : int
         Integration steps per output sample (the gear's natural frequency must stay well below
         ``rate_hz * substeps / (2 pi)``).
@@ -185,6 +186,8 @@ def simulate_two_mass(
         t, u_deg = sine_motion(duration_s, rate_hz, amplitude_deg, frequency_hz)
     elif motion == "rig":
         t, u_deg = rig_motion(duration_s, rate_hz, speed_deg_s, seed=seed)
+    elif callable(motion):
+        t, u_deg = motion(duration_s, rate_hz)
     else:
         raise InvalidParameterError(f"motion must be 'sine' or 'rig', got {motion!r}")
     k = stiffness_nm_per_arcmin * ARCMIN_PER_DEG * 180.0 / math.pi  # N m/rad

@@ -18,7 +18,16 @@ the loop's joint fit (eq. 8 and 14 with appended columns) and its held-out scori
   torque at exit (held) and the change of the torque since exit;
 * **after a flank engages** (zero elsewhere): the entry velocity ``v_e`` of ``u`` at the first
   engaged sample times hat functions of the time since engagement (the impact's response,
-  scaled by the speed of the impact), up to the last knot.
+  scaled by the speed of the impact), up to the last knot;
+* **while the model's output rests** (optional, ``rest_time_constants_s``): where eq. (7) holds
+  the output, ``x(t) = x(t-1)`` (the motor at rest on a flank, or the dead band), the load goes
+  on creeping in the direction ``d`` the output last moved, released by what the drive train
+  stored while it pushed (the reaction torque, the shaft's twist): ``[d > 0] (1 - exp(-r /
+  tau_j))`` and ``[d < 0] (1 - exp(-r / tau_j))``, ``r`` the time since ``x`` last moved, one
+  column per direction and time constant (a stroke's top and bottom are loaded differently). A
+  motor that rests at a reversal leaves the flank at speed 0, so the coast above cannot hold
+  there; this creep does not need the speed. Coefficients in deg (the creep's share reached
+  with each time constant).
 
 Engaged or not is decided by the model's own switching functions, eq. (5)-(6), run on ``u``
 with the backlash parameters the effect is given (the loop's current fit, in its frame: ``u``
@@ -39,11 +48,18 @@ from ..errors import InvalidParameterError
 from ..model import BacklashParams, simulate_switching
 from ._causal import CausalWindow, velocity_deg_s
 from ._effect_base import EffectBase
-from ._scoring import Detection, DetectionData, best_detection
+from ._scoring import BIC_THRESHOLD, Detection, DetectionData, best_detection
 
 #: time constants of the coast after the flank leaves the load, in sample periods (a factor of 8
 #: apart: closer ones are nearly collinear over a dead band of a few hundred samples)
 EXIT_TIME_CONSTANTS = (4, 32, 256)
+#: time constants of the creep while the model's output rests, in sample periods
+REST_TIME_CONSTANTS = (8, 32, 128)
+#: the parts :meth:`DeadBandMotion.detect` tries, alone and together
+VARIANTS = (
+    ("coast", "entry"), ("coast",), ("entry",),
+    ("coast", "entry", "creep at rest"), ("coast", "creep at rest"), ("entry", "creep at rest"), ("creep at rest",),
+)
 #: knots of the entry transient's hat functions, in sample periods (the last one ends it): an
 #: octave apart, from the impact of a stiff gear (a few samples) to a closed loop's settling
 ENTRY_KNOTS = (0, 2, 4, 8, 16, 32, 64, 128)
@@ -69,6 +85,8 @@ class DeadBandMotion(EffectBase):
         (fewer than two: no entry columns).
     torque : bool
         Add the measured torque at exit (held) and its change since exit, in the dead band.
+    rest_time_constants_s : tuple of float
+        Time constants of the creep while the output rests, s (empty: no creep columns).
     window_samples : int
         Span of the causal velocity of ``u``, samples.
     smooth_samples : int
@@ -90,6 +108,7 @@ class DeadBandMotion(EffectBase):
         exit_time_constants_s: tuple[float, ...] = _at_period(EXIT_TIME_CONSTANTS, 1e-3),
         entry_knots_s: tuple[float, ...] = _at_period(ENTRY_KNOTS, 1e-3),
         torque: bool = False,
+        rest_time_constants_s: tuple[float, ...] = (),
         window_samples: int = 5,
         smooth_samples: int = 5,
     ) -> None:
@@ -97,8 +116,11 @@ class DeadBandMotion(EffectBase):
         self._params = BacklashParams(self.m_left, self.c_left_deg, self.m_right, self.c_right_deg)
         self.exit_time_constants_s = tuple(float(v) for v in exit_time_constants_s)
         self.entry_knots_s = tuple(float(v) for v in entry_knots_s)
-        if any(not v > 0 for v in self.exit_time_constants_s):
-            raise InvalidParameterError(f"exit_time_constants_s must be > 0, got {exit_time_constants_s!r}")
+        self.rest_time_constants_s = tuple(float(v) for v in rest_time_constants_s)
+        if any(not v > 0 for v in self.exit_time_constants_s + self.rest_time_constants_s):
+            raise InvalidParameterError(
+                f"exit_time_constants_s and rest_time_constants_s must be > 0, got {exit_time_constants_s!r}, {rest_time_constants_s!r}"
+            )
         if self.entry_knots_s and (self.entry_knots_s[0] != 0.0 or np.any(np.diff(self.entry_knots_s) <= 0)):
             raise InvalidParameterError(f"entry_knots_s must start at 0 and increase, got {entry_knots_s!r}")
         self.torque = bool(torque)
@@ -118,6 +140,8 @@ class DeadBandMotion(EffectBase):
         # the last exit (time, velocity, torque) and entry (time, velocity)
         self._exit = (np.nan, 0.0, 0.0)
         self._entry = (np.nan, 0.0)
+        # the output's last move: time, direction (+1 / -1, 0 before any)
+        self._moved = (np.nan, 0.0)
 
     @property
     def n_entry(self) -> int:
@@ -125,16 +149,44 @@ class DeadBandMotion(EffectBase):
         return max(len(self.entry_knots_s) - 1, 0)
 
     @property
+    def n_rest(self) -> int:
+        """Columns of the creep while the output rests."""
+        return 2 * len(self.rest_time_constants_s)
+
+    @property
     def n_terms(self) -> int:
-        return len(self.exit_time_constants_s) + 2 * self.torque + self.n_entry
+        return len(self.exit_time_constants_s) + 2 * self.torque + self.n_entry + self.n_rest
 
     def engaged(self, u_deg: np.ndarray) -> np.ndarray:
         """Where a flank is engaged by the switching functions, eq. (5)-(6), continuing the stream (advances it)."""
+        return self._switch(u_deg)[0]
+
+    def _switch(self, u_deg: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Engaged (eq. 5-6) and the output's change ``x(t) - x(t-1)`` (eq. 7), deg, continuing the stream."""
         if self._u0 is None:
             self._u0 = float(u_deg[0])
         x, f1, f2 = simulate_switching(np.asarray(u_deg, dtype=float) - self._u0, self._params, self._x)
+        dx = np.diff(x, prepend=self._x)
         self._x = float(x[-1])
-        return (f1 + f2) > 0
+        return (f1 + f2) > 0, dx
+
+    def _rest_columns(self, dx: np.ndarray, t: np.ndarray) -> np.ndarray:
+        """The creep's columns, ``(n, n_rest)``: up then down for each time constant (advances the stream)."""
+        i = np.arange(dx.size)
+        moved = dx != 0
+        last = np.maximum.accumulate(np.where(moved, i, -1))
+        seen = last >= 0
+        t_m = np.where(seen, t[np.maximum(last, 0)], self._moved[0])
+        d = np.where(seen, np.sign(dx[np.maximum(last, 0)]), self._moved[1])
+        self._moved = (float(t_m[-1]), float(d[-1]))
+        rest = ~moved & np.isfinite(t_m)
+        r = np.where(rest, t - np.nan_to_num(t_m), 0.0)
+        cols = np.zeros((dx.size, self.n_rest))
+        for j, tau in enumerate(self.rest_time_constants_s):
+            shape = np.where(rest, -np.expm1(-r / tau), 0.0)
+            cols[:, 2 * j] = np.where(d > 0, shape, 0.0)
+            cols[:, 2 * j + 1] = np.where(d < 0, shape, 0.0)
+        return cols
 
     def switch_clock(self, u_deg: np.ndarray, time_s: np.ndarray, limit_s: float = 0.25) -> np.ndarray:
         """Time since a flank left (negative, in the dead band) or engaged (positive), s, clipped to
@@ -156,7 +208,7 @@ class DeadBandMotion(EffectBase):
         qs = (np.convolve(qz, np.ones(w) / w)[: qz.size] if w > 1 else qz)[n_past:]
         self._window.keep(ue, te, qe)
         u, t = ue[n_past:], te[n_past:]
-        e = self.engaged(u)
+        e, dx = self._switch(u)
         # the previous sample in front, so that an exit or entry at the chunk's first sample is seen
         e_all = np.concatenate(([self._last[0]], e))
         t_all, v_all, q_all = (np.concatenate(([p], a)) for p, a in zip(self._last[1:], (t, v, qs)))
@@ -189,6 +241,8 @@ class DeadBandMotion(EffectBase):
             basis = np.eye(knots.size)
             for j in range(self.n_entry):
                 cols[:, k + j] = np.where(on, v_e * np.interp(s, knots, basis[j]), 0.0)
+        if self.n_rest:
+            cols[:, self.n_terms - self.n_rest :] = self._rest_columns(dx, t)
         return cols
 
     def describe(self, coef: np.ndarray) -> dict[str, Any]:
@@ -208,14 +262,24 @@ class DeadBandMotion(EffectBase):
             out["torque_at_exit_deg_per_Nm"] = c[k]
             out["torque_change_in_dead_band_deg_per_Nm"] = c[k + 1]
             k += 2
-        entry = c[k:]
+        entry, rest = c[k : k + self.n_entry], c[k + self.n_entry :]
+        if self.rest_time_constants_s:
+            out["model"] += "; while the model's output rests: the load creeps on in the direction it last moved"
+            out["active_on"] += "; the creep wherever eq. (7) holds the model's output"
+            out["creep_at_rest"] = [
+                {"time_constant_s": tau, "moving_up_deg": up, "moving_down_deg": down}
+                for tau, up, down in zip(self.rest_time_constants_s, rest[0::2], rest[1::2])
+            ]
+            out["creep_at_rest_total_deg"] = {"moving_up": float(sum(rest[0::2])), "moving_down": float(sum(rest[1::2]))}
         out["entry_transient"] = {"knots_s": list(self.entry_knots_s), "deg_per_deg_s": [*entry, 0.0] if entry else []}
         out["entry_peak_deg_per_deg_s"] = max(entry, key=abs) if entry else 0.0
         return out
 
     @classmethod
     def detect(cls, data: DetectionData) -> Detection | None:
-        """The coast in the dead band and the entry transient, together or alone, whichever scores best.
+        """The coast in the dead band, the entry transient and the creep while the output rests, in
+        every combination, whichever scores best; a combination with the creep only if it beats the
+        best one without it by :data:`BIC_THRESHOLD` (the creep must hold on its own).
 
         Needs the current backlash fit (``data.backlash_params``); without it nothing is tried.
         """
@@ -224,16 +288,25 @@ class DeadBandMotion(EffectBase):
             return None
         dt = data.sample_period_s
         torque = bool(np.mean(np.isfinite(data.torque_Nm)) > 0.5)
-        taus, knots = _at_period(EXIT_TIME_CONSTANTS, dt), _at_period(ENTRY_KNOTS, dt)
+        taus, knots, rests = _at_period(EXIT_TIME_CONSTANTS, dt), _at_period(ENTRY_KNOTS, dt), _at_period(REST_TIME_CONSTANTS, dt)
         found = []
-        both = cls(p.m_left, p.c_left, p.m_right, p.c_right, taus, knots, torque)
-        # the coast (and torque) columns come first, the entry columns last: each alone is a slice
-        every = both.clone().terms(data.u_deg, data.time_s, data.torque_Nm)
-        split = both.n_terms - both.n_entry
-        for what, exit_taus, entry, cols in (
-            ("coast and entry", taus, knots, every), ("coast", taus, (), every[:, :split]), ("entry", (), knots, every[:, split:])
-        ):
-            effect = cls(p.m_left, p.c_left, p.m_right, p.c_right, exit_taus, entry, torque and bool(exit_taus))
-            s = data.score(False, np.ascontiguousarray(cols))
+        every_one = cls(p.m_left, p.c_left, p.m_right, p.c_right, taus, knots, torque, rests)
+        # the coast (and torque) columns come first, then the entry's, the creep's last: each a slice
+        every = every_one.clone().terms(data.u_deg, data.time_s, data.torque_Nm)
+        split = every_one.n_terms - every_one.n_entry - every_one.n_rest
+        parts = {"coast": every[:, :split], "entry": every[:, split : split + every_one.n_entry], "creep at rest": every[:, split + every_one.n_entry :]}
+        for names in VARIANTS:
+            exit_taus = taus if "coast" in names else ()
+            effect = cls(
+                p.m_left, p.c_left, p.m_right, p.c_right, exit_taus, knots if "entry" in names else (), torque and bool(exit_taus),
+                rests if "creep at rest" in names else (),
+            )
+            s = data.score(False, np.ascontiguousarray(np.hstack([parts[n] for n in names])))
+            what = " and ".join(names)
             found.append(Detection(effect, s, f"residual at the reversals follows the load's {what} (dead band {p.play:.4g} deg)"))
-        return best_detection([d for d in found if d.score.significant()]) or best_detection(found)
+        plain = best_detection([d for d, n in zip(found, VARIANTS) if "creep at rest" not in n and d.score.significant()])
+        creep = best_detection([d for d, n in zip(found, VARIANTS) if "creep at rest" in n and d.score.significant()])
+        # the creep is claimed only where it beats the parts without it by the criterion's own margin
+        if creep is not None and (plain is None or creep.score.delta_bic - plain.score.delta_bic < BIC_THRESHOLD):
+            return creep
+        return plain or best_detection(found)
