@@ -224,8 +224,12 @@ def test_the_per_frame_and_block_paths_give_the_counter_time(rig_frames):
 
 
 def listen_to(messages: list[can.Message], argv: list[str]) -> int:
-    """Run ``listen can`` (``argv``, on the virtual channel it names) while a thread sends ``messages``; Ctrl-C when all are read."""
+    """Run ``listen can`` (``argv``, on the virtual channel it names) while a thread sends ``messages``; Ctrl-C when all are read.
+
+    ``--duration 60`` bounds the run: once (in CI, under load) the Ctrl-C was not seen and the run
+    waited for ever; bounded, the assertions on what was read still decide."""
     channel = argv[argv.index("--channel") + 1]
+    argv = [*argv, "--duration", "60"] if "--duration" not in argv else argv
 
     def send():
         wait_for(lambda: len(channels.get(channel, [])) >= 1)  # the listener's bus is open
