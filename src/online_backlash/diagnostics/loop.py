@@ -545,17 +545,11 @@ def _linearised_refit(
     caller confirms with one joint refit. Returns ``terms -> _Linearised`` (RMS, deg)."""
     view = _ModelView.of(uc, fit.params)
     cols = hold_columns(_columns(terms, built, view.engaged, view.x), _held(terms), view.index)
-    start = sum(e.n_terms for e in terms[:i])
-    mine = np.s_[start : start + terms[i].n_terms]
-    restored = fit.residual_deg + cols[:, mine] @ fit.coef[mine]
-    data, _ = _detection_data(
-        u, t, q, uc, replace(fit, residual_deg=restored), [*terms[:i], *terms[i + 1 :]], ratio, period, folds, built, view=view,
-        done_columns=np.delete(cols, mine, axis=1),
-    )
+    data, _ = _term_left_out(terms, i, fit, view, cols, u, t, q, uc, ratio, period, folds, built)
 
     def refit(swapped: list[Any]) -> _Linearised:
         rss = data.score(False, _prepared(data, swapped[i], built, view.engaged), heldout=False).rss_after
-        return _Linearised(float(np.sqrt(max(rss, 0.0) / restored.size)))
+        return _Linearised(float(np.sqrt(max(rss, 0.0) / uc.size)))
 
     return refit
 
@@ -598,17 +592,27 @@ def _hold_out_final(
     view = _ModelView.of(uc, final.params)
     terms = [s.effect for s in steps]
     cols = hold_columns(_columns(terms, built, view.engaged, view.x), _held(terms), view.index)
-    start = 0
     for i, s in enumerate(steps):
-        n = s.effect.n_terms
-        mine = cols[:, start : start + n]
-        restored = final.residual_deg + mine @ final.coef[start : start + n]
-        others = np.delete(cols, np.s_[start : start + n], axis=1)
-        data, _ = _detection_data(
-            u, t, q, uc, replace(final, residual_deg=restored), [*terms[:i], *terms[i + 1 :]], ratio, period, folds, built, view=view, done_columns=others,
-        )
+        data, mine = _term_left_out(terms, i, final, view, cols, u, t, q, uc, ratio, period, folds, built)
         s.heldout_gain_final = data.score(False, mine).heldout_gain
-        start += n
+
+
+def _term_left_out(
+    terms: list[Any], i: int, fit: JointFit, view: _ModelView, cols: np.ndarray, u: np.ndarray, t: np.ndarray, q: np.ndarray, uc: np.ndarray,
+    ratio: float, period: float, folds: Folds, built: TermColumns,
+) -> tuple[DetectionData, np.ndarray]:
+    """What the detectors see of ``fit`` with the ``i``-th of its ``terms`` left out: its part put back
+    into the residual, the backlash directions and the other terms as nuisance; and the ``i``-th term's
+    columns. ``view`` is :class:`_ModelView` of ``fit.params`` and ``cols`` the terms' held columns
+    there (holding acts column by column: the others' block is a slice)."""
+    start = sum(e.n_terms for e in terms[:i])
+    mine = np.s_[start : start + terms[i].n_terms]
+    restored = fit.residual_deg + cols[:, mine] @ fit.coef[mine]
+    data, _ = _detection_data(
+        u, t, q, uc, replace(fit, residual_deg=restored), [*terms[:i], *terms[i + 1 :]], ratio, period, folds, built, view=view,
+        done_columns=np.delete(cols, mine, axis=1),
+    )
+    return data, cols[:, mine]
 
 
 def _describe(steps: list[Step], final: JointFit) -> None:
