@@ -21,10 +21,10 @@ from online_backlash.diagnostics._folds import cycle_folds
 from online_backlash.diagnostics._term_columns import TermColumns
 from online_backlash.diagnostics.effects import Compliance, Drift
 from online_backlash.diagnostics.joint import fit_guarded
-from online_backlash.diagnostics.loop import _columns, _held, _linearised_refit, _ModelView, _tuned, diagnose_arrays
+from online_backlash.diagnostics.loop import _columns, _detection_data, _held, _linearised_refit, _ModelView, _tuned, diagnose_arrays
 from online_backlash.estimators.batch import VorosBacklash
 from online_backlash.load_aware.engagement import torque_deadband
-from online_backlash.two_mass_rig import ARCMIN_PER_DEG
+from online_backlash.two_mass_rig import ARCMIN_PER_DEG, simulate_two_mass
 
 
 @pytest.mark.parametrize(("w", "near"), [(5, [4, 6]), (1, [2]), (16, [11]), (7, [6, 8]), (40, [16])])
@@ -114,3 +114,27 @@ def test_the_linearised_refit_orders_the_settings_as_the_joint_refits_do():
     full = [joint(w)[1].rms_deg for w in widths]
     assert np.argsort(linear).tolist() == np.argsort(full).tolist()
     assert np.allclose(linear, full, rtol=0.02)
+
+
+def test_a_retuned_term_reports_the_evidence_of_its_final_setting():
+    """When a later term moves the compliance's torque average, its evidence is scored again with
+    the final setting (on the residual of the step it came in at): the statistics describe the
+    setting its parameters report (before, they kept the setting it came in with)."""
+    rec = simulate_two_mass(duration_s=60.0, motion="rig", coulomb_nm=0.05, seed=1)  # retunes: compliance, then dead band motion
+    d = diagnose_arrays(rec.time_s, rec.motor_deg, rec.load_deg, 30.0, torque_Nm=rec.torque_Nm)
+    step = d.steps[0]
+    assert step.effect.name == "compliance" and step.retuned and not d.steps[1].retuned
+    w = step.effect.smooth_samples
+    assert step.detection.effect.smooth_samples == w == step.parameters["torque_smoothing_samples"]
+    evidence = step.as_dict()["evidence"]
+    assert evidence["retuned_by_later_terms"] is True and d.as_dict()["effects"][1]["evidence"]["retuned_by_later_terms"] is False
+    # the same statistics as the final setting scored afresh on the residual before the term, not another setting's
+    before, done = step.scored_on
+    u = rec.motor_deg / 30.0
+    built = TermColumns(u, rec.time_s, rec.torque_Nm)
+    data, _ = _detection_data(u, rec.time_s, rec.torque_Nm, u - d.base.u_ref_, before, list(done), 30.0, 0.001, cycle_folds(u), built)
+    again = step.effect.detection(data).score
+    assert evidence["delta_bic_eff"] == pytest.approx(again.delta_bic, rel=1e-9)
+    assert evidence["heldout_gain"] == pytest.approx(again.heldout_gain, rel=1e-9)
+    other = next(e for e in step.effect.neighbours())
+    assert other.detection(data).score.delta_bic != pytest.approx(again.delta_bic, rel=1e-6)

@@ -36,6 +36,11 @@ def add_subparser(subparsers: argparse._SubParsersAction) -> None:
         "a larger R stops sooner, e.g. 1.5)",
     )
     parser.add_argument(
+        "--screen-cycles", type=int, metavar="N",
+        help="on a record of at least 2N reversal cycles, score and refit the candidates on N cycles spread over it, "
+        "then fit the terms chosen on every sample (the loop's default: 15; 0: every cycle, slower on long logs)",
+    )
+    parser.add_argument(
         "--trace",
         metavar="FILE.csv",
         help="also track the backlash over the log with the named effects found (recursive estimator) and write "
@@ -57,8 +62,10 @@ def run(args: argparse.Namespace) -> int:
     check_plot_path(args.plot)
     chunk, source = read_counted(args)
     counts = {**source_counts(source.counters.as_dict()), **GapTally.of_chunk(chunk).values()}
-    stop = {} if args.floor_ratio is None else {"floor_ratio": args.floor_ratio}
-    result = diagnose(chunk, args.ratio, max_terms=args.max_terms, **stop)
+    options = {} if args.floor_ratio is None else {"floor_ratio": args.floor_ratio}
+    if args.screen_cycles is not None:
+        options["screen_cycles"] = args.screen_cycles
+    result = diagnose(chunk, args.ratio, max_terms=args.max_terms, **options)
     if args.trace:
         write_trace(args.trace, [chunk], args.ratio, args.every, args.log, effects=result.effects)
     if args.plot:

@@ -9,6 +9,11 @@ flanks of the dead band are in every cycle), and cycle ``i`` goes to fold ``i mo
 with fewer than two cycles is cut into ``k`` contiguous blocks of time instead (said in
 :attr:`Folds.kind`).
 
+A long record is *screened*: the loop's detectors score their candidates on a subset of its
+cycles (:meth:`Folds.screen`: groups of ``n_folds`` consecutive cycles, one of each fold, spread
+evenly over the record), while everything it keeps (the joint refits, the evidence of the terms
+it adds, the held-out gains in the final model) is computed on every sample.
+
 Units: degrees.
 """
 
@@ -23,6 +28,10 @@ from ._causal import motion_direction
 
 #: folds of the cross-validation (at most; fewer when the record has fewer cycles)
 N_FOLDS = 5
+#: reversal cycles a screened record keeps (:meth:`Folds.screen`): three of every fold
+SCREEN_CYCLES = 3 * N_FOLDS
+#: a record is screened only when it has at least this many times :data:`SCREEN_CYCLES` cycles
+SCREEN_FACTOR = 2
 #: the direction of motion: sign of the change of ``u`` over this many samples, held inside
 #: a change of ``DEADZONE_DEG`` (as for the per-flank generic term)
 DIRECTION_WINDOW = 10
@@ -48,14 +57,59 @@ class Folds:
     n_folds: int
     n_cycles: int
     kind: str
+    #: the runs (positions in the record's runs, :attr:`segments`) a screen keeps; None: all of them
+    kept: tuple[int, ...] | None = None
 
     @cached_property
-    def segments(self) -> list[tuple[int, int, int]]:
-        """The record as contiguous runs of one fold: ``(fold, start, stop)`` sample ranges, in order."""
+    def _runs(self) -> list[tuple[int, int, int]]:
         cuts = np.flatnonzero(np.diff(self.fold)) + 1
         starts = np.concatenate(([0], cuts))
         stops = np.concatenate((cuts, [self.fold.size]))
         return [(int(self.fold[a]), int(a), int(b)) for a, b in zip(starts, stops)] if self.fold.size else []
+
+    @cached_property
+    def segments(self) -> list[tuple[int, int, int]]:
+        """The record (or the screen's cycles) as contiguous runs of one fold: ``(fold, start, stop)``
+        sample ranges, in order."""
+        return self._runs if self.kept is None else [self._runs[i] for i in self.kept]
+
+    @property
+    def screened(self) -> bool:
+        """True when only some of the record's samples are used (:meth:`screen`)."""
+        return self.kept is not None
+
+    @cached_property
+    def rows(self) -> int:
+        """Samples in :attr:`segments`."""
+        return self.fold.size if self.kept is None else sum(b - a for _, a, b in self.segments)
+
+    @cached_property
+    def compact_segments(self) -> list[tuple[int, int, int]]:
+        """:attr:`segments` as positions in :attr:`row_index` (the screen's samples side by side)."""
+        out, at = [], 0
+        for k, a, b in self.segments:
+            out.append((k, at, at + b - a))
+            at += b - a
+        return out
+
+    @cached_property
+    def row_index(self) -> np.ndarray:
+        """The indices of the samples in :attr:`segments`, in order."""
+        return np.concatenate([np.arange(a, b) for _, a, b in self.segments]) if self.segments else np.zeros(0, np.int64)
+
+    def screen(self, cycles: int = SCREEN_CYCLES, factor: int = SCREEN_FACTOR) -> Folds:
+        """These folds restricted to about ``cycles`` whole reversal cycles spread evenly over the
+        record: groups of ``n_folds`` consecutive cycles (one of each fold), as many groups as
+        ``cycles`` asks, the first and the last group of the record among them. The record itself
+        (``self``) when it has fewer than ``factor * cycles`` cycles or is cut into time blocks."""
+        runs = self._runs
+        k = self.n_folds
+        if self.kind != "reversal cycles" or self.n_cycles < factor * cycles or len(runs) != self.n_cycles or k < 2:
+            return self
+        groups = self.n_cycles // k
+        wanted = max(cycles // k, 2)
+        chosen = np.unique(np.round(np.linspace(0, groups - 1, wanted)).astype(int))
+        return Folds(self.fold, k, self.n_cycles, self.kind, tuple(int(g * k + j) for g in chosen for j in range(k)))
 
     def as_dict(self) -> dict[str, object]:
         """For the JSON evidence: ``{"folds", "cycles", "split"}``."""

@@ -10,6 +10,9 @@ load rotation up to order 24, 1e-12 on 85 000 deg of motor rotation (the 10-minu
 they only rank candidate orders, the chosen terms are fitted with ``numpy.sin``. The stack is kept in the record's cache (:meth:`._scoring.DetectionData.memo`);
 a record too long for the cache's budget gets each order from ``numpy.sin``/``cos`` instead.
 
+A screened record (:meth:`._folds.Folds.screen`) too long for the whole stack gets it at the rows its
+scores read (:attr:`._scoring.DetectionData.needed_rows`) instead.
+
 Angles in degrees; orders are cycles per revolution of the angle.
 """
 
@@ -63,30 +66,44 @@ def shaft_harmonic(data: DetectionData, shaft: str, angle_deg: np.ndarray, order
     from the record's stack of orders ``1 .. top`` (``shaft`` names the angle in the cache: it must be
     a function of the record and ``data.ratio`` only)."""
     key = ("harmonic stack", shaft, float(data.ratio), int(top))
-    if not 1 <= order <= top or not data.can_memo(key, angle_deg.size * 2 * top * 8):
+    if 1 <= order <= top and data.can_memo(key, angle_deg.size * 2 * top * 8):
+        return data.memo(key, lambda: harmonic_stack(angle_deg, top))[order - 1]
+    rows = data.needed_rows
+    if rows is None or not 1 <= order <= top:
         return harmonic_columns(angle_deg, [order])
-    return data.memo(key, lambda: harmonic_stack(angle_deg, top))[order - 1]
+    # a screened record too long for the whole stack: the stack at the rows its scores read, the others zero
+    part = ("harmonic stack at the rows scored", shaft, float(data.ratio), int(top))
+    out = np.zeros((angle_deg.size, 2))
+    if data.can_memo(part, rows.size * 2 * top * 8):
+        out[rows] = data.memo(part, lambda: harmonic_stack(angle_deg[rows], top), held=True)[order - 1]
+    else:
+        out[rows] = harmonic_columns(angle_deg[rows], [order])
+    return out
 
 
-def held_per_flank(columns: np.ndarray, up: np.ndarray, down: np.ndarray, index: np.ndarray | None) -> np.ndarray:
+def held_per_flank(
+    columns: np.ndarray, up: np.ndarray, down: np.ndarray, index: np.ndarray | None, rows: np.ndarray | None = None
+) -> np.ndarray:
     """``[columns * up, columns * down]`` taken at ``index`` (held through the dead band, see
-    :meth:`._scoring.DetectionData.hold`; None: not held), in one compiled pass without temporaries.
+    :meth:`._scoring.DetectionData.hold`; None: not held), in one compiled pass without temporaries;
+    with ``rows``, the result has those rows only (a screen's, :attr:`._scoring.DetectionData.scored_rows`).
 
     ``columns`` is ``(n, q)``; ``up`` and ``down`` are boolean masks of the samples (the direction
     of motion); the result is ``(n, 2 q)``, the same numbers as masking, stacking and holding.
     """
     c = np.ascontiguousarray(columns, dtype=float)
     idx = np.arange(c.shape[0]) if index is None else np.ascontiguousarray(index, dtype=np.int64)
-    out = np.empty((c.shape[0], 2 * c.shape[1]))
-    _per_flank(c, np.asarray(up, dtype=float), np.asarray(down, dtype=float), idx, out)
+    rows = np.arange(c.shape[0]) if rows is None else np.ascontiguousarray(rows, dtype=np.int64)
+    out = np.empty((rows.size, 2 * c.shape[1]))
+    _per_flank(c, np.asarray(up, dtype=float), np.asarray(down, dtype=float), idx, rows, out)
     return out
 
 
 @njit(cache=True)
-def _per_flank(c, up, down, idx, out):  # pragma: no cover - compiled
+def _per_flank(c, up, down, idx, rows, out):  # pragma: no cover - compiled
     q = c.shape[1]
-    for t in range(c.shape[0]):
-        i = idx[t]
+    for r in range(rows.size):
+        i = idx[rows[r]]
         for j in range(q):
-            out[t, j] = c[i, j] * up[i]
-            out[t, q + j] = c[i, j] * down[i]
+            out[r, j] = c[i, j] * up[i]
+            out[r, q + j] = c[i, j] * down[i]

@@ -126,36 +126,46 @@ class _Grams:
         #: the nuisance columns and the residual these are the cross-products of (set by DetectionData)
         self.nuisance: np.ndarray | None = None
         self.residual: np.ndarray | None = None
+        #: ``z``'s rows: every sample, or for a screen (:meth:`._folds.Folds.screen`) its samples side by side
         self.z = z
+        self.segments = folds.compact_segments if folds.screened else folds.segments
         self.per_fold = self._per_fold(z, z) if per_fold is None else per_fold
         self.total = self.per_fold.sum(axis=0)
+
+    def rows(self, a: np.ndarray) -> np.ndarray:
+        """The rows of the full-length columns ``a`` that ``z`` holds (``a`` itself unless screened, or
+        when it has those rows already)."""
+        if not self.folds.screened or a.shape[0] == self.z.shape[0]:
+            return a
+        return np.take(a, self.folds.row_index, axis=0)
 
     def _per_fold(self, a: np.ndarray, b: np.ndarray) -> np.ndarray:
         """``a^T b`` over the samples of every fold, ``(n_folds, a columns, b columns)``."""
         out = np.zeros((self.folds.n_folds, a.shape[1], b.shape[1]))
-        for k, start, stop in self.folds.segments:
+        for k, start, stop in self.segments:
             out[k] += a[start:stop].T @ b[start:stop]
         return out
 
     def with_columns(self, parts: Sequence[np.ndarray]) -> _Grams:
         """The cross-products of ``[nuisance, x, residual]`` with ``x`` the ``parts`` side by side (each
-        ``n x q_i``), the parts written once, into the new block itself. They are formed over the whole
+        ``n x q_i``, full length), the parts written once, into the new block itself. They are formed over the whole
         block (one product per cycle, ``O(n (p + q)^2)``): the same numbers, bit for bit, as a
         :class:`DetectionData` made with these nuisance columns, and no slower than adding ``x``'s
         products to these (a rank-``q`` update: two products per cycle, and other rounding)."""
-        n, p = self.z.shape[0], self.z.shape[1] - 1
+        m, p = self.z.shape[0], self.z.shape[1] - 1
         q = sum(a.shape[1] for a in parts)
-        z = np.empty((n, p + q + 1))
+        z = np.empty((m, p + q + 1))
         z[:, :p] = self.z[:, :p]
         j = p
         for a in parts:
-            z[:, j : j + a.shape[1]] = a
+            z[:, j : j + a.shape[1]] = self.rows(a)
             j += a.shape[1]
         z[:, j] = self.z[:, p]
         return _Grams(z, self.folds)
 
     def extended(self, x: np.ndarray, heldout: bool = True) -> tuple[np.ndarray, np.ndarray]:
-        """Per-fold (empty without ``heldout``) and total Grams of ``W = [nuisance, x, residual]`` (residual last)."""
+        """Per-fold (empty without ``heldout``) and total Grams of ``W = [nuisance, x, residual]`` (residual
+        last); ``x`` has the rows of ``z`` (see :meth:`rows`)."""
         p, q, k = self.z.shape[1], x.shape[1], self.per_fold.shape[0]
         if not heldout:
             return np.empty((0, p + q, p + q)), _assemble(self.total, self.z.T @ x, x.T @ x)
@@ -166,10 +176,15 @@ class _Grams:
         return out, out.sum(axis=0)
 
     def lag_product(self, x: np.ndarray, e: np.ndarray) -> float:
-        """``sum_t w(t+1) w(t)`` for ``w = W e``, ``W = [nuisance, x, residual]``: the lag-1 product of a
-        combination of W's columns, in one compiled pass (``O(n (p + q))``, no lag-1 Gram of ``x``)."""
+        """``sum_t w(t+1) w(t)`` for ``w = W e``, ``W = [nuisance, x, residual]`` (``x`` with the rows of
+        ``z``): the lag-1 product of a combination of W's columns, in one compiled pass (``O(n (p + q))``,
+        no lag-1 Gram of ``x``); for a screen, within each of its cycles."""
         p = self.z.shape[1] - 1
-        return float(_lag_product(self.z, np.concatenate((e[:p], e[-1:])), np.ascontiguousarray(x), np.ascontiguousarray(e[p:-1])))
+        ez, ex = np.concatenate((e[:p], e[-1:])), np.ascontiguousarray(e[p:-1])
+        x = np.ascontiguousarray(x)
+        if self.folds.screened:
+            return float(sum(_lag_product(self.z[a:b], ez, x[a:b], ex) for _, a, b in self.segments))
+        return float(_lag_product(self.z, ez, x, ex))
 
 
 @njit(cache=True)
@@ -307,14 +322,15 @@ class DetectionData:
         given = self.grams
         if given is not None and not (given.nuisance is self.nuisance and given.residual is self.residual_deg and given.folds is self.folds):
             given = None  # made for other data (a replace() of something else): formed afresh
-        base = np.ones((n, 1)) if self.nuisance is None else np.asarray(self.nuisance, dtype=float).reshape(n, -1)
         if self.folds is None:
             object.__setattr__(self, "folds", cycle_folds(self.u_deg))
         assert self.folds is not None
-        object.__setattr__(self, "nuisance", base)
         if given is None:
-            given = _Grams(np.column_stack((base, self.residual_deg)), self.folds)
-        given.nuisance, given.residual = base, self.residual_deg
+            base = np.ones((n, 1)) if self.nuisance is None else np.asarray(self.nuisance, dtype=float).reshape(n, -1)
+            z = np.column_stack((base, self.residual_deg))
+            given = _Grams(np.take(z, self.folds.row_index, axis=0) if self.folds.screened else z, self.folds)
+            given.nuisance, given.residual = base, self.residual_deg
+        object.__setattr__(self, "nuisance", given.nuisance)
         object.__setattr__(self, "grams", given)
         if self.cache is None:
             object.__setattr__(self, "cache", RecordCache())
@@ -323,18 +339,18 @@ class DetectionData:
     def stacked(cls, nuisance_parts: Sequence[np.ndarray], residual_deg: np.ndarray, **fields: Any) -> DetectionData:
         """The data with the nuisance columns ``nuisance_parts`` side by side (a 1-D part is one column),
         written once into the block their cross-products are formed from (no intermediate copies of
-        full-length columns); ``fields`` are the other fields (``u_deg``, ``time_s``, ...)."""
+        full-length columns; for a screen, its rows only); ``fields`` are the other fields (``u_deg``,
+        ``time_s``, ...)."""
         n = residual_deg.size
-        parts = [np.asarray(a, dtype=float).reshape(n, -1) for a in nuisance_parts]
-        p = sum(a.shape[1] for a in parts)
-        z = np.empty((n, p + 1))
-        j = 0
-        for a in parts:
-            z[:, j : j + a.shape[1]] = a
-            j += a.shape[1]
-        z[:, p] = residual_deg
         folds = fields.pop("folds", None)
         folds = cycle_folds(fields["u_deg"]) if folds is None else folds
+        parts = [np.asarray(a, dtype=float).reshape(n, -1) for a in nuisance_parts]
+        p = sum(a.shape[1] for a in parts)
+        z = np.empty((folds.rows, p + 1))
+        j = 0
+        for a in [*parts, residual_deg[:, None]]:
+            z[:, j : j + a.shape[1]] = np.take(a, folds.row_index, axis=0) if folds.screened else a
+            j += a.shape[1]
         grams = _Grams(z, folds)
         grams.nuisance, grams.residual = z[:, :p], residual_deg
         return cls(residual_deg=residual_deg, nuisance=grams.nuisance, folds=folds, grams=grams, **fields)
@@ -350,7 +366,7 @@ class DetectionData:
         such as the ratio, belongs in ``key``); read-only."""
         assert self.cache is not None
         sources: tuple[object, ...] = (self.u_deg, self.time_s, self.torque_Nm)
-        return self.cache.get(key, (*sources, self.engaged_index) if held else sources, build)
+        return self.cache.get(key, (*sources, self.engaged_index, self.folds) if held else sources, build)
 
     @property
     def _cross(self) -> _Grams:
@@ -363,28 +379,54 @@ class DetectionData:
         n = self.residual_deg.size
         return np.ones(n, dtype=bool) if self.engaged_index is None else self.engaged_index == np.arange(n)
 
+    @property
+    def scored_rows(self) -> np.ndarray | None:
+        """The samples the scores use: None for all of them, else a screen's (:meth:`._folds.Folds.screen`)."""
+        assert self.folds is not None
+        return self.folds.row_index if self.folds.screened else None
+
+    @property
+    def needed_rows(self) -> np.ndarray | None:
+        """For a screen, every sample a score reads, itself or held through the dead band (the scored
+        rows and their last engaged samples, sorted); None when every sample is scored."""
+        rows, index = self.scored_rows, self.engaged_index
+        if rows is None or index is None:
+            return rows
+        return self.memo(("rows scored and held from",), lambda: np.union1d(rows, index[rows]), held=True)
+
+    def scored(self, columns: np.ndarray) -> np.ndarray:
+        """The rows of full-length ``columns`` that the scores use (``columns`` itself unless screened):
+        :meth:`score` takes either."""
+        return self._cross.rows(np.asarray(columns, dtype=float).reshape(self.residual_deg.size, -1))
+
     def hold(self, columns: np.ndarray) -> np.ndarray:
-        """Input-side columns held through the dead band of the current model (see :mod:`.joint`)."""
+        """Input-side columns (a row per sample) held through the dead band of the current model (see
+        :mod:`.joint`); for a screen, the rows it scores only (as :meth:`scored` gives them)."""
         columns = np.asarray(columns, dtype=float).reshape(self.residual_deg.size, -1)
-        return columns if self.engaged_index is None else np.take(columns, self.engaged_index, axis=0)
+        if self.engaged_index is None:
+            return self.scored(columns)
+        rows = self.scored_rows
+        return np.take(columns, self.engaged_index if rows is None else self.engaged_index[rows], axis=0)
 
     def score(self, input_side: bool, columns: np.ndarray, heldout: bool = True) -> Score:
         """The :class:`Score` of ``columns`` on this residual beyond the nuisance columns
         (held through the dead band when ``input_side``). Without ``heldout`` the cross-validation
-        is skipped (``heldout_gain`` NaN; a cheaper screening score)."""
-        x = self.hold(columns) if input_side else np.asarray(columns, dtype=float).reshape(self.residual_deg.size, -1)
+        is skipped (``heldout_gain`` NaN; a cheaper screening score). ``columns`` has a row per sample
+        or, not held, the rows :meth:`scored` gives."""
+        x = self.hold(columns) if input_side else np.asarray(columns, dtype=float)
+        x = self._cross.rows(x.reshape(x.shape[0], -1))
         per_fold, total = self._cross.extended(x, heldout)
         assert self.nuisance is not None
         p = self.nuisance.shape[1]
         terms = np.r_[0, np.arange(max(self.n_backlash, 1), p)] if self.n_backlash else np.arange(p)
-        return _score_grams(per_fold, total, lambda e: self._cross.lag_product(x, e), self.residual_deg.size, p, terms)
+        assert self.folds is not None
+        return _score_grams(per_fold, total, lambda e: self._cross.lag_product(x, e), self.folds.rows, p, terms)
 
     def with_nuisance(self, *columns: np.ndarray) -> DetectionData:
-        """The same data with ``columns`` (one or more arrays, side by side) added to the nuisance columns
-        (written once into the block their cross-products are formed from; handed on, not formed again)."""
-        assert self.nuisance is not None
-        n = self.residual_deg.size
-        grams = self._cross.with_columns([np.asarray(c, dtype=float).reshape(n, -1) for c in columns])
+        """The same data with ``columns`` (one or more arrays, side by side; each a row per sample or the
+        rows :meth:`scored` gives) added to the nuisance columns (written once into the block their
+        cross-products are formed from; handed on, not formed again)."""
+        grams = self._cross.with_columns([np.asarray(c, dtype=float).reshape(len(c), -1) for c in columns])
         grams.nuisance = grams.z[:, :-1]  # a view: the nuisance columns are not copied twice
         grams.residual = self.residual_deg  # so that __post_init__ takes these grams as they are
         return replace(self, nuisance=grams.nuisance, grams=grams)

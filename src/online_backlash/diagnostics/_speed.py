@@ -71,7 +71,8 @@ def record_velocity(data: DetectionData) -> np.ndarray:
 
 def held_spline_columns(data: DetectionData, knots_deg_s: tuple[float, ...]) -> np.ndarray:
     """:func:`cardinal_splines` of the record's velocity (:func:`record_velocity`) at ``knots_deg_s``, the
-    column of the knot nearest 0 left out, held through the dead band (:meth:`DetectionData.hold`):
+    column of the knot nearest 0 left out, held through the dead band (:meth:`DetectionData.hold`; for a
+    screen, its rows only):
     the columns of the drift's speed rival and of the generic velocity function, built once per round.
 
     Holding a column takes its value at an earlier sample, so the splines are evaluated at the held
@@ -87,27 +88,28 @@ def held_spline_columns(data: DetectionData, knots_deg_s: tuple[float, ...]) -> 
         kept = np.delete(np.arange(k.size), zero_knot(knots_deg_s))
         v = record_velocity(data)
         index = np.arange(v.size) if data.engaged_index is None else np.ascontiguousarray(data.engaged_index, dtype=np.int64)
-        out = np.empty((v.size, kept.size))
+        rows = np.arange(v.size) if data.scored_rows is None else data.scored_rows  # a screen's rows only
+        out = np.empty((rows.size, kept.size))
         # the kept columns' coefficients per interval, lowest power first: (intervals, powers, columns)
-        _cardinal_at(np.ascontiguousarray(coef[::-1][:, :, kept].transpose(1, 0, 2)), k, v, index, out)
+        _cardinal_at(np.ascontiguousarray(coef[::-1][:, :, kept].transpose(1, 0, 2)), k, v, index, rows, out)
         return out
 
     return data.memo(("held speed columns", tuple(knots_deg_s)), build, held=True)
 
 
 @njit(cache=True)
-def _cardinal_at(coef, knots, v, index, out):  # pragma: no cover - compiled
-    """``out[t, j]``: the piecewise cubic with coefficients ``coef[:, :, j]`` (interval, power from the
-    lowest, on the intervals of ``knots``) at ``v[index[t]]`` clipped to the outer knots; every column
-    summed from the lowest power up, the powers formed once per sample."""
+def _cardinal_at(coef, knots, v, index, rows, out):  # pragma: no cover - compiled
+    """``out[i, j]`` for ``t = rows[i]``: the piecewise cubic with coefficients ``coef[:, :, j]`` (interval,
+    power from the lowest, on the intervals of ``knots``) at ``v[index[t]]`` clipped to the outer knots;
+    every column summed from the lowest power up, the powers formed once per sample."""
     m = knots.size
-    for t in range(index.size):
-        s = min(max(v[index[t]], knots[0]), knots[m - 1])
+    for r in range(rows.size):
+        s = min(max(v[index[rows[r]]], knots[0]), knots[m - 1])
         i = 0
         while i < m - 2 and s >= knots[i + 1]:
             i += 1
         d = s - knots[i]
-        row = out[t]
+        row = out[r]
         row[:] = 0.0
         z = 1.0
         for p in range(coef.shape[1]):

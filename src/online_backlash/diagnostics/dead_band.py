@@ -40,9 +40,11 @@ Units: degrees (load side), seconds, newton metres.
 
 from __future__ import annotations
 
+import math
 from typing import Any
 
 import numpy as np
+from numba import njit
 
 from ..errors import InvalidParameterError
 from ..model import BacklashParams, simulate_switching
@@ -170,24 +172,6 @@ class DeadBandMotion(EffectBase):
         self._x = float(x[-1])
         return (f1 + f2) > 0, dx
 
-    def _rest_columns(self, dx: np.ndarray, t: np.ndarray) -> np.ndarray:
-        """The creep's columns, ``(n, n_rest)``: up then down for each time constant (advances the stream)."""
-        i = np.arange(dx.size)
-        moved = dx != 0
-        last = np.maximum.accumulate(np.where(moved, i, -1))
-        seen = last >= 0
-        t_m = np.where(seen, t[np.maximum(last, 0)], self._moved[0])
-        d = np.where(seen, np.sign(dx[np.maximum(last, 0)]), self._moved[1])
-        self._moved = (float(t_m[-1]), float(d[-1]))
-        rest = ~moved & np.isfinite(t_m)
-        r = np.where(rest, t - np.nan_to_num(t_m), 0.0)
-        cols = np.zeros((dx.size, self.n_rest))
-        for j, tau in enumerate(self.rest_time_constants_s):
-            shape = np.where(rest, -np.expm1(-r / tau), 0.0)
-            cols[:, 2 * j] = np.where(d > 0, shape, 0.0)
-            cols[:, 2 * j + 1] = np.where(d < 0, shape, 0.0)
-        return cols
-
     def switch_clock(self, u_deg: np.ndarray, time_s: np.ndarray, limit_s: float = 0.25) -> np.ndarray:
         """Time since a flank left (negative, in the dead band) or engaged (positive), s, clipped to
         ``limit_s``: the axis this effect acts along (a fresh stream over a whole record)."""
@@ -209,40 +193,19 @@ class DeadBandMotion(EffectBase):
         self._window.keep(ue, te, qe)
         u, t = ue[n_past:], te[n_past:]
         e, dx = self._switch(u)
-        # the previous sample in front, so that an exit or entry at the chunk's first sample is seen
-        e_all = np.concatenate(([self._last[0]], e))
-        t_all, v_all, q_all = (np.concatenate(([p], a)) for p, a in zip(self._last[1:], (t, v, qs)))
-        i = np.arange(1, u.size + 1)
-        at_exit = np.maximum.accumulate(np.where(e_all[:-1] & ~e_all[1:], i - 1, -1))  # the last engaged sample
-        at_entry = np.maximum.accumulate(np.where(~e_all[:-1] & e_all[1:], i, -1))  # the first engaged sample
-        seen = at_exit >= 0
-        t_x, v_x, q_x = (np.where(seen, a[at_exit], p) for a, p in zip((t_all, v_all, q_all), self._exit))
-        seen = at_entry >= 0
-        t_e, v_e = (np.where(seen, a[at_entry], p) for a, p in zip((t_all, v_all), self._entry))
-        self._last = (bool(e[-1]), float(t[-1]), float(v[-1]), float(qs[-1]))
-        self._exit = (float(t_x[-1]), float(v_x[-1]), float(q_x[-1]))
-        self._entry = (float(t_e[-1]), float(v_e[-1]))
-
         cols = np.zeros((u.size, self.n_terms))
-        dead = ~e & np.isfinite(t_x)
-        s = np.where(dead, t - np.nan_to_num(t_x), 0.0)
-        k = 0
-        for tau in self.exit_time_constants_s:
-            cols[:, k] = np.where(dead, v_x * -np.expm1(-s / tau), 0.0)
-            k += 1
-        if self.torque:
-            cols[:, k] = np.where(dead, q_x, 0.0)
-            cols[:, k + 1] = np.where(dead, qs - q_x, 0.0)
-            k += 2
-        if self.n_entry:
-            knots = np.asarray(self.entry_knots_s)
-            s = t - np.nan_to_num(t_e)
-            on = e & np.isfinite(t_e) & (s < knots[-1])
-            basis = np.eye(knots.size)
-            for j in range(self.n_entry):
-                cols[:, k + j] = np.where(on, v_e * np.interp(s, knots, basis[j]), 0.0)
-        if self.n_rest:
-            cols[:, self.n_terms - self.n_rest :] = self._rest_columns(dx, t)
+        # the stream's state: the last sample (engaged, time, velocity, torque), the last exit (time,
+        # velocity, torque), the last entry (time, velocity), the output's last move (time, direction)
+        state = np.array([float(self._last[0]), *self._last[1:], *self._exit, *self._entry, *self._moved], dtype=float)
+        _columns_pass(
+            e, dx, np.ascontiguousarray(t, dtype=float), np.ascontiguousarray(v, dtype=float), np.ascontiguousarray(qs, dtype=float), state,
+            np.asarray(self.exit_time_constants_s, dtype=float), self.torque, np.asarray(self.entry_knots_s, dtype=float), self.n_entry,
+            np.asarray(self.rest_time_constants_s, dtype=float), cols,
+        )
+        self._last = (bool(state[0]), float(state[1]), float(state[2]), float(state[3]))
+        self._exit = (float(state[4]), float(state[5]), float(state[6]))
+        self._entry = (float(state[7]), float(state[8]))
+        self._moved = (float(state[9]), float(state[10]))
         return cols
 
     def describe(self, coef: np.ndarray) -> dict[str, Any]:
@@ -292,7 +255,7 @@ class DeadBandMotion(EffectBase):
         found = []
         every_one = cls(p.m_left, p.c_left, p.m_right, p.c_right, taus, knots, torque, rests)
         # the coast (and torque) columns come first, then the entry's, the creep's last: each a slice
-        every = every_one.clone().terms(data.u_deg, data.time_s, data.torque_Nm)
+        every = data.scored(every_one.clone().terms(data.u_deg, data.time_s, data.torque_Nm))  # the rows the scores use
         split = every_one.n_terms - every_one.n_entry - every_one.n_rest
         parts = {"coast": every[:, :split], "entry": every[:, split : split + every_one.n_entry], "creep at rest": every[:, split + every_one.n_entry :]}
         for names in VARIANTS:
@@ -310,3 +273,56 @@ class DeadBandMotion(EffectBase):
         if creep is not None and (plain is None or creep.score.delta_bic - plain.score.delta_bic < BIC_THRESHOLD):
             return creep
         return plain or best_detection(found)
+
+
+@njit(cache=True, nogil=True)
+def _columns_pass(e, dx, t, v, qs, state, exit_taus, torque, knots, n_entry, rest_taus, out):  # pragma: no cover - compiled
+    """:meth:`DeadBandMotion.terms`' columns in one pass over the samples, continuing ``state``
+    (updated in place, see there): in the dead band (not ``e``) since the last exit at ``t_x``, the
+    exit velocity ``v_x`` times ``1 - exp(-(t - t_x) / tau)`` per ``exit_taus``, then (``torque``) the
+    torque at exit and its change since; after the last entry at ``t_e``, ``v_e`` times the hat
+    functions of ``knots`` at ``t - t_e`` (as ``numpy.interp`` evaluates them), while ``t - t_e`` is
+    below the last knot; where the output rests (``dx == 0``) since it last moved at ``t_m`` in the
+    direction ``d``, ``1 - exp(-(t - t_m) / tau)`` per ``rest_taus`` in the column of that direction."""
+    e_prev, t_prev, v_prev, q_prev = state[0] > 0.5, state[1], state[2], state[3]
+    t_x, v_x, q_x, t_e, v_e, t_m, d_m = state[4], state[5], state[6], state[7], state[8], state[9], state[10]
+    n_exit = exit_taus.size
+    for s in range(e.size):
+        now = e[s]
+        if e_prev and not now:  # the flank left at the previous sample
+            t_x, v_x, q_x = t_prev, v_prev, q_prev
+        if now and not e_prev:  # a flank engaged at this one
+            t_e, v_e = t[s], v[s]
+        k = 0
+        if not now and np.isfinite(t_x):
+            gone = t[s] - t_x
+            for j in range(n_exit):
+                out[s, j] = v_x * -math.expm1(-gone / exit_taus[j])
+            if torque:
+                out[s, n_exit] = q_x
+                out[s, n_exit + 1] = qs[s] - q_x
+        k = n_exit + 2 * torque
+        if n_entry and now and np.isfinite(t_e):
+            since = t[s] - t_e
+            if since < knots[knots.size - 1]:
+                i = 0
+                while i < knots.size - 2 and knots[i + 1] <= since:
+                    i += 1
+                for j in range(n_entry):  # the hat of knot j: 1 at knots[j], 0 at the others
+                    lo = 1.0 if i == j else 0.0
+                    hi = 1.0 if i + 1 == j else 0.0
+                    out[s, k + j] = v_e * ((hi - lo) / (knots[i + 1] - knots[i]) * (since - knots[i]) + lo)
+        k += n_entry
+        if dx[s] != 0.0:
+            t_m, d_m = t[s], np.sign(dx[s])
+        elif np.isfinite(t_m):
+            rested = t[s] - t_m
+            for j in range(rest_taus.size):
+                shape = -math.expm1(-rested / rest_taus[j])
+                if d_m > 0:
+                    out[s, k + 2 * j] = shape
+                elif d_m < 0:
+                    out[s, k + 2 * j + 1] = shape
+        e_prev, t_prev, v_prev, q_prev = now, t[s], v[s], qs[s]
+    state[0], state[1], state[2], state[3] = 1.0 if e_prev else 0.0, t_prev, v_prev, q_prev
+    state[4], state[5], state[6], state[7], state[8], state[9], state[10] = t_x, v_x, q_x, t_e, v_e, t_m, d_m

@@ -85,7 +85,7 @@ class AngleHarmonicsPerFlank(PerFlankTerms):
         up, down = d > 0, d < 0
 
         def held(n: int) -> np.ndarray:  # the columns of order n, held through the dead band
-            return held_per_flank(shaft_harmonic(data, "load", u, n, max_order), up, down, data.engaged_index)
+            return held_per_flank(shaft_harmonic(data, "load", u, n, max_order), up, down, data.engaged_index, data.scored_rows)
 
         orders = select_orders(data, held, max_order, float(np.ptp(u)), max_orders, held=True)
         if not orders:

@@ -143,20 +143,25 @@ def fit_joint(
 
 
 def _fit_held(
-    uc: np.ndarray, yc: np.ndarray, columns: np.ndarray, held: np.ndarray, start: BacklashParams, hold_play: float | None, first: np.ndarray
+    uc: np.ndarray, yc: np.ndarray, columns: np.ndarray, held: np.ndarray, start: BacklashParams, hold_play: float | None, first: np.ndarray,
+    rows: np.ndarray | None = None,
 ) -> JointFit:
     """:func:`fit_joint` given ``first``, the columns held through the dead band of ``start`` (the
     first search's; :func:`fit_guarded` hands the same to its second fit instead of forming it again)."""
-    fit = _fit_fixed_columns(uc, yc, first, start, hold_play)
+    fit = _fit_fixed_columns(uc, yc, first, start, hold_play, rows)
     if np.any(held):  # once more through the dead band of the fitted model
-        fit = _fit_fixed_columns(uc, yc, hold_columns(columns, held, engaged_index(uc, fit.params)), fit.params, hold_play)
+        fit = _fit_fixed_columns(uc, yc, hold_columns(columns, held, engaged_index(uc, fit.params)), fit.params, hold_play, rows)
     return fit
 
 
 def _fit_fixed_columns(
-    uc: np.ndarray, yc: np.ndarray, columns: np.ndarray, start: BacklashParams, hold_play: float | None
+    uc: np.ndarray, yc: np.ndarray, columns: np.ndarray, start: BacklashParams, hold_play: float | None, rows: np.ndarray | None = None
 ) -> JointFit:
     """:func:`fit_joint` for columns that do not depend on the backlash parameters.
+
+    With ``rows`` (sample indices) the least squares, and the play's inflation and standard error,
+    run over those samples only (the model is still simulated over the whole record, from its
+    start); the residual and its RMS are the whole record's.
 
     The search is scipy's trust-region least squares on the variable-projection residual
     ``r = P (yc - x(p))`` (``P`` projects off ``columns``) with Jacobian ``-P dx/dp``. It uses them
@@ -166,8 +171,10 @@ def _fit_fixed_columns(
     per point for ``q`` columns, with no ``n``-row SVD. (trf's full-rank test of ``J`` scales with
     the row count: the two differ only for a Jacobian singular to about 1e-10 of its largest value.)
     """
-    proj = Projector(columns)
-    n = uc.size
+    fitted = columns if rows is None else columns[rows]
+    yc_fitted = yc if rows is None else yc[rows]
+    proj = Projector(fitted)
+    n = yc_fitted.size
     # p = dp_dv @ v (+ the held play on cR)
     dp_dv = np.array([[1.0, 0, 0], [0, 1, 0], [0, 0, 1], [0, -1, 0]]) if hold_play is not None else np.eye(4)
     k = dp_dv.shape[1]
@@ -192,8 +199,10 @@ def _fit_fixed_columns(
                 last[key] = (np.full(k + 1, 1e6 * np.sqrt(n / (k + 1))), np.zeros((k + 1, k)))
             else:
                 x, dx = _simulate(uc, p)
+                if rows is not None:
+                    x, dx = x[rows], dx[rows]
                 a[:, :k] = dx if hold_play is None else dx @ dp_dv
-                np.subtract(yc, x, out=a[:, k])
+                np.subtract(yc_fitted, x, out=a[:, k])
                 w, vec = np.linalg.eigh(proj.left_gram(a))
                 r = np.sqrt(np.maximum(w, 0.0))[:, None] * vec.T  # r^T r = the Gram of P a
                 last[key] = (r[:, k], -r[:, :k])
@@ -213,15 +222,16 @@ def _fit_fixed_columns(
     p = unpack(v)
     params = BacklashParams(*p)
     x, dx = _simulate(uc, p)
-    coef = proj.coef(yc - x)
+    coef = proj.coef(yc_fitted - (x if rows is None else x[rows]))
     left = yc - x - columns @ coef if columns.shape[1] else yc - x
+    left_fitted, dx_fitted = (left, dx) if rows is None else (left[rows], dx[rows])
     # the play's direction dx/d(play) and the other backlash directions (as play_sensitivity)
-    basis = np.column_stack((np.ones(n), dx[:, 0], dx[:, 2], 0.5 * (dx[:, 1] + dx[:, 3])))
+    basis = np.column_stack((np.ones(n), dx_fitted[:, 0], dx_fitted[:, 2], 0.5 * (dx_fitted[:, 1] + dx_fitted[:, 3])))
     g2 = float(np.dot(basis[:, 3], basis[:, 3]))
     g_left_base = left_sum_of_squares(basis.T @ basis)
     g_left_joint = left_sum_of_squares(proj.left_gram(basis))  # beyond the columns too
     inflation = (g_left_base / g2) / max(g_left_joint / g2, 1e-12)
-    sigma2 = float(np.dot(left, left)) / effective_samples(left)
+    sigma2 = float(np.dot(left_fitted, left_fitted)) / effective_samples(left_fitted)
     play_std = float(np.sqrt(sigma2 / max(g_left_joint, 1e-300)))
     return JointFit(params, coef, left, float(inflation), play_std, hold_play is not None)
 
@@ -233,16 +243,19 @@ def separable(fit: JointFit, start: BacklashParams) -> bool:
 
 
 def fit_guarded(
-    uc: np.ndarray, yc: np.ndarray, columns: np.ndarray, start: BacklashParams, held: np.ndarray | None = None
+    uc: np.ndarray, yc: np.ndarray, columns: np.ndarray, start: BacklashParams, held: np.ndarray | None = None, rows: np.ndarray | None = None
 ) -> JointFit:
     """:func:`fit_joint` with the play free; if the play is not :func:`separable` from the columns, hold it at ``start.play``.
 
     The held fit keeps the variance inflation and standard error measured with the play free.
+    With ``rows`` (sample indices: a screen of the record's cycles, :meth:`._folds.Folds.screen`)
+    the least squares run over those samples only, the model simulated over the whole record; the
+    residual (and its RMS) is the whole record's, so fits over the same rows compare on all samples.
     """
     held = np.zeros(columns.shape[1], dtype=bool) if held is None else np.asarray(held, dtype=bool)
     first = hold_columns(columns, held, engaged_index(uc, start)) if np.any(held) else columns
-    fit = _fit_held(uc, yc, columns, held, start, None, first)
+    fit = _fit_held(uc, yc, columns, held, start, None, first, rows)
     if separable(fit, start):
         return fit
-    kept = _fit_held(uc, yc, columns, held, start, start.play, first)
+    kept = _fit_held(uc, yc, columns, held, start, start.play, first, rows)
     return JointFit(kept.params, kept.coef, kept.residual_deg, fit.play_inflation, fit.play_std_deg, True)

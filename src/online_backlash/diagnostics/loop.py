@@ -24,6 +24,14 @@
 4. Repeat until nothing is significant or the residual is within ``floor_ratio`` of the noise
    floor. Then every term is held out once more, given all the others in the final model.
 
+A long record (at least twice ``screen_cycles`` reversal cycles) is screened: steps 2 and 3 score
+and refit the candidates on about ``screen_cycles`` of its cycles spread evenly over it
+(:meth:`._folds.Folds.screen`); the effect they choose is then detected again on every sample
+(its configuration and evidence as without the screen, :func:`_confirmed`; refused if the whole
+record does not bear it out), and the terms are fitted jointly on every sample (the step's figures
+and the next round's residual). The screen decides which effect comes next, the whole record how
+it is configured, fitted and evidenced.
+
 Angles in degrees on the load side, time in seconds.
 """
 
@@ -40,7 +48,7 @@ from ..estimators import VorosBacklash
 from ..estimators._validation import check_int, check_real
 from ..model import simulate_backlash
 from ..stream import SampleChunk
-from ._folds import Folds, cycle_folds
+from ._folds import SCREEN_CYCLES, Folds, cycle_folds
 from ._initial_state import InitialState, estimate_initial_state
 from ._record_cache import RecordCache
 from ._scoring import BIC_THRESHOLD, MIN_GAIN, Detection, DetectionData
@@ -84,6 +92,12 @@ class Step:
     heldout_gain_final: float = float("nan")
     #: named effects that explain the same part of the residual (kind ``"not_separable"``)
     rivals: tuple[str, ...] = ()
+    #: the fit just before this term came in and the terms it had then: what ``detection`` was
+    #: scored on (see :func:`_rescored`)
+    scored_on: tuple[JointFit, tuple[Any, ...]] | None = field(default=None, repr=False)
+    #: True when a later term moved this term's setting (:func:`_tuned`): ``effect`` and the
+    #: evidence are of the final setting
+    retuned: bool = False
 
     def as_dict(self) -> dict[str, Any]:
         """The JSON object of this term (``name``, ``parameters``, ``rms_before_deg``, ``rms_after_deg``, ``evidence``)."""
@@ -102,6 +116,7 @@ class Step:
             "play_variance_inflation": self.play_inflation,
             "play_std_deg": self.play_std_deg,
             "play_separable": not self.play_held,
+            "retuned_by_later_terms": self.retuned,
         }
         if self.play_held:
             evidence["note"] = (
@@ -169,6 +184,9 @@ class Diagnosis:
     ratio: float
     torque_Nm: np.ndarray | None = None
     initial_state: InitialState = field(default_factory=InitialState)
+    #: reversal cycles the candidates were scored and refitted on (a screen of a long record,
+    #: :meth:`._folds.Folds.screen`); None: every cycle
+    screened_cycles: int | None = None
 
     @property
     def effects(self) -> list[Any]:
@@ -247,6 +265,7 @@ class Diagnosis:
             "load_step_deg": self.noise.step_deg,
             "load_noise_deg": self.noise.noise_deg,
             "initial_state": self.initial_state.as_dict(),
+            "screened_cycles": self.screened_cycles,
         }
 
 
@@ -327,6 +346,7 @@ def diagnose(
     min_gain: float = MIN_GAIN,
     label_ratio: float = 1.1,
     floor_ratio: float = 1.25,
+    screen_cycles: int = SCREEN_CYCLES,
 ) -> Diagnosis:
     """Run the loop on a record in memory.
 
@@ -349,6 +369,12 @@ def diagnose(
         Stop when the residual RMS is within this factor of the noise floor (1.25: with the
         record's start estimated, :mod:`._initial_state`, the clean two-mass logs sit at
         0.96-1.07 times the floor; ``docs/closing-the-loop.md``, point 7).
+    screen_cycles : int
+        A record of at least twice this many reversal cycles is *screened*: the candidates are
+        scored, and the candidates' joint refits fitted, on about this many of its cycles, spread
+        evenly over it (:meth:`._folds.Folds.screen`); the effect chosen is then detected again,
+        and the terms fitted, on every sample, and the final model's held-out gains use every
+        cycle. 0: every cycle, always.
 
     Raises
     ------
@@ -359,6 +385,7 @@ def diagnose(
     check_real("min_gain", min_gain, 0.0, low_open=False)
     check_real("label_ratio", label_ratio, 1.0, low_open=False)
     check_real("floor_ratio", floor_ratio, 1.0, low_open=False)
+    check_int("screen_cycles", screen_cycles, 0)
     u, y = (np.asarray(v, dtype=float) for v in chunk.referred(ratio))
     t = np.asarray(chunk.time_s, dtype=float)
     q = np.asarray(chunk.torque_Nm, dtype=float)
@@ -371,6 +398,8 @@ def diagnose(
     noise = noise_floor(y)
     period = round(float(np.median(np.diff(t))), 12) if t.size > 1 else 1.0  # 0.001, not 0.000999999...
     folds = cycle_folds(u)
+    screen = folds.screen(screen_cycles) if screen_cycles else folds  # a long record's candidates: scored and refitted on these cycles
+    rows = screen.row_index if screen.screened else None
     cache = RecordCache()  # columns that depend on the record only, shared by every round
     built = TermColumns(u, t, q)  # the columns of the terms taken, built once
     current = JointFit(base.params_, np.empty(0), before, 1.0, float("nan"), False)
@@ -378,7 +407,7 @@ def diagnose(
     refused: set[type] = set()
     while len(steps) < max_terms and current.rms_deg > floor_ratio * noise.floor_deg:
         taken = {type(s.effect) for s in steps} | refused
-        data, engaged = _detection_data(u, t, q, uc, current, [s.effect for s in steps], float(ratio), period, folds, built, cache)
+        data, engaged = _detection_data(u, t, q, uc, current, [s.effect for s in steps], float(ratio), period, screen, built, cache)
         named_all = _significant([c.detect(data) for c in LIBRARY if c not in taken], bic_threshold, min_gain)
         generic_all = _significant([c.detect(data) for c in GENERIC if c not in taken], bic_threshold, min_gain)
         generic = generic_all[0] if generic_all else None
@@ -389,11 +418,13 @@ def diagnose(
         x_now = data.model_output_deg  # the current backlash output, simulated once for this round
         assert x_now is not None
 
-        def refit_with(terms: list[Any], current: JointFit = current, engaged: np.ndarray = engaged, x_now: np.ndarray = x_now) -> JointFit:
-            fit = fit_guarded(uc, yc, _columns(terms, built, engaged, x_now), current.params, _held(terms))
+        def refit_with(
+            terms: list[Any], current: JointFit = current, engaged: np.ndarray = engaged, x_now: np.ndarray = x_now, rows: np.ndarray | None = rows
+        ) -> JointFit:
+            fit = fit_guarded(uc, yc, _columns(terms, built, engaged, x_now), current.params, _held(terms), rows)
             if any(hasattr(e, "output_columns") for e in terms):  # built on the model's output: once more on the refitted one
                 x = simulate_backlash(uc, fit.params, 0.0)
-                fit = fit_guarded(uc, yc, _columns(terms, built, engaged, x), fit.params, _held(terms))
+                fit = fit_guarded(uc, yc, _columns(terms, built, engaged, x), fit.params, _held(terms), rows)
             return fit
 
         def tuned(terms: list[Any], fit: JointFit, which: Iterable[int]) -> tuple[list[Any], JointFit]:
@@ -402,7 +433,7 @@ def diagnose(
             for i in which:
                 if not hasattr(terms[i], "neighbours"):
                     continue
-                walk = _linearised_refit(terms, i, fit, uc, u, t, q, float(ratio), period, folds, built)
+                walk = _linearised_refit(terms, i, fit, uc, u, t, q, float(ratio), period, screen, built)
                 walked, _ = _tuned(terms, walk(terms), walk, [i])
                 if walked[i] is not terms[i]:
                     trial = refit_with(walked)
@@ -444,23 +475,67 @@ def diagnose(
         # rivals: refitted about as well as the chosen one, and explaining the same part of the residual
         close = [d for d, f in refits if d is not chosen and f.rms_deg**2 <= label_ratio * fit.rms_deg**2]
         rivals = (*chosen.rivals, *_rivals(data, chosen, close, engaged, min_gain, built)) if kind == "effect" else ()
+        if rows is not None:  # chosen on the screen: configured, and its evidence scored, on every sample
+            confirmed = _confirmed(chosen, u, t, q, uc, current, done, float(ratio), period, folds, built, cache, bic_threshold, min_gain)
+            if confirmed is None:
+                refused.add(type(chosen.effect))  # the whole record does not bear it out: try the others
+                continue
+            if repr(confirmed.effect) != repr(chosen.effect):  # configured otherwise: refitted so
+                fit = refit_with([*done, confirmed.effect])
+            chosen = confirmed
         # the settings of the terms already in, retuned with the new one in (the compliance's torque average)
         terms, fit = tuned([*done, chosen.effect], fit, range(len(done)))
+        if rows is not None:  # the terms fitted on every sample
+            fit = refit_with(terms, rows=None)
         for step, effect in zip(steps, terms):
+            step.retuned = step.retuned or effect is not step.effect
             step.effect = effect
         steps.append(
             Step(
                 "not_separable" if rivals else kind, chosen.effect, chosen, current.rms_deg, fit.rms_deg, current.params.play,
                 fit.params.play, fit.play_inflation, fit.play_std_deg, fit.play_held, len(steps) + 1,
-                residual_after_deg=fit.residual_deg, heldout_split=folds.as_dict(), rivals=rivals,
+                residual_after_deg=fit.residual_deg, heldout_split=folds.as_dict(), rivals=rivals, scored_on=(current, tuple(done)),
             )
         )
         current = fit
+    for step in steps:
+        if step.retuned:
+            _rescored(step, u, t, q, uc, float(ratio), period, folds, built, cache)
     _describe(steps, current)
     _hold_out_final(steps, current, u, t, q, uc, float(ratio), period, folds, built)
     _start_as_estimated(steps, start, before)
     after = start.coasting(before, current.residual_deg)  # until a flank first catches the load, the start's own path
-    return Diagnosis(base, current, steps, noise, before, after, u, y, t, float(ratio), q, start)
+    return Diagnosis(base, current, steps, noise, before, after, u, y, t, float(ratio), q, start, len(screen.segments) if screen.screened else None)
+
+
+def _confirmed(
+    chosen: Detection, u: np.ndarray, t: np.ndarray, q: np.ndarray, uc: np.ndarray, current: JointFit, done: list[Any], ratio: float, period: float,
+    folds: Folds, built: TermColumns, cache: RecordCache, bic_threshold: float, min_gain: float,
+) -> Detection | None:
+    """A term chosen on a screen of the record, detected again on every sample (the round's residual,
+    the terms it had): its configuration (the harmonic orders, the dead band's parts, ...) and its
+    evidence as without the screen. A term with a setting walked in the refit (``neighbours``, the
+    compliance's torque average) is scored with that setting. None when the whole record does not
+    find it significant."""
+    data, _ = _detection_data(u, t, q, uc, current, done, ratio, period, folds, built, cache)
+    effect: Any = chosen.effect
+    again = effect.detection(data) if hasattr(effect, "neighbours") else type(effect).detect(data)
+    if again is None or not again.score.significant(bic_threshold, min_gain):
+        return None
+    return replace(again, rivals=chosen.rivals)
+
+
+def _rescored(
+    step: Step, u: np.ndarray, t: np.ndarray, q: np.ndarray, uc: np.ndarray, ratio: float, period: float, folds: Folds, built: TermColumns,
+    cache: RecordCache,
+) -> None:
+    """A retuned term's detection scored again with its final setting, on what it was first scored
+    on (the fit just before it came in and the terms it had then): the evidence then describes the
+    setting the parameters report, not the one it came in with."""
+    assert step.scored_on is not None
+    before, done = step.scored_on
+    data, _ = _detection_data(u, t, q, uc, before, list(done), ratio, period, folds, built, cache)
+    step.detection = replace(step.effect.detection(data), rivals=step.detection.rivals)
 
 
 def _start_as_estimated(steps: list[Step], start: InitialState, before: np.ndarray) -> None:
@@ -518,7 +593,9 @@ def _tuned(terms: list[Any], fit: _Fitted, refit_with: Callable[[list[Any]], _Fi
     ``neighbours()`` (the compliance's torque average, :class:`.effects.Compliance`) is refitted
     by ``refit_with`` with each neighbouring setting, the other terms as they are, and moves to the
     one that leaves the smallest residual while that is smaller than where it stands. Returns the
-    terms (a term that did not move is the same object) and their fit.
+    terms (a term that did not move is the same object) and their fit. A term with ``neighbours()``
+    also has ``detection(data)``: its evidence is scored again with the setting it ends at
+    (:func:`_rescored`).
     """
     for i in which:
         tried = {repr(terms[i])}
@@ -556,20 +633,20 @@ def _linearised_refit(
 
 def _detection_data(
     u: np.ndarray, t: np.ndarray, q: np.ndarray, uc: np.ndarray, current: JointFit, done: list[Any], ratio: float, period: float, folds: Folds,
-    built: TermColumns, cache: RecordCache | None = None, view: _ModelView | None = None, done_columns: np.ndarray | None = None,
+    built: TermColumns, cache: RecordCache | None = None, view: _ModelView | None = None, done_columns: Sequence[np.ndarray] | None = None,
 ) -> tuple[DetectionData, np.ndarray]:
     """What the detectors see given the current fit, and the model's engaged samples (eq. 5-6).
 
     The nuisance columns are the backlash's own directions (a constant, ``dx/dmL``,
     ``dx/dmR``, ``dx/d(play)``) and the terms already added (they may move too). ``view`` is
-    :class:`_ModelView` of ``current.params`` and ``done_columns`` the held columns of ``done``,
+    :class:`_ModelView` of ``current.params`` and ``done_columns`` the held columns of ``done`` (in parts, side by side),
     when already at hand (the same numbers; formed here otherwise).
     """
     view = _ModelView.of(uc, current.params) if view is None else view
     engaged = view.engaged
     parts = [view.others, view.g]
     if done:
-        parts.append(hold_columns(_columns(done, built, engaged, view.x), _held(done), view.index) if done_columns is None else done_columns)
+        parts.extend([hold_columns(_columns(done, built, engaged, view.x), _held(done), view.index)] if done_columns is None else done_columns)
     data = DetectionData.stacked(
         parts, current.residual_deg, u_deg=u, time_s=t, torque_Nm=q, ratio=ratio, sample_period_s=period, engaged_index=view.index,
         n_backlash=view.others.shape[1] + 1, folds=folds, model_output_deg=view.x, backlash_params=current.params, cache=cache,
@@ -610,7 +687,7 @@ def _term_left_out(
     restored = fit.residual_deg + cols[:, mine] @ fit.coef[mine]
     data, _ = _detection_data(
         u, t, q, uc, replace(fit, residual_deg=restored), [*terms[:i], *terms[i + 1 :]], ratio, period, folds, built, view=view,
-        done_columns=np.delete(cols, mine, axis=1),
+        done_columns=(cols[:, :start], cols[:, mine.stop :]),  # views: written once, into the detectors' block
     )
     return data, cols[:, mine]
 

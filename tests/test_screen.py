@@ -1,0 +1,202 @@
+"""A long record's candidates are scored and refitted on a screen of its cycles (issue 13, "Speed").
+
+``Folds.screen`` keeps groups of ``n_folds`` consecutive reversal cycles spread over the record;
+the detectors' least squares, their held-out folds and the candidates' joint refits then run on
+those samples only, and the effect chosen is detected again, and the terms fitted, on every
+sample (``loop._confirmed``). What the screen computes must be the plain computation on its rows,
+and the loop's answer must be the one without the screen.
+"""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from online_backlash.cli import main as cli
+from online_backlash.diagnostics import synthetic
+from online_backlash.diagnostics._folds import N_FOLDS, SCREEN_CYCLES, cycle_folds
+from online_backlash.diagnostics._harmonics import harmonic_columns, held_per_flank, shaft_harmonic
+from online_backlash.diagnostics._record_cache import RecordCache
+from online_backlash.diagnostics._scoring import DetectionData
+from online_backlash.diagnostics._speed import held_spline_columns, record_velocity, speed_knots
+from online_backlash.diagnostics.joint import engaged_index, fit_guarded
+from online_backlash.diagnostics.loop import diagnose_arrays
+from online_backlash.errors import InvalidParameterError
+from online_backlash.estimators.batch import VorosBacklash
+from online_backlash.model import simulate_backlash
+from online_backlash.rig import simulate_rig
+
+
+def _reversing(cycles: int, per_cycle: int = 400, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """A motion of ``cycles`` up-and-down strokes (deg, load side) and its time (s)."""
+    rng = np.random.default_rng(seed)
+    n = cycles * per_cycle
+    t = np.arange(n) * 1e-3
+    u = 20.0 * np.sin(2 * np.pi * t / (per_cycle * 1e-3) - np.pi / 2) + 0.5 * t + rng.normal(0, 1e-4, n)
+    return u, t
+
+
+def test_the_screen_keeps_whole_cycles_one_of_each_fold_spread_over_the_record():
+    u, _ = _reversing(64)
+    folds = cycle_folds(u)
+    screen = folds.screen()
+    assert folds.n_cycles >= 2 * SCREEN_CYCLES and screen.screened and not folds.screened
+    kept = screen.kept
+    assert kept is not None and len(kept) == SCREEN_CYCLES
+    groups = [kept[i : i + N_FOLDS] for i in range(0, len(kept), N_FOLDS)]
+    assert all(list(g) == list(range(g[0], g[0] + N_FOLDS)) and g[0] % N_FOLDS == 0 for g in groups)  # one cycle of each fold
+    assert groups[0][0] == 0 and groups[-1][0] == N_FOLDS * (folds.n_cycles // N_FOLDS - 1)  # the first and the last group
+    assert [f for f, _, _ in screen.segments] == [c % N_FOLDS for c in kept]
+    assert screen.segments == [folds.segments[c] for c in kept]
+    rows = np.concatenate([np.arange(a, b) for _, a, b in screen.segments])
+    np.testing.assert_array_equal(screen.row_index, rows)
+    assert screen.rows == rows.size < u.size
+    assert [b - a for _, a, b in screen.compact_segments] == [b - a for _, a, b in screen.segments]
+    assert screen.compact_segments[0][1] == 0 and screen.compact_segments[-1][2] == rows.size
+    assert screen.as_dict() == folds.as_dict()
+
+
+@pytest.mark.parametrize("cycles", [12, 2 * SCREEN_CYCLES - 2])
+def test_a_record_of_few_cycles_is_not_screened(cycles):
+    folds = cycle_folds(_reversing(cycles)[0])
+    assert folds.screen() is folds and folds.row_index.size == folds.fold.size
+    blocks = cycle_folds(np.linspace(0.0, 10.0, 5000))  # one stroke: time blocks
+    assert blocks.kind == "time blocks" and blocks.screen() is blocks
+
+
+def _screened_data(cycles: int = 64, index: bool = True, cache: RecordCache | None = None) -> tuple[DetectionData, DetectionData]:
+    """The same record and residual scored over every cycle and over a screen."""
+    u, t = _reversing(cycles)
+    rng = np.random.default_rng(1)
+    r = 0.01 * np.sin(np.radians(3 * u)) + 0.003 * np.sin(0.002 * np.arange(u.size)) + rng.normal(0, 1e-3, u.size)
+    idx = np.maximum.accumulate(np.where(rng.random(u.size) < 0.8, np.arange(u.size), 0)) if index else None
+    folds = cycle_folds(u)
+    nuisance = [np.ones_like(u), u / 20.0]
+    fields = {"u_deg": u, "time_s": t, "torque_Nm": np.full(u.size, np.nan), "ratio": 30.0, "sample_period_s": 1e-3, "engaged_index": idx}
+    full = DetectionData.stacked(nuisance, r, folds=folds, cache=cache, **fields)
+    return full, DetectionData.stacked(nuisance, r, folds=folds.screen(), cache=cache, **fields)
+
+
+def test_a_screened_score_is_the_least_squares_and_the_held_out_folds_of_its_rows():
+    full, screen = _screened_data()
+    assert screen.folds is not None and screen.folds.screened
+    rows = screen.folds.row_index
+    x = harmonic_columns(full.u_deg, [3])
+    s = screen.score(False, x)
+    # in sample: the least squares of the residual on [nuisance, x] over the screen's rows
+    n = np.column_stack((np.ones(rows.size), full.u_deg[rows] / 20.0))
+    r = full.residual_deg[rows]
+    rss0 = float(np.sum((r - n @ np.linalg.lstsq(n, r, rcond=None)[0]) ** 2))
+    w = np.column_stack((n, x[rows]))
+    c = np.linalg.lstsq(w, r, rcond=None)[0]
+    e = r - w @ c
+    assert s.rss_before == pytest.approx(rss0, rel=1e-9) and s.rss_after == pytest.approx(float(e @ e), rel=1e-9)
+    np.testing.assert_allclose(s.coef, c[2:], rtol=1e-8)
+    # the lag-1 autocorrelation within the screen's cycles only (no product across a gap)
+    lag = sum(float(e[a + 1 : b] @ e[a : b - 1]) for _, a, b in screen.folds.compact_segments)
+    rho = lag / float(e @ e)
+    assert s.n_eff == pytest.approx(rows.size * (1 - rho) / (1 + rho), rel=1e-9)
+    # held out: fitted on the screen's other folds, scored on each
+    fold = screen.folds.fold[rows]
+    sse0 = sse1 = 0.0
+    for k in range(screen.folds.n_folds):
+        train, test = fold != k, fold == k
+        c0 = np.linalg.lstsq(n[train], r[train], rcond=None)[0]
+        c1 = np.linalg.lstsq(w[train], r[train], rcond=None)[0]
+        sse0 += float(np.sum((r[test] - n[test] @ c0) ** 2))
+        sse1 += float(np.sum((r[test] - w[test] @ c1) ** 2))
+    assert s.heldout_gain == pytest.approx(1 - sse1 / sse0, rel=1e-8)
+    # the screen sees less of the record than the whole
+    assert s.n_eff < full.score(False, x).n_eff
+
+
+def test_held_columns_on_a_screen_are_the_held_columns_of_its_rows():
+    full, screen = _screened_data()
+    rows = screen.folds.row_index
+    x = harmonic_columns(full.u_deg, [2, 5])
+    np.testing.assert_array_equal(screen.hold(x), full.hold(x)[rows])
+    v = record_velocity(full)
+    knots = speed_knots(v, 3)
+    np.testing.assert_array_equal(held_spline_columns(screen, knots), held_spline_columns(full, knots)[rows])
+    up, down = np.diff(full.u_deg, prepend=full.u_deg[0]) > 0, np.diff(full.u_deg, prepend=full.u_deg[0]) < 0
+    np.testing.assert_array_equal(
+        held_per_flank(x, up, down, full.engaged_index, rows), held_per_flank(x, up, down, full.engaged_index)[rows]
+    )
+    # a score takes held columns of either length alike, and nuisance columns too
+    a, b = screen.score(True, x), screen.score(False, screen.hold(x))
+    assert (a.rss_after, a.delta_bic, a.heldout_gain) == (b.rss_after, b.delta_bic, b.heldout_gain)
+    y = harmonic_columns(full.u_deg, [7])
+    a, b = screen.with_nuisance(screen.hold(x)).score(True, y), screen.with_nuisance(full.hold(x)).score(True, y)
+    assert (a.rss_after, a.heldout_gain) == (b.rss_after, b.heldout_gain)
+
+
+def test_a_screened_record_too_long_for_the_harmonic_stack_gets_it_at_the_rows_its_scores_read():
+    small = RecordCache(budget_bytes=2 * 2**20)  # too small for the whole record's 24 orders, large enough for the screen's
+    full, screen = _screened_data(cache=small)
+    u = full.u_deg
+    need = screen.needed_rows
+    assert need is not None and need.size < u.size
+    x = shaft_harmonic(screen, "load", u, 5, 24)
+    np.testing.assert_allclose(x[need], harmonic_columns(u, [5])[need], rtol=0, atol=1e-12)
+    np.testing.assert_allclose(screen.hold(x), full.hold(harmonic_columns(u, [5]))[screen.folds.row_index], rtol=0, atol=1e-12)
+
+
+def test_a_joint_fit_over_rows_is_the_least_squares_of_those_rows_and_reports_the_whole_residual():
+    rec = simulate_rig(duration_s=20.0, reversal_s=(0.3, 0.8), seed=2)
+    _, m, y, _ = synthetic.transmission_error(rec)
+    u = m / 30.0
+    base = VorosBacklash(refine=True, origin="first").fit(u, y)
+    uc, yc = u - base.u_ref_, y - base.y_ref_
+    cols = harmonic_columns(u, [2])
+    every = fit_guarded(uc, yc, cols, base.params_)
+    same = fit_guarded(uc, yc, cols, base.params_, rows=np.arange(u.size))
+    def p(fit):
+        return [fit.params.m_left, fit.params.c_left, fit.params.m_right, fit.params.c_right]
+
+    assert p(same) == pytest.approx(p(every), rel=1e-9) and same.rms_deg == pytest.approx(every.rms_deg, rel=1e-9)
+    rows = cycle_folds(u).segments[2][1:]
+    part = np.arange(*rows)
+    fit = fit_guarded(uc, yc, cols, base.params_, rows=part)
+    assert fit.residual_deg.size == u.size  # the whole record's residual
+    # at its backlash parameters the coefficients are the least squares of those rows
+    x = simulate_backlash(uc, fit.params, 0.0)
+    c = np.linalg.lstsq(cols[part], (yc - x)[part], rcond=None)[0]
+    np.testing.assert_allclose(fit.coef, c, rtol=1e-7)
+    np.testing.assert_allclose(fit.residual_deg, yc - x - cols @ fit.coef, rtol=0, atol=1e-12)
+    assert engaged_index(uc, fit.params).size == u.size
+
+
+def _long_record(seed: int = 3) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """34 reversal cycles (enough to be screened), a load and a motor harmonic (synthetic.transmission_error)."""
+    rec = simulate_rig(duration_s=60.0, reversal_s=(0.4, 1.0), seed=seed)
+    return synthetic.transmission_error(rec)
+
+
+def test_the_loop_on_a_screen_finds_what_it_finds_on_every_cycle():
+    """Seed 3 is one where the screen alone would keep a spurious load order (13, 1e-4 deg) that
+    the whole record does not: the chosen effect is detected again on every sample."""
+    t, m, y, q = _long_record()
+    assert cycle_folds(m / 30.0).n_cycles >= 2 * SCREEN_CYCLES
+    screened = diagnose_arrays(t, m, y, 30.0, torque_Nm=q)
+    plain = diagnose_arrays(t, m, y, 30.0, torque_Nm=q, screen_cycles=0)
+    assert screened.screened_cycles == SCREEN_CYCLES and plain.screened_cycles is None
+    a, b = screened.as_dict(), plain.as_dict()
+    assert [e["name"] for e in a["effects"]] == [e["name"] for e in b["effects"]] == ["transmission_error"]
+    assert a["effects"][0]["parameters"] == b["effects"][0]["parameters"]  # the same orders, amplitudes and phases
+    assert a["effects"][0]["evidence"] == b["effects"][0]["evidence"]  # scored on every cycle
+    assert (a["rms_after_deg"], a["backlash_after_deg"]) == (b["rms_after_deg"], b["backlash_after_deg"])
+    assert a["screened_cycles"] == SCREEN_CYCLES and b["screened_cycles"] is None
+
+
+def test_the_cli_takes_the_screen_and_refuses_a_negative_one(tmp_path, capsys):
+    t, m, y, _ = _long_record()
+    path = tmp_path / "long.csv"
+    np.savetxt(path, np.column_stack((t, m, y)), delimiter=",", header="time,motor,load", comments="", fmt="%.9f")
+    assert cli(["diagnose", str(path), "--ratio", "30", "--screen-cycles", "0", "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["screened_cycles"] is None
+    assert cli(["diagnose", str(path), "--ratio", "30", "--screen-cycles", "-1", "--json"]) != 0
+    assert "screen_cycles" in capsys.readouterr().err
+    with pytest.raises(InvalidParameterError, match="screen_cycles"):
+        diagnose_arrays(t, m, y, 30.0, screen_cycles=-1)
