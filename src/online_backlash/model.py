@@ -210,27 +210,40 @@ def simulate_switching(
     return _switching_loop(_as_input(u), params.m_left, params.c_left, params.m_right, params.c_right, float(x0))
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _sensitivity_loop(u, mL, cL, mR, cR, x0):  # pragma: no cover - compiled
     n = u.shape[0]
     x = np.empty(n)
-    dx = np.empty((n, 4))  # every row is written below
-    prev = x0
-    d0 = d1 = d2 = d3 = 0.0  # d x(t-1) / d [mL, cL, mR, cR]; x(-1) = x0 is given
-    for t in range(n):
-        if u[t] <= prev / mL - cL:  # eq. (1)-(2), left line: x = mL (u + cL)
-            prev = mL * u[t] + mL * cL
-            d0, d1, d2, d3 = u[t] + cL, mL, 0.0, 0.0
-        elif u[t] >= prev / mR + cR:  # eq. (1), (3), right line: x = mR (u - cR)
-            prev = mR * u[t] - mR * cR
-            d0, d1, d2, d3 = 0.0, 0.0, u[t] - cR, -mR
-        # inside the band x(t) = x(t-1): the derivatives carry over
-        x[t] = prev
-        dx[t, 0] = d0
-        dx[t, 1] = d1
-        dx[t, 2] = d2
-        dx[t, 3] = d3
+    dx = np.empty((n, 4))  # every row is written
+    one = np.zeros(1, dtype=np.int64)
+    _sensitivity_spans(u, mL, cL, mR, cR, one, one, np.full(1, n, dtype=np.int64), np.full(1, x0), x, dx)
     return x, dx
+
+
+@njit(cache=True, nogil=True)
+def _sensitivity_spans(u, mL, cL, mR, cR, starts, firsts, stops, x0s, x, dx):  # pragma: no cover - compiled
+    """Eq. (1)-(3) and the derivatives run from ``starts[k]`` (output ``x0s[k]`` before it, derivatives
+    0) to ``stops[k]``, for every span ``k``; the rows from ``firsts[k]`` on written to ``x``, ``dx``
+    one span after the other."""
+    at = 0
+    for k in range(starts.size):
+        prev = x0s[k]
+        d0 = d1 = d2 = d3 = 0.0  # d x(t-1) / d [mL, cL, mR, cR]
+        for t in range(starts[k], stops[k]):
+            if u[t] <= prev / mL - cL:  # eq. (1)-(2), left line: x = mL (u + cL)
+                prev = mL * u[t] + mL * cL
+                d0, d1, d2, d3 = u[t] + cL, mL, 0.0, 0.0
+            elif u[t] >= prev / mR + cR:  # eq. (1), (3), right line: x = mR (u - cR)
+                prev = mR * u[t] - mR * cR
+                d0, d1, d2, d3 = 0.0, 0.0, u[t] - cR, -mR
+            # inside the band x(t) = x(t-1): the derivatives carry over
+            if t >= firsts[k]:
+                x[at] = prev
+                dx[at, 0] = d0
+                dx[at, 1] = d1
+                dx[at, 2] = d2
+                dx[at, 3] = d3
+                at += 1
 
 
 def backlash_sensitivity(
@@ -254,6 +267,24 @@ def backlash_sensitivity(
     """
     _check_band(params)
     return _sensitivity_loop(_as_input(u), params.m_left, params.c_left, params.m_right, params.c_right, float(x0))
+
+
+def backlash_sensitivity_spans(
+    u: np.ndarray, params: BacklashParams, starts: np.ndarray, firsts: np.ndarray, stops: np.ndarray, x0s: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`backlash_sensitivity` on pieces of ``u``: piece ``k`` run from sample ``starts[k]`` with
+    the output ``x0s[k]`` before it (derivatives 0), its samples ``firsts[k] .. stops[k] - 1`` returned,
+    the pieces one after the other. Once a flank is engaged, eq. (1)-(3) no longer depend on the
+    output before (the play operator forgets its state), nor do the derivatives: started early
+    enough before a flank engages, a piece is the whole record's simulation."""
+    _check_band(params)
+    starts, firsts, stops = (np.ascontiguousarray(a, dtype=np.int64) for a in (starts, firsts, stops))
+    n = int(np.sum(stops - firsts))
+    x, dx = np.empty(n), np.empty((n, 4))
+    _sensitivity_spans(
+        _as_input(u), params.m_left, params.c_left, params.m_right, params.c_right, starts, firsts, stops, np.ascontiguousarray(x0s, dtype=float), x, dx
+    )
+    return x, dx
 
 
 def linear_filter(x: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:

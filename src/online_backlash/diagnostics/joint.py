@@ -34,7 +34,7 @@ import numpy as np
 from numba import njit
 from scipy.optimize import least_squares
 
-from ..model import BacklashParams, backlash_sensitivity, simulate_switching
+from ..model import BacklashParams, backlash_sensitivity, backlash_sensitivity_spans, simulate_switching
 from ._normal_equations import Projector, left_sum_of_squares
 from ._scoring import effective_samples
 
@@ -43,6 +43,9 @@ MAX_PLAY_STD_SHARE = 0.005
 #: and only if it inflates the play's variance by at most this factor (beyond it, the play
 #: would rest on a handful of samples near the reversals)
 MAX_PLAY_INFLATION = 100.0
+#: a fit over some rows simulates each run of them from this many samples before the flank last
+#: engaged ahead of it (under the start parameters): the model forgets its state at an engagement
+SPAN_LEAD = 256
 
 
 @dataclass(frozen=True)
@@ -80,6 +83,20 @@ class JointFit:
 def _simulate(uc: np.ndarray, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The backlash output from rest at the origin and ``dx / d[mL, cL, mR, cR]`` (eq. 1-3)."""
     return backlash_sensitivity(uc, BacklashParams(*p), 0.0)
+
+
+def _spans(uc: np.ndarray, rows: np.ndarray, start: BacklashParams) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """``(starts, firsts, stops, x0s)`` of :func:`~online_backlash.model.backlash_sensitivity_spans` for the
+    runs of consecutive ``rows``: each started :data:`SPAN_LEAD` samples before the last sample ahead
+    of it with a flank engaged under ``start``, from the output ``start`` gives there."""
+    cuts = np.flatnonzero(np.diff(rows) != 1) + 1
+    firsts = rows[np.r_[0, cuts]]
+    stops = rows[np.r_[cuts - 1, rows.size - 1]] + 1
+    x, f1, f2 = simulate_switching(uc, start, 0.0)
+    index = np.maximum.accumulate(np.where((f1 + f2) > 0, np.arange(uc.size), 0))
+    starts = np.maximum(index[firsts] - SPAN_LEAD, 0)
+    x0s = np.where(starts > 0, x[np.maximum(starts - 1, 0)], 0.0)  # x(-1) = 0 at the record's start
+    return starts, firsts, stops, x0s
 
 
 def engaged_index(uc: np.ndarray, params: BacklashParams) -> np.ndarray:
@@ -160,8 +177,9 @@ def _fit_fixed_columns(
     """:func:`fit_joint` for columns that do not depend on the backlash parameters.
 
     With ``rows`` (sample indices) the least squares, and the play's inflation and standard error,
-    run over those samples only (the model is still simulated over the whole record, from its
-    start); the residual and its RMS are the whole record's.
+    run over those samples only, the model simulated on their runs, each from a little before a flank
+    engages ahead of it (:func:`_spans`, :func:`~online_backlash.model.backlash_sensitivity_spans`);
+    the residual and its RMS are the whole record's (one simulation of it at the end).
 
     The search is scipy's trust-region least squares on the variable-projection residual
     ``r = P (yc - x(p))`` (``P`` projects off ``columns``) with Jacobian ``-P dx/dp``. It uses them
@@ -175,6 +193,7 @@ def _fit_fixed_columns(
     yc_fitted = yc if rows is None else yc[rows]
     proj = Projector(fitted)
     n = yc_fitted.size
+    spans = None if rows is None else _spans(uc, rows, start)
     # p = dp_dv @ v (+ the held play on cR)
     dp_dv = np.array([[1.0, 0, 0], [0, 1, 0], [0, 0, 1], [0, -1, 0]]) if hold_play is not None else np.eye(4)
     k = dp_dv.shape[1]
@@ -198,9 +217,7 @@ def _fit_fixed_columns(
                 # the same cost as n rows of 1e6
                 last[key] = (np.full(k + 1, 1e6 * np.sqrt(n / (k + 1))), np.zeros((k + 1, k)))
             else:
-                x, dx = _simulate(uc, p)
-                if rows is not None:
-                    x, dx = x[rows], dx[rows]
+                x, dx = _simulate(uc, p) if spans is None else backlash_sensitivity_spans(uc, BacklashParams(*p), *spans)
                 a[:, :k] = dx if hold_play is None else dx @ dp_dv
                 np.subtract(yc_fitted, x, out=a[:, k])
                 w, vec = np.linalg.eigh(proj.left_gram(a))
