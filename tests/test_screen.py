@@ -21,11 +21,11 @@ from online_backlash.diagnostics._harmonics import harmonic_columns, held_per_fl
 from online_backlash.diagnostics._record_cache import RecordCache
 from online_backlash.diagnostics._scoring import DetectionData
 from online_backlash.diagnostics._speed import held_spline_columns, record_velocity, speed_knots
-from online_backlash.diagnostics.joint import engaged_index, fit_guarded
+from online_backlash.diagnostics.joint import _spans, engaged_index, fit_guarded
 from online_backlash.diagnostics.loop import diagnose_arrays
 from online_backlash.errors import InvalidParameterError
 from online_backlash.estimators.batch import VorosBacklash
-from online_backlash.model import simulate_backlash
+from online_backlash.model import BacklashParams, backlash_sensitivity, backlash_sensitivity_spans, simulate_backlash
 from online_backlash.rig import simulate_rig
 
 
@@ -200,3 +200,25 @@ def test_the_cli_takes_the_screen_and_refuses_a_negative_one(tmp_path, capsys):
     assert "screen_cycles" in capsys.readouterr().err
     with pytest.raises(InvalidParameterError, match="screen_cycles"):
         diagnose_arrays(t, m, y, 30.0, screen_cycles=-1)
+
+
+def test_the_model_on_runs_of_rows_started_before_a_flank_engages_is_the_whole_records():
+    """The play operator forgets its state once a flank engages: each run of the screen's rows,
+    simulated from a little before the flank last engaged ahead of it, gives the whole record's
+    output and derivatives there, also for parameters near the ones the runs were planned with."""
+    rec = simulate_rig(duration_s=30.0, reversal_s=(0.3, 0.8), seed=4)
+    u = rec.motor_deg / 30.0
+    uc = u - u[0]
+    start = BacklashParams(1.0, 0.26, 1.0, 0.24)
+    x, dx = backlash_sensitivity(uc, start)
+    one = backlash_sensitivity_spans(uc, start, [0], [0], [uc.size], [0.0])
+    np.testing.assert_array_equal(one[0], x)
+    np.testing.assert_array_equal(one[1], dx)
+    rows = cycle_folds(u).screen(cycles=10, factor=1).row_index
+    assert 0 < rows.size < uc.size
+    spans = _spans(uc, rows, start)
+    for p in (start, BacklashParams(1.002, 0.262, 0.999, 0.238)):
+        x, dx = backlash_sensitivity(uc, p)
+        xs, dxs = backlash_sensitivity_spans(uc, p, *spans)
+        np.testing.assert_array_equal(xs, x[rows])
+        np.testing.assert_array_equal(dxs, dx[rows])
