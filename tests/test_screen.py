@@ -17,7 +17,7 @@ import pytest
 from online_backlash.cli import main as cli
 from online_backlash.diagnostics import synthetic
 from online_backlash.diagnostics._folds import N_FOLDS, SCREEN_CYCLES, cycle_folds
-from online_backlash.diagnostics._harmonics import harmonic_columns, held_per_flank, shaft_harmonic
+from online_backlash.diagnostics._harmonics import harmonic_at_sources, harmonic_columns, held_harmonic, held_per_flank, shaft_harmonic
 from online_backlash.diagnostics._record_cache import RecordCache
 from online_backlash.diagnostics._scoring import DetectionData
 from online_backlash.diagnostics._speed import held_spline_columns, record_velocity, speed_knots
@@ -132,15 +132,23 @@ def test_held_columns_on_a_screen_are_the_held_columns_of_its_rows():
     assert (a.rss_after, a.heldout_gain) == (b.rss_after, b.heldout_gain)
 
 
-def test_a_screened_record_too_long_for_the_harmonic_stack_gets_it_at_the_rows_its_scores_read():
-    small = RecordCache(budget_bytes=2 * 2**20)  # too small for the whole record's 24 orders, large enough for the screen's
-    full, screen = _screened_data(cache=small)
+@pytest.mark.parametrize("budget", [None, 2 * 2**20, 1000])
+def test_a_screen_holds_harmonics_from_the_stack_at_the_rows_its_scores_read(budget):
+    """The stack of orders formed at those rows only (a budget too small for the whole record's but
+    large enough for the screen's), or each order alone there (too small for either)."""
+    full, screen = _screened_data(cache=None if budget is None else RecordCache(budget_bytes=budget))
     u = full.u_deg
     need = screen.needed_rows
     assert need is not None and need.size < u.size
-    x = shaft_harmonic(screen, "load", u, 5, 24)
-    np.testing.assert_allclose(x[need], harmonic_columns(u, [5])[need], rtol=0, atol=1e-12)
-    np.testing.assert_allclose(screen.hold(x), full.hold(harmonic_columns(u, [5]))[screen.folds.row_index], rtol=0, atol=1e-12)
+    columns, positions, rows = harmonic_at_sources(screen, "load", u, 5, 24)
+    assert rows is not None and np.array_equal(rows, need) and columns.shape == (need.size, 2)
+    plain = full.hold(harmonic_columns(u, [5]))[screen.folds.row_index]
+    np.testing.assert_allclose(held_harmonic(screen, "load", u, 5, 24), plain, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(columns[positions], plain, rtol=0, atol=1e-12)
+    # every sample scored: the record's stack and the engaged index
+    columns, positions, rows = harmonic_at_sources(full, "load", u, 5, 24)
+    assert rows is None and np.array_equal(positions, full.engaged_index)
+    np.testing.assert_array_equal(held_harmonic(full, "load", u, 5, 24), full.hold(shaft_harmonic(full, "load", u, 5, 24)))
 
 
 def test_a_joint_fit_over_rows_is_the_least_squares_of_those_rows_and_reports_the_whole_residual():

@@ -10,8 +10,8 @@ load rotation up to order 24, 1e-12 on 85 000 deg of motor rotation (the 10-minu
 they only rank candidate orders, the chosen terms are fitted with ``numpy.sin``. The stack is kept in the record's cache (:meth:`._scoring.DetectionData.memo`);
 a record too long for the cache's budget gets each order from ``numpy.sin``/``cos`` instead.
 
-A screened record (:meth:`._folds.Folds.screen`) too long for the whole stack gets it at the rows its
-scores read (:attr:`._scoring.DetectionData.needed_rows`) instead.
+A screened record (:meth:`._folds.Folds.screen`) gets the stack at the rows its scores read only
+(:func:`harmonic_at_sources`, :attr:`._scoring.DetectionData.needed_rows`), once a round.
 
 Angles in degrees; orders are cycles per revolution of the angle.
 """
@@ -66,19 +66,34 @@ def shaft_harmonic(data: DetectionData, shaft: str, angle_deg: np.ndarray, order
     from the record's stack of orders ``1 .. top`` (``shaft`` names the angle in the cache: it must be
     a function of the record and ``data.ratio`` only)."""
     key = ("harmonic stack", shaft, float(data.ratio), int(top))
-    if 1 <= order <= top and data.can_memo(key, angle_deg.size * 2 * top * 8):
-        return data.memo(key, lambda: harmonic_stack(angle_deg, top))[order - 1]
-    rows = data.needed_rows
-    if rows is None or not 1 <= order <= top:
+    if not 1 <= order <= top or not data.can_memo(key, angle_deg.size * 2 * top * 8):
         return harmonic_columns(angle_deg, [order])
-    # a screened record too long for the whole stack: the stack at the rows its scores read, the others zero
-    part = ("harmonic stack at the rows scored", shaft, float(data.ratio), int(top))
-    out = np.zeros((angle_deg.size, 2))
-    if data.can_memo(part, rows.size * 2 * top * 8):
-        out[rows] = data.memo(part, lambda: harmonic_stack(angle_deg[rows], top), held=True)[order - 1]
-    else:
-        out[rows] = harmonic_columns(angle_deg[rows], [order])
-    return out
+    return data.memo(key, lambda: harmonic_stack(angle_deg, top))[order - 1]
+
+
+def harmonic_at_sources(data: DetectionData, shaft: str, angle_deg: np.ndarray, order: int, top: int) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+    """The order's ``[sin, cos]`` at the samples a held column reads, ``(columns, positions, rows)``:
+    ``columns[positions]`` is ``data.hold(shaft_harmonic(...))`` (the rows :meth:`DetectionData.hold`
+    gives); ``rows`` are the samples ``columns`` has (None: every sample). For a screen, the stack
+    of orders is formed at the rows its scores read only (:attr:`DetectionData.needed_rows`), once a
+    round: no full-length array."""
+    rows = data.needed_rows
+    scored = data.scored_rows
+    if rows is None or scored is None:
+        index = np.arange(angle_deg.size) if data.engaged_index is None else data.engaged_index
+        return shaft_harmonic(data, shaft, angle_deg, order, top), index, None
+    sources = scored if data.engaged_index is None else data.engaged_index[scored]
+    positions = data.memo(("positions of the held rows",), lambda: np.searchsorted(rows, sources), held=True)
+    key = ("harmonic stack at the rows scored", shaft, float(data.ratio), int(top))
+    if 1 <= order <= top and data.can_memo(key, rows.size * 2 * top * 8):
+        return data.memo(key, lambda: harmonic_stack(angle_deg[rows], top), held=True)[order - 1], positions, rows
+    return harmonic_columns(angle_deg[rows], [order]), positions, rows
+
+
+def held_harmonic(data: DetectionData, shaft: str, angle_deg: np.ndarray, order: int, top: int) -> np.ndarray:
+    """``data.hold(shaft_harmonic(data, shaft, angle_deg, order, top))``, without a full-length array on a screen."""
+    columns, positions, _ = harmonic_at_sources(data, shaft, angle_deg, order, top)
+    return np.take(columns, positions, axis=0)
 
 
 def held_per_flank(
@@ -93,7 +108,7 @@ def held_per_flank(
     """
     c = np.ascontiguousarray(columns, dtype=float)
     idx = np.arange(c.shape[0]) if index is None else np.ascontiguousarray(index, dtype=np.int64)
-    rows = np.arange(c.shape[0]) if rows is None else np.ascontiguousarray(rows, dtype=np.int64)
+    rows = np.arange(idx.size) if rows is None else np.ascontiguousarray(rows, dtype=np.int64)
     out = np.empty((rows.size, 2 * c.shape[1]))
     _per_flank(c, np.asarray(up, dtype=float), np.asarray(down, dtype=float), idx, rows, out)
     return out

@@ -44,7 +44,7 @@ from ..errors import InvalidParameterError
 from ..load_aware.engagement import engaged_flank, torque_deadband
 from ._causal import acceleration_deg_s2, lagged_difference, velocity_deg_s
 from ._effect_base import EffectBase
-from ._harmonics import harmonic_columns, shaft_harmonic
+from ._harmonics import harmonic_columns, held_harmonic
 from ._scoring import Detection, DetectionData, Score, best_detection
 from ._speed import MAX_INNER_KNOTS, held_spline_columns, record_velocity, speed_knots
 from .dead_band import DeadBandMotion
@@ -182,7 +182,8 @@ class TransmissionError(EffectBase):
         """Significant harmonics of the residual against the load and motor angles."""
         u = data.u_deg
         load = select_orders(
-            data, lambda n: shaft_harmonic(data, "load", u, n, max_load_order), max_load_order, float(np.ptp(u)), max_orders, PERIODIC_MIN_PERIODS
+            data, lambda n: held_harmonic(data, "load", u, n, max_load_order), max_load_order, float(np.ptp(u)), max_orders, PERIODIC_MIN_PERIODS,
+            held=True,
         )
         motor: list[int] = []
         if abs(data.ratio) > 1:
@@ -192,8 +193,8 @@ class TransmissionError(EffectBase):
             given = data.with_nuisance(data.hold(harmonic_columns(u, load))) if load else data
             motor = select_orders(
                 given,
-                lambda n: shaft_harmonic(data, "motor", motor_deg, n, max_motor_order),
-                max_motor_order, float(np.ptp(motor_deg)), max_orders, PERIODIC_MIN_PERIODS,
+                lambda n: held_harmonic(data, "motor", motor_deg, n, max_motor_order),
+                max_motor_order, float(np.ptp(motor_deg)), max_orders, PERIODIC_MIN_PERIODS, held=True,
             )
         if not load and not motor:
             return None

@@ -25,7 +25,7 @@ from ..errors import InvalidParameterError
 from ._causal import velocity_deg_s
 from ._effect_base import EffectBase
 from ._folds import DEADZONE_DEG, DIRECTION_WINDOW
-from ._harmonics import harmonic_columns, held_per_flank, shaft_harmonic
+from ._harmonics import harmonic_at_sources, harmonic_columns, held_per_flank
 from ._per_flank import PerFlankTerms, record_direction
 from ._scoring import Detection, DetectionData, Score
 from ._speed import MAX_INNER_KNOTS, VELOCITY_WINDOW, cardinal_splines, held_spline_columns, record_velocity, speed_knots, zero_knot
@@ -85,7 +85,8 @@ class AngleHarmonicsPerFlank(PerFlankTerms):
         up, down = d > 0, d < 0
 
         def held(n: int) -> np.ndarray:  # the columns of order n, held through the dead band
-            return held_per_flank(shaft_harmonic(data, "load", u, n, max_order), up, down, data.engaged_index, data.scored_rows)
+            columns, positions, rows = harmonic_at_sources(data, "load", u, n, max_order)
+            return held_per_flank(columns, up if rows is None else up[rows], down if rows is None else down[rows], positions)
 
         orders = select_orders(data, held, max_order, float(np.ptp(u)), max_orders, held=True)
         if not orders:
