@@ -159,20 +159,47 @@ def fit_joint(
     return _fit_held(uc, yc, columns, held, start, hold_play, hold_columns(columns, held, engaged_index(uc, start)) if np.any(held) else columns)
 
 
+@dataclass(frozen=True)
+class _HeldAt:
+    """Columns with the ``held`` ones taken at ``index`` (:func:`hold_columns`), formed only where
+    needed: at some rows (:meth:`rows`), or as the product with coefficients (:meth:`times`)."""
+
+    columns: np.ndarray
+    held: np.ndarray
+    index: np.ndarray
+
+    def rows(self, rows: np.ndarray) -> np.ndarray:
+        out = np.take(self.columns, rows, axis=0)
+        if np.any(self.held):
+            out[:, self.held] = np.take(self.columns, self.index[rows], axis=0)[:, self.held]
+        return out
+
+    def times(self, coef: np.ndarray) -> np.ndarray:
+        out = self.columns @ np.where(self.held, 0.0, coef)
+        return out + np.take(self.columns @ np.where(self.held, coef, 0.0), self.index) if np.any(self.held) else out
+
+
 def _fit_held(
-    uc: np.ndarray, yc: np.ndarray, columns: np.ndarray, held: np.ndarray, start: BacklashParams, hold_play: float | None, first: np.ndarray,
-    rows: np.ndarray | None = None,
+    uc: np.ndarray, yc: np.ndarray, columns: np.ndarray, held: np.ndarray, start: BacklashParams, hold_play: float | None,
+    first: np.ndarray | None, rows: np.ndarray | None = None,
 ) -> JointFit:
     """:func:`fit_joint` given ``first``, the columns held through the dead band of ``start`` (the
-    first search's; :func:`fit_guarded` hands the same to its second fit instead of forming it again)."""
-    fit = _fit_fixed_columns(uc, yc, first, start, hold_play, rows)
+    first search's; :func:`fit_guarded` hands the same to its second fit instead of forming it again).
+    With ``rows`` the held columns are formed at those rows only (``first`` unused)."""
+    if rows is not None:
+        fit = _fit_fixed_columns(uc, yc, _HeldAt(columns, held, engaged_index(uc, start)), start, hold_play, rows)
+        if np.any(held):
+            fit = _fit_fixed_columns(uc, yc, _HeldAt(columns, held, engaged_index(uc, fit.params)), fit.params, hold_play, rows)
+        return fit
+    assert first is not None
+    fit = _fit_fixed_columns(uc, yc, first, start, hold_play)
     if np.any(held):  # once more through the dead band of the fitted model
-        fit = _fit_fixed_columns(uc, yc, hold_columns(columns, held, engaged_index(uc, fit.params)), fit.params, hold_play, rows)
+        fit = _fit_fixed_columns(uc, yc, hold_columns(columns, held, engaged_index(uc, fit.params)), fit.params, hold_play)
     return fit
 
 
 def _fit_fixed_columns(
-    uc: np.ndarray, yc: np.ndarray, columns: np.ndarray, start: BacklashParams, hold_play: float | None, rows: np.ndarray | None = None
+    uc: np.ndarray, yc: np.ndarray, columns: np.ndarray | _HeldAt, start: BacklashParams, hold_play: float | None, rows: np.ndarray | None = None
 ) -> JointFit:
     """:func:`fit_joint` for columns that do not depend on the backlash parameters.
 
@@ -189,7 +216,16 @@ def _fit_fixed_columns(
     per point for ``q`` columns, with no ``n``-row SVD. (trf's full-rank test of ``J`` scales with
     the row count: the two differ only for a Jacobian singular to about 1e-10 of its largest value.)
     """
-    fitted = columns if rows is None else columns[rows]
+    if isinstance(columns, _HeldAt):
+        assert rows is not None
+        fitted, times = columns.rows(rows), columns.times
+    else:
+        block = columns
+        fitted = block if rows is None else block[rows]
+
+        def times(coef: np.ndarray) -> np.ndarray:
+            return block @ coef
+
     yc_fitted = yc if rows is None else yc[rows]
     proj = Projector(fitted)
     n = yc_fitted.size
@@ -240,7 +276,7 @@ def _fit_fixed_columns(
     params = BacklashParams(*p)
     x, dx = _simulate(uc, p)
     coef = proj.coef(yc_fitted - (x if rows is None else x[rows]))
-    left = yc - x - columns @ coef if columns.shape[1] else yc - x
+    left = yc - x - times(coef) if fitted.shape[1] else yc - x
     left_fitted, dx_fitted = (left, dx) if rows is None else (left[rows], dx[rows])
     # the play's direction dx/d(play) and the other backlash directions (as play_sensitivity)
     basis = np.column_stack((np.ones(n), dx_fitted[:, 0], dx_fitted[:, 2], 0.5 * (dx_fitted[:, 1] + dx_fitted[:, 3])))
@@ -270,7 +306,7 @@ def fit_guarded(
     residual (and its RMS) is the whole record's, so fits over the same rows compare on all samples.
     """
     held = np.zeros(columns.shape[1], dtype=bool) if held is None else np.asarray(held, dtype=bool)
-    first = hold_columns(columns, held, engaged_index(uc, start)) if np.any(held) else columns
+    first = hold_columns(columns, held, engaged_index(uc, start)) if np.any(held) and rows is None else columns
     fit = _fit_held(uc, yc, columns, held, start, None, first, rows)
     if separable(fit, start):
         return fit
