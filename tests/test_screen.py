@@ -23,6 +23,7 @@ from online_backlash.diagnostics._scoring import DetectionData
 from online_backlash.diagnostics._speed import held_spline_columns, record_velocity, speed_knots
 from online_backlash.diagnostics.joint import _spans, engaged_index, fit_guarded
 from online_backlash.diagnostics.loop import diagnose_arrays
+from online_backlash.diagnostics.report import markdown_report
 from online_backlash.errors import InvalidParameterError
 from online_backlash.estimators.batch import VorosBacklash
 from online_backlash.model import BacklashParams, backlash_sensitivity, backlash_sensitivity_spans, simulate_backlash
@@ -230,3 +231,12 @@ def test_the_model_on_runs_of_rows_started_before_a_flank_engages_is_the_whole_r
         xs, dxs = backlash_sensitivity_spans(uc, p, *spans)
         np.testing.assert_array_equal(xs, x[rows])
         np.testing.assert_array_equal(dxs, dx[rows])
+
+
+def test_the_report_says_the_search_ran_on_a_screen():
+    t, m, y, q = _long_record()
+    d = diagnose_arrays(t, m, y, 30.0, torque_Nm=q)
+    text = markdown_report(d)
+    assert f"scored and refitted on {SCREEN_CYCLES} of the record's {d.cycles} reversal cycles" in text
+    assert d.cycles == cycle_folds(m / 30.0).n_cycles
+    assert "Search:" not in markdown_report(diagnose_arrays(t, m, y, 30.0, torque_Nm=q, screen_cycles=0))

@@ -187,6 +187,8 @@ class Diagnosis:
     #: reversal cycles the candidates were scored and refitted on (a screen of a long record,
     #: :meth:`._folds.Folds.screen`); None: every cycle
     screened_cycles: int | None = None
+    #: reversal cycles in the record (:func:`._folds.cycle_folds`)
+    cycles: int = 0
 
     @property
     def effects(self) -> list[Any]:
@@ -505,7 +507,8 @@ def diagnose(
     _hold_out_final(steps, current, u, t, q, uc, float(ratio), period, folds, built)
     _start_as_estimated(steps, start, before)
     after = start.coasting(before, current.residual_deg)  # until a flank first catches the load, the start's own path
-    return Diagnosis(base, current, steps, noise, before, after, u, y, t, float(ratio), q, start, len(screen.segments) if screen.screened else None)
+    screened = len(screen.segments) if screen.screened else None
+    return Diagnosis(base, current, steps, noise, before, after, u, y, t, float(ratio), q, start, screened, folds.n_cycles)
 
 
 def _confirmed(

@@ -56,6 +56,13 @@ def markdown_report(diagnosis: Diagnosis, source: str | os.PathLike[str] | None 
             "taken out of the residual before and after alike; not an effect.",
             "",
         ]
+    if d["screened_cycles"] is not None:
+        lines += [
+            f"Search: the candidates were scored and refitted on {d['screened_cycles']} of the record's "
+            f"{diagnosis.cycles} reversal cycles, spread over it; each effect chosen was then detected again, and the "
+            "terms fitted, on every sample.",
+            "",
+        ]
     if plot:
         lines += [f"![residual before and after]({plot})", ""]
     lines += [
