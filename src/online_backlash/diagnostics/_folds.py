@@ -31,7 +31,9 @@ N_FOLDS = 5
 #: reversal cycles a screened record keeps (:meth:`Folds.screen`): three of every fold
 SCREEN_CYCLES = 3 * N_FOLDS
 #: a record is screened only when it has at least this many times :data:`SCREEN_CYCLES` cycles
-SCREEN_FACTOR = 2
+#: (below, the confirmation on every sample costs about what the screen saves: on the synthetic
+#: transmission-error logs of ``tests/test_screen.py`` the two break even at about 50 cycles)
+SCREEN_FACTOR = 3
 #: the direction of motion: sign of the change of ``u`` over this many samples, held inside
 #: a change of ``DEADZONE_DEG`` (as for the per-flank generic term)
 DIRECTION_WINDOW = 10

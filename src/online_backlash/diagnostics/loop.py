@@ -24,7 +24,7 @@
 4. Repeat until nothing is significant or the residual is within ``floor_ratio`` of the noise
    floor. Then every term is held out once more, given all the others in the final model.
 
-A long record (at least twice ``screen_cycles`` reversal cycles) is screened: steps 2 and 3 score
+A long record (at least three times ``screen_cycles`` reversal cycles) is screened: steps 2 and 3 score
 and refit the candidates on about ``screen_cycles`` of its cycles spread evenly over it
 (:meth:`._folds.Folds.screen`); the effect they choose is then detected again on every sample
 (its configuration and evidence as without the screen, :func:`_confirmed`; refused if the whole
@@ -372,7 +372,7 @@ def diagnose(
         record's start estimated, :mod:`._initial_state`, the clean two-mass logs sit at
         0.96-1.07 times the floor; ``docs/closing-the-loop.md``, point 7).
     screen_cycles : int
-        A record of at least twice this many reversal cycles is *screened*: the candidates are
+        A record of at least three times this many reversal cycles is *screened*: the candidates are
         scored, and the candidates' joint refits fitted, on about this many of its cycles, spread
         evenly over it (:meth:`._folds.Folds.screen`); the effect chosen is then detected again,
         and the terms fitted, on every sample, and the final model's held-out gains use every
