@@ -181,7 +181,6 @@ class _Grams:
         no lag-1 Gram of ``x``); for a screen, within each of its cycles."""
         p = self.z.shape[1] - 1
         ez, ex = np.concatenate((e[:p], e[-1:])), np.ascontiguousarray(e[p:-1])
-        x = np.ascontiguousarray(x)
         if self.folds.screened:
             return float(sum(_lag_product(self.z[a:b], ez, x[a:b], ex) for _, a, b in self.segments))
         return float(_lag_product(self.z, ez, x, ex))
