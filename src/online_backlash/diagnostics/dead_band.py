@@ -41,6 +41,7 @@ Units: degrees (load side), seconds, newton metres.
 from __future__ import annotations
 
 import math
+from itertools import pairwise
 from typing import Any
 
 import numpy as np
@@ -258,7 +259,7 @@ class DeadBandMotion(EffectBase):
         every = data.scored(every_one.clone().terms(data.u_deg, data.time_s, data.torque_Nm))  # the rows the scores use
         split = every_one.n_terms - every_one.n_entry - every_one.n_rest
         ends = np.cumsum([0, split, every_one.n_entry, every_one.n_rest])
-        spans = dict(zip(("coast", "entry", "creep at rest"), zip(ends[:-1], ends[1:])))
+        spans = dict(zip(("coast", "entry", "creep at rest"), pairwise(int(e) for e in ends)))
         for names in VARIANTS:
             exit_taus = taus if "coast" in names else ()
             effect = cls(
@@ -279,7 +280,7 @@ class DeadBandMotion(EffectBase):
 def _columns_of(every: np.ndarray, spans: list[tuple[int, int]]) -> np.ndarray:
     """The columns of ``every`` in the ``spans`` (``(start, stop)``, in order): a view when they are
     adjacent (no copy of a full-length block), else side by side in a new block."""
-    if all(a[1] == b[0] for a, b in zip(spans, spans[1:])):
+    if all(a[1] == b[0] for a, b in pairwise(spans)):
         return every[:, spans[0][0] : spans[-1][1]]
     return np.hstack([every[:, a:b] for a, b in spans])
 
