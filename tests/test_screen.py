@@ -21,7 +21,7 @@ from online_backlash.diagnostics._harmonics import harmonic_at_sources, harmonic
 from online_backlash.diagnostics._record_cache import RecordCache
 from online_backlash.diagnostics._scoring import DetectionData
 from online_backlash.diagnostics._speed import held_spline_columns, record_velocity, speed_knots
-from online_backlash.diagnostics.joint import _spans, engaged_index, fit_guarded
+from online_backlash.diagnostics.joint import ColumnParts, _spans, engaged_index, fit_guarded
 from online_backlash.diagnostics.loop import diagnose_arrays
 from online_backlash.diagnostics.report import markdown_report
 from online_backlash.errors import InvalidParameterError
@@ -240,3 +240,19 @@ def test_the_report_says_the_search_ran_on_a_screen():
     assert f"scored and refitted on {SCREEN_CYCLES} of the record's {d.cycles} reversal cycles" in text
     assert d.cycles == cycle_folds(m / 30.0).n_cycles
     assert "Search:" not in markdown_report(diagnose_arrays(t, m, y, 30.0, torque_Nm=q, screen_cycles=0))
+
+
+def test_column_parts_are_the_block_whole_at_rows_and_times_coefficients():
+    rng = np.random.default_rng(7)
+    n = 500
+    gate = rng.random(n) < 0.6
+    a, b = rng.normal(size=(n, 2)), rng.normal(size=(n, 3))
+    parts = ColumnParts(((a, None), (b, gate)))
+    block = np.column_stack((a, b * gate[:, None]))
+    assert parts.shape == (n, 5)
+    np.testing.assert_array_equal(parts.dense(), block)
+    rows = np.sort(rng.choice(n, 120, replace=False))
+    np.testing.assert_array_equal(parts.at(rows), block[rows])
+    coef = rng.normal(size=5)
+    np.testing.assert_allclose(parts.dot(coef), block @ coef, rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(parts.dot(np.r_[0.0, 0.0, coef[2:]]), block[:, 2:] @ coef[2:], rtol=1e-12, atol=1e-12)

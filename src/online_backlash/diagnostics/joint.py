@@ -160,38 +160,89 @@ def fit_joint(
 
 
 @dataclass(frozen=True)
+class ColumnParts:
+    """Full-length columns side by side, kept as parts: ``(columns, gate)`` with ``columns`` ``(n, k_i)``
+    and ``gate`` None or a boolean mask of the samples (the part is zero where it is False). The
+    block is formed only where needed: whole (:meth:`dense`), at some rows (:meth:`at`), or as its
+    product with coefficients (:meth:`dot`)."""
+
+    parts: tuple[tuple[np.ndarray, np.ndarray | None], ...]
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        n = self.parts[0][0].shape[0] if self.parts else 0
+        return n, sum(c.shape[1] for c, _ in self.parts)
+
+    def dense(self) -> np.ndarray:
+        """The whole block (a new array)."""
+        out = np.empty(self.shape)
+        j = 0
+        for c, gate in self.parts:
+            k = c.shape[1]
+            if gate is None:
+                out[:, j : j + k] = c
+            else:
+                np.multiply(c, gate[:, None], out=out[:, j : j + k])
+            j += k
+        return out
+
+    def at(self, rows: np.ndarray) -> np.ndarray:
+        """The block's ``rows``."""
+        out = np.empty((rows.size, self.shape[1]))
+        j = 0
+        for c, gate in self.parts:
+            k = c.shape[1]
+            out[:, j : j + k] = np.take(c, rows, axis=0) if gate is None else np.take(c, rows, axis=0) * gate[rows, None]
+            j += k
+        return out
+
+    def dot(self, coef: np.ndarray) -> np.ndarray:
+        """The block times ``coef``, an ``n``-vector."""
+        out = np.zeros(self.shape[0])
+        j = 0
+        for c, gate in self.parts:
+            k = c.shape[1]
+            if np.any(coef[j : j + k]):
+                v = c @ coef[j : j + k]
+                out += v if gate is None else v * gate
+            j += k
+        return out
+
+
+@dataclass(frozen=True)
 class _HeldAt:
     """Columns with the ``held`` ones taken at ``index`` (:func:`hold_columns`), formed only where
     needed: at some rows (:meth:`rows`), or as the product with coefficients (:meth:`times`)."""
 
-    columns: np.ndarray
+    columns: ColumnParts
     held: np.ndarray
     index: np.ndarray
 
     def rows(self, rows: np.ndarray) -> np.ndarray:
-        out = np.take(self.columns, rows, axis=0)
+        out = self.columns.at(rows)
         if np.any(self.held):
-            out[:, self.held] = np.take(self.columns, self.index[rows], axis=0)[:, self.held]
+            out[:, self.held] = self.columns.at(self.index[rows])[:, self.held]
         return out
 
     def times(self, coef: np.ndarray) -> np.ndarray:
-        out = self.columns @ np.where(self.held, 0.0, coef)
-        return out + np.take(self.columns @ np.where(self.held, coef, 0.0), self.index) if np.any(self.held) else out
+        out = self.columns.dot(np.where(self.held, 0.0, coef))
+        return out + np.take(self.columns.dot(np.where(self.held, coef, 0.0)), self.index) if np.any(self.held) else out
 
 
 def _fit_held(
-    uc: np.ndarray, yc: np.ndarray, columns: np.ndarray, held: np.ndarray, start: BacklashParams, hold_play: float | None,
+    uc: np.ndarray, yc: np.ndarray, columns: np.ndarray | ColumnParts, held: np.ndarray, start: BacklashParams, hold_play: float | None,
     first: np.ndarray | None, rows: np.ndarray | None = None,
 ) -> JointFit:
     """:func:`fit_joint` given ``first``, the columns held through the dead band of ``start`` (the
     first search's; :func:`fit_guarded` hands the same to its second fit instead of forming it again).
     With ``rows`` the held columns are formed at those rows only (``first`` unused)."""
     if rows is not None:
-        fit = _fit_fixed_columns(uc, yc, _HeldAt(columns, held, engaged_index(uc, start)), start, hold_play, rows)
+        parts = columns if isinstance(columns, ColumnParts) else ColumnParts(((columns, None),))
+        fit = _fit_fixed_columns(uc, yc, _HeldAt(parts, held, engaged_index(uc, start)), start, hold_play, rows)
         if np.any(held):
-            fit = _fit_fixed_columns(uc, yc, _HeldAt(columns, held, engaged_index(uc, fit.params)), fit.params, hold_play, rows)
+            fit = _fit_fixed_columns(uc, yc, _HeldAt(parts, held, engaged_index(uc, fit.params)), fit.params, hold_play, rows)
         return fit
-    assert first is not None
+    assert first is not None and not isinstance(columns, ColumnParts)
     fit = _fit_fixed_columns(uc, yc, first, start, hold_play)
     if np.any(held):  # once more through the dead band of the fitted model
         fit = _fit_fixed_columns(uc, yc, hold_columns(columns, held, engaged_index(uc, fit.params)), fit.params, hold_play)
@@ -296,7 +347,8 @@ def separable(fit: JointFit, start: BacklashParams) -> bool:
 
 
 def fit_guarded(
-    uc: np.ndarray, yc: np.ndarray, columns: np.ndarray, start: BacklashParams, held: np.ndarray | None = None, rows: np.ndarray | None = None
+    uc: np.ndarray, yc: np.ndarray, columns: np.ndarray | ColumnParts, start: BacklashParams, held: np.ndarray | None = None,
+    rows: np.ndarray | None = None,
 ) -> JointFit:
     """:func:`fit_joint` with the play free; if the play is not :func:`separable` from the columns, hold it at ``start.play``.
 
@@ -304,9 +356,15 @@ def fit_guarded(
     With ``rows`` (sample indices: a screen of the record's cycles, :meth:`._folds.Folds.screen`)
     the least squares run over those samples only, the model simulated over the whole record; the
     residual (and its RMS) is the whole record's, so fits over the same rows compare on all samples.
+    The columns may come as :class:`ColumnParts` (formed only at those rows, then).
     """
     held = np.zeros(columns.shape[1], dtype=bool) if held is None else np.asarray(held, dtype=bool)
-    first = hold_columns(columns, held, engaged_index(uc, start)) if np.any(held) and rows is None else columns
+    if rows is None and isinstance(columns, ColumnParts):
+        columns = columns.dense()
+    first = None
+    if rows is None:
+        assert not isinstance(columns, ColumnParts)
+        first = hold_columns(columns, held, engaged_index(uc, start)) if np.any(held) else columns
     fit = _fit_held(uc, yc, columns, held, start, None, first, rows)
     if separable(fit, start):
         return fit

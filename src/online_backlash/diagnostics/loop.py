@@ -55,7 +55,7 @@ from ._scoring import BIC_THRESHOLD, MIN_GAIN, Detection, DetectionData
 from ._term_columns import TermColumns
 from .effects import LIBRARY
 from .generic import GENERIC
-from .joint import MAX_PLAY_INFLATION, MAX_PLAY_STD_SHARE, JointFit, engaged_index, fit_guarded, hold_columns, play_sensitivity
+from .joint import MAX_PLAY_INFLATION, MAX_PLAY_STD_SHARE, ColumnParts, JointFit, engaged_index, fit_guarded, hold_columns, play_sensitivity
 from .residuals import NoiseFloor, Profile, noise_floor, one_step_residual, profile, simulation_residual
 
 #: the runner-up named effect is refitted too when its linear gain is at least this share of the best one's
@@ -271,23 +271,26 @@ class Diagnosis:
         }
 
 
-def _columns(terms: Sequence[Any], built: TermColumns, engaged: np.ndarray, x: np.ndarray) -> np.ndarray:
-    """The terms' columns (a new array). Those of effects that act only on engaged samples are zeroed
-    where ``engaged`` (the model's switching functions, eq. 5-6) is False; an effect defined on the
-    model's output (``output_columns``, the delay) is built on ``x``, the current backlash output;
-    the others come from ``built`` (once per record)."""
+def _column_parts(terms: Sequence[Any], built: TermColumns, engaged: np.ndarray, x: np.ndarray) -> ColumnParts:
+    """The terms' columns, as parts (:class:`.joint.ColumnParts`). Those of effects that act only on
+    engaged samples are zeroed where ``engaged`` (the model's switching functions, eq. 5-6) is False;
+    an effect defined on the model's output (``output_columns``, the delay) is built on ``x``, the
+    current backlash output; the others come from ``built`` (once per record)."""
     n = built.u_deg.size
-    out = np.empty((n, sum(e.n_terms for e in terms)))
-    j = 0
-    for e in terms:
-        k = e.n_terms
-        c = np.reshape(e.output_columns(x) if hasattr(e, "output_columns") else built.get(e), (n, k))
-        if getattr(e, "engaged_only", False):
-            np.multiply(c, engaged[:, None], out=out[:, j : j + k])
-        else:
-            out[:, j : j + k] = c
-        j += k
-    return out
+    return ColumnParts(
+        tuple(
+            (
+                np.reshape(e.output_columns(x) if hasattr(e, "output_columns") else built.get(e), (n, e.n_terms)),
+                engaged if getattr(e, "engaged_only", False) else None,
+            )
+            for e in terms
+        )
+    )
+
+
+def _columns(terms: Sequence[Any], built: TermColumns, engaged: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """The terms' columns (a new array, :func:`_column_parts` side by side)."""
+    return _column_parts(terms, built, engaged, x).dense()
 
 
 def _held(terms: Sequence[Any]) -> np.ndarray:
@@ -423,10 +426,10 @@ def diagnose(
         def refit_with(
             terms: list[Any], current: JointFit = current, engaged: np.ndarray = engaged, x_now: np.ndarray = x_now, rows: np.ndarray | None = rows
         ) -> JointFit:
-            fit = fit_guarded(uc, yc, _columns(terms, built, engaged, x_now), current.params, _held(terms), rows)
+            fit = fit_guarded(uc, yc, _column_parts(terms, built, engaged, x_now), current.params, _held(terms), rows)
             if any(hasattr(e, "output_columns") for e in terms):  # built on the model's output: once more on the refitted one
                 x = simulate_backlash(uc, fit.params, 0.0)
-                fit = fit_guarded(uc, yc, _columns(terms, built, engaged, x), fit.params, _held(terms), rows)
+                fit = fit_guarded(uc, yc, _column_parts(terms, built, engaged, x), fit.params, _held(terms), rows)
             return fit
 
         def tuned(terms: list[Any], fit: JointFit, which: Iterable[int]) -> tuple[list[Any], JointFit]:
