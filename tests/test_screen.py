@@ -21,7 +21,7 @@ from online_backlash.diagnostics._harmonics import harmonic_at_sources, harmonic
 from online_backlash.diagnostics._record_cache import RecordCache
 from online_backlash.diagnostics._scoring import DetectionData
 from online_backlash.diagnostics._speed import held_spline_columns, record_velocity, speed_knots
-from online_backlash.diagnostics.joint import ColumnParts, _spans, engaged_index, fit_guarded
+from online_backlash.diagnostics.joint import ColumnParts, _spans, _switched, engaged_index, fit_guarded
 from online_backlash.diagnostics.loop import diagnose_arrays
 from online_backlash.diagnostics.report import markdown_report
 from online_backlash.errors import InvalidParameterError
@@ -225,7 +225,7 @@ def test_the_model_on_runs_of_rows_started_before_a_flank_engages_is_the_whole_r
     np.testing.assert_array_equal(one[1], dx)
     rows = cycle_folds(u).screen(cycles=10, factor=1).row_index
     assert 0 < rows.size < uc.size
-    spans = _spans(uc, rows, start)
+    spans = _spans(rows, _switched(uc, start))
     for p in (start, BacklashParams(1.002, 0.262, 0.999, 0.238)):
         x, dx = backlash_sensitivity(uc, p)
         xs, dxs = backlash_sensitivity_spans(uc, p, *spans)

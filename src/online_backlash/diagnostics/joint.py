@@ -85,25 +85,29 @@ def _simulate(uc: np.ndarray, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return backlash_sensitivity(uc, BacklashParams(*p), 0.0)
 
 
-def _spans(uc: np.ndarray, rows: np.ndarray, start: BacklashParams) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+def _spans(rows: np.ndarray, switched: tuple[np.ndarray, np.ndarray]) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """``(starts, firsts, stops, x0s)`` of :func:`~online_backlash.model.backlash_sensitivity_spans` for the
     runs of consecutive ``rows``: each started :data:`SPAN_LEAD` samples before the last sample ahead
-    of it with a flank engaged under ``start``, from the output ``start`` gives there."""
+    of it with a flank engaged, from the output there; ``switched`` is :func:`_switched` of the
+    parameters the fit starts from."""
+    x, index = switched
     cuts = np.flatnonzero(np.diff(rows) != 1) + 1
     firsts = rows[np.r_[0, cuts]]
     stops = rows[np.r_[cuts - 1, rows.size - 1]] + 1
-    x, f1, f2 = simulate_switching(uc, start, 0.0)
-    index = np.maximum.accumulate(np.where((f1 + f2) > 0, np.arange(uc.size), 0))
     starts = np.maximum(index[firsts] - SPAN_LEAD, 0)
     x0s = np.where(starts > 0, x[np.maximum(starts - 1, 0)], 0.0)  # x(-1) = 0 at the record's start
     return starts, firsts, stops, x0s
 
 
+def _switched(uc: np.ndarray, params: BacklashParams) -> tuple[np.ndarray, np.ndarray]:
+    """The output from rest at the origin (eq. 4-7) and :func:`engaged_index`, from one simulation."""
+    x, f1, f2 = simulate_switching(uc, params, 0.0)
+    return x, np.maximum.accumulate(np.where((f1 + f2) > 0, np.arange(uc.size), 0))
+
+
 def engaged_index(uc: np.ndarray, params: BacklashParams) -> np.ndarray:
     """For every sample, the index of the last sample with a flank engaged (eq. 5-6), itself if engaged."""
-    _, f1, f2 = simulate_switching(uc, params, 0.0)
-    idx = np.where((f1 + f2) > 0, np.arange(uc.size), 0)
-    return np.maximum.accumulate(idx)
+    return _switched(uc, params)[1]
 
 
 def hold_columns(columns: np.ndarray, held: np.ndarray, index: np.ndarray) -> np.ndarray:
@@ -238,9 +242,11 @@ def _fit_held(
     With ``rows`` the held columns are formed at those rows only (``first`` unused)."""
     if rows is not None:
         parts = columns if isinstance(columns, ColumnParts) else ColumnParts(((columns, None),))
-        fit = _fit_fixed_columns(uc, yc, _HeldAt(parts, held, engaged_index(uc, start)), start, hold_play, rows)
+        switched = _switched(uc, start)
+        fit = _fit_fixed_columns(uc, yc, _HeldAt(parts, held, switched[1]), start, hold_play, rows, switched)
         if np.any(held):
-            fit = _fit_fixed_columns(uc, yc, _HeldAt(parts, held, engaged_index(uc, fit.params)), fit.params, hold_play, rows)
+            switched = _switched(uc, fit.params)
+            fit = _fit_fixed_columns(uc, yc, _HeldAt(parts, held, switched[1]), fit.params, hold_play, rows, switched)
         return fit
     assert first is not None and not isinstance(columns, ColumnParts)
     fit = _fit_fixed_columns(uc, yc, first, start, hold_play)
@@ -250,7 +256,8 @@ def _fit_held(
 
 
 def _fit_fixed_columns(
-    uc: np.ndarray, yc: np.ndarray, columns: np.ndarray | _HeldAt, start: BacklashParams, hold_play: float | None, rows: np.ndarray | None = None
+    uc: np.ndarray, yc: np.ndarray, columns: np.ndarray | _HeldAt, start: BacklashParams, hold_play: float | None, rows: np.ndarray | None = None,
+    switched: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> JointFit:
     """:func:`fit_joint` for columns that do not depend on the backlash parameters.
 
@@ -280,7 +287,7 @@ def _fit_fixed_columns(
     yc_fitted = yc if rows is None else yc[rows]
     proj = Projector(fitted)
     n = yc_fitted.size
-    spans = None if rows is None else _spans(uc, rows, start)
+    spans = None if rows is None else _spans(rows, _switched(uc, start) if switched is None else switched)
     # p = dp_dv @ v (+ the held play on cR)
     dp_dv = np.array([[1.0, 0, 0], [0, 1, 0], [0, 0, 1], [0, -1, 0]]) if hold_play is not None else np.eye(4)
     k = dp_dv.shape[1]
