@@ -263,8 +263,9 @@ def _fit_fixed_columns(
 
     With ``rows`` (sample indices) the least squares, and the play's inflation and standard error,
     run over those samples only, the model simulated on their runs, each from a little before a flank
-    engages ahead of it (:func:`_spans`, :func:`~online_backlash.model.backlash_sensitivity_spans`);
-    the residual and its RMS are the whole record's (one simulation of it at the end).
+    engages ahead of it (:func:`_spans`, :func:`~online_backlash.model.backlash_sensitivity_spans`;
+    ``switched``: :func:`_switched` of ``start``, when at hand); the residual and its RMS are the
+    whole record's (one simulation of it at the end).
 
     The search is scipy's trust-region least squares on the variable-projection residual
     ``r = P (yc - x(p))`` (``P`` projects off ``columns``) with Jacobian ``-P dx/dp``. It uses them
