@@ -65,6 +65,8 @@ def test_a_record_of_few_cycles_is_not_screened(cycles):
     assert folds.screen() is folds and folds.row_index.size == folds.fold.size
     blocks = cycle_folds(np.linspace(0.0, 10.0, 5000))  # one stroke: time blocks
     assert blocks.kind == "time blocks" and blocks.screen() is blocks
+    few = cycle_folds(_reversing(12)[0])
+    assert few.screen(cycles=3) is few  # asked for so few that two groups of five would be every cycle
 
 
 def _screened_data(cycles: int = 64, index: bool = True, cache: RecordCache | None = None) -> tuple[DetectionData, DetectionData]:

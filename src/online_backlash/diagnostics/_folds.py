@@ -110,6 +110,8 @@ class Folds:
             return self
         groups = self.n_cycles // k
         wanted = max(cycles // k, 2)
+        if wanted >= groups:  # it would keep (nearly) every cycle
+            return self
         chosen = np.unique(np.round(np.linspace(0, groups - 1, wanted)).astype(int))
         return Folds(self.fold, k, self.n_cycles, self.kind, tuple(int(g * k + j) for g in chosen for j in range(k)))
 
