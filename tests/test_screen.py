@@ -16,7 +16,7 @@ import pytest
 
 from online_backlash.cli import main as cli
 from online_backlash.diagnostics import synthetic
-from online_backlash.diagnostics._folds import N_FOLDS, SCREEN_CYCLES, SCREEN_FACTOR, cycle_folds
+from online_backlash.diagnostics._folds import N_FOLDS, SCREEN_CYCLES, SCREEN_FACTOR, SCREEN_STRIDE, cycle_folds
 from online_backlash.diagnostics._harmonics import harmonic_at_sources, harmonic_columns, held_harmonic, held_per_flank, shaft_harmonic
 from online_backlash.diagnostics._record_cache import RecordCache
 from online_backlash.diagnostics._scoring import DetectionData
@@ -51,12 +51,21 @@ def test_the_screen_keeps_whole_cycles_one_of_each_fold_spread_over_the_record()
     assert groups[0][0] == 0 and groups[-1][0] == N_FOLDS * (folds.n_cycles // N_FOLDS - 1)  # the first and the last group
     assert [f for f, _, _ in screen.segments] == [c % N_FOLDS for c in kept]
     assert screen.segments == [folds.segments[c] for c in kept]
-    rows = np.concatenate([np.arange(a, b) for _, a, b in screen.segments])
+    every = np.concatenate([np.arange(a, b) for _, a, b in screen.segments])
+    np.testing.assert_array_equal(screen.cycle_rows, every)  # the candidates' refits: every sample of those cycles
+    # the scores: every SCREEN_STRIDE-th sample of each cycle, from its first
+    assert SCREEN_STRIDE > 1 and screen.stride == SCREEN_STRIDE and folds.stride == 1
+    rows = np.concatenate([np.arange(a, b)[::SCREEN_STRIDE] for _, a, b in screen.segments])
     np.testing.assert_array_equal(screen.row_index, rows)
-    assert screen.rows == rows.size < u.size
-    assert [b - a for _, a, b in screen.compact_segments] == [b - a for _, a, b in screen.segments]
+    assert screen.rows == rows.size < every.size < u.size
+    assert [b - a for _, a, b in screen.compact_segments] == [len(range(a, b, SCREEN_STRIDE)) for _, a, b in screen.segments]
+    assert [k for k, _, _ in screen.compact_segments] == [k for k, _, _ in screen.segments]
+    assert all(s[2] == t[1] for s, t in zip(screen.compact_segments, screen.compact_segments[1:]))  # side by side
     assert screen.compact_segments[0][1] == 0 and screen.compact_segments[-1][2] == rows.size
     assert screen.as_dict() == folds.as_dict()
+    whole = folds.screen(stride=1)  # without the stride: the scores read every sample of the cycles
+    np.testing.assert_array_equal(whole.row_index, every)
+    np.testing.assert_array_equal(whole.cycle_rows, every)
 
 
 @pytest.mark.parametrize("cycles", [12, SCREEN_FACTOR * SCREEN_CYCLES - 2])
@@ -225,7 +234,7 @@ def test_the_model_on_runs_of_rows_started_before_a_flank_engages_is_the_whole_r
     one = backlash_sensitivity_spans(uc, start, [0], [0], [uc.size], [0.0])
     np.testing.assert_array_equal(one[0], x)
     np.testing.assert_array_equal(one[1], dx)
-    rows = cycle_folds(u).screen(cycles=10, factor=1).row_index
+    rows = cycle_folds(u).screen(cycles=10, factor=1).cycle_rows
     assert 0 < rows.size < uc.size
     spans = _spans(rows, _switched(uc, start))
     for p in (start, BacklashParams(1.002, 0.262, 0.999, 0.238)):

@@ -11,8 +11,9 @@ with fewer than two cycles is cut into ``k`` contiguous blocks of time instead (
 
 A long record is *screened*: the loop's detectors score their candidates on a subset of its
 cycles (:meth:`Folds.screen`: groups of ``n_folds`` consecutive cycles, one of each fold, spread
-evenly over the record), while everything it keeps (the joint refits, the evidence of the terms
-it adds, the held-out gains in the final model) is computed on every sample.
+evenly over the record; every :data:`SCREEN_STRIDE`-th sample of them), and the candidates' joint
+refits run on every sample of those cycles, while everything it keeps (the evidence of the terms
+it adds, their joint fit, the held-out gains in the final model) is computed on every sample.
 
 Units: degrees.
 """
@@ -34,6 +35,15 @@ SCREEN_CYCLES = 3 * N_FOLDS
 #: (below, the confirmation on every sample costs about what the screen saves: on the synthetic
 #: transmission-error logs of ``tests/test_screen.py`` the two break even at about 50 cycles)
 SCREEN_FACTOR = 3
+#: a screen's scores read every this-many-th sample of its cycles. Its scores only choose the
+#: effect tried next: the one chosen is detected again, configured and evidenced on every sample
+#: (``loop._confirmed``). A first round's residual is smooth at the sampling rate (lag-1
+#: autocorrelation 0.990 on the 10-minute bench log, 0.990 at lag 2), so the screen's effective
+#: sample size (``n (1 - rho) / (1 + rho)``, :mod:`._scoring`, ``rho`` then between samples
+#: ``stride`` apart) hardly changes; later residuals are nearer the noise (0.32 and 0.28 after the
+#: compliance there), where it about halves. On the 10- and 60-minute bench logs the loop chooses,
+#: configures and fits the same terms with 2 as with 1, to the last bit (``docs/benchmarks.md``).
+SCREEN_STRIDE = 2
 #: the direction of motion: sign of the change of ``u`` over this many samples, held inside
 #: a change of ``DEADZONE_DEG`` (as for the per-flank generic term)
 DIRECTION_WINDOW = 10
@@ -61,6 +71,8 @@ class Folds:
     kind: str
     #: the runs (positions in the record's runs, :attr:`segments`) a screen keeps; None: all of them
     kept: tuple[int, ...] | None = None
+    #: a screen's scores read every ``stride``-th sample of its cycles (:attr:`row_index`; :meth:`screen`)
+    stride: int = 1
 
     @cached_property
     def _runs(self) -> list[tuple[int, int, int]]:
@@ -82,27 +94,35 @@ class Folds:
 
     @cached_property
     def rows(self) -> int:
-        """Samples in :attr:`segments`."""
-        return self.fold.size if self.kept is None else sum(b - a for _, a, b in self.segments)
+        """Samples in :attr:`row_index`."""
+        return self.fold.size if self.kept is None else sum(len(range(a, b, self.stride)) for _, a, b in self.segments)
 
     @cached_property
     def compact_segments(self) -> list[tuple[int, int, int]]:
-        """:attr:`segments` as positions in :attr:`row_index` (the screen's samples side by side)."""
+        """:attr:`segments` as positions in :attr:`row_index` (the screen's samples side by side), ``(fold, start, stop)``."""
         out, at = [], 0
         for k, a, b in self.segments:
-            out.append((k, at, at + b - a))
-            at += b - a
+            m = len(range(a, b, self.stride))
+            out.append((k, at, at + m))
+            at += m
         return out
 
     @cached_property
     def row_index(self) -> np.ndarray:
-        """The indices of the samples in :attr:`segments`, in order."""
+        """The indices of the samples the scores read: in :attr:`segments`, in order, every :attr:`stride`-th from each one's start."""
+        return np.concatenate([np.arange(a, b, self.stride) for _, a, b in self.segments]) if self.segments else np.zeros(0, np.int64)
+
+    @cached_property
+    def cycle_rows(self) -> np.ndarray:
+        """Every sample of :attr:`segments`, in order (:attr:`row_index` without the stride: the rows the
+        candidates' joint refits run over, runs of consecutive samples)."""
         return np.concatenate([np.arange(a, b) for _, a, b in self.segments]) if self.segments else np.zeros(0, np.int64)
 
-    def screen(self, cycles: int = SCREEN_CYCLES, factor: int = SCREEN_FACTOR) -> Folds:
+    def screen(self, cycles: int = SCREEN_CYCLES, factor: int = SCREEN_FACTOR, stride: int = SCREEN_STRIDE) -> Folds:
         """These folds restricted to about ``cycles`` whole reversal cycles spread evenly over the
         record: groups of ``n_folds`` consecutive cycles (one of each fold), as many groups as
-        ``cycles`` asks, the first and the last group of the record among them. The record itself
+        ``cycles`` asks, the first and the last group of the record among them; the scores read every
+        ``stride``-th sample of them (:attr:`row_index`), the joint refits every one (:attr:`cycle_rows`). The record itself
         (``self``) when it has fewer than ``factor * cycles`` cycles or is cut into time blocks."""
         runs = self._runs
         k = self.n_folds
@@ -113,7 +133,7 @@ class Folds:
         if wanted >= groups:  # it would keep (nearly) every cycle
             return self
         chosen = np.unique(np.round(np.linspace(0, groups - 1, wanted)).astype(int))
-        return Folds(self.fold, k, self.n_cycles, self.kind, tuple(int(g * k + j) for g in chosen for j in range(k)))
+        return Folds(self.fold, k, self.n_cycles, self.kind, tuple(int(g * k + j) for g in chosen for j in range(k)), stride)
 
     def as_dict(self) -> dict[str, object]:
         """For the JSON evidence: ``{"folds", "cycles", "split"}``."""

@@ -26,7 +26,8 @@
 
 A long record (at least three times ``screen_cycles`` reversal cycles) is screened: steps 2 and 3 score
 and refit the candidates on about ``screen_cycles`` of its cycles spread evenly over it
-(:meth:`._folds.Folds.screen`); the effect they choose is then detected again on every sample
+(:meth:`._folds.Folds.screen`; the scores on every :data:`._folds.SCREEN_STRIDE`-th sample of them, the
+refits on every sample); the effect they choose is then detected again on every sample
 (its configuration and evidence as without the screen, :func:`_confirmed`; refused if the whole
 record does not bear it out), and the terms are fitted jointly on every sample (the step's figures
 and the next round's residual). The screen decides which effect comes next, the whole record how
@@ -376,8 +377,8 @@ def diagnose(
         0.96-1.07 times the floor; ``docs/closing-the-loop.md``, point 7).
     screen_cycles : int
         A record of at least three times this many reversal cycles is *screened*: the candidates are
-        scored, and the candidates' joint refits fitted, on about this many of its cycles, spread
-        evenly over it (:meth:`._folds.Folds.screen`); the effect chosen is then detected again,
+        scored (on every :data:`._folds.SCREEN_STRIDE`-th sample), and the candidates' joint refits
+        fitted, on about this many of its cycles, spread evenly over it (:meth:`._folds.Folds.screen`); the effect chosen is then detected again,
         and the terms fitted, on every sample, and the final model's held-out gains use every
         cycle. 0: every cycle, always.
 
@@ -404,7 +405,7 @@ def diagnose(
     period = round(float(np.median(np.diff(t))), 12) if t.size > 1 else 1.0  # 0.001, not 0.000999999...
     folds = cycle_folds(u)
     screen = folds.screen(screen_cycles) if screen_cycles else folds  # a long record's candidates: scored and refitted on these cycles
-    rows = screen.row_index if screen.screened else None
+    rows = screen.cycle_rows if screen.screened else None  # the candidates' refits: every sample of the screen's cycles
     cache = RecordCache()  # columns that depend on the record only, shared by every round
     built = TermColumns(u, t, q)  # the columns of the terms taken, built once
     current = JointFit(base.params_, np.empty(0), before, 1.0, float("nan"), False)
