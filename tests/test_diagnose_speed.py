@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from online_backlash.diagnostics._folds import cycle_folds
 from online_backlash.diagnostics._harmonics import harmonic_columns, harmonic_stack, held_per_flank, shaft_harmonic
 from online_backlash.diagnostics._record_cache import RecordCache
 from online_backlash.diagnostics._scoring import DetectionData
@@ -112,3 +113,26 @@ def test_stacked_data_scores_like_column_stacked_nuisance() -> None:
     a, b = stacked.score(True, x), plain.score(True, x)
     assert (a.rss_after, a.delta_bic, a.heldout_gain) == (b.rss_after, b.delta_bic, b.heldout_gain)
     np.testing.assert_array_equal(stacked.nuisance, plain.nuisance)
+
+
+@pytest.mark.parametrize("screened", [False, True])
+def test_subsets_scored_from_one_set_of_cross_products_score_as_each_alone(screened: bool) -> None:
+    """``score_subsets``: the normal equations of every subset of the columns are slices of one set
+    of cross-products (as the dead band's parts are scored); each score is the subset's own."""
+    u, t, q, _ = _record(n=40000)
+    rng = np.random.default_rng(3)
+    r = 0.01 * np.sin(np.radians(5 * u)) + 0.002 * np.cos(0.004 * np.arange(u.size)) + rng.normal(0, 1e-3, u.size)
+    folds = cycle_folds(u)
+    folds = folds.screen(cycles=10, factor=1) if screened else folds
+    assert folds.screened == screened
+    data = DetectionData.stacked([np.ones_like(u), u / 40.0], r, u_deg=u, time_s=t, torque_Nm=q, ratio=30.0, sample_period_s=1e-3, folds=folds)
+    x = np.column_stack((harmonic_columns(u, [5, 2]), np.cos(0.004 * np.arange(u.size)), rng.normal(0, 1, u.size)))
+    subsets = [[0, 1], [2], [0, 1, 2], [1, 3], [3]]
+    for subset, got in zip(subsets, data.score_subsets(x, subsets)):
+        alone = data.score(False, x[:, subset])
+        assert got.n_terms == alone.n_terms == len(subset)
+        for name in ("rss_before", "rss_after", "n_eff", "delta_bic", "own_share", "heldout_gain"):
+            assert getattr(got, name) == pytest.approx(getattr(alone, name), rel=1e-9, abs=1e-12), name
+        np.testing.assert_allclose(got.coef, alone.coef, rtol=1e-9)
+    assert np.isnan(data.score_subsets(x, [[0, 1]], heldout=False)[0].heldout_gain)  # not measured without it
+    assert np.isfinite(data.score_subsets(x, [[0, 1]])[0].heldout_gain)

@@ -421,6 +421,30 @@ class DetectionData:
         assert self.folds is not None
         return _score_grams(per_fold, total, lambda e: self._cross.lag_product(x, e), self.folds.rows, p, terms)
 
+    def score_subsets(self, columns: np.ndarray, subsets: Sequence[Sequence[int]], heldout: bool = True) -> list[Score]:
+        """:meth:`score` of ``columns[:, s]`` (not held) for every list of column positions ``s`` in
+        ``subsets``, from one set of cross-products of all the columns: each subset's normal equations,
+        in sample and per fold, are a slice of them (``O(n q (p + q))`` once for ``q`` columns, not per
+        subset), and its lag-1 product is the pass over all the columns with the others' weights 0.
+        ``columns`` has a row per sample or the rows :meth:`scored` gives."""
+        x = self._cross.rows(np.asarray(columns, dtype=float).reshape(columns.shape[0], -1))
+        per_fold, total = self._cross.extended(x, heldout)
+        assert self.nuisance is not None and self.folds is not None
+        p, q = self.nuisance.shape[1], x.shape[1]
+        terms = np.r_[0, np.arange(max(self.n_backlash, 1), p)] if self.n_backlash else np.arange(p)
+        out = []
+        for subset in subsets:
+            at = p + np.asarray(subset, dtype=np.intp)
+            keep = np.r_[np.arange(p), at, p + q]  # [nuisance, the subset's columns, residual]
+
+            def lag(e: np.ndarray, at: np.ndarray = at) -> float:
+                whole = np.zeros(p + q + 1)
+                whole[:p], whole[at], whole[-1] = e[:p], e[p:-1], e[-1]
+                return self._cross.lag_product(x, whole)
+
+            out.append(_score_grams(per_fold[:, keep][:, :, keep], total[np.ix_(keep, keep)], lag, self.folds.rows, p, terms))
+        return out
+
     def with_nuisance(self, *columns: np.ndarray) -> DetectionData:
         """The same data with ``columns`` (one or more arrays, side by side; each a row per sample or the
         rows :meth:`scored` gives) added to the nuisance columns (written once into the block their

@@ -259,14 +259,14 @@ class DeadBandMotion(EffectBase):
         every = data.scored(every_one.clone().terms(data.u_deg, data.time_s, data.torque_Nm))  # the rows the scores use
         split = every_one.n_terms - every_one.n_entry - every_one.n_rest
         ends = np.cumsum([0, split, every_one.n_entry, every_one.n_rest])
-        spans = dict(zip(("coast", "entry", "creep at rest"), pairwise(int(e) for e in ends)))
-        for names in VARIANTS:
+        parts = dict(zip(("coast", "entry", "creep at rest"), (range(int(a), int(b)) for a, b in pairwise(ends))))
+        scores = data.score_subsets(every, [[j for n in names for j in parts[n]] for names in VARIANTS])  # one set of cross-products
+        for names, s in zip(VARIANTS, scores):
             exit_taus = taus if "coast" in names else ()
             effect = cls(
                 p.m_left, p.c_left, p.m_right, p.c_right, exit_taus, knots if "entry" in names else (), torque and bool(exit_taus),
                 rests if "creep at rest" in names else (),
             )
-            s = data.score(False, _columns_of(every, [spans[n] for n in names]))
             what = " and ".join(names)
             found.append(Detection(effect, s, f"residual at the reversals follows the load's {what} (dead band {p.play:.4g} deg)"))
         plain = best_detection([d for d, n in zip(found, VARIANTS) if "creep at rest" not in n and d.score.significant()])
@@ -275,14 +275,6 @@ class DeadBandMotion(EffectBase):
         if creep is not None and (plain is None or creep.score.delta_bic - plain.score.delta_bic < BIC_THRESHOLD):
             return creep
         return plain or best_detection(found)
-
-
-def _columns_of(every: np.ndarray, spans: list[tuple[int, int]]) -> np.ndarray:
-    """The columns of ``every`` in the ``spans`` (``(start, stop)``, in order): a view when they are
-    adjacent (no copy of a full-length block), else side by side in a new block."""
-    if all(a[1] == b[0] for a, b in pairwise(spans)):
-        return every[:, spans[0][0] : spans[-1][1]]
-    return np.hstack([every[:, a:b] for a, b in spans])
 
 
 @njit(cache=True, nogil=True)
