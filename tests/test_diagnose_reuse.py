@@ -98,7 +98,7 @@ def test_fit_guarded_with_held_columns_equals_its_two_fits() -> None:
 
 
 def test_final_heldout_gains_equal_those_formed_afresh(two_steps) -> None:
-    """``_hold_out_final`` shares the final model's view and slices the others' columns: the gains
+    """``_hold_out_final`` shares the final model's view and each term's held columns: the gains
     are those of a detection data formed from scratch for every term (on one BLAS thread, as the loop's)."""
     with threadpool_limits(limits=1, user_api="blas"):
         _check_final_heldout_gains(two_steps)
@@ -114,11 +114,11 @@ def _check_final_heldout_gains(d) -> None:
     index = engaged_index(uc, final.params)
     terms = [s.effect for s in d.steps]
     fresh = TermColumns(u, t, q)
-    cols = hold_columns(_columns(terms, fresh, index == np.arange(index.size), simulate_backlash(uc, final.params, 0.0)), _held(terms), index)
+    x = simulate_backlash(uc, final.params, 0.0)
     start = 0
     for i, s in enumerate(d.steps):
         n = s.effect.n_terms
-        mine = cols[:, start : start + n]
+        mine = hold_columns(_columns([s.effect], fresh, index == np.arange(index.size), x), _held([s.effect]), index)
         restored = final.residual_deg + mine @ final.coef[start : start + n]
         others = [*terms[:i], *terms[i + 1 :]]
         data, _ = _detection_data(u, t, q, uc, replace(final, residual_deg=restored), others, d.ratio, period, folds, TermColumns(u, t, q))

@@ -190,6 +190,13 @@ class ColumnParts:
             j += k
         return out
 
+    def block(self) -> np.ndarray:
+        """The whole block: the one part itself when there is a single part and no gate (not a copy:
+        read it only), else :meth:`dense`."""
+        if len(self.parts) == 1 and self.parts[0][1] is None:
+            return self.parts[0][0]
+        return self.dense()
+
     def at(self, rows: np.ndarray) -> np.ndarray:
         """The block's ``rows``."""
         out = np.empty((rows.size, self.shape[1]))
@@ -368,7 +375,7 @@ def fit_guarded(
     """
     held = np.zeros(columns.shape[1], dtype=bool) if held is None else np.asarray(held, dtype=bool)
     if rows is None and isinstance(columns, ColumnParts):
-        columns = columns.dense()
+        columns = columns.block()
     first = None
     if rows is None:
         assert not isinstance(columns, ColumnParts)

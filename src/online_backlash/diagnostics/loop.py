@@ -290,8 +290,9 @@ def _column_parts(terms: Sequence[Any], built: TermColumns, engaged: np.ndarray,
 
 
 def _columns(terms: Sequence[Any], built: TermColumns, engaged: np.ndarray, x: np.ndarray) -> np.ndarray:
-    """The terms' columns (a new array, :func:`_column_parts` side by side)."""
-    return _column_parts(terms, built, engaged, x).dense()
+    """The terms' columns (:func:`_column_parts` side by side; a term's own read-only columns when it is
+    the only one and not gated)."""
+    return _column_parts(terms, built, engaged, x).block()
 
 
 def _held(terms: Sequence[Any]) -> np.ndarray:
@@ -299,6 +300,18 @@ def _held(terms: Sequence[Any]) -> np.ndarray:
     if not terms:
         return np.zeros(0, bool)
     return np.concatenate([np.full(e.n_terms, bool(e.input_side) and not hasattr(e, "output_columns")) for e in terms])
+
+
+def _held_parts(terms: Sequence[Any], built: TermColumns, view: _ModelView) -> list[np.ndarray]:
+    """Each term's columns as the model of ``view`` sees them (:func:`_column_parts`, gated by its
+    engaged samples, and the input-side ones held through its dead band, :func:`.joint.hold_columns`):
+    one array per term, a term's own read-only columns where neither applies (no block of all of them
+    is formed)."""
+    out = []
+    for part, term in zip(_column_parts(terms, built, view.engaged, view.x).parts, terms):
+        one = ColumnParts((part,)).block()
+        out.append(hold_columns(one, _held([term]), view.index))
+    return out
 
 
 def _significant(found: list[Detection | None], bic_threshold: float, min_gain: float) -> list[Detection]:
@@ -628,8 +641,7 @@ def _linearised_refit(
     least squares as the detectors', no cross-validation): a cheap way to walk a setting, which the
     caller confirms with one joint refit. Returns ``terms -> _Linearised`` (RMS, deg)."""
     view = _ModelView.of(uc, fit.params)
-    cols = hold_columns(_columns(terms, built, view.engaged, view.x), _held(terms), view.index)
-    data, _ = _term_left_out(terms, i, fit, view, cols, u, t, q, uc, ratio, period, folds, built)
+    data, _ = _term_left_out(terms, i, fit, view, _held_parts(terms, built, view), u, t, q, uc, ratio, period, folds, built)
 
     def refit(swapped: list[Any]) -> _Linearised:
         rss = data.score(False, _prepared(data, swapped[i], built, view.engaged), heldout=False).rss_after
@@ -653,7 +665,7 @@ def _detection_data(
     engaged = view.engaged
     parts = [view.others, view.g]
     if done:
-        parts.extend([hold_columns(_columns(done, built, engaged, view.x), _held(done), view.index)] if done_columns is None else done_columns)
+        parts.extend(_held_parts(done, built, view) if done_columns is None else done_columns)
     data = DetectionData.stacked(
         parts, current.residual_deg, u_deg=u, time_s=t, torque_Nm=q, ratio=ratio, sample_period_s=period, engaged_index=view.index,
         n_backlash=view.others.shape[1] + 1, folds=folds, model_output_deg=view.x, backlash_params=current.params, cache=cache,
@@ -675,28 +687,28 @@ def _hold_out_final(
         return
     view = _ModelView.of(uc, final.params)
     terms = [s.effect for s in steps]
-    cols = hold_columns(_columns(terms, built, view.engaged, view.x), _held(terms), view.index)
+    parts = _held_parts(terms, built, view)
     for i, s in enumerate(steps):
-        data, mine = _term_left_out(terms, i, final, view, cols, u, t, q, uc, ratio, period, folds, built)
+        data, mine = _term_left_out(terms, i, final, view, parts, u, t, q, uc, ratio, period, folds, built)
         s.heldout_gain_final = data.score(False, mine).heldout_gain
 
 
 def _term_left_out(
-    terms: list[Any], i: int, fit: JointFit, view: _ModelView, cols: np.ndarray, u: np.ndarray, t: np.ndarray, q: np.ndarray, uc: np.ndarray,
-    ratio: float, period: float, folds: Folds, built: TermColumns,
+    terms: list[Any], i: int, fit: JointFit, view: _ModelView, parts: Sequence[np.ndarray], u: np.ndarray, t: np.ndarray, q: np.ndarray,
+    uc: np.ndarray, ratio: float, period: float, folds: Folds, built: TermColumns,
 ) -> tuple[DetectionData, np.ndarray]:
     """What the detectors see of ``fit`` with the ``i``-th of its ``terms`` left out: its part put back
     into the residual, the backlash directions and the other terms as nuisance; and the ``i``-th term's
-    columns. ``view`` is :class:`_ModelView` of ``fit.params`` and ``cols`` the terms' held columns
-    there (holding acts column by column: the others' block is a slice)."""
+    columns. ``view`` is :class:`_ModelView` of ``fit.params`` and ``parts`` the terms' held columns
+    there, one array per term (:func:`_held_parts`)."""
     start = sum(e.n_terms for e in terms[:i])
-    mine = np.s_[start : start + terms[i].n_terms]
-    restored = fit.residual_deg + cols[:, mine] @ fit.coef[mine]
+    mine = parts[i]
+    restored = fit.residual_deg + mine @ fit.coef[start : start + terms[i].n_terms]
     data, _ = _detection_data(
         u, t, q, uc, replace(fit, residual_deg=restored), [*terms[:i], *terms[i + 1 :]], ratio, period, folds, built, view=view,
-        done_columns=(cols[:, :start], cols[:, mine.stop :]),  # views: written once, into the detectors' block
+        done_columns=[*parts[:i], *parts[i + 1 :]],  # written once, into the detectors' block
     )
-    return data, cols[:, mine]
+    return data, mine
 
 
 def _describe(steps: list[Step], final: JointFit) -> None:
