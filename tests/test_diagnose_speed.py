@@ -11,6 +11,7 @@ from online_backlash.diagnostics._record_cache import RecordCache
 from online_backlash.diagnostics._scoring import DetectionData
 from online_backlash.diagnostics._speed import cardinal_splines, held_spline_columns, record_velocity, speed_knots, zero_knot
 from online_backlash.diagnostics.dead_band import ENTRY_KNOTS, EXIT_TIME_CONSTANTS, DeadBandMotion, _at_period
+from online_backlash.diagnostics.effects import Drift
 
 
 def _record(n: int = 4000, seed: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -136,3 +137,13 @@ def test_subsets_scored_from_one_set_of_cross_products_score_as_each_alone(scree
         np.testing.assert_allclose(got.coef, alone.coef, rtol=1e-9)
     assert np.isnan(data.score_subsets(x, [[0, 1]], heldout=False)[0].heldout_gain)  # not measured without it
     assert np.isfinite(data.score_subsets(x, [[0, 1]])[0].heldout_gain)
+
+
+def test_drift_columns_at_some_rows_are_its_stream_columns_there() -> None:
+    """The drift's detector forms its columns at the rows the scores read (a screen's): the record's
+    stream columns at those rows."""
+    u, t, q, _ = _record()
+    rows = np.r_[0:500, 1700:2300:2, 3900:4000]
+    for degree in (1, 2, 3):
+        effect = Drift(degree, 4.0)
+        np.testing.assert_array_equal(effect.powers(t[rows], float(t[0])), effect.clone().terms(u, t, q)[rows])

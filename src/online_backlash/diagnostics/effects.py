@@ -452,7 +452,11 @@ class Drift(EffectBase):
     def _columns(self, u: np.ndarray, t: np.ndarray, q: np.ndarray) -> np.ndarray:
         if self._t0 is None:
             self._t0 = float(t[0])
-        s = (t - self._t0) / self.time_scale_s
+        return self.powers(t, self._t0)
+
+    def powers(self, time_s: np.ndarray, t0: float) -> np.ndarray:
+        """The columns at the times ``time_s`` of a stream that started at ``t0`` (s): ``((t - t0) / time_scale_s) ** j``."""
+        s = (np.asarray(time_s, dtype=float) - t0) / self.time_scale_s
         return np.column_stack([s**j for j in range(1, self.degree + 1)])
 
     def describe(self, coef: np.ndarray) -> dict[str, Any]:
@@ -483,8 +487,10 @@ class Drift(EffectBase):
         leftover, and nothing is claimed: the non-significant score is returned.
         """
         span = float(data.time_s[-1] - data.time_s[0]) or 1.0
-        rotation = data.u_deg - data.u_deg[0]
-        scale = float(np.max(np.abs(rotation))) or 1.0
+        scale = float(np.max(np.abs(data.u_deg - data.u_deg[0]))) or 1.0
+        # every column at the rows the scores read only (all of them unless screened)
+        rotation = data.scored(data.u_deg)[:, 0] - data.u_deg[0]
+        t0, times = float(data.time_s[0]), data.scored(data.time_s)[:, 0]
         rivals = {
             "net_rotation": np.column_stack([(rotation / scale) ** j for j in range(1, max_degree + 1)]),
             "velocity_function": held_spline_columns(data, speed_knots(record_velocity(data), MAX_INNER_KNOTS)),
@@ -493,7 +499,7 @@ class Drift(EffectBase):
         found, alone = [], []
         for degree in range(1, max_degree + 1):
             effect = cls(degree, span)
-            cols = effect.clone().terms(data.u_deg, data.time_s, data.torque_Nm)
+            cols = effect.powers(times, t0)  # effect.terms on the record, at those rows
             in_time = data.score(effect.input_side, cols)
             # what time explains beyond its rivals decides; the collinearity test is against the terms only
             s = replace(beyond.score(effect.input_side, cols), own_share=in_time.own_share)
@@ -503,7 +509,7 @@ class Drift(EffectBase):
         confounded = best_detection([d for d in alone if d.score.significant()])
         if best is None or best.score.significant() or confounded is None:
             return best
-        cols = confounded.effect.clone().terms(data.u_deg, data.time_s, data.torque_Nm)  # type: ignore[attr-defined]
+        cols = confounded.effect.powers(times, t0)  # type: ignore[attr-defined]
         named = tuple(k for k, x in rivals.items() if x.shape[1] and not data.with_nuisance(x).score(False, cols).significant())
         if "velocity_function" in named and not data.score(False, rivals["velocity_function"]).significant():
             named = tuple(k for k in named if k != "velocity_function")  # the leftover of a velocity term already in

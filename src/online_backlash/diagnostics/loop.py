@@ -426,7 +426,8 @@ def diagnose(
     refused: set[type] = set()
     while len(steps) < max_terms and current.rms_deg > floor_ratio * noise.floor_deg:
         taken = {type(s.effect) for s in steps} | refused
-        data, engaged = _detection_data(u, t, q, uc, current, [s.effect for s in steps], float(ratio), period, screen, built, cache)
+        view = _ModelView.of(uc, current.params)  # the round's model: its detectors' and its confirmation's
+        data, engaged = _detection_data(u, t, q, uc, current, [s.effect for s in steps], float(ratio), period, screen, built, cache, view)
         named_all = _significant([c.detect(data) for c in LIBRARY if c not in taken], bic_threshold, min_gain)
         generic_all = _significant([c.detect(data) for c in GENERIC if c not in taken], bic_threshold, min_gain)
         generic = generic_all[0] if generic_all else None
@@ -495,7 +496,7 @@ def diagnose(
         close = [d for d, f in refits if d is not chosen and f.rms_deg**2 <= label_ratio * fit.rms_deg**2]
         rivals = (*chosen.rivals, *_rivals(data, chosen, close, engaged, min_gain, built)) if kind == "effect" else ()
         if rows is not None:  # chosen on the screen: configured, and its evidence scored, on every sample
-            confirmed = _confirmed(chosen, u, t, q, uc, current, done, float(ratio), period, folds, built, cache, bic_threshold, min_gain)
+            confirmed = _confirmed(chosen, u, t, q, uc, current, done, float(ratio), period, folds, built, cache, bic_threshold, min_gain, view)
             if confirmed is None:
                 refused.add(type(chosen.effect))  # the whole record does not bear it out: try the others
                 continue
@@ -530,14 +531,14 @@ def diagnose(
 
 def _confirmed(
     chosen: Detection, u: np.ndarray, t: np.ndarray, q: np.ndarray, uc: np.ndarray, current: JointFit, done: list[Any], ratio: float, period: float,
-    folds: Folds, built: TermColumns, cache: RecordCache, bic_threshold: float, min_gain: float,
+    folds: Folds, built: TermColumns, cache: RecordCache, bic_threshold: float, min_gain: float, view: _ModelView | None = None,
 ) -> Detection | None:
     """A term chosen on a screen of the record, detected again on every sample (the round's residual,
     the terms it had): its configuration (the harmonic orders, the dead band's parts, ...) and its
     evidence as without the screen. A term with a setting walked in the refit (``neighbours``, the
     compliance's torque average) is scored with that setting. None when the whole record does not
-    find it significant."""
-    data, _ = _detection_data(u, t, q, uc, current, done, ratio, period, folds, built, cache)
+    find it significant. ``view``: :class:`_ModelView` of ``current.params``, when at hand."""
+    data, _ = _detection_data(u, t, q, uc, current, done, ratio, period, folds, built, cache, view)
     effect: Any = chosen.effect
     again = effect.detection(data) if hasattr(effect, "neighbours") else type(effect).detect(data)
     if again is None or not again.score.significant(bic_threshold, min_gain):
