@@ -242,14 +242,15 @@ class _HeldAt:
 
 def _fit_held(
     uc: np.ndarray, yc: np.ndarray, columns: np.ndarray | ColumnParts, held: np.ndarray, start: BacklashParams, hold_play: float | None,
-    first: np.ndarray | None, rows: np.ndarray | None = None,
+    first: np.ndarray | None, rows: np.ndarray | None = None, planned: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> JointFit:
     """:func:`fit_joint` given ``first``, the columns held through the dead band of ``start`` (the
     first search's; :func:`fit_guarded` hands the same to its second fit instead of forming it again).
-    With ``rows`` the held columns are formed at those rows only (``first`` unused)."""
+    With ``rows`` the held columns are formed at those rows only (``first`` unused), and ``planned`` is
+    :func:`_switched` of ``start`` (formed here if None)."""
     if rows is not None:
         parts = columns if isinstance(columns, ColumnParts) else ColumnParts(((columns, None),))
-        switched = _switched(uc, start)
+        switched = _switched(uc, start) if planned is None else planned
         fit = _fit_fixed_columns(uc, yc, _HeldAt(parts, held, switched[1]), start, hold_play, rows, switched)
         if np.any(held):
             switched = _switched(uc, fit.params)
@@ -363,7 +364,7 @@ def separable(fit: JointFit, start: BacklashParams) -> bool:
 
 def fit_guarded(
     uc: np.ndarray, yc: np.ndarray, columns: np.ndarray | ColumnParts, start: BacklashParams, held: np.ndarray | None = None,
-    rows: np.ndarray | None = None,
+    rows: np.ndarray | None = None, planned: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> JointFit:
     """:func:`fit_joint` with the play free; if the play is not :func:`separable` from the columns, hold it at ``start.play``.
 
@@ -371,7 +372,8 @@ def fit_guarded(
     With ``rows`` (sample indices: a screen of the record's cycles, :meth:`._folds.Folds.screen`)
     the least squares run over those samples only, the model simulated over the whole record; the
     residual (and its RMS) is the whole record's, so fits over the same rows compare on all samples.
-    The columns may come as :class:`ColumnParts` (formed only at those rows, then).
+    The columns may come as :class:`ColumnParts` (formed only at those rows, then). ``planned``:
+    :func:`_switched` of ``start`` when at hand (the candidates of a round all start from its fit).
     """
     held = np.zeros(columns.shape[1], dtype=bool) if held is None else np.asarray(held, dtype=bool)
     if rows is None and isinstance(columns, ColumnParts):
@@ -379,9 +381,10 @@ def fit_guarded(
     first = None
     if rows is None:
         assert not isinstance(columns, ColumnParts)
-        first = hold_columns(columns, held, engaged_index(uc, start)) if np.any(held) else columns
-    fit = _fit_held(uc, yc, columns, held, start, None, first, rows)
+        first = hold_columns(columns, held, engaged_index(uc, start) if planned is None else planned[1]) if np.any(held) else columns
+    planned = _switched(uc, start) if rows is not None and planned is None else planned  # the play-held fit starts there too
+    fit = _fit_held(uc, yc, columns, held, start, None, first, rows, planned)
     if separable(fit, start):
         return fit
-    kept = _fit_held(uc, yc, columns, held, start, start.play, first, rows)
+    kept = _fit_held(uc, yc, columns, held, start, start.play, first, rows, planned)
     return JointFit(kept.params, kept.coef, kept.residual_deg, fit.play_inflation, fit.play_std_deg, True)

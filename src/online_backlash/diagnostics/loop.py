@@ -56,7 +56,7 @@ from ._scoring import BIC_THRESHOLD, MIN_GAIN, Detection, DetectionData
 from ._term_columns import TermColumns
 from .effects import LIBRARY
 from .generic import GENERIC
-from .joint import MAX_PLAY_INFLATION, MAX_PLAY_STD_SHARE, ColumnParts, JointFit, engaged_index, fit_guarded, hold_columns, play_sensitivity
+from .joint import MAX_PLAY_INFLATION, MAX_PLAY_STD_SHARE, ColumnParts, JointFit, _switched, fit_guarded, hold_columns, play_sensitivity
 from .residuals import NoiseFloor, Profile, noise_floor, one_step_residual, profile, simulation_residual
 
 #: the runner-up named effect is refitted too when its linear gain is at least this share of the best one's
@@ -439,9 +439,10 @@ def diagnose(
         assert x_now is not None
 
         def refit_with(
-            terms: list[Any], current: JointFit = current, engaged: np.ndarray = engaged, x_now: np.ndarray = x_now, rows: np.ndarray | None = rows
+            terms: list[Any], current: JointFit = current, engaged: np.ndarray = engaged, x_now: np.ndarray = x_now, rows: np.ndarray | None = rows,
+            view: _ModelView = view,
         ) -> JointFit:
-            fit = fit_guarded(uc, yc, _column_parts(terms, built, engaged, x_now), current.params, _held(terms), rows)
+            fit = fit_guarded(uc, yc, _column_parts(terms, built, engaged, x_now), current.params, _held(terms), rows, view.switched)
             if any(hasattr(e, "output_columns") for e in terms):  # built on the model's output: once more on the refitted one
                 x = simulate_backlash(uc, fit.params, 0.0)
                 fit = fit_guarded(uc, yc, _column_parts(terms, built, engaged, x), fit.params, _held(terms), rows)
@@ -575,18 +576,24 @@ def _start_as_estimated(steps: list[Step], start: InitialState, before: np.ndarr
 @dataclass(frozen=True)
 class _ModelView:
     """What the detectors need of one backlash fit (eq. 1-6), centred frame, degrees: the play's
-    sensitivity ``g`` and the other directions (:func:`.joint.play_sensitivity`), the last engaged
-    sample of every sample (:func:`.joint.engaged_index`) and the model's output ``x``."""
+    sensitivity ``g`` and the other directions (:func:`.joint.play_sensitivity`), the model's output
+    ``x``, and ``switched``: the output by the switching functions and the last engaged sample of every
+    sample (:func:`.joint._switched`, what a joint fit started from these parameters plans with)."""
 
     g: np.ndarray
     others: np.ndarray
-    index: np.ndarray
+    switched: tuple[np.ndarray, np.ndarray]
     x: np.ndarray
 
     @classmethod
     def of(cls, uc: np.ndarray, params: Any) -> _ModelView:
         g, others = play_sensitivity(uc, params)
-        return cls(g, others, engaged_index(uc, params), simulate_backlash(uc, params, 0.0))
+        return cls(g, others, _switched(uc, params), simulate_backlash(uc, params, 0.0))
+
+    @property
+    def index(self) -> np.ndarray:
+        """For every sample, the last sample with a flank engaged (:func:`.joint.engaged_index`)."""
+        return self.switched[1]
 
     @property
     def engaged(self) -> np.ndarray:
