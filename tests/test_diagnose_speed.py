@@ -147,3 +147,18 @@ def test_drift_columns_at_some_rows_are_its_stream_columns_there() -> None:
     for degree in (1, 2, 3):
         effect = Drift(degree, 4.0)
         np.testing.assert_array_equal(effect.powers(t[rows], float(t[0])), effect.clone().terms(u, t, q)[rows])
+
+
+@pytest.mark.parametrize("torque", [False, True])
+def test_dead_band_columns_at_some_rows_are_the_whole_records_there(torque: bool) -> None:
+    """The dead band's detector forms its columns at the rows its scores read (a screen's): the
+    pass runs over every sample for its state and writes those rows only."""
+    u, t, q, _ = _record()
+    taus, knots, rests = _at_period(EXIT_TIME_CONSTANTS, 1e-3), _at_period(ENTRY_KNOTS, 1e-3), _at_period((8, 32), 1e-3)
+    effect = DeadBandMotion(1.0, 0.5, 1.0, 0.5, taus, knots, torque, rests)
+    whole = effect.clone().terms(u, t, q)
+    rows = np.r_[3:700:2, 1500:2600, 3999]
+    got = effect.columns_at(u, t, q, rows)
+    assert np.count_nonzero(got) > 500  # the rows cross dead bands, engagements and rests
+    np.testing.assert_array_equal(got, whole[rows])
+    np.testing.assert_array_equal(effect.columns_at(u, t, q, None), whole)

@@ -184,6 +184,16 @@ class DeadBandMotion(EffectBase):
 
     def terms(self, u_deg: np.ndarray, time_s: np.ndarray, torque_Nm: np.ndarray) -> np.ndarray:
         """Regressor columns ``(len(u_deg), n_terms)``: coast, torque and entry columns (causal)."""
+        return self._stream(u_deg, time_s, torque_Nm, None)
+
+    def columns_at(self, u_deg: np.ndarray, time_s: np.ndarray, torque_Nm: np.ndarray, rows: np.ndarray | None) -> np.ndarray:
+        """:meth:`terms` of a fresh stream over the whole record, at the sample indices ``rows`` only
+        (increasing; None: every sample): the same numbers, without the record's full block."""
+        fresh: DeadBandMotion = self.clone()  # type: ignore[assignment]
+        return fresh._stream(u_deg, time_s, torque_Nm, rows)
+
+    def _stream(self, u_deg: np.ndarray, time_s: np.ndarray, torque_Nm: np.ndarray, rows: np.ndarray | None) -> np.ndarray:
+        """The columns of the next samples (:meth:`terms`), at ``rows`` of them only unless None."""
         ue, te, qe, n_past = self._window.extend(u_deg, time_s, torque_Nm)
         if ue.size == 0:
             return np.empty((0, self.n_terms))
@@ -194,14 +204,15 @@ class DeadBandMotion(EffectBase):
         self._window.keep(ue, te, qe)
         u, t = ue[n_past:], te[n_past:]
         e, dx = self._switch(u)
-        cols = np.zeros((u.size, self.n_terms))
+        rows = np.arange(u.size) if rows is None else np.ascontiguousarray(rows, dtype=np.int64)
+        cols = np.zeros((rows.size, self.n_terms))
         # the stream's state: the last sample (engaged, time, velocity, torque), the last exit (time,
         # velocity, torque), the last entry (time, velocity), the output's last move (time, direction)
         state = np.array([float(self._last[0]), *self._last[1:], *self._exit, *self._entry, *self._moved], dtype=float)
         _columns_pass(
             e, dx, np.ascontiguousarray(t, dtype=float), np.ascontiguousarray(v, dtype=float), np.ascontiguousarray(qs, dtype=float), state,
             np.asarray(self.exit_time_constants_s, dtype=float), self.torque, np.asarray(self.entry_knots_s, dtype=float), self.n_entry,
-            np.asarray(self.rest_time_constants_s, dtype=float), cols,
+            np.asarray(self.rest_time_constants_s, dtype=float), rows, cols,
         )
         self._last = (bool(state[0]), float(state[1]), float(state[2]), float(state[3]))
         self._exit = (float(state[4]), float(state[5]), float(state[6]))
@@ -256,7 +267,7 @@ class DeadBandMotion(EffectBase):
         found = []
         every_one = cls(p.m_left, p.c_left, p.m_right, p.c_right, taus, knots, torque, rests)
         # the coast (and torque) columns come first, then the entry's, the creep's last: each a slice
-        every = data.scored(every_one.clone().terms(data.u_deg, data.time_s, data.torque_Nm))  # the rows the scores use
+        every = every_one.columns_at(data.u_deg, data.time_s, data.torque_Nm, data.scored_rows)  # the rows the scores use
         split = every_one.n_terms - every_one.n_entry - every_one.n_rest
         ends = np.cumsum([0, split, every_one.n_entry, every_one.n_rest])
         parts = dict(zip(("coast", "entry", "creep at rest"), (range(int(a), int(b)) for a, b in pairwise(ends))))
@@ -278,9 +289,10 @@ class DeadBandMotion(EffectBase):
 
 
 @njit(cache=True, nogil=True)
-def _columns_pass(e, dx, t, v, qs, state, exit_taus, torque, knots, n_entry, rest_taus, out):  # pragma: no cover - compiled
+def _columns_pass(e, dx, t, v, qs, state, exit_taus, torque, knots, n_entry, rest_taus, rows, out):  # pragma: no cover - compiled
     """:meth:`DeadBandMotion.terms`' columns in one pass over the samples, continuing ``state``
-    (updated in place, see there): in the dead band (not ``e``) since the last exit at ``t_x``, the
+    (updated in place, see there), written for the samples ``rows`` (increasing) only, ``out[r]`` for
+    ``rows[r]``: in the dead band (not ``e``) since the last exit at ``t_x``, the
     exit velocity ``v_x`` times ``1 - exp(-(t - t_x) / tau)`` per ``exit_taus``, then (``torque``) the
     torque at exit and its change since; after the last entry at ``t_e``, ``v_e`` times the hat
     functions of ``knots`` at ``t - t_e`` (as ``numpy.interp`` evaluates them), while ``t - t_e`` is
@@ -289,22 +301,23 @@ def _columns_pass(e, dx, t, v, qs, state, exit_taus, torque, knots, n_entry, res
     e_prev, t_prev, v_prev, q_prev = state[0] > 0.5, state[1], state[2], state[3]
     t_x, v_x, q_x, t_e, v_e, t_m, d_m = state[4], state[5], state[6], state[7], state[8], state[9], state[10]
     n_exit = exit_taus.size
+    r = 0
     for s in range(e.size):
         now = e[s]
         if e_prev and not now:  # the flank left at the previous sample
             t_x, v_x, q_x = t_prev, v_prev, q_prev
         if now and not e_prev:  # a flank engaged at this one
             t_e, v_e = t[s], v[s]
-        k = 0
-        if not now and np.isfinite(t_x):
+        write = r < rows.size and rows[r] == s
+        if write and not now and np.isfinite(t_x):
             gone = t[s] - t_x
             for j in range(n_exit):
-                out[s, j] = v_x * -math.expm1(-gone / exit_taus[j])
+                out[r, j] = v_x * -math.expm1(-gone / exit_taus[j])
             if torque:
-                out[s, n_exit] = q_x
-                out[s, n_exit + 1] = qs[s] - q_x
+                out[r, n_exit] = q_x
+                out[r, n_exit + 1] = qs[s] - q_x
         k = n_exit + 2 * torque
-        if n_entry and now and np.isfinite(t_e):
+        if write and n_entry and now and np.isfinite(t_e):
             since = t[s] - t_e
             if since < knots[knots.size - 1]:
                 i = 0
@@ -313,18 +326,20 @@ def _columns_pass(e, dx, t, v, qs, state, exit_taus, torque, knots, n_entry, res
                 for j in range(n_entry):  # the hat of knot j: 1 at knots[j], 0 at the others
                     lo = 1.0 if i == j else 0.0
                     hi = 1.0 if i + 1 == j else 0.0
-                    out[s, k + j] = v_e * ((hi - lo) / (knots[i + 1] - knots[i]) * (since - knots[i]) + lo)
+                    out[r, k + j] = v_e * ((hi - lo) / (knots[i + 1] - knots[i]) * (since - knots[i]) + lo)
         k += n_entry
         if dx[s] != 0.0:
             t_m, d_m = t[s], np.sign(dx[s])
-        elif np.isfinite(t_m):
+        elif write and np.isfinite(t_m):
             rested = t[s] - t_m
             for j in range(rest_taus.size):
                 shape = -math.expm1(-rested / rest_taus[j])
                 if d_m > 0:
-                    out[s, k + 2 * j] = shape
+                    out[r, k + 2 * j] = shape
                 elif d_m < 0:
-                    out[s, k + 2 * j + 1] = shape
+                    out[r, k + 2 * j + 1] = shape
+        if write:
+            r += 1
         e_prev, t_prev, v_prev, q_prev = now, t[s], v[s], qs[s]
     state[0], state[1], state[2], state[3] = 1.0 if e_prev else 0.0, t_prev, v_prev, q_prev
     state[4], state[5], state[6], state[7], state[8], state[9], state[10] = t_x, v_x, q_x, t_e, v_e, t_m, d_m
