@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from online_backlash.diagnostics._causal import velocity_deg_s
 from online_backlash.diagnostics._folds import cycle_folds
 from online_backlash.diagnostics._harmonics import harmonic_columns, harmonic_stack, held_per_flank, shaft_harmonic
 from online_backlash.diagnostics._record_cache import RecordCache
@@ -12,6 +13,7 @@ from online_backlash.diagnostics._scoring import DetectionData
 from online_backlash.diagnostics._speed import cardinal_splines, held_spline_columns, record_velocity, speed_knots, zero_knot
 from online_backlash.diagnostics.dead_band import ENTRY_KNOTS, EXIT_TIME_CONSTANTS, DeadBandMotion, _at_period
 from online_backlash.diagnostics.effects import Drift
+from online_backlash.diagnostics.generic import VelocityFunction
 
 
 def _record(n: int = 4000, seed: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -162,3 +164,14 @@ def test_dead_band_columns_at_some_rows_are_the_whole_records_there(torque: bool
     assert np.count_nonzero(got) > 500  # the rows cross dead bands, engagements and rests
     np.testing.assert_array_equal(got, whole[rows])
     np.testing.assert_array_equal(effect.columns_at(u, t, q, None), whole)
+
+
+def test_velocity_function_columns_are_the_cardinal_splines_without_the_zero_knot() -> None:
+    """The generic velocity function's columns come from the compiled evaluation (``cardinal_columns``):
+    scipy's cubic splines at the velocity, the knot nearest 0 left out, to the last bit."""
+    u, t, q, _ = _record()
+    v = velocity_deg_s(u, t, 10)
+    for inner in (1, 2, 5):
+        knots = speed_knots(v, inner)
+        plain = np.delete(cardinal_splines(knots, v), zero_knot(knots), axis=1)
+        np.testing.assert_array_equal(VelocityFunction(knots, 10).terms(u, t, q), plain)

@@ -76,25 +76,33 @@ def held_spline_columns(data: DetectionData, knots_deg_s: tuple[float, ...]) -> 
     the columns of the drift's speed rival and of the generic velocity function, built once per round.
 
     Holding a column takes its value at an earlier sample, so the splines are evaluated at the held
-    velocity, in one compiled pass (the piecewise cubics of :class:`scipy.interpolate.CubicSpline` in
-    its power form, as it evaluates them: the same numbers, bit for bit, on the bench and measured logs).
+    velocity (:func:`cardinal_columns`).
     """
 
     def build() -> np.ndarray:
-        if len(knots_deg_s) < 2:
-            return np.empty((data.u_deg.size, 0))
-        k = np.asarray(knots_deg_s, dtype=float)
-        coef = np.ascontiguousarray(CubicSpline(k, np.eye(k.size), bc_type="not-a-knot").c)
-        kept = np.delete(np.arange(k.size), zero_knot(knots_deg_s))
-        v = record_velocity(data)
-        index = np.arange(v.size) if data.engaged_index is None else np.ascontiguousarray(data.engaged_index, dtype=np.int64)
-        rows = np.arange(v.size) if data.scored_rows is None else data.scored_rows  # a screen's rows only
-        out = np.empty((rows.size, kept.size))
-        # the kept columns' coefficients per interval, lowest power first: (intervals, powers, columns)
-        _cardinal_at(np.ascontiguousarray(coef[::-1][:, :, kept].transpose(1, 0, 2)), k, v, index, rows, out)
-        return out
+        return cardinal_columns(knots_deg_s, record_velocity(data), data.engaged_index, data.scored_rows)
 
     return data.memo(("held speed columns", tuple(knots_deg_s)), build, held=True)
+
+
+def cardinal_columns(knots_deg_s: tuple[float, ...], velocity: np.ndarray, index: np.ndarray | None = None, rows: np.ndarray | None = None) -> np.ndarray:
+    """:func:`cardinal_splines` at ``velocity`` (deg/s) without the column of the knot nearest 0 (the
+    columns of :class:`~.generic.VelocityFunction`), in one compiled pass (the piecewise cubics of
+    :class:`scipy.interpolate.CubicSpline` in its power form, as it evaluates them: the same numbers,
+    bit for bit, on the bench and measured logs); a sample's row at the velocity of sample
+    ``index[t]`` (held through the dead band; None: its own), for the samples ``rows`` only (None: all)."""
+    v = np.ascontiguousarray(velocity, dtype=float)
+    index = np.arange(v.size) if index is None else np.ascontiguousarray(index, dtype=np.int64)
+    rows = np.arange(index.size) if rows is None else np.ascontiguousarray(rows, dtype=np.int64)
+    if len(knots_deg_s) < 2:
+        return np.empty((rows.size, 0))
+    k = np.asarray(knots_deg_s, dtype=float)
+    coef = np.ascontiguousarray(CubicSpline(k, np.eye(k.size), bc_type="not-a-knot").c)
+    kept = np.delete(np.arange(k.size), zero_knot(knots_deg_s))
+    out = np.empty((rows.size, kept.size))
+    # the kept columns' coefficients per interval, lowest power first: (intervals, powers, columns)
+    _cardinal_at(np.ascontiguousarray(coef[::-1][:, :, kept].transpose(1, 0, 2)), k, v, index, rows, out)
+    return out
 
 
 @njit(cache=True)

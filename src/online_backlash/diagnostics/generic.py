@@ -28,7 +28,7 @@ from ._folds import DEADZONE_DEG, DIRECTION_WINDOW
 from ._harmonics import harmonic_at_sources, harmonic_columns, held_per_flank
 from ._per_flank import PerFlankTerms, record_direction
 from ._scoring import Detection, DetectionData, Score
-from ._speed import MAX_INNER_KNOTS, VELOCITY_WINDOW, cardinal_splines, held_spline_columns, record_velocity, speed_knots, zero_knot
+from ._speed import MAX_INNER_KNOTS, VELOCITY_WINDOW, cardinal_columns, held_spline_columns, record_velocity, speed_knots, zero_knot
 from .effects import amplitudes_phases, select_orders
 
 
@@ -147,7 +147,7 @@ class VelocityFunction(EffectBase):
         return len(self.knots_deg_s) - 1
 
     def _columns(self, u: np.ndarray, t: np.ndarray, q: np.ndarray) -> np.ndarray:
-        return cardinal_splines(self.knots_deg_s, velocity_deg_s(u, t, self.window_samples))[:, self._kept]
+        return cardinal_columns(self.knots_deg_s, velocity_deg_s(u, t, self.window_samples))
 
     def describe(self, coef: np.ndarray) -> dict[str, Any]:
         values = np.zeros(len(self.knots_deg_s))
