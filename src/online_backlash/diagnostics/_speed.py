@@ -52,7 +52,8 @@ def cardinal_splines(knots_deg_s: tuple[float, ...], velocity: np.ndarray) -> np
     "Not-a-knot" end conditions: the outer two pieces on each side are one cubic, so a cubic law
     of the speed is reproduced exactly (a natural spline forces zero curvature at the outer
     knots, where a lag growing with the square of the speed has the most). Two knots give a
-    straight line, three a parabola.
+    straight line, three a parabola. The definition, by scipy: the loop and the velocity function
+    evaluate them with :func:`cardinal_columns` (the same numbers, compiled; the tests hold the two equal).
     """
     k = np.asarray(knots_deg_s, dtype=float)
     v = np.clip(np.asarray(velocity, dtype=float), k[0], k[-1])
