@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 
+from .._allocator import keep_freed_memory
 from ..bridging import GapTally
 from ..rows import describe_counts, source_counts
 from ._common import add_can_decoding_options, add_log_options, add_ratio_option, check_plot_path, positive_float, print_json
@@ -59,6 +60,7 @@ def run(args: argparse.Namespace) -> int:
     from ..diagnostics.plot import plot_diagnosis
     from ..diagnostics.report import markdown_report
 
+    keep_freed_memory()  # a one-shot process: its large arrays reuse the memory freed by the last ones
     check_plot_path(args.plot)
     chunk, source = read_counted(args)
     counts = {**source_counts(source.counters.as_dict()), **GapTally.of_chunk(chunk).values()}

@@ -8,6 +8,7 @@ import os
 from collections.abc import Iterable
 from typing import Any
 
+from .._allocator import keep_freed_memory
 from ..bridging import BRIDGE_S, JUMP_DEG, GapPolicy
 from ..errors import InvalidParameterError
 from ..fitting import BacklashReport, describe, fit_batch, fit_recursive
@@ -122,6 +123,7 @@ def read_counted(args: argparse.Namespace) -> tuple[SampleChunk, SampleSource]:
 def run(args: argparse.Namespace) -> int:
     from ..replay import open_log
 
+    keep_freed_memory()  # a one-shot process: its large arrays reuse the memory freed by the last ones
     check_plot_path(args.plot)
     if args.method == "batch":
         if args.trace:
