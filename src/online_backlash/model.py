@@ -113,20 +113,23 @@ def _backlash_loop(u, mL, cL, mR, cR, x0):  # pragma: no cover - compiled
 
 
 @njit(cache=True)
-def _switching_loop(u, mL, cL, mR, cR, x0):  # pragma: no cover - compiled
+def _switching_loop(u, mL, cL, mR, cR, x0, u_prev, a_prev, b_prev):  # pragma: no cover - compiled
     n = u.shape[0]
     x = np.empty(n)
     f1 = np.empty(n)
     f2 = np.empty(n)
     prev = x0
+    last, a, b = u_prev, a_prev, b_prev
     for t in range(n):
-        a = 1.0 if u[t] - (prev / mL - cL) <= 0 else 0.0  # eq. (5), f1 = h(u - zL)
-        b = 1.0 if (prev / mR + cR) - u[t] <= 0 else 0.0  # eq. (6), f2 = h(zR - u)
+        if u[t] != last:  # an input that has not moved keeps the switching functions (see simulate_switching)
+            a = 1.0 if u[t] - (prev / mL - cL) <= 0 else 0.0  # eq. (5), f1 = h(u - zL)
+            b = 1.0 if (prev / mR + cR) - u[t] <= 0 else 0.0  # eq. (6), f2 = h(zR - u)
         # eq. (7); a and b are never both 1 while the band is open (zL < zR, see simulate_switching)
         prev = mL * u[t] * a + mL * cL * a + mR * u[t] * b - mR * cR * b + prev * (1 - a) * (1 - b)
         x[t] = prev
         f1[t] = a
         f2[t] = b
+        last = u[t]
     return x, f1, f2
 
 
@@ -196,18 +199,28 @@ def simulate_backlash(u: np.ndarray, params: BacklashParams, x0: float = 0.0) ->
 
 
 def simulate_switching(
-    u: np.ndarray, params: BacklashParams, x0: float = 0.0
+    u: np.ndarray, params: BacklashParams, x0: float = 0.0, previous: tuple[float, float, float] | None = None
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Backlash output by the switching-function form, eq. (4)-(7).
 
     Returns ``(x, f1, f2)``; ``x`` equals :func:`simulate_backlash` exactly while the band is
     open, ``zL < zR`` in eq. (2)-(3): ``cL + cR > 0`` (the paper's ``cL, cR > 0``) and, with
-    unequal slopes, ``|x|`` below the crossing of the two lines,
-    ``|x| < (cL + cR) / |1/mL - 1/mR|``. Where ``zL >= zR`` both switching functions can fire
+    unequal slopes, ``|x| < (cL + cR) / |1/mL - 1/mR|``. Where ``zL >= zR`` both switching functions can fire
     and eq. (7) adds both lines (``tests/test_model.py`` shows a case with ``cL = cR = 0``).
+
+    A sample whose input equals the one before keeps that sample's ``f1``, ``f2``: in exact
+    arithmetic eq. (5)-(6) give the same values there (on the left line ``x(t-1) / mL - cL`` is
+    ``u(t-1)`` itself, a tie that ``h(0) = 1`` decides as engaged; in the dead band nothing has
+    changed), but the round trip of ``x`` through the line lands a unit in the last place either
+    side of ``u``: on quantised encoder data (a motor that has not moved a count between samples)
+    the engaged samples would flicker with the last bit of the parameters. ``x`` is the same
+    either way (an engaged line at the same input gives the same output as holding it).
+    ``previous`` is ``(u, f1, f2)`` of the sample before the first (a stream continued in
+    pieces); None: the first sample is tested as it is.
     """
     _check_band(params)
-    return _switching_loop(_as_input(u), params.m_left, params.c_left, params.m_right, params.c_right, float(x0))
+    u_prev, f1_prev, f2_prev = (float("nan"), 0.0, 0.0) if previous is None else (float(v) for v in previous)
+    return _switching_loop(_as_input(u), params.m_left, params.c_left, params.m_right, params.c_right, float(x0), u_prev, f1_prev, f2_prev)
 
 
 @njit(cache=True, nogil=True)

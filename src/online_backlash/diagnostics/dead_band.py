@@ -11,11 +11,15 @@ simulation residual as spikes at the reversals.
 :class:`DeadBandMotion` describes them with columns that are linear in their coefficients, so
 the loop's joint fit (eq. 8 and 14 with appended columns) and its held-out scoring apply:
 
-* **in the dead band** (zero on engaged samples): the exit velocity ``v_x`` of ``u`` at the
-  last engaged sample times ``1 - exp(-s / tau_j)``, ``s`` the time since that sample, for a
-  few time constants ``tau_j`` (a load that leaves the flank at ``v_x`` and is braked by
-  viscous friction coasts ``v_x tau (1 - exp(-s / tau))``); with a measured torque, also the
-  torque at exit (held) and the change of the torque since exit;
+* **where the model's output rests** (eq. 7 holds it, ``x(t) = x(t-1)``: in the dead band, and on
+  a flank while the motor stands still; zero elsewhere): the velocity ``v_x`` of ``u`` at the last
+  sample where the output moved times ``1 - exp(-s / tau_j)``, ``s`` the time since that sample,
+  for a few time constants ``tau_j`` (a load that leaves the pushing flank at ``v_x``, because the
+  flank turns back or stops, and is braked by viscous friction coasts ``v_x tau (1 - exp(-s /
+  tau))``); with a measured torque, also the torque then (held) and the change of the torque since.
+  The flank *leaves* the load where the motor stops pushing it, not only where eq. (5)-(6) let go
+  of it: a motor that stops on a flank keeps it engaged (a tie that ``h(0) = 1`` decides, see
+  :func:`~online_backlash.model.simulate_switching`) while the load runs on;
 * **after a flank engages** (zero elsewhere): the entry velocity ``v_e`` of ``u`` at the first
   engaged sample times hat functions of the time since engagement (the impact's response,
   scaled by the speed of the impact), up to the last knot;
@@ -24,10 +28,10 @@ the loop's joint fit (eq. 8 and 14 with appended columns) and its held-out scori
   on creeping in the direction ``d`` the output last moved, released by what the drive train
   stored while it pushed (the reaction torque, the shaft's twist): ``[d > 0] (1 - exp(-r /
   tau_j))`` and ``[d < 0] (1 - exp(-r / tau_j))``, ``r`` the time since ``x`` last moved, one
-  column per direction and time constant (a stroke's top and bottom are loaded differently). A
-  motor that rests at a reversal leaves the flank at speed 0, so the coast above cannot hold
-  there; this creep does not need the speed. Coefficients in deg (the creep's share reached
-  with each time constant).
+  column per direction and time constant (a stroke's top and bottom are loaded differently). The
+  coast above scales with the speed the output last moved at, which a motor that ramps down
+  before it rests makes small; this creep does not need the speed. Coefficients in deg (the
+  creep's share reached with each time constant).
 
 Engaged or not is decided by the model's own switching functions, eq. (5)-(6), run on ``u``
 with the backlash parameters the effect is given (the loop's current fit, in its frame: ``u``
@@ -138,13 +142,13 @@ class DeadBandMotion(EffectBase):
         super().reset()
         self._u0: float | None = None
         self._x = 0.0
-        # the last sample seen: engaged, time, velocity, smoothed torque
-        self._last = (False, np.nan, 0.0, 0.0)
-        # the last exit (time, velocity, torque) and entry (time, velocity)
-        self._exit = (np.nan, 0.0, 0.0)
+        # the last sample's input (from u0) and switching functions, eq. (5)-(6) (None before any)
+        self._switched: tuple[float, float, float] | None = None
+        # whether the last sample seen was engaged; the last entry (time, velocity)
+        self._engaged = False
         self._entry = (np.nan, 0.0)
-        # the output's last move: time, direction (+1 / -1, 0 before any)
-        self._moved = (np.nan, 0.0)
+        # the output's last move: time, direction (+1 / -1, 0 before any), velocity, smoothed torque
+        self._moved = (np.nan, 0.0, 0.0, 0.0)
 
     @property
     def n_entry(self) -> int:
@@ -168,9 +172,11 @@ class DeadBandMotion(EffectBase):
         """Engaged (eq. 5-6) and the output's change ``x(t) - x(t-1)`` (eq. 7), deg, continuing the stream."""
         if self._u0 is None:
             self._u0 = float(u_deg[0])
-        x, f1, f2 = simulate_switching(np.asarray(u_deg, dtype=float) - self._u0, self._params, self._x)
+        uc = np.asarray(u_deg, dtype=float) - self._u0
+        x, f1, f2 = simulate_switching(uc, self._params, self._x, self._switched)
         dx = np.diff(x, prepend=self._x)
         self._x = float(x[-1])
+        self._switched = (float(uc[-1]), float(f1[-1]), float(f2[-1]))
         return (f1 + f2) > 0, dx
 
     def switch_clock(self, u_deg: np.ndarray, time_s: np.ndarray, limit_s: float = 0.25) -> np.ndarray:
@@ -206,18 +212,17 @@ class DeadBandMotion(EffectBase):
         e, dx = self._switch(u)
         rows = np.arange(u.size) if rows is None else np.ascontiguousarray(rows, dtype=np.int64)
         cols = np.zeros((rows.size, self.n_terms))
-        # the stream's state: the last sample (engaged, time, velocity, torque), the last exit (time,
-        # velocity, torque), the last entry (time, velocity), the output's last move (time, direction)
-        state = np.array([float(self._last[0]), *self._last[1:], *self._exit, *self._entry, *self._moved], dtype=float)
+        # the stream's state: the last sample engaged, the last entry (time, velocity), the output's
+        # last move (time, direction, velocity, torque)
+        state = np.array([float(self._engaged), *self._entry, *self._moved], dtype=float)
         _columns_pass(
             e, dx, np.ascontiguousarray(t, dtype=float), np.ascontiguousarray(v, dtype=float), np.ascontiguousarray(qs, dtype=float), state,
             np.asarray(self.exit_time_constants_s, dtype=float), self.torque, np.asarray(self.entry_knots_s, dtype=float), self.n_entry,
             np.asarray(self.rest_time_constants_s, dtype=float), rows, cols,
         )
-        self._last = (bool(state[0]), float(state[1]), float(state[2]), float(state[3]))
-        self._exit = (float(state[4]), float(state[5]), float(state[6]))
-        self._entry = (float(state[7]), float(state[8]))
-        self._moved = (float(state[9]), float(state[10]))
+        self._engaged = bool(state[0])
+        self._entry = (float(state[1]), float(state[2]))
+        self._moved = (float(state[3]), float(state[4]), float(state[5]), float(state[6]))
         return cols
 
     def describe(self, coef: np.ndarray) -> dict[str, Any]:
@@ -225,9 +230,10 @@ class DeadBandMotion(EffectBase):
         n_exit = len(self.exit_time_constants_s)
         coast = c[:n_exit]
         out: dict[str, Any] = {
-            "model": "in the dead band: the load coasts on from where the flank left it; after a flank engages: "
-            "a transient scaled by the speed of the impact",
-            "active_on": "dead band and the first entry_knots_s[-1] s after a flank engages, by the model's switching functions (eq. 5-6)",
+            "model": "where the model's output rests: the load coasts on from where the flank stopped pushing it (turned back "
+            "or stopped); after a flank engages: a transient scaled by the speed of the impact",
+            "active_on": "the coast wherever eq. (7) holds the model's output (the dead band, a flank while the motor stands still); "
+            "the first entry_knots_s[-1] s after a flank engages, by the model's switching functions (eq. 5-6)",
             "dead_band_deg": self.c_left_deg + self.c_right_deg,
             "coast": [{"time_constant_s": tau, "deg_per_deg_s": b} for tau, b in zip(self.exit_time_constants_s, coast)],
             "coast_per_exit_speed_s": float(sum(coast)),
@@ -292,30 +298,32 @@ class DeadBandMotion(EffectBase):
 def _columns_pass(e, dx, t, v, qs, state, exit_taus, torque, knots, n_entry, rest_taus, rows, out):  # pragma: no cover - compiled
     """:meth:`DeadBandMotion.terms`' columns in one pass over the samples, continuing ``state``
     (updated in place, see there), written for the samples ``rows`` (increasing) only, ``out[r]`` for
-    ``rows[r]``: in the dead band (not ``e``) since the last exit at ``t_x``, the
-    exit velocity ``v_x`` times ``1 - exp(-(t - t_x) / tau)`` per ``exit_taus``, then (``torque``) the
-    torque at exit and its change since; after the last entry at ``t_e``, ``v_e`` times the hat
+    ``rows[r]``. Where the output rests (``dx == 0``: the dead band, or a flank while the motor stands
+    still) since it last moved at ``t_m`` with the velocity ``v_m`` and torque ``q_m``, in the direction
+    ``d``: ``v_m`` times ``1 - exp(-(t - t_m) / tau)`` per ``exit_taus``, then (``torque``) ``q_m`` and
+    the torque's change since; ``1 - exp(-(t - t_m) / tau)`` per ``rest_taus`` in the column of the
+    direction ``d``. After the last entry (a flank engaged, ``e``) at ``t_e``, ``v_e`` times the hat
     functions of ``knots`` at ``t - t_e`` (as ``numpy.interp`` evaluates them), while ``t - t_e`` is
-    below the last knot; where the output rests (``dx == 0``) since it last moved at ``t_m`` in the
-    direction ``d``, ``1 - exp(-(t - t_m) / tau)`` per ``rest_taus`` in the column of that direction."""
-    e_prev, t_prev, v_prev, q_prev = state[0] > 0.5, state[1], state[2], state[3]
-    t_x, v_x, q_x, t_e, v_e, t_m, d_m = state[4], state[5], state[6], state[7], state[8], state[9], state[10]
+    below the last knot."""
+    e_prev, t_e, v_e = state[0] > 0.5, state[1], state[2]
+    t_m, d_m, v_m, q_m = state[3], state[4], state[5], state[6]
     n_exit = exit_taus.size
     r = 0
     for s in range(e.size):
         now = e[s]
-        if e_prev and not now:  # the flank left at the previous sample
-            t_x, v_x, q_x = t_prev, v_prev, q_prev
         if now and not e_prev:  # a flank engaged at this one
             t_e, v_e = t[s], v[s]
+        if dx[s] != 0.0:
+            t_m, d_m, v_m, q_m = t[s], np.sign(dx[s]), v[s], qs[s]
         write = r < rows.size and rows[r] == s
-        if write and not now and np.isfinite(t_x):
-            gone = t[s] - t_x
+        resting = write and dx[s] == 0.0 and np.isfinite(t_m)
+        if resting:
+            gone = t[s] - t_m
             for j in range(n_exit):
-                out[r, j] = v_x * -math.expm1(-gone / exit_taus[j])
+                out[r, j] = v_m * -math.expm1(-gone / exit_taus[j])
             if torque:
-                out[r, n_exit] = q_x
-                out[r, n_exit + 1] = qs[s] - q_x
+                out[r, n_exit] = q_m
+                out[r, n_exit + 1] = qs[s] - q_m
         k = n_exit + 2 * torque
         if write and n_entry and now and np.isfinite(t_e):
             since = t[s] - t_e
@@ -328,18 +336,15 @@ def _columns_pass(e, dx, t, v, qs, state, exit_taus, torque, knots, n_entry, res
                     hi = 1.0 if i + 1 == j else 0.0
                     out[r, k + j] = v_e * ((hi - lo) / (knots[i + 1] - knots[i]) * (since - knots[i]) + lo)
         k += n_entry
-        if dx[s] != 0.0:
-            t_m, d_m = t[s], np.sign(dx[s])
-        elif write and np.isfinite(t_m):
-            rested = t[s] - t_m
+        if resting:
             for j in range(rest_taus.size):
-                shape = -math.expm1(-rested / rest_taus[j])
+                shape = -math.expm1(-(t[s] - t_m) / rest_taus[j])
                 if d_m > 0:
                     out[r, k + 2 * j] = shape
                 elif d_m < 0:
                     out[r, k + 2 * j + 1] = shape
         if write:
             r += 1
-        e_prev, t_prev, v_prev, q_prev = now, t[s], v[s], qs[s]
-    state[0], state[1], state[2], state[3] = 1.0 if e_prev else 0.0, t_prev, v_prev, q_prev
-    state[4], state[5], state[6], state[7], state[8], state[9], state[10] = t_x, v_x, q_x, t_e, v_e, t_m, d_m
+        e_prev = now
+    state[0], state[1], state[2] = 1.0 if e_prev else 0.0, t_e, v_e
+    state[3], state[4], state[5], state[6] = t_m, d_m, v_m, q_m
