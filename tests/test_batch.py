@@ -249,3 +249,34 @@ def test_default_estimators_fit_the_papers_examples_as_given(number):
     errors = np.array([[abs(cls().fit(*ex.generate(seed)).estimates()[k] / v - 1) for k, v in truth.items()] for seed in range(20)])
     medians = dict(zip(truth, np.median(errors, axis=0)))
     assert all(m < 0.03 for m in medians.values()), medians
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_the_compiled_eq14_step_is_the_least_squares_of_eq14(seed):
+    """``_equation_error_step`` (two compiled passes, no regressor formed) against eq. (8)-(14) written
+    out with numpy: the regressor of the engaged samples and its least squares."""
+    from online_backlash.estimators.batch import _equation_error_step, _solve
+    from online_backlash.model import switching_functions
+
+    rng = np.random.default_rng(seed)
+    u = np.round(np.cumsum(rng.normal(0.0, 0.3, 3000)) / 0.01) * 0.01  # quantised: repeated samples too
+    x = simulate_backlash(u, BacklashParams(1.1, 0.4, 0.9, 0.3)) + rng.normal(0.0, 0.01, u.size)
+    p = BacklashParams(*rng.uniform([0.8, 0.2, 0.8, 0.2], [1.2, 0.6, 1.2, 0.6]))
+    u_t, x_t, x_prev = u[1:], x[1:], x[:-1]
+    f1, f2 = switching_functions(u_t, x_prev, p)  # eq. (12)-(13)
+    active = (f1 + f2) > 0
+    phi = np.column_stack((u_t * f1, f1, u_t * f2, -f2))[active]  # eq. (8)
+    target = (x_t - x_prev * (1 - f1) * (1 - f2))[active]  # eq. (11)
+    expected = _solve(phi, target)
+    step = _equation_error_step(u_t, x_prev, x_t, p)
+    np.testing.assert_allclose(step.theta, expected.theta, rtol=1e-9)
+    np.testing.assert_allclose(step.se, expected.se, rtol=1e-7)
+
+
+def test_the_compiled_eq14_step_refuses_a_record_that_engages_one_flank():
+    from online_backlash.estimators.batch import _equation_error_step
+
+    u = np.linspace(0.0, 10.0, 200)  # only ever pushed up: the right flank
+    x = simulate_backlash(u, BacklashParams(1.0, 0.2, 1.0, 0.2))
+    with pytest.raises(NotExcitedError, match="engage the left flank"):
+        _equation_error_step(u[1:], x[:-1], x[1:], BacklashParams(1.0, 0.2, 1.0, 0.2))

@@ -129,6 +129,7 @@ class _Grams:
         #: ``z``'s rows: every sample, or for a screen (:meth:`._folds.Folds.screen`) its samples side by side
         self.z = z
         self.segments = folds.compact_segments if folds.screened else folds.segments
+        self._bounds: np.ndarray | None = None  # the segments' row bounds, for the compiled lag product
         self.per_fold = self._per_fold(z, z) if per_fold is None else per_fold
         self.total = self.per_fold.sum(axis=0)
 
@@ -182,24 +183,37 @@ class _Grams:
         p = self.z.shape[1] - 1
         ez, ex = np.concatenate((e[:p], e[-1:])), np.ascontiguousarray(e[p:-1])
         if self.folds.screened:
-            return float(sum(_lag_product(self.z[a:b], ez, x[a:b], ex) for _, a, b in self.segments))
-        return float(_lag_product(self.z, ez, x, ex))
+            if self._bounds is None:
+                self._bounds = np.array([(a, b) for _, a, b in self.segments], dtype=np.int64).reshape(-1, 2)
+            return float(_lag_product_within(self.z, ez, x, ex, self._bounds))
+        return float(_lag_product(self.z, ez, x, ex, 0, self.z.shape[0]))
 
 
 @njit(cache=True)
-def _lag_product(z, ez, x, ex):  # pragma: no cover - compiled
-    """``sum_t w(t) w(t-1)`` for ``w = z @ ez + x @ ex``, in one pass without forming ``w``."""
+def _lag_product(z, ez, x, ex, start, stop):  # pragma: no cover - compiled
+    """``sum_t w(t) w(t-1)`` for ``w = z @ ez + x @ ex`` over the rows ``start .. stop - 1``, in one pass
+    without forming ``w``."""
     total = 0.0
     prev = 0.0
-    for t in range(z.shape[0]):
+    for t in range(start, stop):
         w = 0.0
         for j in range(z.shape[1]):
             w += z[t, j] * ez[j]
         for j in range(x.shape[1]):
             w += x[t, j] * ex[j]
-        if t:
+        if t > start:
             total += w * prev
         prev = w
+    return total
+
+
+@njit(cache=True)
+def _lag_product_within(z, ez, x, ex, bounds):  # pragma: no cover - compiled
+    """:func:`_lag_product` within each run of rows ``bounds[k, 0] .. bounds[k, 1] - 1``, summed in their
+    order (one call, not one per run: a screen has thousands)."""
+    total = 0.0
+    for k in range(bounds.shape[0]):
+        total += _lag_product(z, ez, x, ex, bounds[k, 0], bounds[k, 1])
     return total
 
 

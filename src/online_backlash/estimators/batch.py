@@ -36,6 +36,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
+from numba import njit
 
 from ..errors import ConvergenceWarning, InvalidParameterError, NotExcitedError
 from ..model import (
@@ -44,7 +45,6 @@ from ..model import (
     linear_filter,
     simulate_backlash,
     simulate_switching,
-    switching_functions,
 )
 from ._validation import check_int, check_is_fitted, check_option, check_pair, check_real, check_reverses
 from .uncertainty import KinematicPlayScatter, PlayUncertainty
@@ -77,7 +77,13 @@ def _solve(phi: np.ndarray, target: np.ndarray) -> _Step:
     """
     theta, inv_diag = _normal_equations(phi, target)
     resid = target - phi @ theta
-    sigma2 = _inner(resid, resid) / max(phi.shape[0] - phi.shape[1], 1)
+    return _with_errors(theta, inv_diag, _inner(resid, resid), phi.shape[0], phi.shape[1])
+
+
+def _with_errors(theta: np.ndarray, inv_diag: np.ndarray, rss: float, rows: int, columns: int) -> _Step:
+    """The :class:`_Step` of ``theta`` with ``sigma^2 = rss / (rows - columns)`` times ``inv_diag``, the
+    diagonal of ``(Phi^T Phi)^+``."""
+    sigma2 = rss / max(rows - columns, 1)
     return _Step(theta, np.sqrt(np.maximum(sigma2 * inv_diag, 0.0)))
 
 
@@ -88,19 +94,78 @@ def _inner(a: np.ndarray, b: np.ndarray) -> float:
 
 
 def _normal_equations(phi: np.ndarray, target: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Least squares ``min |phi theta - target|`` by column-scaled normal equations.
+    """Least squares ``min |phi theta - target|`` by column-scaled normal equations (:func:`_gram_solution`)."""
+    return _gram_solution(phi.T @ phi, phi.T @ target)
 
-    Returns ``theta`` and the diagonal of ``(phi^T phi)^+``. With 4-8 columns the Gram matrix is
-    tiny, and scaling every column to unit norm keeps it well conditioned even when ``u`` spans
-    thousands of degrees. (LAPACK's tall least squares was up to 100 times slower here on a
-    loaded machine, where OpenBLAS threads compete for the cores.) A rank-deficient ``phi``
-    gets the least-norm answer, as ``numpy.linalg.lstsq`` would give.
+
+def _gram_solution(gram: np.ndarray, rhs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``theta`` of the normal equations ``gram theta = rhs`` (``gram = phi^T phi``, ``rhs = phi^T
+    target``) and the diagonal of ``gram^+``.
+
+    With 4-8 columns the Gram matrix is tiny, and scaling every column to unit norm keeps it well
+    conditioned even when ``u`` spans thousands of degrees. (LAPACK's tall least squares was up to
+    100 times slower here on a loaded machine, where OpenBLAS threads compete for the cores.) A
+    rank-deficient ``phi`` gets the least-norm answer, as ``numpy.linalg.lstsq`` would give.
     """
-    scale = np.sqrt(np.einsum("ij,ij->j", phi, phi))
+    scale = np.sqrt(np.diag(gram).copy())
     scale[scale == 0] = 1.0
-    gram_inv = np.linalg.pinv((phi.T @ phi) / np.outer(scale, scale))
-    theta = gram_inv @ (phi.T @ target / scale) / scale
+    gram_inv = np.linalg.pinv(gram / np.outer(scale, scale))
+    theta = gram_inv @ (rhs / scale) / scale
     return theta, np.diag(gram_inv) / scale**2
+
+
+def _equation_error_step(u_t: np.ndarray, x_prev: np.ndarray, x_t: np.ndarray, params: BacklashParams) -> _Step:
+    """One step of the paper's iteration for backlash, eq. (12)-(14): the switching functions from
+    ``params`` and the measured ``x(t-1)``, then the least squares of eq. (14) over the samples with a
+    flank engaged, with the standard errors of :func:`_solve`; two compiled passes over the samples
+    (:func:`_eq14_normal_equations`, :func:`_eq14_rss`), no ``n x 4`` regressor formed."""
+    gram, rhs = np.zeros((4, 4)), np.zeros(4)
+    p = (params.m_left, params.c_left, params.m_right, params.c_right)
+    left, right, rows = _eq14_normal_equations(u_t, x_prev, x_t, *p, gram, rhs)
+    _check_sides(left, right)
+    theta, inv_diag = _gram_solution(gram, rhs)
+    return _with_errors(theta, inv_diag, _eq14_rss(u_t, x_prev, x_t, *p, theta), rows, 4)
+
+
+@njit(cache=True)
+def _eq14_normal_equations(u, x_prev, x, mL, cL, mR, cR, gram, rhs):  # pragma: no cover - compiled
+    """``gram += phi^T phi`` and ``rhs += phi^T target`` over the samples with ``f1 + f2 > 0``, with
+    ``phi = [u f1, f1, u f2, -f2]`` (eq. 8) and ``target = x - x_prev (1 - f1)(1 - f2)`` (left side of
+    eq. 11), ``f1``, ``f2`` of eq. (5)-(6) from ``x_prev`` as :func:`~online_backlash.model.switching_functions`
+    evaluates them; returns the samples with ``f1`` set, with ``f2`` set, and with either (the rows)."""
+    left = 0
+    right = 0
+    rows = 0
+    row = np.empty(4)
+    for t in range(u.size):
+        f1 = 1.0 if u[t] - (x_prev[t] / mL - cL) <= 0 else 0.0  # eq. (5) with eq. (2)
+        f2 = 1.0 if (x_prev[t] / mR + cR) - u[t] <= 0 else 0.0  # eq. (6) with eq. (3)
+        if f1 + f2 == 0:
+            continue
+        left += f1 > 0
+        right += f2 > 0
+        rows += 1
+        row[0], row[1], row[2], row[3] = u[t] * f1, f1, u[t] * f2, -f2
+        target = x[t] - x_prev[t] * (1 - f1) * (1 - f2)
+        for i in range(4):
+            rhs[i] += row[i] * target
+            for j in range(4):
+                gram[i, j] += row[i] * row[j]
+    return left, right, rows
+
+
+@njit(cache=True)
+def _eq14_rss(u, x_prev, x, mL, cL, mR, cR, theta):  # pragma: no cover - compiled
+    """The residual sum of squares of eq. (14) at ``theta`` over the samples of :func:`_eq14_normal_equations`."""
+    rss = 0.0
+    for t in range(u.size):
+        f1 = 1.0 if u[t] - (x_prev[t] / mL - cL) <= 0 else 0.0
+        f2 = 1.0 if (x_prev[t] / mR + cR) - u[t] <= 0 else 0.0
+        if f1 + f2 == 0:
+            continue
+        e = x[t] - x_prev[t] * (1 - f1) * (1 - f2) - (theta[0] * u[t] * f1 + theta[1] * f1 + theta[2] * u[t] * f2 - theta[3] * f2)
+        rss += e * e
+    return rss
 
 
 def _start_params(u: np.ndarray, y: np.ndarray) -> BacklashParams:
@@ -135,10 +200,11 @@ def _direction_guess(u: np.ndarray, y: np.ndarray) -> BacklashParams:
     return BacklashParams(m, b_left / m, m, -b_right / m)
 
 
-def _check_sides(f1: np.ndarray, f2: np.ndarray) -> None:
-    if f1.sum() < 2 or f2.sum() < 2:
+def _check_sides(left: int, right: int) -> None:
+    """Both flanks engaged by at least two samples (``left``, ``right``: the samples with ``f1``, ``f2`` set)."""
+    if left < 2 or right < 2:
         raise NotExcitedError(
-            f"only {int(f1.sum())} samples engage the left flank and {int(f2.sum())} the right "
+            f"only {left} samples engage the left flank and {right} the right "
             "(eq. 5-6 with the current estimate); the data do not excite both sides of the dead band"
         )
 
@@ -340,13 +406,8 @@ class VorosBacklash(_VorosBase):
         u_t, x_t, x_prev = uc[1:], xc[1:], xc[:-1]
 
         def step(theta: np.ndarray) -> _Step:
-            # eq. (12)-(13): switching functions from the s-th estimate and the measured x(t-1)
-            f1, f2 = switching_functions(u_t, x_prev, BacklashParams.from_theta(theta))
-            _check_sides(f1, f2)
-            active = (f1 + f2) > 0
-            phi = np.column_stack((u_t * f1, f1, u_t * f2, -f2))  # eq. (8)
-            target = x_t - x_prev * (1 - f1) * (1 - f2)  # left side of eq. (11)
-            return _solve(phi[active], target[active])  # eq. (14), least squares
+            # eq. (12)-(14): switching functions from the s-th estimate and the measured x(t-1), least squares
+            return _equation_error_step(u_t, x_prev, x_t, BacklashParams.from_theta(theta))
 
         def run(start: BacklashParams) -> list[BacklashParams]:
             # eq. (9) on every estimate: a zero slope or slopes of opposite sign raise here
@@ -512,7 +573,7 @@ class VorosCascade(_VorosBase):
             # eq. (23): internal variable and switching functions with the s-th estimate
             x_hat, f1, f2 = simulate_switching(uc, params, 0.0)
             f1p, f2p, up = f1[t - 1], f2[t - 1], uc[t - 1]
-            _check_sides(f1p, f2p)
+            _check_sides(int(f1p.sum()), int(f2p.sum()))
             cols = [up * f1p, f1p, up * f2p, -f2p]  # eq. (19), backlash part
             cols += [x_hat[t - i] for i in range(2, m + 1)]
             cols += [-yc[t - j] for j in range(1, n + 1)]
