@@ -12,6 +12,9 @@ Units: whatever the columns carry (degrees in this package).
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+from typing import Protocol
+
 import numpy as np
 
 #: relative size below which a direction of the (scaled) normal equations counts as degenerate
@@ -49,30 +52,65 @@ def left_sum_of_squares(gram: np.ndarray) -> float:
     return max(fit_rss(gram, np.arange(gram.shape[0] - 1))[1], 0.0)
 
 
+class Columns(Protocol):
+    """Columns ``C`` (n x q) as least squares use them: ``gram()`` is ``C^T C``, ``t_dot(a)`` is
+    ``C^T a``, ``dot(coef)`` is ``C coef`` (columns kept in parts need not be put side by side)."""
+
+    @property
+    def shape(self) -> tuple[int, int]: ...
+
+    def gram(self) -> np.ndarray: ...
+
+    def t_dot(self, a: np.ndarray) -> np.ndarray: ...
+
+    def dot(self, coef: np.ndarray) -> np.ndarray: ...
+
+
+@dataclass(frozen=True)
+class Dense:
+    """:class:`Columns` of one array."""
+
+    array: np.ndarray
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        n, q = self.array.shape
+        return n, q
+
+    def gram(self) -> np.ndarray:
+        return self.array.T @ self.array
+
+    def t_dot(self, a: np.ndarray) -> np.ndarray:
+        return self.array.T @ a
+
+    def dot(self, coef: np.ndarray) -> np.ndarray:
+        return self.array @ coef
+
+
 class Projector:
     """Least squares on fixed columns ``C`` (n x q), from their Gram matrix formed once.
 
     ``coef(v)``: the coefficients of ``v`` on ``C``; ``leave(v)``: the part of ``v`` they leave;
     ``left_gram(a)``: the Gram matrix of what they leave of every column of ``a`` (n x k),
-    ``O(n q k)`` without forming it.
+    ``O(n q k)`` without forming it. ``columns``: an array, or :class:`Columns` (in parts).
     """
 
-    def __init__(self, columns: np.ndarray) -> None:
-        self.columns = columns
-        self.factor = pinv_factor(columns.T @ columns) if columns.shape[1] else np.empty((0, 0))
+    def __init__(self, columns: np.ndarray | Columns) -> None:
+        self.columns: Columns = Dense(columns) if isinstance(columns, np.ndarray) else columns
+        self.factor = pinv_factor(self.columns.gram()) if self.columns.shape[1] else np.empty((0, 0))
 
     def coef(self, v: np.ndarray) -> np.ndarray:
         if not self.columns.shape[1]:
             return np.empty(0)
-        return self.factor @ (self.factor.T @ (self.columns.T @ v))
+        return self.factor @ (self.factor.T @ self.columns.t_dot(v))
 
     def leave(self, v: np.ndarray) -> np.ndarray:
-        return v - self.columns @ self.coef(v) if self.columns.shape[1] else v
+        return v - self.columns.dot(self.coef(v)) if self.columns.shape[1] else v
 
     def left_gram(self, a: np.ndarray, cross: np.ndarray | None = None) -> np.ndarray:
         """``(P a)^T (P a)`` with ``P`` the projection off ``C``; ``cross`` is ``C^T a`` if known."""
         ata = a.T @ a
         if not self.columns.shape[1]:
             return ata
-        b = self.factor.T @ (self.columns.T @ a if cross is None else cross)
+        b = self.factor.T @ (self.columns.t_dot(a) if cross is None else cross)
         return ata - b.T @ b

@@ -160,15 +160,17 @@ def fit_joint(
     start parameters, refreshed once after the first search.
     """
     held = np.zeros(columns.shape[1], dtype=bool) if held is None else np.asarray(held, dtype=bool)
-    return _fit_held(uc, yc, columns, held, start, hold_play, hold_columns(columns, held, engaged_index(uc, start)) if np.any(held) else columns)
+    parts = ColumnParts(((np.asarray(columns, dtype=float), None),))
+    return _fit_held(uc, yc, parts, held, start, hold_play, parts.held_at(held, engaged_index(uc, start)))
 
 
 @dataclass(frozen=True)
 class ColumnParts:
     """Full-length columns side by side, kept as parts: ``(columns, gate)`` with ``columns`` ``(n, k_i)``
     and ``gate`` None or a boolean mask of the samples (the part is zero where it is False). The
-    block is formed only where needed: whole (:meth:`dense`), at some rows (:meth:`at`), or as its
-    product with coefficients (:meth:`dot`)."""
+    block is formed only where needed: whole (:meth:`dense`), at some rows (:meth:`at`), as its
+    product with coefficients (:meth:`dot`), or as the cross-products least squares need
+    (:meth:`gram`, :meth:`t_dot`: :class:`._normal_equations.Columns`, no block of all the parts)."""
 
     parts: tuple[tuple[np.ndarray, np.ndarray | None], ...]
 
@@ -207,6 +209,36 @@ class ColumnParts:
             j += k
         return out
 
+    def gram(self) -> np.ndarray:
+        """``B^T B`` of the block ``B``, part by part (a gated part's gated copy formed once)."""
+        blocks = [c if gate is None else c * gate[:, None] for c, gate in self.parts]
+        ends = np.cumsum([0, *(c.shape[1] for c in blocks)])
+        out = np.empty((ends[-1], ends[-1]))
+        for i, a in enumerate(blocks):
+            for j in range(i, len(blocks)):
+                out[ends[i] : ends[i + 1], ends[j] : ends[j + 1]] = a.T @ blocks[j]
+                out[ends[j] : ends[j + 1], ends[i] : ends[i + 1]] = out[ends[i] : ends[i + 1], ends[j] : ends[j + 1]].T
+        return out
+
+    def t_dot(self, a: np.ndarray) -> np.ndarray:
+        """``B^T a`` of the block ``B`` for ``a`` with a row per sample, part by part."""
+        return np.concatenate([c.T @ (a if gate is None else a * (gate[:, None] if a.ndim == 2 else gate)) for c, gate in self.parts])
+
+    def held_at(self, held: np.ndarray, index: np.ndarray) -> ColumnParts:
+        """The parts with the ``held`` columns (boolean per column) taken at ``index``
+        (:func:`hold_columns`, after the gate); the others as they are."""
+        if not np.any(held):
+            return self
+        out, j = [], 0
+        for c, gate in self.parts:
+            mine = held[j : j + c.shape[1]]
+            j += c.shape[1]
+            if not np.any(mine):
+                out.append((c, gate))
+                continue
+            out.append((hold_columns(c if gate is None else c * gate[:, None], mine, index), None))
+        return ColumnParts(tuple(out))
+
     def dot(self, coef: np.ndarray) -> np.ndarray:
         """The block times ``coef``, an ``n``-vector."""
         out = np.zeros(self.shape[0])
@@ -241,30 +273,29 @@ class _HeldAt:
 
 
 def _fit_held(
-    uc: np.ndarray, yc: np.ndarray, columns: np.ndarray | ColumnParts, held: np.ndarray, start: BacklashParams, hold_play: float | None,
-    first: np.ndarray | None, rows: np.ndarray | None = None, planned: tuple[np.ndarray, np.ndarray] | None = None,
+    uc: np.ndarray, yc: np.ndarray, columns: ColumnParts, held: np.ndarray, start: BacklashParams, hold_play: float | None,
+    first: ColumnParts | None, rows: np.ndarray | None = None, planned: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> JointFit:
     """:func:`fit_joint` given ``first``, the columns held through the dead band of ``start`` (the
     first search's; :func:`fit_guarded` hands the same to its second fit instead of forming it again).
     With ``rows`` the held columns are formed at those rows only (``first`` unused), and ``planned`` is
     :func:`_switched` of ``start`` (formed here if None)."""
     if rows is not None:
-        parts = columns if isinstance(columns, ColumnParts) else ColumnParts(((columns, None),))
         switched = _switched(uc, start) if planned is None else planned
-        fit = _fit_fixed_columns(uc, yc, _HeldAt(parts, held, switched[1]), start, hold_play, rows, switched)
+        fit = _fit_fixed_columns(uc, yc, _HeldAt(columns, held, switched[1]), start, hold_play, rows, switched)
         if np.any(held):
             switched = _switched(uc, fit.params)
-            fit = _fit_fixed_columns(uc, yc, _HeldAt(parts, held, switched[1]), fit.params, hold_play, rows, switched)
+            fit = _fit_fixed_columns(uc, yc, _HeldAt(columns, held, switched[1]), fit.params, hold_play, rows, switched)
         return fit
-    assert first is not None and not isinstance(columns, ColumnParts)
+    assert first is not None
     fit = _fit_fixed_columns(uc, yc, first, start, hold_play)
     if np.any(held):  # once more through the dead band of the fitted model
-        fit = _fit_fixed_columns(uc, yc, hold_columns(columns, held, engaged_index(uc, fit.params)), fit.params, hold_play)
+        fit = _fit_fixed_columns(uc, yc, columns.held_at(held, engaged_index(uc, fit.params)), fit.params, hold_play)
     return fit
 
 
 def _fit_fixed_columns(
-    uc: np.ndarray, yc: np.ndarray, columns: np.ndarray | _HeldAt, start: BacklashParams, hold_play: float | None, rows: np.ndarray | None = None,
+    uc: np.ndarray, yc: np.ndarray, columns: ColumnParts | _HeldAt, start: BacklashParams, hold_play: float | None, rows: np.ndarray | None = None,
     switched: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> JointFit:
     """:func:`fit_joint` for columns that do not depend on the backlash parameters.
@@ -283,15 +314,13 @@ def _fit_fixed_columns(
     per point for ``q`` columns, with no ``n``-row SVD. (trf's full-rank test of ``J`` scales with
     the row count: the two differ only for a Jacobian singular to about 1e-10 of its largest value.)
     """
+    fitted: np.ndarray | ColumnParts
     if isinstance(columns, _HeldAt):
         assert rows is not None
         fitted, times = columns.rows(rows), columns.times
     else:
-        block = columns
-        fitted = block if rows is None else block[rows]
-
-        def times(coef: np.ndarray) -> np.ndarray:
-            return block @ coef
+        assert rows is None
+        fitted, times = columns, columns.dot  # the parts as they are: no block of all of them
 
     yc_fitted = yc if rows is None else yc[rows]
     proj = Projector(fitted)
@@ -376,15 +405,13 @@ def fit_guarded(
     :func:`_switched` of ``start`` when at hand (the candidates of a round all start from its fit).
     """
     held = np.zeros(columns.shape[1], dtype=bool) if held is None else np.asarray(held, dtype=bool)
-    if rows is None and isinstance(columns, ColumnParts):
-        columns = columns.block()
+    parts = columns if isinstance(columns, ColumnParts) else ColumnParts(((np.asarray(columns, dtype=float), None),))
     first = None
     if rows is None:
-        assert not isinstance(columns, ColumnParts)
-        first = hold_columns(columns, held, engaged_index(uc, start) if planned is None else planned[1]) if np.any(held) else columns
+        first = parts.held_at(held, engaged_index(uc, start) if planned is None else planned[1]) if np.any(held) else parts
     planned = _switched(uc, start) if rows is not None and planned is None else planned  # the play-held fit starts there too
-    fit = _fit_held(uc, yc, columns, held, start, None, first, rows, planned)
+    fit = _fit_held(uc, yc, parts, held, start, None, first, rows, planned)
     if separable(fit, start):
         return fit
-    kept = _fit_held(uc, yc, columns, held, start, start.play, first, rows, planned)
+    kept = _fit_held(uc, yc, parts, held, start, start.play, first, rows, planned)
     return JointFit(kept.params, kept.coef, kept.residual_deg, fit.play_inflation, fit.play_std_deg, True)
