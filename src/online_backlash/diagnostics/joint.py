@@ -34,7 +34,7 @@ import numpy as np
 from numba import njit
 from scipy.optimize import least_squares
 
-from ..model import BacklashParams, backlash_sensitivity, backlash_sensitivity_spans, simulate_switching
+from ..model import BacklashParams, backlash_sensitivity, backlash_sensitivity_spans, simulate_backlash, simulate_switching
 from ._normal_equations import Projector, left_sum_of_squares
 from ._scoring import effective_samples
 
@@ -370,10 +370,13 @@ def _fit_fixed_columns(
     v = result.x if np.sum(result.fun**2) < cost0 else v0
     p = unpack(v)
     params = BacklashParams(*p)
-    x, dx = _simulate(uc, p)
+    if spans is None:
+        x, dx_fitted = _simulate(uc, p)
+    else:  # the output over the whole record, its derivatives at the rows fitted only (the runs the search simulated)
+        x, dx_fitted = simulate_backlash(uc, params, 0.0), backlash_sensitivity_spans(uc, params, *spans)[1]
     coef = proj.coef(yc_fitted - (x if rows is None else x[rows]))
     left = yc - x - times(coef) if fitted.shape[1] else yc - x
-    left_fitted, dx_fitted = (left, dx) if rows is None else (left[rows], dx[rows])
+    left_fitted = left if rows is None else left[rows]
     # the play's direction dx/d(play) and the other backlash directions (as play_sensitivity)
     basis = np.column_stack((np.ones(n), dx_fitted[:, 0], dx_fitted[:, 2], 0.5 * (dx_fitted[:, 1] + dx_fitted[:, 3])))
     g2 = float(np.dot(basis[:, 3], basis[:, 3]))
