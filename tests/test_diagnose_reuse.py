@@ -1,9 +1,9 @@
 """What the loop builds once and reuses gives the very numbers it would form afresh.
 
 The term columns (:class:`TermColumns`), the columns held through the dead band (``hold_columns``'
-compiled pass), the first hold shared by the two fits of ``fit_guarded``, and the final model's
-view shared by the held-out gains of ``_hold_out_final``: each is compared bit for bit with the
-direct computation it replaces.
+compiled pass), the first hold shared by the two fits of ``fit_guarded``: each is compared bit for
+bit with the direct computation it replaces; the final model's held-out gains, scored from one set
+of cross-products by ``_hold_out_final``, to rounding.
 """
 
 from __future__ import annotations
@@ -98,8 +98,9 @@ def test_fit_guarded_with_held_columns_equals_its_two_fits() -> None:
 
 
 def test_final_heldout_gains_equal_those_formed_afresh(two_steps) -> None:
-    """``_hold_out_final`` shares the final model's view and each term's held columns: the gains
-    are those of a detection data formed from scratch for every term (on one BLAS thread, as the loop's)."""
+    """``_hold_out_final`` scores every term from one set of cross-products of the final model
+    (``DetectionData.scores_left_out``): the gains are those of a detection data formed from scratch
+    for every term, to rounding (on one BLAS thread, as the loop's)."""
     with threadpool_limits(limits=1, user_api="blas"):
         _check_final_heldout_gains(two_steps)
 
@@ -122,6 +123,6 @@ def _check_final_heldout_gains(d) -> None:
         restored = final.residual_deg + mine @ final.coef[start : start + n]
         others = [*terms[:i], *terms[i + 1 :]]
         data, _ = _detection_data(u, t, q, uc, replace(final, residual_deg=restored), others, d.ratio, period, folds, TermColumns(u, t, q))
-        assert s.heldout_gain_final == data.score(False, mine).heldout_gain
+        assert s.heldout_gain_final == pytest.approx(data.score(False, mine).heldout_gain, rel=1e-9, abs=1e-12)
         assert np.isfinite(s.heldout_gain_final)
         start += n

@@ -67,6 +67,29 @@ def test_with_nuisance_updates_the_grams_as_a_fresh_build_would():
         assert np.isclose(getattr(a, name), getattr(b, name), rtol=1e-9), name
 
 
+def test_scores_left_out_equal_the_scores_of_data_made_without_each_group():
+    """Each group of nuisance columns left out in turn, its part put back into the residual: from one
+    set of cross-products, every figure of the score is that of detection data made for the case."""
+    rng = np.random.default_rng(4)
+    n = 6000
+    u = 20 * np.sin(np.linspace(0, 12 * np.pi, n))  # six reversal cycles: five folds
+    t = np.arange(n) * 1e-3
+    backlash = np.column_stack((np.ones(n), u, np.cos(np.radians(u))))  # stands for the backlash's own directions
+    a, b = np.column_stack((np.sin(np.radians(2 * u)), np.cos(np.radians(2 * u)))), np.sin(np.radians(5 * u))[:, None]
+    r = np.cumsum(rng.normal(0, 1e-4, n)) + rng.normal(0, 1e-3, n)
+    coefs = [np.array([0.02, -0.01]), np.array([0.005])]
+    nuisance = np.column_stack((backlash, a, b))
+    data = DetectionData(u, t, np.full(n, np.nan), r, 30.0, 1e-3, nuisance=nuisance, n_backlash=3)
+    shared = data.scores_left_out([np.array([3, 4]), np.array([5])], coefs)
+    for mine, others, coef, got in ((a, b, coefs[0], shared[0]), (b, a, coefs[1], shared[1])):
+        case = DetectionData(u, t, np.full(n, np.nan), r + mine @ coef, 30.0, 1e-3, nuisance=np.column_stack((backlash, others)), n_backlash=3)
+        want = case.score(False, mine)
+        assert got.heldout_folds == want.heldout_folds == 5
+        for name in ("rss_before", "rss_after", "n_eff", "delta_bic", "own_share", "heldout_gain"):
+            assert np.isclose(getattr(got, name), getattr(want, name), rtol=1e-8), name
+        np.testing.assert_allclose(got.coef, want.coef, rtol=1e-6)  # solved from a Gram formed otherwise: a nearly collinear basis
+
+
 def test_joint_fit_equals_the_full_length_search():
     """The search handed the (k + 1)-row factor stops where least squares on all n rows stops."""
     rng = np.random.default_rng(4)

@@ -459,6 +459,37 @@ class DetectionData:
             out.append(_score_grams(per_fold[:, keep][:, :, keep], total[np.ix_(keep, keep)], lag, self.folds.rows, p, terms))
         return out
 
+    def scores_left_out(self, groups: Sequence[np.ndarray], coefs: Sequence[np.ndarray]) -> list[Score]:
+        """For every group of nuisance columns (positions ``groups[i]``, after the backlash's own
+        ``n_backlash``), the :class:`Score` of those columns with their part ``W[:, groups[i]] @
+        coefs[i]`` put back into the residual and the other nuisance columns kept: what :meth:`score`
+        gives on data made with the others as nuisance and that residual, from this data's one set of
+        cross-products (each case's Gram is ``M^T G M`` for the matrix ``M`` that forms its columns
+        from these, per fold; its lag-1 product a pass over these columns with the weights ``M e``)."""
+        assert self.nuisance is not None and self.folds is not None
+        p = self.nuisance.shape[1]
+        g = self._cross
+        empty = np.empty((g.z.shape[0], 0))
+        out = []
+        for group, coef in zip(groups, coefs):
+            group = np.asarray(group, dtype=np.intp)
+            kept = np.setdiff1d(np.arange(p), group)
+            m = np.zeros((p + 1, p + 1))  # columns of [kept, group, residual + W[:, group] @ coef] from [nuisance, residual]
+            m[kept, np.arange(kept.size)] = 1.0
+            m[group, kept.size + np.arange(group.size)] = 1.0
+            m[p, p] = 1.0
+            m[group, p] = coef
+            per_fold = np.einsum("ji,fjk,kl->fil", m, g.per_fold, m)
+            total = m.T @ g.total @ m
+            q = kept.size
+            terms = np.r_[0, np.arange(max(self.n_backlash, 1), q)] if self.n_backlash else np.arange(q)
+
+            def lag(e: np.ndarray, m: np.ndarray = m) -> float:
+                return g.lag_product(empty, m @ e)
+
+            out.append(_score_grams(per_fold, total, lag, self.folds.rows, q, terms))
+        return out
+
     def with_nuisance(self, *columns: np.ndarray) -> DetectionData:
         """The same data with ``columns`` (one or more arrays, side by side; each a row per sample or the
         rows :meth:`scored` gives) added to the nuisance columns (written once into the block their

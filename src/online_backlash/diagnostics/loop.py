@@ -40,6 +40,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field, replace
+from itertools import pairwise
 from typing import Any, Protocol
 
 import numpy as np
@@ -688,17 +689,21 @@ def _hold_out_final(
     """Each term's held-out gain given all the others in the final model (blocked over cycles).
 
     The term's part is put back into the final residual, and its columns are scored with the
-    backlash directions and the other terms as nuisance. The final model's view and the terms'
-    held columns are formed once (holding acts column by column: the others' block is a slice).
+    backlash directions and the other terms as nuisance: every term from one set of cross-products
+    of the backlash directions, all the terms and the final residual
+    (:meth:`._scoring.DetectionData.scores_left_out`), the final model's view and the terms' held
+    columns formed once.
     """
     if not steps:
         return
     view = _ModelView.of(uc, final.params)
     terms = [s.effect for s in steps]
-    parts = _held_parts(terms, built, view)
-    for i, s in enumerate(steps):
-        data, mine = _term_left_out(terms, i, final, view, parts, u, t, q, uc, ratio, period, folds, built)
-        s.heldout_gain_final = data.score(False, mine).heldout_gain
+    data, _ = _detection_data(u, t, q, uc, final, terms, ratio, period, folds, built, view=view, done_columns=_held_parts(terms, built, view))
+    ends = np.cumsum([0, *(e.n_terms for e in terms)])
+    spans = list(pairwise(ends))
+    scores = data.scores_left_out([data.n_backlash + np.arange(a, b) for a, b in spans], [final.coef[a:b] for a, b in spans])
+    for s, score in zip(steps, scores):
+        s.heldout_gain_final = score.heldout_gain
 
 
 def _term_left_out(
