@@ -131,16 +131,17 @@ def _hold_some(columns, held, index):  # pragma: no cover - compiled
     return out
 
 
-def play_sensitivity(uc: np.ndarray, params: BacklashParams) -> tuple[np.ndarray, np.ndarray]:
-    """``dx/d(play)`` (both widths grown by half) and the other directions: a constant, ``dx/dmL``, ``dx/dmR``.
+def play_sensitivity(uc: np.ndarray, params: BacklashParams) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``dx/d(play)`` (both widths grown by half), the other directions (a constant, ``dx/dmL``,
+    ``dx/dmR``) and the output ``x`` itself (eq. 1-3, from rest at the origin), from one simulation.
 
     Moving ``cL`` and ``cR`` the same way shifts both flank lines, which is (up to the slopes) a
     constant offset of ``x``; the constant stands for that direction, so the four columns span
     what the four parameters can do without a near-duplicate.
     """
-    _, dx = _simulate(uc, np.array([params.m_left, params.c_left, params.m_right, params.c_right]))
+    x, dx = _simulate(uc, np.array([params.m_left, params.c_left, params.m_right, params.c_right]))
     s_ml, s_cl, s_mr, s_cr = dx.T
-    return 0.5 * (s_cl + s_cr), np.column_stack((np.ones_like(uc), s_ml, s_mr))
+    return 0.5 * (s_cl + s_cr), np.column_stack((np.ones_like(uc), s_ml, s_mr)), x
 
 
 def fit_joint(

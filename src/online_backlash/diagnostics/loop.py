@@ -588,8 +588,8 @@ class _ModelView:
 
     @classmethod
     def of(cls, uc: np.ndarray, params: Any) -> _ModelView:
-        g, others = play_sensitivity(uc, params)
-        return cls(g, others, _switched(uc, params), simulate_backlash(uc, params, 0.0))
+        g, others, x = play_sensitivity(uc, params)
+        return cls(g, others, _switched(uc, params), x)
 
     @property
     def index(self) -> np.ndarray:
