@@ -57,6 +57,7 @@ Units: degrees (load side), seconds.
 
 from __future__ import annotations
 
+import functools
 import itertools
 from dataclasses import dataclass, field
 from typing import Any
@@ -247,6 +248,15 @@ def _engagement_of(uc: np.ndarray, t: np.ndarray, params: BacklashParams, coast:
         cap = min(n, 4 * cap)
 
 
+@functools.lru_cache(maxsize=256)
+def _stop_offsets(span: int) -> np.ndarray:
+    """Samples after the start at which :func:`_best_coast` tries a stop: at most :data:`MAX_STOPS`,
+    spaced geometrically from 1 to ``span`` (read-only; the same spans recur across the search)."""
+    out = np.unique(np.round(np.geomspace(1, span, min(MAX_STOPS, span))).astype(int))
+    out.flags.writeable = False
+    return out
+
+
 def _best_coast(y: np.ndarray, s_record: np.ndarray, tau: float, start: float = 0.0) -> Coast:
     """The coast with time constant ``tau`` that starts to move at ``start`` (s), closest to ``y``
     at times ``s_record`` (s from the first sample; least squares), over a grid of stops and no stop."""
@@ -262,7 +272,7 @@ def _best_coast(y: np.ndarray, s_record: np.ndarray, tau: float, start: float = 
     # a stop at s[j]: v = a tau (exp(s[j] / tau) - 1), and the path held from there
     if k - 1 - j0 < 1:
         return best[1]
-    stops = j0 + np.unique(np.round(np.geomspace(1, k - 1 - j0, min(MAX_STOPS, k - 1 - j0))).astype(int))
+    stops = j0 + _stop_offsets(k - 1 - j0)
     stops = stops[(s[stops] > 0) & (s[stops] <= MAX_STOP_TAUS * tau)]
     if stops.size == 0:
         return best[1]
@@ -289,15 +299,14 @@ def _fit_for(
     when fewer than :data:`MIN_SAMPLES` remain or the load would run on with the motor."""
     seen: set[int] = set()
     found = None
-    s = t - t[0]
     longest = max(MAX_STRETCH * k, k + MIN_EXTRA)
     while k >= MIN_SAMPLES and k not in seen:
         seen.add(k)
-        coast = _best_coast(yc[:k], s[:k], tau, start)
+        coast = _best_coast(yc[:k], t[:k] - t[0], tau, start)  # time from the first sample, s
         k, path = _engagement_of(uc, t, params, coast)
         # a load still moving long after the model at rest engages runs on with the motor: not a
         # coast; one that has stopped waits in the gap (eq. 7) until a flank catches it
-        if k > longest and not coast.stop_s <= s[min(longest, s.size - 1)]:
+        if k > longest and not coast.stop_s <= t[min(longest, t.size - 1)] - t[0]:
             return None
         found = (coast, k, path)
     return found
