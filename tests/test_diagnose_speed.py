@@ -10,7 +10,7 @@ from online_backlash.diagnostics._folds import cycle_folds
 from online_backlash.diagnostics._harmonics import harmonic_columns, harmonic_stack, held_per_flank, shaft_harmonic
 from online_backlash.diagnostics._record_cache import RecordCache
 from online_backlash.diagnostics._scoring import DetectionData
-from online_backlash.diagnostics._speed import cardinal_splines, held_spline_columns, record_velocity, speed_knots, zero_knot
+from online_backlash.diagnostics._speed import cardinal_splines, held_spline_columns, record_speed_knots, record_velocity, speed_knots, zero_knot
 from online_backlash.diagnostics.dead_band import ENTRY_KNOTS, EXIT_TIME_CONSTANTS, DeadBandMotion, _at_period
 from online_backlash.diagnostics.effects import Drift
 from online_backlash.diagnostics.generic import VelocityFunction
@@ -91,6 +91,19 @@ def test_held_spline_columns_are_the_held_cardinal_splines(held: bool) -> None:
         plain = data.hold(np.delete(cardinal_splines(knots, v), zero_knot(knots), axis=1))
         np.testing.assert_array_equal(held_spline_columns(data, knots), plain)
     assert held_spline_columns(data, (0.0,)).shape == (v.size, 0)
+
+
+def test_the_records_speed_knots_are_the_speed_knots_of_its_velocity() -> None:
+    """``record_speed_knots`` finds each direction's outer knot once per record: the knots of
+    ``speed_knots`` for every count, and the percentiles are not formed again."""
+    data = _data(None)
+    v = record_velocity(data)
+    for inner in (1, 2, 3, 5):
+        assert record_speed_knots(data, inner) == speed_knots(v, inner)
+    assert data.cache is not None and data.cache.used_bytes > 0
+    before = data.cache.used_bytes
+    record_speed_knots(data, 4)
+    assert data.cache.used_bytes == before  # served from the record's cache
 
 
 @pytest.mark.parametrize("torque", [False, True])

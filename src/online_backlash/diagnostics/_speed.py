@@ -33,16 +33,33 @@ def speed_knots(velocity_deg_s: np.ndarray, inner: int) -> tuple[float, ...]:
     samples in one cycle or none: the fits without that cycle were undetermined there.) A
     direction with fewer than 10 samples gets none.
     """
+    return knots_up_to(outer_speeds(velocity_deg_s), inner)
+
+
+def outer_speeds(velocity_deg_s: np.ndarray) -> np.ndarray:
+    """The outer knot of each direction, ``[down, up]``, deg/s: the :data:`OUTER_PERCENTILE`
+    percentile of the speed in that direction (NaN for a direction with fewer than 10 samples)."""
     v = np.asarray(velocity_deg_s, dtype=float)
-    knots = [0.0]
-    for sign in (-1.0, 1.0):
+    out = np.full(2, np.nan)
+    for i, sign in enumerate((-1.0, 1.0)):
         speed = np.abs(v[np.sign(v) == sign])
-        if speed.size < 10:
-            continue
-        top = float(np.percentile(speed, OUTER_PERCENTILE))
-        if top > 0:
+        if speed.size >= 10:
+            out[i] = float(np.percentile(speed, OUTER_PERCENTILE))
+    return out
+
+
+def knots_up_to(outer: np.ndarray, inner: int) -> tuple[float, ...]:
+    """:func:`speed_knots` from the outer knots of :func:`outer_speeds`."""
+    knots = [0.0]
+    for sign, top in zip((-1.0, 1.0), (float(v) for v in outer)):
+        if top > 0:  # False for NaN: a direction without samples
             knots += [sign * top * j / (inner + 1) for j in range(1, inner + 2)]
     return tuple(sorted(knots))
+
+
+def record_speed_knots(data: DetectionData, inner: int) -> tuple[float, ...]:
+    """:func:`speed_knots` of :func:`record_velocity`, its outer knots found once per record."""
+    return knots_up_to(data.memo(("outer speeds", VELOCITY_WINDOW), lambda: outer_speeds(record_velocity(data))), inner)
 
 
 def cardinal_splines(knots_deg_s: tuple[float, ...], velocity: np.ndarray) -> np.ndarray:

@@ -46,7 +46,7 @@ from ._causal import acceleration_deg_s2, lagged_difference, velocity_deg_s
 from ._effect_base import EffectBase
 from ._harmonics import harmonic_columns, held_harmonic
 from ._scoring import Detection, DetectionData, Score, best_detection
-from ._speed import MAX_INNER_KNOTS, held_spline_columns, record_velocity, speed_knots
+from ._speed import MAX_INNER_KNOTS, held_spline_columns, record_speed_knots
 from .dead_band import DeadBandMotion
 from .flank_profile import FlankProfile
 
@@ -493,7 +493,7 @@ class Drift(EffectBase):
         t0, times = float(data.time_s[0]), data.scored(data.time_s)[:, 0]
         rivals = {
             "net_rotation": np.column_stack([(rotation / scale) ** j for j in range(1, max_degree + 1)]),
-            "velocity_function": held_spline_columns(data, speed_knots(record_velocity(data), MAX_INNER_KNOTS)),
+            "velocity_function": held_spline_columns(data, record_speed_knots(data, MAX_INNER_KNOTS)),
         }
         beyond = data.with_nuisance(*rivals.values())
         found, alone = [], []

@@ -28,7 +28,7 @@ from ._folds import DEADZONE_DEG, DIRECTION_WINDOW
 from ._harmonics import harmonic_at_sources, harmonic_columns, held_per_flank
 from ._per_flank import PerFlankTerms, record_direction
 from ._scoring import Detection, DetectionData, Score
-from ._speed import MAX_INNER_KNOTS, VELOCITY_WINDOW, cardinal_columns, held_spline_columns, record_velocity, speed_knots, zero_knot
+from ._speed import MAX_INNER_KNOTS, VELOCITY_WINDOW, cardinal_columns, held_spline_columns, record_speed_knots, zero_knot
 from .effects import amplitudes_phases, select_orders
 
 
@@ -177,10 +177,9 @@ class VelocityFunction(EffectBase):
         needs only blur the play: on the two-mass rig 4 inner knots per direction got the play
         held where 1 closes the same law).
         """
-        v = record_velocity(data)
         scored: list[tuple[tuple[float, ...], VelocityFunction, Score]] = []
         for n in knots_per_direction:
-            knots = speed_knots(v, n)
+            knots = record_speed_knots(data, n)
             if len(knots) < 2 or any(knots == k for k, _, _ in scored):
                 continue
             effect = cls(knots, VELOCITY_WINDOW)
