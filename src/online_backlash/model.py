@@ -124,8 +124,14 @@ def _switching_loop(u, mL, cL, mR, cR, x0, u_prev, a_prev, b_prev):  # pragma: n
         if u[t] != last:  # an input that has not moved keeps the switching functions (see simulate_switching)
             a = 1.0 if u[t] - (prev / mL - cL) <= 0 else 0.0  # eq. (5), f1 = h(u - zL)
             b = 1.0 if (prev / mR + cR) - u[t] <= 0 else 0.0  # eq. (6), f2 = h(zR - u)
-        # eq. (7); a and b are never both 1 while the band is open (zL < zR, see simulate_switching)
-        prev = mL * u[t] * a + mL * cL * a + mR * u[t] * b - mR * cR * b + prev * (1 - a) * (1 - b)
+        # eq. (7); a and b are never both 1 while the band is open (zL < zR, see simulate_switching).
+        # Written out per case (the terms with a factor 0 drop out exactly, up to the sign of a zero)
+        if a and not b:
+            prev = mL * u[t] + mL * cL
+        elif b and not a:
+            prev = mR * u[t] - mR * cR
+        elif a and b:
+            prev = mL * u[t] + mL * cL + mR * u[t] - mR * cR
         x[t] = prev
         f1[t] = a
         f2[t] = b
