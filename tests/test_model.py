@@ -227,3 +227,13 @@ def test_the_switching_simulation_continued_in_pieces_equals_the_whole():
     b = simulate_switching(QUANTISED[cut:], FLICKERING, float(a[0][-1]), (QUANTISED[cut - 1], a[1][-1], a[2][-1]))
     for whole, first, second in zip((x, f1, f2), a, b):
         assert np.array_equal(whole, np.r_[first, second])
+
+
+def test_the_sensitivities_written_into_given_arrays_are_the_returned_ones():
+    u = QUANTISED
+    x, dx = backlash_sensitivity(u, FLICKERING, 0.3)
+    bigger_x, bigger_dx = np.full(u.size + 1, np.nan), np.full((u.size + 1, 4), np.nan)
+    got = backlash_sensitivity(u, FLICKERING, 0.3, out=(bigger_x[1:], bigger_dx[1:]))
+    assert got[0].base is bigger_x and np.array_equal(bigger_x[1:], x) and np.array_equal(bigger_dx[1:], dx)
+    with pytest.raises(InvalidParameterError, match="out must be"):
+        backlash_sensitivity(u, FLICKERING, 0.3, out=(bigger_x, bigger_dx))

@@ -230,13 +230,10 @@ def simulate_switching(
 
 
 @njit(cache=True, nogil=True)
-def _sensitivity_loop(u, mL, cL, mR, cR, x0):  # pragma: no cover - compiled
-    n = u.shape[0]
-    x = np.empty(n)
-    dx = np.empty((n, 4))  # every row is written
+def _sensitivity_loop(u, mL, cL, mR, cR, x0, x, dx):  # pragma: no cover - compiled
+    """:func:`_sensitivity_spans` over the whole of ``u``, into ``x`` and ``dx`` (every row written)."""
     one = np.zeros(1, dtype=np.int64)
-    _sensitivity_spans(u, mL, cL, mR, cR, one, one, np.full(1, n, dtype=np.int64), np.full(1, x0), x, dx)
-    return x, dx
+    _sensitivity_spans(u, mL, cL, mR, cR, one, one, np.full(1, u.shape[0], dtype=np.int64), np.full(1, x0), x, dx)
 
 
 @njit(cache=True, nogil=True)
@@ -266,7 +263,7 @@ def _sensitivity_spans(u, mL, cL, mR, cR, starts, firsts, stops, x0s, x, dx):  #
 
 
 def backlash_sensitivity(
-    u: np.ndarray, params: BacklashParams, x0: float = 0.0
+    u: np.ndarray, params: BacklashParams, x0: float = 0.0, out: tuple[np.ndarray, np.ndarray] | None = None
 ) -> tuple[np.ndarray, np.ndarray]:
     """Backlash output, eq. (1)-(3), and its derivatives with respect to ``[mL, cL, mR, cR]``.
 
@@ -275,7 +272,8 @@ def backlash_sensitivity(
     ``dx/d[mR, cR] = [u - cR, -mR]``, and inside the dead band ``x(t) = x(t-1)`` carries the
     derivatives of the previous sample. The output is continuous in the parameters and piecewise
     smooth, so these are its derivatives wherever no sample sits exactly on a switching boundary:
-    the Jacobian of a Gauss-Newton fit of the simulation (output) error.
+    the Jacobian of a Gauss-Newton fit of the simulation (output) error. ``out``: contiguous arrays
+    ``(n,)`` and ``(n, 4)`` to write them into (views of larger arrays, say), returned.
 
     Returns
     -------
@@ -285,7 +283,12 @@ def backlash_sensitivity(
         ``d x(t) / d [m_left, c_left, m_right, c_right]``.
     """
     _check_band(params)
-    return _sensitivity_loop(_as_input(u), params.m_left, params.c_left, params.m_right, params.c_right, float(x0))
+    u = _as_input(u)
+    x, dx = (np.empty(u.size), np.empty((u.size, 4))) if out is None else out
+    if x.shape != u.shape or dx.shape != (u.size, 4) or not (x.flags.c_contiguous and dx.flags.c_contiguous):
+        raise InvalidParameterError(f"out must be contiguous arrays of shapes {u.shape} and {(u.size, 4)}, got {x.shape} and {dx.shape}")
+    _sensitivity_loop(u, params.m_left, params.c_left, params.m_right, params.c_right, float(x0), x, dx)
+    return x, dx
 
 
 def backlash_sensitivity_spans(

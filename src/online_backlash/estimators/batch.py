@@ -460,9 +460,9 @@ class VorosBacklash(_VorosBase):
     ) -> tuple[np.ndarray, np.ndarray]:
         """The model run freely from the measured first sample, and ``d x / d [mL, cL, mR, cR]``."""
         x = np.empty_like(uc)
-        dx = np.zeros((uc.size, 4))
-        x[0] = x_start
-        x[1:], dx[1:] = backlash_sensitivity(uc[1:], params, x_start)
+        dx = np.empty((uc.size, 4))
+        x[0], dx[0] = x_start, 0.0
+        backlash_sensitivity(uc[1:], params, x_start, out=(x[1:], dx[1:]))
         return x, dx
 
     def _refine(self, uc: np.ndarray, xc: np.ndarray, start: BacklashParams) -> BacklashParams:
