@@ -9,6 +9,7 @@ the counters reconcile).
 from __future__ import annotations
 
 import json
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -17,7 +18,7 @@ from hypothesis import HealthCheck, settings
 from hypothesis import strategies as st
 
 from online_backlash.cli import main
-from online_backlash.errors import LogFormatError
+from online_backlash.errors import BacklashWarning, LogFormatError
 from online_backlash.replay import open_log
 from online_backlash.rig import simulate_rig
 
@@ -67,13 +68,18 @@ def damaged(data: bytes, draw) -> bytes:
 
 
 def check_damaged_file(path: Path, **options) -> None:
-    """Read a damaged file: only LogFormatError naming it escapes; samples are finite, in time order; counters reconcile."""
+    """Read a damaged file: only LogFormatError naming it escapes, and what the reader warns of (a flipped
+    bit can repeat a timestamp) names it too; samples are finite, in time order; counters reconcile."""
     for skip_bad in (False, True):
         try:
-            values, counters = read_all(path, skip_bad=skip_bad, **options)
+            with warnings.catch_warnings(record=True) as seen:
+                warnings.simplefilter("always", BacklashWarning)
+                values, counters = read_all(path, skip_bad=skip_bad, **options)
         except LogFormatError as exc:
             assert str(path) in str(exc)
             continue
+        for w in seen:
+            assert issubclass(w.category, BacklashWarning) and str(path) in str(w.message), w
         assert np.all(np.isfinite(values[:, :3]))
         assert np.all(np.diff(values[:, 0]) >= 0)
         assert counters.frames == counters.samples + counters.corrupt + counters.skipped
