@@ -8,6 +8,9 @@ is a property of the data prints the same line for every ``e``; before the switc
 the engaged state at repeated inputs (``docs/closing-the-loop.md``, "Ties on quantised data") run00
 and run20 gave two to four terms and run20's play moved from 1.50 to 1.77 deg.
 
+``--blas-threads N`` runs the loop on N BLAS threads instead of the one it pins itself to
+(``loop.ONE_BLAS_THREAD``): the same question for the order in which BLAS sums.
+
 Run: ``python bench/base_fit_nudge.py`` (about 30 s); ``--changes 0,1e-9`` and ``--runs run20`` shrink it.
 """
 
@@ -19,6 +22,8 @@ import io
 import json
 from pathlib import Path
 from typing import Any
+
+from threadpoolctl import threadpool_limits
 
 from online_backlash.cli import main as cli
 from online_backlash.diagnostics import loop
@@ -36,9 +41,10 @@ ARGS = [
 ]
 
 
-def diagnosed(path: Path, change: float) -> dict[str, Any]:
-    """``diagnose --json`` on ``path`` with the base fit's ``m_left``, ``c_left`` nudged by ``change`` (relative)."""
-    fit = loop.VorosBacklash.fit
+def diagnosed(path: Path, change: float, blas_threads: int | None = None) -> dict[str, Any]:
+    """``diagnose --json`` on ``path`` with the base fit's ``m_left``, ``c_left`` nudged by ``change``
+    (relative), on ``blas_threads`` BLAS threads (None: the loop's own one)."""
+    fit, pinned = loop.VorosBacklash.fit, loop.diagnose
 
     def nudged(self: Any, u: Any, y: Any) -> Any:
         est = fit(self, u, y)
@@ -47,26 +53,29 @@ def diagnosed(path: Path, change: float) -> dict[str, Any]:
         return est
 
     loop.VorosBacklash.fit = nudged  # type: ignore[method-assign]
+    if blas_threads is not None:
+        loop.diagnose = pinned.__wrapped__  # type: ignore[attr-defined]  # the loop without its pin (the CLI imports it at the call)
     try:
         out = io.StringIO()
-        with contextlib.redirect_stdout(out):
+        with contextlib.redirect_stdout(out), threadpool_limits(limits=blas_threads, user_api="blas"):
             if cli(["diagnose", str(path), *ARGS]):
                 raise SystemExit(f"diagnose failed on {path}")
         return json.loads(out.getvalue())
     finally:
-        loop.VorosBacklash.fit = fit  # type: ignore[method-assign]
+        loop.VorosBacklash.fit, loop.diagnose = fit, pinned  # type: ignore[method-assign]
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--changes", default="0,1e-12,-1e-12,1e-9,-1e-9,1e-7,-1e-7", help="comma-separated relative changes")
     parser.add_argument("--runs", default=",".join(RUNS), help="comma-separated subset of " + ",".join(RUNS))
+    parser.add_argument("--blas-threads", type=int, default=None, help="BLAS threads for the loop (default: its own pin to one)")
     args = parser.parse_args()
     print("| recording | change | terms in the order added | RMS after, deg | play after, deg |")
     print("|---|---|---|---|---|")
     for run in args.runs.split(","):
         for change in (float(c) for c in args.changes.split(",")):
-            d = diagnosed(DATA / RUNS[run], change)
+            d = diagnosed(DATA / RUNS[run], change, args.blas_threads)
             terms = [e["name"] for e in d["effects"]] + [f"unexplained {e['name']}" for e in d["unexplained"]]
             print(f"| {run} | {change:g} | {', '.join(terms)} | {d['rms_after_deg']:.6f} | {d['backlash_after_deg']:.6f} |")
 
