@@ -126,3 +126,16 @@ def _check_final_heldout_gains(d) -> None:
         assert s.heldout_gain_final == pytest.approx(data.score(False, mine).heldout_gain, rel=1e-9, abs=1e-12)
         assert np.isfinite(s.heldout_gain_final)
         start += n
+
+
+def test_term_columns_taken_from_a_detector_must_have_the_effects_shape() -> None:
+    rng = np.random.default_rng(5)
+    t = np.arange(300) * 1e-3
+    u, q = np.cumsum(rng.normal(0, 0.01, t.size)), rng.normal(0, 1, t.size)
+    built = TermColumns(u, t, q)
+    effect = Drift(2, 1.0)
+    with pytest.raises(ValueError, match="expected"):
+        built.put(effect, np.zeros((t.size, 3)))
+    mine = effect.clone().terms(u, t, q)
+    built.put(effect, mine)
+    assert built.get(effect) is mine and not mine.flags.writeable

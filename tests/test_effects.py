@@ -7,6 +7,7 @@ import itertools
 import numpy as np
 import pytest
 
+from online_backlash.diagnostics._folds import cycle_folds
 from online_backlash.diagnostics._scoring import DetectionData, score_columns
 from online_backlash.diagnostics.dead_band import DeadBandMotion
 from online_backlash.diagnostics.effects import LIBRARY, VOCABULARY, Compliance, Delay, Drift, TransmissionError
@@ -228,6 +229,28 @@ def test_dead_band_motion_needs_the_backlash_fit_and_is_not_found_on_white_noise
         data = DetectionData(u, t, q, r, 30.0, 1e-3, backlash_params=BacklashParams(1.0, 0.25, 1.0, 0.25))
         det = DeadBandMotion.detect(data)
         assert det is not None and not det.score.significant()
+
+
+def test_dead_band_motion_hands_on_its_columns_on_every_sample_only():
+    """On every sample the detector's columns of the parts it chose are the effect's own terms, bit for
+    bit (the loop keeps them for its fits); on a screen it has them at the scored rows only: none."""
+    u, t, rng = _rig_motion()
+    q = rng.normal(size=u.size)
+    r = np.random.default_rng(7).normal(0, 0.005, u.size)
+    data = DetectionData(u, t, q, r, 30.0, 1e-3, backlash_params=BacklashParams(1.0, 0.25, 1.0, 0.25))
+    det = DeadBandMotion.detect(data)
+    assert det is not None and det.columns is not None
+    np.testing.assert_array_equal(det.columns, det.effect.clone().terms(u, t, q))
+    from online_backlash.rig import simulate_rig
+
+    rec = simulate_rig(duration_s=85.0, reversal_s=(0.4, 1.0), seed=5)  # 49 reversal cycles: a screen of 15
+    u, t = rec.motor_deg / 30.0, rec.time_s
+    folds = cycle_folds(u).screen()
+    assert folds.screened
+    r = np.random.default_rng(8).normal(0, 0.005, u.size)
+    screened = DetectionData(u, t, np.full(u.size, np.nan), r, 30.0, 1e-3, backlash_params=BacklashParams(1.0, 0.25, 1.0, 0.25), folds=folds)
+    det = DeadBandMotion.detect(screened)
+    assert det is not None and det.columns is None
 
 
 # --- the generic velocity function: a smooth law of the speed (issue 13, item 2) -------------

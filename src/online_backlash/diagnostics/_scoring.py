@@ -514,6 +514,9 @@ class Detection:
     evidence: str
     #: other explanations of the same part of the residual (reported as not separable)
     rivals: tuple[str, ...] = ()
+    #: the effect's columns on every sample of the record (its ``terms`` on a fresh stream), when the
+    #: detector formed them anyway (None otherwise): the loop keeps them for its fits
+    columns: np.ndarray | None = field(default=None, repr=False, compare=False)
 
 
 def best_detection(candidates: list[Detection]) -> Detection | None:

@@ -33,6 +33,14 @@ class TermColumns:
         # keyed by id(): the effect itself is kept beside its columns, so the id is not reused
         self._built: dict[int, tuple[Any, np.ndarray]] = {}
 
+    def put(self, effect: Any, columns: np.ndarray) -> None:
+        """Keep ``columns`` as the effect's (formed elsewhere: they must be its ``terms`` on a fresh
+        stream over the record, ``(n, effect.n_terms)``), read-only from now on."""
+        if columns.shape != (self.u_deg.size, effect.n_terms):
+            raise ValueError(f"columns of shape {columns.shape} for {effect!r}, expected {(self.u_deg.size, effect.n_terms)}")
+        columns.flags.writeable = False
+        self._built[id(effect)] = (effect, columns)
+
     def get(self, effect: Any) -> np.ndarray:
         """The effect's columns ``(n, effect.n_terms)`` over the whole record (read-only)."""
         hit = self._built.get(id(effect))

@@ -45,6 +45,7 @@ Units: degrees (load side), seconds, newton metres.
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 from itertools import pairwise
 from typing import Any
 
@@ -289,9 +290,13 @@ class DeadBandMotion(EffectBase):
         plain = best_detection([d for d, n in zip(found, VARIANTS) if "creep at rest" not in n and d.score.significant()])
         creep = best_detection([d for d, n in zip(found, VARIANTS) if "creep at rest" in n and d.score.significant()])
         # the creep is claimed only where it beats the parts without it by the criterion's own margin
-        if creep is not None and (plain is None or creep.score.delta_bic - plain.score.delta_bic < BIC_THRESHOLD):
-            return creep
-        return plain or best_detection(found)
+        best = creep if creep is not None and (plain is None or creep.score.delta_bic - plain.score.delta_bic < BIC_THRESHOLD) else None
+        best = best or plain or best_detection(found)
+        if best is None or data.scored_rows is not None:
+            return best
+        # every sample's columns were formed: the chosen parts' are a slice of them (the same numbers as its terms)
+        names = VARIANTS[found.index(best)]
+        return replace(best, columns=np.ascontiguousarray(every[:, [j for n in names for j in parts[n]]]))
 
 
 @njit(cache=True, nogil=True)

@@ -429,7 +429,7 @@ def diagnose(
         taken = {type(s.effect) for s in steps} | refused
         view = _ModelView.of(uc, current.params)  # the round's model: its detectors' and its confirmation's
         data, engaged = _detection_data(u, t, q, uc, current, [s.effect for s in steps], float(ratio), period, screen, built, cache, view)
-        named_all = _significant([c.detect(data) for c in LIBRARY if c not in taken], bic_threshold, min_gain)
+        named_all = [_kept_columns(d, built) for d in _significant([c.detect(data) for c in LIBRARY if c not in taken], bic_threshold, min_gain)]
         generic_all = _significant([c.detect(data) for c in GENERIC if c not in taken], bic_threshold, min_gain)
         generic = generic_all[0] if generic_all else None
         if not named_all and generic is None:
@@ -545,7 +545,16 @@ def _confirmed(
     again = effect.detection(data) if hasattr(effect, "neighbours") else type(effect).detect(data)
     if again is None or not again.score.significant(bic_threshold, min_gain):
         return None
-    return replace(again, rivals=chosen.rivals)
+    return replace(_kept_columns(again, built), rivals=chosen.rivals)
+
+
+def _kept_columns(found: Detection, built: TermColumns) -> Detection:
+    """``found`` without its columns, which go to ``built`` for the fits (a detector that formed its
+    effect's columns on every sample hands them on: :attr:`._scoring.Detection.columns`)."""
+    if found.columns is None:
+        return found
+    built.put(found.effect, found.columns)
+    return replace(found, columns=None)
 
 
 def _rescored(
