@@ -295,8 +295,8 @@ class DeadBandMotion(EffectBase):
         if best is None or data.scored_rows is not None:
             return best
         # every sample's columns were formed: the chosen parts' are a slice of them (the same numbers as its terms)
-        names = VARIANTS[found.index(best)]
-        return replace(best, columns=np.ascontiguousarray(every[:, [j for n in names for j in parts[n]]]))
+        chosen = [j for n in VARIANTS[found.index(best)] for j in parts[n]]
+        return replace(best, columns=every if len(chosen) == every.shape[1] else np.ascontiguousarray(every[:, chosen]))
 
 
 @njit(cache=True, nogil=True)
