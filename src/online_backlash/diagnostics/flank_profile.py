@@ -136,9 +136,11 @@ class FlankProfile(PerFlankTerms):
         u = data.u_deg
         d = record_direction(data)
         engaged = data.engaged
+        u_engaged, d_engaged = u[engaged], d[engaged]
+        covered = _covered_range(u_engaged, d_engaged)
         found: list[tuple[Detection, float]] = []
         for spacing in SPACINGS_DEG:
-            knots = _covered_knots(u[engaged], d[engaged], spacing)
+            knots = None if covered is None else _covered_knots(u_engaged, d_engaged, spacing, covered)
             if knots is None:
                 continue
             effect = cls(tuple(knots))
@@ -162,16 +164,23 @@ class FlankProfile(PerFlankTerms):
         return next(det for det, g in found if g >= best - SPACING_GAIN)
 
 
-def _covered_knots(u: np.ndarray, direction: np.ndarray, spacing: float) -> np.ndarray | None:
-    """Knots ``spacing`` apart over the range of ``u`` that both directions of motion cover (every
-    knot's neighbourhood visited by at least :data:`MIN_KNOT_SHARE` of the samples on each
-    flank), or None when that range is shorter than two spacings or needs more than :data:`MAX_KNOTS`."""
+def _covered_range(u: np.ndarray, direction: np.ndarray) -> tuple[float, float] | None:
+    """The range of ``u`` that both directions of motion cover (from the 0.5 to the 99.5 percentile of
+    each), ``(lo, hi)``; None when a direction has no samples."""
     lo, hi = -np.inf, np.inf
     for side in (direction > 0, direction < 0):
         if not side.any():
             return None
         a = u[side]
         lo, hi = max(lo, float(np.quantile(a, 0.005))), min(hi, float(np.quantile(a, 0.995)))
+    return lo, hi
+
+
+def _covered_knots(u: np.ndarray, direction: np.ndarray, spacing: float, covered: tuple[float, float]) -> np.ndarray | None:
+    """Knots ``spacing`` apart over the range ``covered`` (:func:`_covered_range`), every knot's
+    neighbourhood visited by at least :data:`MIN_KNOT_SHARE` of the samples on each flank, or None
+    when that range is shorter than two spacings or needs more than :data:`MAX_KNOTS`."""
+    lo, hi = covered
     if not hi - lo >= 2 * spacing:  # at least one inner knot
         return None
     n = int(np.floor((hi - lo) / spacing)) + 1
