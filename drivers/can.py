@@ -33,6 +33,8 @@ from .live import LiveSource
 from .rawlog import RawCanLog
 
 _POLL_S = 0.05
+#: put on the receive queue by :meth:`CanSource.request_stop` to wake the wait for a frame
+_WAKE = object()
 
 
 def open_bus(interface: str, channel: Any, bitrate: int | None = None, **config: Any) -> can.BusABC:
@@ -161,13 +163,23 @@ class CanSource(LiveSource):
         self._stopped = False
         self._closed = False
 
+    def request_stop(self) -> None:
+        """Ask the iteration to stop soon, and wake the wait for a frame: safe from a signal handler
+        (``SimpleQueue.put`` is reentrant). CPython's ``SimpleQueue.get(timeout=...)`` waits for ever
+        when a signal handler that returns normally (Ctrl-C here) ran after the wait's deadline had
+        passed: on a bus gone quiet nothing else would end that wait."""
+        super().request_stop()
+        self._queue.put(_WAKE)
+
     def _receive(self) -> SampleChunk | None:
         """Wait for a sample, then take those queued behind it (at most ``max_batch``), as one block."""
         try:
-            first = _checked(self._queue.get(timeout=_POLL_S))
+            item = self._queue.get(timeout=_POLL_S)
         except queue.Empty:
             return None
-        return rows_to_chunk(self._drain([first]))
+        if item is _WAKE:
+            return None
+        return rows_to_chunk(self._drain([_checked(item)]))
 
     def _where(self) -> str:
         return f"CAN {self.bus.channel_info}"
@@ -181,9 +193,11 @@ class CanSource(LiveSource):
         get = self._queue.get_nowait
         while len(rows) < self.max_batch:
             try:
-                rows.append(_checked(get()))
+                item = get()
             except queue.Empty:
                 break
+            if item is not _WAKE:
+                rows.append(_checked(item))
         return rows
 
     def stop(self) -> None:

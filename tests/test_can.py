@@ -271,3 +271,38 @@ def test_a_silent_bus_times_out_and_a_duration_ends_the_stream(tmp_path):
     with CanSource(can.Bus(interface="virtual", channel="quiet"), RIG_DBC, *ONE, duration_s=0.2) as source:
         assert list(source.iter_chunks()) == []
         assert source.counters.frames == 0
+
+
+def test_ctrl_c_ends_a_quiet_bus_even_when_its_handler_outlives_the_wait():
+    """A Ctrl-C handler that asks the source to stop and returns normally, run while the source waits
+    for a frame and finishing after that wait's deadline: CPython's ``SimpleQueue.get(timeout=...)``
+    then waits for ever unless something is put on the queue, which ``request_stop`` does. Run in a
+    child process so that the old behaviour shows as a timeout, not a hung suite."""
+    import subprocess
+    import sys
+    import textwrap
+
+    code = textwrap.dedent(
+        """
+        import signal, time
+        import can
+        from online_backlash.codecs.dbc import RIG_DBC
+        from online_backlash.drivers.can import _POLL_S, CanSource
+
+        source = CanSource(can.Bus(interface="virtual", channel="ctrl-c"), RIG_DBC, "RigAngles.Motor", "RigAngles.Load")
+
+        def on_interrupt(*_):
+            time.sleep(3 * _POLL_S)  # the handler outlives the wait it interrupted
+            source.request_stop()
+
+        signal.signal(signal.SIGALRM, on_interrupt)
+        signal.setitimer(signal.ITIMER_REAL, 0.2)
+        start = time.monotonic()
+        assert list(source.iter_chunks()) == []
+        source.close()
+        print(f"{time.monotonic() - start:.2f}")
+        """
+    )
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=30)
+    assert done.returncode == 0, done.stderr
+    assert float(done.stdout) < 5.0
