@@ -226,8 +226,10 @@ def test_the_per_frame_and_block_paths_give_the_counter_time(rig_frames):
 def listen_to(messages: list[can.Message], argv: list[str]) -> int:
     """Run ``listen can`` (``argv``, on the virtual channel it names) while a thread sends ``messages``; Ctrl-C when all are read.
 
-    ``--duration 60`` bounds the run: once (in CI, under load) the Ctrl-C was not seen and the run
-    waited for ever; bounded, the assertions on what was read still decide."""
+    Once (in CI, under load) the run waited for ever after the Ctrl-C: the handler asked the source to
+    stop after the wait for a frame had passed its deadline, and CPython's ``SimpleQueue.get(timeout=...)``
+    then waits for ever (``CanSource.request_stop`` now wakes it; ``tests/test_can.py`` holds that).
+    ``--duration 60`` stays as a bound."""
     channel = argv[argv.index("--channel") + 1]
     argv = [*argv, "--duration", "60"] if "--duration" not in argv else argv
 
