@@ -113,6 +113,13 @@ def _backlash_loop(u, mL, cL, mR, cR, x0):  # pragma: no cover - compiled
 
 
 @njit(cache=True)
+def switching_at(u, x_prev, mL, cL, mR, cR):  # pragma: no cover - compiled
+    """Eq. (5)-(6) at one sample, compiled: ``(f1, f2)`` as :func:`switching_functions` evaluates them
+    (``f1 = h(u - zL)``, ``f2 = h(zR - u)`` with ``zL``, ``zR`` of eq. 2-3 from ``x(t-1)``)."""
+    return (1.0 if u - (x_prev / mL - cL) <= 0 else 0.0), (1.0 if (x_prev / mR + cR) - u <= 0 else 0.0)
+
+
+@njit(cache=True)
 def _switching_loop(u, mL, cL, mR, cR, x0, u_prev, a_prev, b_prev):  # pragma: no cover - compiled
     n = u.shape[0]
     x = np.empty(n)
@@ -122,8 +129,7 @@ def _switching_loop(u, mL, cL, mR, cR, x0, u_prev, a_prev, b_prev):  # pragma: n
     last, a, b = u_prev, a_prev, b_prev
     for t in range(n):
         if u[t] != last:  # an input that has not moved keeps the switching functions (see simulate_switching)
-            a = 1.0 if u[t] - (prev / mL - cL) <= 0 else 0.0  # eq. (5), f1 = h(u - zL)
-            b = 1.0 if (prev / mR + cR) - u[t] <= 0 else 0.0  # eq. (6), f2 = h(zR - u)
+            a, b = switching_at(u[t], prev, mL, cL, mR, cR)
         # eq. (7); a and b are never both 1 while the band is open (zL < zR, see simulate_switching).
         # Written out per case (the terms with a factor 0 drop out exactly, up to the sign of a zero)
         if a and not b:

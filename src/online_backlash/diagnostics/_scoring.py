@@ -421,6 +421,11 @@ class DetectionData:
         rows = self.scored_rows
         return np.take(columns, self.engaged_index if rows is None else self.engaged_index[rows], axis=0)
 
+    def _own_share_basis(self, p: int) -> np.ndarray:
+        """Positions among ``p`` nuisance columns of the constant and the terms already added: what a
+        candidate's ``own_share`` is measured against (the backlash's other directions left out)."""
+        return np.r_[0, np.arange(max(self.n_backlash, 1), p)] if self.n_backlash else np.arange(p)
+
     def score(self, input_side: bool, columns: np.ndarray, heldout: bool = True) -> Score:
         """The :class:`Score` of ``columns`` on this residual beyond the nuisance columns
         (held through the dead band when ``input_side``). Without ``heldout`` the cross-validation
@@ -431,7 +436,7 @@ class DetectionData:
         per_fold, total = self._cross.extended(x, heldout)
         assert self.nuisance is not None
         p = self.nuisance.shape[1]
-        terms = np.r_[0, np.arange(max(self.n_backlash, 1), p)] if self.n_backlash else np.arange(p)
+        terms = self._own_share_basis(p)
         assert self.folds is not None
         return _score_grams(per_fold, total, lambda e: self._cross.lag_product(x, e), self.folds.rows, p, terms)
 
@@ -445,7 +450,7 @@ class DetectionData:
         per_fold, total = self._cross.extended(x, heldout)
         assert self.nuisance is not None and self.folds is not None
         p, q = self.nuisance.shape[1], x.shape[1]
-        terms = np.r_[0, np.arange(max(self.n_backlash, 1), p)] if self.n_backlash else np.arange(p)
+        terms = self._own_share_basis(p)
         out = []
         for subset in subsets:
             at = p + np.asarray(subset, dtype=np.intp)
@@ -482,7 +487,7 @@ class DetectionData:
             per_fold = np.einsum("ji,fjk,kl->fil", m, g.per_fold, m)
             total = m.T @ g.total @ m
             q = kept.size
-            terms = np.r_[0, np.arange(max(self.n_backlash, 1), q)] if self.n_backlash else np.arange(q)
+            terms = self._own_share_basis(q)
 
             def lag(e: np.ndarray, m: np.ndarray = m) -> float:
                 return g.lag_product(empty, m @ e)

@@ -145,8 +145,7 @@ class DeadBandMotion(EffectBase):
         self._x = 0.0
         # the last sample's input (from u0) and switching functions, eq. (5)-(6) (None before any)
         self._switched: tuple[float, float, float] | None = None
-        # whether the last sample seen was engaged; the last entry (time, velocity)
-        self._engaged = False
+        # the last entry (time, velocity)
         self._entry = (np.nan, 0.0)
         # the output's last move: time, direction (+1 / -1, 0 before any), velocity, smoothed torque
         self._moved = (np.nan, 0.0, 0.0, 0.0)
@@ -210,18 +209,18 @@ class DeadBandMotion(EffectBase):
         qs = (np.convolve(qz, np.ones(w) / w)[: qz.size] if w > 1 else qz)[n_past:]
         self._window.keep(ue, te, qe)
         u, t = ue[n_past:], te[n_past:]
+        engaged_before = self._switched is not None and self._switched[1] + self._switched[2] > 0
         e, dx = self._switch(u)
         rows = np.arange(u.size) if rows is None else np.ascontiguousarray(rows, dtype=np.int64)
         cols = np.zeros((rows.size, self.n_terms))
         # the stream's state: the last sample engaged, the last entry (time, velocity), the output's
         # last move (time, direction, velocity, torque)
-        state = np.array([float(self._engaged), *self._entry, *self._moved], dtype=float)
+        state = np.array([float(engaged_before), *self._entry, *self._moved], dtype=float)
         _columns_pass(
             e, dx, np.ascontiguousarray(t, dtype=float), np.ascontiguousarray(v, dtype=float), np.ascontiguousarray(qs, dtype=float), state,
             np.asarray(self.exit_time_constants_s, dtype=float), self.torque, np.asarray(self.entry_knots_s, dtype=float), self.n_entry,
             np.asarray(self.rest_time_constants_s, dtype=float), rows, cols,
         )
-        self._engaged = bool(state[0])
         self._entry = (float(state[1]), float(state[2]))
         self._moved = (float(state[3]), float(state[4]), float(state[5]), float(state[6]))
         return cols
@@ -290,8 +289,11 @@ class DeadBandMotion(EffectBase):
         plain = best_detection([d for d, n in zip(found, VARIANTS) if "creep at rest" not in n and d.score.significant()])
         creep = best_detection([d for d, n in zip(found, VARIANTS) if "creep at rest" in n and d.score.significant()])
         # the creep is claimed only where it beats the parts without it by the criterion's own margin
-        best = creep if creep is not None and (plain is None or creep.score.delta_bic - plain.score.delta_bic < BIC_THRESHOLD) else None
-        best = best or plain or best_detection(found)
+        best: Detection | None
+        if creep is not None and (plain is None or creep.score.delta_bic - plain.score.delta_bic < BIC_THRESHOLD):
+            best = creep
+        else:
+            best = plain or best_detection(found)
         if best is None or data.scored_rows is not None:
             return best
         # every sample's columns were formed: the chosen parts' are a slice of them (the same numbers as its terms)

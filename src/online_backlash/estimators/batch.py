@@ -45,6 +45,7 @@ from ..model import (
     linear_filter,
     simulate_backlash,
     simulate_switching,
+    switching_at,
 )
 from ._validation import check_int, check_is_fitted, check_option, check_pair, check_real, check_reverses
 from .uncertainty import KinematicPlayScatter, PlayUncertainty
@@ -132,14 +133,14 @@ def _eq14_normal_equations(u, x_prev, x, mL, cL, mR, cR, gram, rhs):  # pragma: 
     """``gram += phi^T phi`` and ``rhs += phi^T target`` over the samples with ``f1 + f2 > 0``, with
     ``phi = [u f1, f1, u f2, -f2]`` (eq. 8) and ``target = x - x_prev (1 - f1)(1 - f2)`` (left side of
     eq. 11), ``f1``, ``f2`` of eq. (5)-(6) from ``x_prev`` as :func:`~online_backlash.model.switching_functions`
-    evaluates them; returns the samples with ``f1`` set, with ``f2`` set, and with either (the rows)."""
+    evaluates them (:func:`~online_backlash.model.switching_at`); returns the samples with ``f1`` set,
+    with ``f2`` set, and with either (the rows)."""
     left = 0
     right = 0
     rows = 0
     row = np.empty(4)
     for t in range(u.size):
-        f1 = 1.0 if u[t] - (x_prev[t] / mL - cL) <= 0 else 0.0  # eq. (5) with eq. (2)
-        f2 = 1.0 if (x_prev[t] / mR + cR) - u[t] <= 0 else 0.0  # eq. (6) with eq. (3)
+        f1, f2 = switching_at(u[t], x_prev[t], mL, cL, mR, cR)
         if f1 + f2 == 0:
             continue
         left += f1 > 0
@@ -159,8 +160,7 @@ def _eq14_rss(u, x_prev, x, mL, cL, mR, cR, theta):  # pragma: no cover - compil
     """The residual sum of squares of eq. (14) at ``theta`` over the samples of :func:`_eq14_normal_equations`."""
     rss = 0.0
     for t in range(u.size):
-        f1 = 1.0 if u[t] - (x_prev[t] / mL - cL) <= 0 else 0.0
-        f2 = 1.0 if (x_prev[t] / mR + cR) - u[t] <= 0 else 0.0
+        f1, f2 = switching_at(u[t], x_prev[t], mL, cL, mR, cR)
         if f1 + f2 == 0:
             continue
         e = x[t] - x_prev[t] * (1 - f1) * (1 - f2) - (theta[0] * u[t] * f1 + theta[1] * f1 + theta[2] * u[t] * f2 - theta[3] * f2)
