@@ -139,7 +139,7 @@ def test_subsets_scored_from_one_set_of_cross_products_score_as_each_alone(scree
     rng = np.random.default_rng(3)
     r = 0.01 * np.sin(np.radians(5 * u)) + 0.002 * np.cos(0.004 * np.arange(u.size)) + rng.normal(0, 1e-3, u.size)
     folds = cycle_folds(u)
-    folds = folds.screen(cycles=10, factor=1) if screened else folds
+    folds = folds.screen(cycles=10, factor=1, min_samples=0) if screened else folds
     assert folds.screened == screened
     data = DetectionData.stacked([np.ones_like(u), u / 40.0], r, u_deg=u, time_s=t, torque_Nm=q, ratio=30.0, sample_period_s=1e-3, folds=folds)
     x = np.column_stack((harmonic_columns(u, [5, 2]), np.cos(0.004 * np.arange(u.size)), rng.normal(0, 1, u.size)))

@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 from online_backlash.cli import main as cli
-from online_backlash.diagnostics import synthetic
+from online_backlash.diagnostics import _folds, synthetic
 from online_backlash.diagnostics._folds import N_FOLDS, SCREEN_CYCLES, SCREEN_FACTOR, SCREEN_STRIDE, cycle_folds
 from online_backlash.diagnostics._harmonics import harmonic_at_sources, harmonic_columns, held_harmonic, held_per_flank, shaft_harmonic
 from online_backlash.diagnostics._record_cache import RecordCache
@@ -28,6 +28,13 @@ from online_backlash.errors import InvalidParameterError
 from online_backlash.estimators.batch import VorosBacklash
 from online_backlash.model import BacklashParams, backlash_sensitivity, backlash_sensitivity_spans, simulate_backlash
 from online_backlash.rig import simulate_rig
+
+
+@pytest.fixture(autouse=True)
+def _no_sample_minimum(monkeypatch: pytest.MonkeyPatch) -> None:
+    """These tests are of what a screen computes, on records short enough for a unit test: the screen's
+    minimum size in samples (``_folds.SCREEN_MIN_SAMPLES``, ``tests/test_screen_size.py``) is lifted."""
+    monkeypatch.setattr(_folds, "SCREEN_MIN_SAMPLES", 0)
 
 
 def _reversing(cycles: int, per_cycle: int = 400, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:

@@ -11,15 +11,18 @@ with fewer than two cycles is cut into ``k`` contiguous blocks of time instead (
 
 A long record is *screened*: the loop's detectors score their candidates on a subset of its
 cycles (:meth:`Folds.screen`: groups of ``n_folds`` consecutive cycles, one of each fold, spread
-evenly over the record; every :data:`SCREEN_STRIDE`-th sample of them), and the candidates' joint
-refits run on every sample of those cycles, while everything it keeps (the evidence of the terms
-it adds, their joint fit, the held-out gains in the final model) is computed on every sample.
+evenly over the record, at least :data:`SCREEN_MIN_SAMPLES` samples; every :data:`SCREEN_STRIDE`-th
+sample of them), and the candidates' joint refits run on every sample of those cycles: the screen
+chooses which effect comes next. Everything it keeps (the configuration and the evidence of the
+terms it adds, the settings walked in their fits, their joint fit, the held-out gains in the final
+model) is computed on every sample.
 
 Units: degrees.
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from functools import cached_property
 
@@ -29,9 +32,16 @@ from ._causal import motion_direction
 
 #: folds of the cross-validation (at most; fewer when the record has fewer cycles)
 N_FOLDS = 5
-#: reversal cycles a screened record keeps (:meth:`Folds.screen`): three of every fold
-SCREEN_CYCLES = 3 * N_FOLDS
-#: a record is screened only when it has at least this many times :data:`SCREEN_CYCLES` cycles
+#: reversal cycles a screened record keeps at least (:meth:`Folds.screen`): two of every fold
+SCREEN_CYCLES = 2 * N_FOLDS
+#: a screen keeps at least this many samples, more cycles than asked for where cycles are short (a
+#: 1 Hz reversal holds 1,000 samples at 1 kHz): on 15 cycles of a 60 s, 1 Hz two-mass log (15,000
+#: samples, every second one scored) the dead band's motion, which acts near the reversals with 19
+#: columns, held out at -0.61 where every cycle of the record held it at +0.5, and the screened loop
+#: stopped a term short of the unscreened one (``tests/test_screen.py``). 100,000 samples are ten
+#: cycles of the bench's two-mass rig (``bench/diagnose_speed.py``).
+SCREEN_MIN_SAMPLES = 100_000
+#: a record is screened only when it has at least this many times the cycles and the samples a screen keeps
 #: (below, the confirmation on every sample costs about what the screen saves: on the synthetic
 #: transmission-error logs of ``tests/test_screen.py`` the two break even at about 50 cycles)
 SCREEN_FACTOR = 3
@@ -118,18 +128,24 @@ class Folds:
         candidates' joint refits run over, runs of consecutive samples)."""
         return np.concatenate([np.arange(a, b) for _, a, b in self.segments]) if self.segments else np.zeros(0, np.int64)
 
-    def screen(self, cycles: int = SCREEN_CYCLES, factor: int = SCREEN_FACTOR, stride: int = SCREEN_STRIDE) -> Folds:
+    def screen(
+        self, cycles: int = SCREEN_CYCLES, factor: int = SCREEN_FACTOR, stride: int = SCREEN_STRIDE, min_samples: int | None = None
+    ) -> Folds:
         """These folds restricted to about ``cycles`` whole reversal cycles spread evenly over the
-        record: groups of ``n_folds`` consecutive cycles (one of each fold), as many groups as
-        ``cycles`` asks, the first and the last group of the record among them; the scores read every
-        ``stride``-th sample of them (:attr:`row_index`), the joint refits every one (:attr:`cycle_rows`). The record itself
-        (``self``) when it has fewer than ``factor * cycles`` cycles or is cut into time blocks."""
+        record (more where its cycles are short: as many as hold about ``min_samples`` samples at the
+        record's mean cycle length): groups of ``n_folds`` consecutive cycles (one of each fold), as
+        many groups as that asks, the first and the last group of the record among them; the scores
+        read every ``stride``-th sample of them (:attr:`row_index`), the joint refits every one
+        (:attr:`cycle_rows`). The record itself (``self``) when it has fewer than ``factor`` times those
+        cycles, or is cut into time blocks. ``min_samples``: :data:`SCREEN_MIN_SAMPLES` if None."""
         runs = self._runs
         k = self.n_folds
-        if self.kind != "reversal cycles" or self.n_cycles < factor * cycles or len(runs) != self.n_cycles or k < 2:
+        min_samples = SCREEN_MIN_SAMPLES if min_samples is None else min_samples
+        for_samples = math.ceil(min_samples * self.n_cycles / max(self.fold.size, 1))  # cycles of mean length holding min_samples
+        if self.kind != "reversal cycles" or self.n_cycles < factor * max(cycles, for_samples) or len(runs) != self.n_cycles or k < 2:
             return self
         groups = self.n_cycles // k
-        wanted = max(cycles // k, 2)
+        wanted = max(cycles // k, -(-for_samples // k), 2)
         if wanted >= groups:  # it would keep (nearly) every cycle
             return self
         chosen = np.unique(np.round(np.linspace(0, groups - 1, wanted)).astype(int))

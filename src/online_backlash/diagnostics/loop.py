@@ -24,14 +24,16 @@
 4. Repeat until nothing is significant or the residual is within ``floor_ratio`` of the noise
    floor. Then every term is held out once more, given all the others in the final model.
 
-A long record (at least three times ``screen_cycles`` reversal cycles) is screened: steps 2 and 3 score
-and refit the candidates on about ``screen_cycles`` of its cycles spread evenly over it
-(:meth:`._folds.Folds.screen`; the scores on every :data:`._folds.SCREEN_STRIDE`-th sample of them, the
+A long record (at least three times ``screen_cycles`` reversal cycles, and three times
+:data:`._folds.SCREEN_MIN_SAMPLES` samples) is screened: steps 2 and 3 score and refit the candidates
+on about ``screen_cycles`` of its cycles spread evenly over it (more where its cycles are short;
+:meth:`._folds.Folds.screen`; the scores on every :data:`._folds.SCREEN_STRIDE`-th sample of them, the
 refits on every sample); the effect they choose is then detected again on every sample
 (its configuration and evidence as without the screen, :func:`_confirmed`; refused if the whole
-record does not bear it out), and the terms are fitted jointly on every sample (the step's figures
-and the next round's residual). The screen decides which effect comes next, the whole record how
-it is configured, fitted and evidenced.
+record does not bear it out), the terms are fitted jointly on every sample (the step's figures
+and the next round's residual), and the settings of the terms (the compliance's torque average, the
+new term's and those of the terms already in) are walked there, as without the screen. The screen
+decides which effect comes next, the whole record how it is configured, set, fitted and evidenced.
 
 Angles in degrees on the load side, time in seconds.
 """
@@ -390,10 +392,12 @@ def diagnose(
         record's start estimated, :mod:`._initial_state`, the clean two-mass logs sit at
         0.96-1.07 times the floor; ``docs/closing-the-loop.md``, point 7).
     screen_cycles : int
-        A record of at least three times this many reversal cycles is *screened*: the candidates are
-        scored (on every :data:`._folds.SCREEN_STRIDE`-th sample), and the candidates' joint refits
-        fitted, on about this many of its cycles, spread evenly over it (:meth:`._folds.Folds.screen`); the effect chosen is then detected again,
-        and the terms fitted, on every sample, and the final model's held-out gains use every
+        A record of at least three times this many reversal cycles (and three times
+        :data:`._folds.SCREEN_MIN_SAMPLES` samples) is *screened*: the candidates are scored (on every
+        :data:`._folds.SCREEN_STRIDE`-th sample), and the candidates' joint refits fitted, on about this
+        many of its cycles (more where they hold fewer than that many samples), spread evenly over it
+        (:meth:`._folds.Folds.screen`); the effect chosen is then detected again, the terms fitted and
+        their settings walked on every sample, and the final model's held-out gains use every
         cycle. 0: every cycle, always.
 
     Raises
@@ -449,16 +453,17 @@ def diagnose(
                 fit = fit_guarded(uc, yc, _column_parts(terms, built, engaged, x), fit.params, _held(terms), rows)
             return fit
 
-        def tuned(terms: list[Any], fit: JointFit, which: Iterable[int]) -> tuple[list[Any], JointFit]:
+        def tuned(terms: list[Any], fit: JointFit, which: Iterable[int], rows: np.ndarray | None = rows) -> tuple[list[Any], JointFit]:
             """The settings of the terms at ``which`` walked on the joint refit linearised at ``fit``
-            (:func:`_linearised_refit`), then confirmed by one joint refit: kept only if it is better."""
+            (:func:`_linearised_refit`), then confirmed by one joint refit: kept only if it is better.
+            ``fit`` is over ``rows`` (the screen's, or None: every sample), and so are the walk and the refit."""
             for i in which:
                 if not hasattr(terms[i], "neighbours"):
                     continue
-                walk = _linearised_refit(terms, i, fit, uc, u, t, q, float(ratio), period, screen, built)
+                walk = _linearised_refit(terms, i, fit, uc, u, t, q, float(ratio), period, folds if rows is None else screen, built)
                 walked, _ = _tuned(terms, walk(terms), walk, [i])
                 if walked[i] is not terms[i]:
-                    trial = refit_with(walked)
+                    trial = refit_with(walked, rows=rows)
                     if trial.rms_deg < fit.rms_deg:
                         terms, fit = walked, trial
             return terms, fit
@@ -497,18 +502,20 @@ def diagnose(
         # rivals: refitted about as well as the chosen one, and explaining the same part of the residual
         close = [d for d, f in refits if d is not chosen and f.rms_deg**2 <= label_ratio * fit.rms_deg**2]
         rivals = (*chosen.rivals, *_rivals(data, chosen, close, engaged, min_gain, built)) if kind == "effect" else ()
-        if rows is not None:  # chosen on the screen: configured, and its evidence scored, on every sample
-            confirmed = _confirmed(chosen, u, t, q, uc, current, done, float(ratio), period, folds, built, cache, bic_threshold, min_gain, view)
+        if rows is None:
+            # the settings of the terms already in, retuned with the new one in (the compliance's torque average)
+            terms, fit = tuned([*done, chosen.effect], fit, range(len(done)))
+        else:  # chosen on the screen: configured, evidenced and fitted on every sample, as without the screen
+            whole, _ = _detection_data(u, t, q, uc, current, done, float(ratio), period, folds, built, cache, view)
+            confirmed = _confirmed(chosen, whole, built, bic_threshold, min_gain)
             if confirmed is None:
                 refused.add(type(chosen.effect))  # the whole record does not bear it out: try the others
                 continue
-            if repr(confirmed.effect) != repr(chosen.effect):  # configured otherwise: refitted so
-                fit = refit_with([*done, confirmed.effect])
-            chosen = confirmed
-        # the settings of the terms already in, retuned with the new one in (the compliance's torque average)
-        terms, fit = tuned([*done, chosen.effect], fit, range(len(done)))
-        if rows is not None:  # the terms fitted on every sample
-            fit = refit_with(terms, rows=None)
+            # every setting walked on every sample: the new term's own first (as :func:`refit` does), then
+            # those of the terms already in
+            terms = [*done, confirmed.effect]
+            terms, fit = tuned(terms, refit_with(terms, rows=None), [len(done), *range(len(done))], rows=None)
+            chosen = confirmed if terms[-1] is confirmed.effect else replace(terms[-1].detection(whole), rivals=confirmed.rivals)
         for step, effect in zip(steps, terms):
             step.retuned = step.retuned or effect is not step.effect
             step.effect = effect
@@ -531,16 +538,12 @@ def diagnose(
     return Diagnosis(base, current, steps, noise, before, after, u, y, t, float(ratio), q, start, screened, folds.n_cycles)
 
 
-def _confirmed(
-    chosen: Detection, u: np.ndarray, t: np.ndarray, q: np.ndarray, uc: np.ndarray, current: JointFit, done: list[Any], ratio: float, period: float,
-    folds: Folds, built: TermColumns, cache: RecordCache, bic_threshold: float, min_gain: float, view: _ModelView | None = None,
-) -> Detection | None:
-    """A term chosen on a screen of the record, detected again on every sample (the round's residual,
-    the terms it had): its configuration (the harmonic orders, the dead band's parts, ...) and its
-    evidence as without the screen. A term with a setting walked in the refit (``neighbours``, the
-    compliance's torque average) is scored with that setting. None when the whole record does not
-    find it significant. ``view``: :class:`_ModelView` of ``current.params``, when at hand."""
-    data, _ = _detection_data(u, t, q, uc, current, done, ratio, period, folds, built, cache, view)
+def _confirmed(chosen: Detection, data: DetectionData, built: TermColumns, bic_threshold: float, min_gain: float) -> Detection | None:
+    """A term chosen on a screen of the record, detected again on ``data``, every sample of it (the
+    round's residual, the terms it had): its configuration (the harmonic orders, the dead band's
+    parts, ...) and its evidence as without the screen. A term with a setting walked in the refit
+    (``neighbours``, the compliance's torque average) is scored with its setting from the screen
+    (the caller walks it again on every sample). None when the whole record does not find it significant."""
     effect: Any = chosen.effect
     again = effect.detection(data) if hasattr(effect, "neighbours") else type(effect).detect(data)
     if again is None or not again.score.significant(bic_threshold, min_gain):
