@@ -48,6 +48,21 @@ def test_term_columns_are_built_once_per_effect_and_equal_a_fresh_build() -> Non
     np.testing.assert_array_equal(built.get(Drift(2, 4.0)), Drift(2, 4.0).terms(u, t, q))
 
 
+def test_the_dead_band_motions_columns_are_fitted_on_their_support(two_steps) -> None:
+    """The dead band's motion is zero outside a few per cent of the samples: the loop hands its fits
+    the rows where it is not (``TermColumns.support``, found once per effect), a drift everywhere."""
+    d = two_steps
+    built = TermColumns(d.u_deg, d.time_s, d.torque_Nm)
+    dead_band = next(s.effect for s in d.steps if s.effect.name == "dead_band_motion")
+    support = built.support(dead_band)
+    columns = built.get(dead_band)
+    assert support is not None and built.support(dead_band) is support
+    assert support.rows.size < 0.25 * d.u_deg.size
+    np.testing.assert_array_equal(np.flatnonzero(np.any(columns != 0, axis=1)), support.rows)
+    np.testing.assert_array_equal(support.values, columns[support.rows])
+    assert built.support(Drift(2, 4.0)) is None
+
+
 def test_columns_gate_engaged_only_terms_and_stack_in_order() -> None:
     rng = np.random.default_rng(4)
     n = 3000

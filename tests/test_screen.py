@@ -22,7 +22,7 @@ from online_backlash.diagnostics._harmonics import harmonic_at_sources, harmonic
 from online_backlash.diagnostics._record_cache import RecordCache
 from online_backlash.diagnostics._scoring import DetectionData
 from online_backlash.diagnostics._speed import held_spline_columns, record_velocity, speed_knots
-from online_backlash.diagnostics.joint import ColumnParts, _spans, _switched, engaged_index, fit_guarded
+from online_backlash.diagnostics.joint import ColumnParts, Support, _spans, _switched, engaged_index, fit_guarded
 from online_backlash.diagnostics.loop import diagnose_arrays
 from online_backlash.diagnostics.report import markdown_report
 from online_backlash.errors import InvalidParameterError
@@ -277,3 +277,32 @@ def test_column_parts_are_the_block_whole_at_rows_and_times_coefficients():
     coef = rng.normal(size=5)
     np.testing.assert_allclose(parts.dot(coef), block @ coef, rtol=1e-12, atol=1e-12)
     np.testing.assert_allclose(parts.dot(np.r_[0.0, 0.0, coef[2:]]), block[:, 2:] @ coef[2:], rtol=1e-12, atol=1e-12)
+
+
+@pytest.mark.parametrize("gated", [False, True])
+def test_a_part_zero_on_most_samples_gives_the_products_of_its_whole_columns(gated: bool):
+    """``joint.Support``: a part's cross-products, its products with a vector and with coefficients, read
+    its support's rows only; they are the whole block's (to rounding), held or not."""
+    rng = np.random.default_rng(11)
+    n = 4000
+    dense = rng.normal(size=(n, 2))
+    sparse = np.zeros((n, 3))
+    at = np.sort(rng.choice(n, 150, replace=False))
+    sparse[at] = rng.normal(size=(150, 3))
+    gate = rng.random(n) < 0.7 if gated else None
+    support = Support.of(sparse)
+    assert support is not None and np.array_equal(support.rows, at) and Support.of(dense) is None
+    plain = ColumnParts(((dense, None), (sparse, gate)))
+    kept = ColumnParts(((dense, None), (sparse, gate)), (None, support))
+    block = plain.dense()
+    np.testing.assert_allclose(kept.gram(), block.T @ block, rtol=1e-12, atol=1e-9)
+    a = rng.normal(size=(n, 4))
+    np.testing.assert_allclose(kept.t_dot(a), block.T @ a, rtol=1e-12, atol=1e-9)
+    np.testing.assert_allclose(kept.t_dot(a[:, 0]), block.T @ a[:, 0], rtol=1e-12, atol=1e-9)
+    coef = rng.normal(size=5)
+    np.testing.assert_allclose(kept.dot(coef), block @ coef, rtol=1e-12, atol=1e-12)
+    index = np.maximum.accumulate(np.where(rng.random(n) < 0.5, np.arange(n), 0))  # the last engaged sample
+    held = np.array([False, False, True, False, True])
+    np.testing.assert_allclose(kept.held_at(held, index).dense(), plain.held_at(held, index).dense())
+    assert kept.held_at(held, index).supports[1] is None  # held through the dead band: nonzero elsewhere too
+    assert kept.held_at(np.r_[True, False, False, False, False], index).supports[1] is support

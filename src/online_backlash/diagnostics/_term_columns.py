@@ -18,6 +18,8 @@ from typing import Any
 
 import numpy as np
 
+from .joint import Support
+
 
 class TermColumns:
     """``get(effect)``: ``effect.clone().terms(u_deg, time_s, torque_Nm)``, built once per effect object.
@@ -32,6 +34,8 @@ class TermColumns:
         self.u_deg, self.time_s, self.torque_Nm = u_deg, time_s, torque_Nm
         # keyed by id(): the effect itself is kept beside its columns, so the id is not reused
         self._built: dict[int, tuple[Any, np.ndarray]] = {}
+        # keyed by id() too, checked against the columns they were found in (kept in ``_built``)
+        self._supports: dict[int, tuple[np.ndarray, Support | None]] = {}
 
     def put(self, effect: Any, columns: np.ndarray) -> None:
         """Keep ``columns`` as the effect's (formed elsewhere: they must be its ``terms`` on a fresh
@@ -50,3 +54,14 @@ class TermColumns:
         cols.flags.writeable = False
         self._built[id(effect)] = (effect, cols)
         return cols
+
+    def support(self, effect: Any) -> Support | None:
+        """The :class:`.joint.Support` of the effect's columns (:meth:`get`): the samples outside which
+        they are zero, when that is a small share of the record (found once per effect object)."""
+        cols = self.get(effect)
+        hit = self._supports.get(id(effect))
+        if hit is not None and hit[0] is cols:
+            return hit[1]
+        found = Support.of(cols)
+        self._supports[id(effect)] = (cols, found)
+        return found

@@ -165,15 +165,53 @@ def fit_joint(
     return _fit_held(uc, yc, parts, held, start, hold_play, parts.held_at(held, engaged_index(uc, start)))
 
 
+#: a part whose columns are zero outside at most this share of the samples is kept with its
+#: :class:`Support` too (the dead band's motion: 3 % of the 10-minute bench log)
+SPARSE_SHARE = 0.25
+
+
+@dataclass(frozen=True)
+class Support:
+    """The samples outside which some columns are zero (``rows``, increasing) and the columns there
+    (``values``, ``(rows.size, k)``): their cross-products and their products with coefficients
+    read those rows only."""
+
+    rows: np.ndarray
+    values: np.ndarray
+
+    @classmethod
+    def of(cls, columns: np.ndarray, share: float = SPARSE_SHARE) -> Support | None:
+        """The support of ``columns`` (``(n, k)``), or None when it is more than ``share`` of the rows."""
+        rows = np.flatnonzero(np.any(columns != 0, axis=1))
+        if rows.size > share * columns.shape[0]:
+            return None
+        values = np.take(columns, rows, axis=0)
+        values.flags.writeable = False
+        return cls(rows, values)
+
+
 @dataclass(frozen=True)
 class ColumnParts:
     """Full-length columns side by side, kept as parts: ``(columns, gate)`` with ``columns`` ``(n, k_i)``
     and ``gate`` None or a boolean mask of the samples (the part is zero where it is False). The
     block is formed only where needed: whole (:meth:`dense`), at some rows (:meth:`at`), as its
     product with coefficients (:meth:`dot`), or as the cross-products least squares need
-    (:meth:`gram`, :meth:`t_dot`: :class:`._normal_equations.Columns`, no block of all the parts)."""
+    (:meth:`gram`, :meth:`t_dot`: :class:`._normal_equations.Columns`, no block of all the parts).
+    ``supports``: for every part its :class:`Support` (of the columns before the gate) or None; the
+    products of a part with one read its support's rows only (empty: None for every part)."""
 
     parts: tuple[tuple[np.ndarray, np.ndarray | None], ...]
+    supports: tuple[Support | None, ...] = ()
+
+    def _support(self, i: int) -> Support | None:
+        return self.supports[i] if self.supports else None
+
+    def _at_rows(self, i: int, rows: np.ndarray) -> np.ndarray:
+        """Part ``i``'s columns (gated) at ``rows``."""
+        c, gate = self.parts[i]
+        mine = self._support(i)
+        out = mine.values if mine is not None and mine.rows is rows else np.take(c, rows, axis=0)
+        return out if gate is None else out * gate[rows, None]
 
     @property
     def shape(self) -> tuple[int, int]:
@@ -211,44 +249,65 @@ class ColumnParts:
         return out
 
     def gram(self) -> np.ndarray:
-        """``B^T B`` of the block ``B``, part by part (a gated part's gated copy formed once)."""
-        blocks = [c if gate is None else c * gate[:, None] for c, gate in self.parts]
-        ends = np.cumsum([0, *(c.shape[1] for c in blocks)])
+        """``B^T B`` of the block ``B``, part by part (a gated part's gated copy formed once; a pair
+        with a support over the rows of the smaller one)."""
+        blocks = [None if self._support(i) is not None else c if gate is None else c * gate[:, None] for i, (c, gate) in enumerate(self.parts)]
+        ends = np.cumsum([0, *(c.shape[1] for c, _ in self.parts)])
         out = np.empty((ends[-1], ends[-1]))
-        for i, a in enumerate(blocks):
-            for j in range(i, len(blocks)):
-                out[ends[i] : ends[i + 1], ends[j] : ends[j + 1]] = a.T @ blocks[j]
-                out[ends[j] : ends[j + 1], ends[i] : ends[i + 1]] = out[ends[i] : ends[i + 1], ends[j] : ends[j + 1]].T
+        for i in range(len(self.parts)):
+            for j in range(i, len(self.parts)):
+                sparse = [m for m in (self._support(i), self._support(j)) if m is not None]
+                if sparse:
+                    rows = min(sparse, key=lambda m: m.rows.size).rows
+                    product = self._at_rows(i, rows).T @ self._at_rows(j, rows)
+                else:
+                    product = blocks[i].T @ blocks[j]  # type: ignore[union-attr]
+                out[ends[i] : ends[i + 1], ends[j] : ends[j + 1]] = product
+                out[ends[j] : ends[j + 1], ends[i] : ends[i + 1]] = product.T
         return out
 
     def t_dot(self, a: np.ndarray) -> np.ndarray:
-        """``B^T a`` of the block ``B`` for ``a`` with a row per sample, part by part."""
-        return np.concatenate([c.T @ (a if gate is None else a * (gate[:, None] if a.ndim == 2 else gate)) for c, gate in self.parts])
+        """``B^T a`` of the block ``B`` for ``a`` with a row per sample, part by part (a part with a
+        support over its rows)."""
+        out = []
+        for i, (c, gate) in enumerate(self.parts):
+            mine = self._support(i)
+            if mine is not None:
+                out.append(self._at_rows(i, mine.rows).T @ np.take(a, mine.rows, axis=0))
+            else:
+                out.append(c.T @ (a if gate is None else a * (gate[:, None] if a.ndim == 2 else gate)))
+        return np.concatenate(out)
 
     def held_at(self, held: np.ndarray, index: np.ndarray) -> ColumnParts:
         """The parts with the ``held`` columns (boolean per column) taken at ``index``
         (:func:`hold_columns`, after the gate); the others as they are."""
         if not np.any(held):
             return self
-        out, j = [], 0
-        for c, gate in self.parts:
+        out, supports, j = [], [], 0
+        for i, (c, gate) in enumerate(self.parts):
             mine = held[j : j + c.shape[1]]
             j += c.shape[1]
             if not np.any(mine):
                 out.append((c, gate))
+                supports.append(self._support(i))
                 continue
             out.append((hold_columns(c if gate is None else c * gate[:, None], mine, index), None))
-        return ColumnParts(tuple(out))
+            supports.append(None)  # held through the dead band: nonzero elsewhere too
+        return ColumnParts(tuple(out), tuple(supports))
 
     def dot(self, coef: np.ndarray) -> np.ndarray:
-        """The block times ``coef``, an ``n``-vector."""
+        """The block times ``coef``, an ``n``-vector (a part with a support written at its rows only)."""
         out = np.zeros(self.shape[0])
         j = 0
-        for c, gate in self.parts:
+        for i, (c, gate) in enumerate(self.parts):
             k = c.shape[1]
             if np.any(coef[j : j + k]):
-                v = c @ coef[j : j + k]
-                out += v if gate is None else v * gate
+                mine = self._support(i)
+                if mine is not None:
+                    out[mine.rows] += self._at_rows(i, mine.rows) @ coef[j : j + k]
+                else:
+                    v = c @ coef[j : j + k]
+                    out += v if gate is None else v * gate
             j += k
         return out
 

@@ -279,7 +279,8 @@ def _column_parts(terms: Sequence[Any], built: TermColumns, engaged: np.ndarray,
     """The terms' columns, as parts (:class:`.joint.ColumnParts`). Those of effects that act only on
     engaged samples are zeroed where ``engaged`` (the model's switching functions, eq. 5-6) is False;
     an effect defined on the model's output (``output_columns``, the delay) is built on ``x``, the
-    current backlash output; the others come from ``built`` (once per record)."""
+    current backlash output; the others come from ``built`` (once per record), with their support when
+    they are zero on most samples (:class:`.joint.Support`, the dead band's motion)."""
     n = built.u_deg.size
     return ColumnParts(
         tuple(
@@ -288,7 +289,8 @@ def _column_parts(terms: Sequence[Any], built: TermColumns, engaged: np.ndarray,
                 engaged if getattr(e, "engaged_only", False) else None,
             )
             for e in terms
-        )
+        ),
+        tuple(None if hasattr(e, "output_columns") else built.support(e) for e in terms),
     )
 
 
