@@ -78,7 +78,7 @@ def main() -> None:
         d = json.loads(text)
         found = [e["name"] for e in d["effects"]] + [f"({e['name']})" for e in d["unexplained"]]
         print(
-            f"| {minutes:g} min | {d['samples']} | {bw:.1f} | {bc:.1f} | {dw:.1f} | {dc:.1f} | {dw / bw:.1f} | {dc / bc:.1f} | {', '.join(found) or '-'} "
+            f"| {minutes:g} min | {d['samples']} | {bw:.2f} | {bc:.2f} | {dw:.2f} | {dc:.2f} | {dw / bw:.2f} | {dc / bc:.2f} | {', '.join(found) or '-'} "
             f"| {os.getloadavg()[0]:.1f} |",
             flush=True,
         )
