@@ -107,7 +107,7 @@ def test_the_linearised_refit_orders_the_settings_as_the_joint_refits_do():
         return terms, fit_guarded(uc, yc, _columns(terms, built, engaged, x), base.params_, _held(terms))
 
     terms, fit = joint(5)
-    walk = _linearised_refit(terms, 0, fit, uc, u, t, q, 30.0, 0.001, cycle_folds(u), built)
+    walk = _linearised_refit(terms, 0, fit, uc, cycle_folds(u), built)
     assert walk(terms).rms_deg == pytest.approx(fit.rms_deg, rel=1e-3)
     widths = [1, 3, 5, 8, 16]
     linear = [walk([Compliance("torque", deadband_Nm=deadband, smooth_samples=w)]).rms_deg for w in widths]

@@ -54,12 +54,13 @@ from ..model import simulate_backlash
 from ..stream import SampleChunk
 from ._folds import SCREEN_CYCLES, Folds, cycle_folds
 from ._initial_state import InitialState, estimate_initial_state
+from ._normal_equations import Projector, left_sum_of_squares
 from ._record_cache import RecordCache
 from ._scoring import BIC_THRESHOLD, MIN_GAIN, Detection, DetectionData
 from ._term_columns import TermColumns
 from .effects import LIBRARY
 from .generic import GENERIC
-from .joint import MAX_PLAY_INFLATION, MAX_PLAY_STD_SHARE, ColumnParts, JointFit, _switched, fit_guarded, hold_columns, play_sensitivity
+from .joint import MAX_PLAY_INFLATION, MAX_PLAY_STD_SHARE, ColumnParts, JointFit, Support, _switched, fit_guarded, hold_columns, play_sensitivity
 from .residuals import NoiseFloor, Profile, noise_floor, one_step_residual, profile, simulation_residual
 
 #: the runner-up named effect is refitted too when its linear gain is at least this share of the best one's
@@ -469,7 +470,7 @@ def diagnose(
             for i in which:
                 if not hasattr(terms[i], "neighbours"):
                     continue
-                walk = _linearised_refit(terms, i, fit, uc, u, t, q, float(ratio), period, folds if rows is None else screen, built)
+                walk = _linearised_refit(terms, i, fit, uc, folds if rows is None else screen, built)
                 walked, _ = _tuned(terms, walk(terms), walk, [i])
                 if walked[i] is not terms[i]:
                     trial = refit_with(walked, rows=rows, start=fit)
@@ -660,22 +661,40 @@ def _tuned(terms: list[Any], fit: _Fitted, refit_with: Callable[[list[Any]], _Fi
     return terms, fit
 
 
-def _linearised_refit(
-    terms: list[Any], i: int, fit: JointFit, uc: np.ndarray, u: np.ndarray, t: np.ndarray, q: np.ndarray, ratio: float, period: float, folds: Folds,
-    built: TermColumns,
-) -> Callable[[list[Any]], _Linearised]:
+def _linearised_refit(terms: list[Any], i: int, fit: JointFit, uc: np.ndarray, folds: Folds, built: TermColumns) -> Callable[[list[Any]], _Linearised]:
     """The joint refit of ``terms`` with the ``i``-th term swapped, linearised at ``fit``: the backlash
     parameters fixed at ``fit.params`` with their sensitivities as free directions (one Gauss-Newton
     step of the quasi-linear fit, eq. 8), the other terms as they are fitted. The ``i``-th term's part
-    is put back into the residual, and each setting's columns are scored beyond the rest (the same
-    least squares as the detectors', no cross-validation): a cheap way to walk a setting, which the
-    caller confirms with one joint refit. Returns ``terms -> _Linearised`` (RMS, deg)."""
+    is put back into the residual, and each setting's columns are fitted beyond the rest: a cheap way
+    to walk a setting, which the caller confirms with one joint refit. Only the sum of squares left is
+    needed, so it is the least squares through the projection off the backlash directions and the
+    other terms (:class:`._normal_equations.Projector`, formed once; a term zero on most samples read on
+    its support, :class:`.joint.Support`), over every sample, or a screen's scored rows
+    (:attr:`._folds.Folds.row_index`). Returns ``terms -> _Linearised`` (RMS over those samples, deg)."""
     view = _ModelView.of(uc, fit.params)
-    data, _ = _term_left_out(terms, i, fit, view, _held_parts(terms, built, view), u, t, q, uc, ratio, period, folds, built)
+    parts = _held_parts(terms, built, view)
+    start = sum(e.n_terms for e in terms[:i])
+    restored = fit.residual_deg + parts[i] @ fit.coef[start : start + terms[i].n_terms]
+    others = [(e, part) for j, (e, part) in enumerate(zip(terms, parts)) if j != i]
+    rows = folds.row_index if folds.screened else None
+    nuisance: list[tuple[np.ndarray, np.ndarray | None]] = [(view.others, None), (view.g[:, None], None)]
+    supports: list[Support | None] = [None, None]
+    for e, part in others:
+        nuisance.append((part, None))
+        own = not hasattr(e, "output_columns") and part is built.get(e)  # neither gated nor held
+        supports.append(built.support(e) if own and rows is None else None)
+    if rows is not None:
+        projector = Projector(ColumnParts(tuple(nuisance)).at(rows))
+        restored = restored[rows]
+    else:
+        projector = Projector(ColumnParts(tuple(nuisance), tuple(supports)))
+    n = restored.size
 
     def refit(swapped: list[Any]) -> _Linearised:
-        rss = data.score(False, _prepared(data, swapped[i], built, view.engaged), heldout=False).rss_after
-        return _Linearised(float(np.sqrt(max(rss, 0.0) / uc.size)))
+        x = _held_parts([swapped[i]], built, view)[0]
+        a = np.column_stack((x if rows is None else x[rows], restored))
+        rss = left_sum_of_squares(projector.left_gram(a))
+        return _Linearised(float(np.sqrt(rss / n)))
 
     return refit
 
@@ -725,24 +744,6 @@ def _hold_out_final(
     scores = data.scores_left_out([data.n_backlash + np.arange(a, b) for a, b in spans], [final.coef[a:b] for a, b in spans])
     for s, score in zip(steps, scores):
         s.heldout_gain_final = score.heldout_gain
-
-
-def _term_left_out(
-    terms: list[Any], i: int, fit: JointFit, view: _ModelView, parts: Sequence[np.ndarray], u: np.ndarray, t: np.ndarray, q: np.ndarray,
-    uc: np.ndarray, ratio: float, period: float, folds: Folds, built: TermColumns,
-) -> tuple[DetectionData, np.ndarray]:
-    """What the detectors see of ``fit`` with the ``i``-th of its ``terms`` left out: its part put back
-    into the residual, the backlash directions and the other terms as nuisance; and the ``i``-th term's
-    columns. ``view`` is :class:`_ModelView` of ``fit.params`` and ``parts`` the terms' held columns
-    there, one array per term (:func:`_held_parts`)."""
-    start = sum(e.n_terms for e in terms[:i])
-    mine = parts[i]
-    restored = fit.residual_deg + mine @ fit.coef[start : start + terms[i].n_terms]
-    data, _ = _detection_data(
-        u, t, q, uc, replace(fit, residual_deg=restored), [*terms[:i], *terms[i + 1 :]], ratio, period, folds, built, view=view,
-        done_columns=[*parts[:i], *parts[i + 1 :]],  # written once, into the detectors' block
-    )
-    return data, mine
 
 
 def _describe(steps: list[Step], final: JointFit) -> None:
