@@ -8,6 +8,7 @@ import pytest
 from online_backlash.diagnostics._causal import velocity_deg_s
 from online_backlash.diagnostics._folds import cycle_folds
 from online_backlash.diagnostics._harmonics import harmonic_columns, harmonic_stack, held_per_flank, shaft_harmonic
+from online_backlash.diagnostics._normal_equations import nonzero_rows
 from online_backlash.diagnostics._record_cache import RecordCache
 from online_backlash.diagnostics._scoring import DetectionData
 from online_backlash.diagnostics._speed import cardinal_splines, held_spline_columns, record_speed_knots, record_velocity, speed_knots, zero_knot
@@ -152,6 +153,38 @@ def test_subsets_scored_from_one_set_of_cross_products_score_as_each_alone(scree
         np.testing.assert_allclose(got.coef, alone.coef, rtol=1e-9)
     assert np.isnan(data.score_subsets(x, [[0, 1]], heldout=False)[0].heldout_gain)  # not measured without it
     assert np.isfinite(data.score_subsets(x, [[0, 1]])[0].heldout_gain)
+
+
+@pytest.mark.parametrize("screened", [False, True])
+def test_columns_zero_on_most_rows_score_on_their_support_as_on_every_row(screened: bool) -> None:
+    """``score_subsets(..., support=rows)``: columns zero outside ``rows`` (the dead band's motion) have
+    their cross-products and lag-1 products read there only; the scores are those of every row (the
+    lag-1 products bit for bit, the cross-products to rounding)."""
+    u, t, q, _ = _record(n=40000)
+    rng = np.random.default_rng(4)
+    r = 0.01 * np.sin(np.radians(5 * u)) + rng.normal(0, 1e-3, u.size)
+    folds = cycle_folds(u)
+    folds = folds.screen(cycles=10, factor=1, min_samples=0) if screened else folds
+    data = DetectionData.stacked([np.ones_like(u), u / 40.0], r, u_deg=u, time_s=t, torque_Nm=q, ratio=30.0, sample_period_s=1e-3, folds=folds)
+    m = folds.rows
+    x = np.zeros((m, 3))
+    rows = np.sort(rng.choice(m, m // 30, replace=False))
+    x[rows] = rng.normal(0, 1, (rows.size, 3)) + r[folds.row_index[rows] if screened else rows, None]
+    assert np.array_equal(nonzero_rows(x), rows)
+    subsets = [[0], [1, 2], [0, 1, 2]]
+    for dense, sparse in zip(data.score_subsets(x, subsets), data.score_subsets(x, subsets, support=rows)):
+        for name in ("rss_before", "rss_after", "n_eff", "delta_bic", "own_share", "heldout_gain"):
+            assert getattr(sparse, name) == pytest.approx(getattr(dense, name), rel=1e-9, abs=1e-12), name
+    e = rng.normal(0, 1, data.nuisance.shape[1] + 4)
+    assert data.grams.lag_product(x, e) == data.grams.lag_product(np.take(x, rows, axis=0), e, rows)
+
+
+def test_nonzero_rows_are_the_rows_with_a_value_other_than_zero() -> None:
+    c = np.zeros((50, 3))
+    c[[3, 7, 40], [0, 2, 1]] = [1.0, -2.0, np.nan]
+    c[9, 1] = -0.0
+    assert nonzero_rows(c).tolist() == [3, 7, 40]
+    assert nonzero_rows(np.zeros((0, 2))).size == 0
 
 
 def test_drift_columns_at_some_rows_are_its_stream_columns_there() -> None:

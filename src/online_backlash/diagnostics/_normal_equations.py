@@ -16,6 +16,7 @@ from dataclasses import dataclass
 from typing import Protocol
 
 import numpy as np
+from numba import njit
 
 #: relative size below which a direction of the (scaled) normal equations counts as degenerate
 RCOND = 1e-10
@@ -114,3 +115,21 @@ class Projector:
             return ata
         b = self.factor.T @ (self.columns.t_dot(a) if cross is None else cross)
         return ata - b.T @ b
+
+
+def nonzero_rows(columns: np.ndarray) -> np.ndarray:
+    """The rows of ``columns`` (``(n, k)``) with a value other than zero, increasing (one compiled pass)."""
+    c = np.asarray(columns, dtype=float)
+    keep = np.empty(c.shape[0], dtype=np.bool_)
+    _any_nonzero(c, keep)
+    return np.flatnonzero(keep)
+
+
+@njit(cache=True)
+def _any_nonzero(c, keep):  # pragma: no cover - compiled
+    for t in range(c.shape[0]):
+        keep[t] = False
+        for j in range(c.shape[1]):
+            if c[t, j] != 0.0:
+                keep[t] = True
+                break

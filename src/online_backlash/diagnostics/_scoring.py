@@ -140,10 +140,11 @@ class _Grams:
             return a
         return np.take(a, self.folds.row_index, axis=0)
 
-    def _per_fold(self, a: np.ndarray, b: np.ndarray) -> np.ndarray:
-        """``a^T b`` over the samples of every fold, ``(n_folds, a columns, b columns)``."""
+    def _per_fold(self, a: np.ndarray, b: np.ndarray, segments: Sequence[tuple[int, int, int]] | None = None) -> np.ndarray:
+        """``a^T b`` over the samples of every fold, ``(n_folds, a columns, b columns)``; ``segments``:
+        the folds' runs of rows of ``a`` and ``b`` (default :attr:`segments`)."""
         out = np.zeros((self.folds.n_folds, a.shape[1], b.shape[1]))
-        for k, start, stop in self.segments:
+        for k, start, stop in self.segments if segments is None else segments:
             out[k] += a[start:stop].T @ b[start:stop]
         return out
 
@@ -164,29 +165,37 @@ class _Grams:
         z[:, j] = self.z[:, p]
         return _Grams(z, self.folds)
 
-    def extended(self, x: np.ndarray, heldout: bool = True) -> tuple[np.ndarray, np.ndarray]:
+    def extended(self, x: np.ndarray, heldout: bool = True, support: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Per-fold (empty without ``heldout``) and total Grams of ``W = [nuisance, x, residual]`` (residual
-        last); ``x`` has the rows of ``z`` (see :meth:`rows`)."""
+        last); ``x`` has the rows of ``z`` (see :meth:`rows`), or with ``support`` (the rows of ``z``,
+        increasing, outside which ``x`` is zero) its rows there only: its products read those rows."""
         p, q, k = self.z.shape[1], x.shape[1], self.per_fold.shape[0]
+        z = self.z if support is None else np.take(self.z, support, axis=0)  # the rows that carry x, side by side
         if not heldout:
-            return np.empty((0, p + q, p + q)), _assemble(self.total, self.z.T @ x, x.T @ x)
-        zx, xx = self._per_fold(self.z, x), self._per_fold(x, x)
+            return np.empty((0, p + q, p + q)), _assemble(self.total, z.T @ x, x.T @ x)
+        segments = self.segments if support is None else [(f, *np.searchsorted(support, (a, b))) for f, a, b in self.segments]
+        zx, xx = self._per_fold(z, x, segments), self._per_fold(x, x, segments)
         out = np.empty((k, p + q, p + q))
         for j in range(k):
             out[j] = _assemble(self.per_fold[j], zx[j], xx[j])
         return out, out.sum(axis=0)
 
-    def lag_product(self, x: np.ndarray, e: np.ndarray) -> float:
+    def lag_product(self, x: np.ndarray, e: np.ndarray, support: np.ndarray | None = None) -> float:
         """``sum_t w(t+1) w(t)`` for ``w = W e``, ``W = [nuisance, x, residual]`` (``x`` with the rows of
         ``z``): the lag-1 product of a combination of W's columns, in one compiled pass (``O(n (p + q))``,
-        no lag-1 Gram of ``x``); for a screen, within each of its cycles."""
+        no lag-1 Gram of ``x``); for a screen, within each of its cycles. ``x`` and ``support`` as for
+        :meth:`extended` (``x``'s part added on those rows only: the same sums, bit for bit)."""
         p = self.z.shape[1] - 1
         ez, ex = np.concatenate((e[:p], e[-1:])), np.ascontiguousarray(e[p:-1])
         if self.folds.screened:
             if self._bounds is None:
                 self._bounds = np.array([(a, b) for _, a, b in self.segments], dtype=np.int64).reshape(-1, 2)
-            return float(_lag_product_within(self.z, ez, x, ex, self._bounds))
-        return float(_lag_product(self.z, ez, x, ex, 0, self.z.shape[0]))
+            bounds = self._bounds
+        else:
+            bounds = np.array([[0, self.z.shape[0]]], dtype=np.int64)
+        if support is None:
+            return float(_lag_product_within(self.z, ez, x, ex, bounds))
+        return float(_lag_product_sparse_within(self.z, ez, x, np.ascontiguousarray(support, dtype=np.int64), ex, bounds))
 
 
 @njit(cache=True)
@@ -214,6 +223,33 @@ def _lag_product_within(z, ez, x, ex, bounds):  # pragma: no cover - compiled
     total = 0.0
     for k in range(bounds.shape[0]):
         total += _lag_product(z, ez, x, ex, bounds[k, 0], bounds[k, 1])
+    return total
+
+
+@njit(cache=True)
+def _lag_product_sparse_within(z, ez, xs, rows, ex, bounds):  # pragma: no cover - compiled
+    """:func:`_lag_product_within` for ``x`` zero outside ``rows`` (increasing), given as ``xs`` (its
+    rows there): the same sums in the same order, ``x``'s part added where it is not zero."""
+    total = 0.0
+    at = 0
+    for k in range(bounds.shape[0]):
+        start, stop = bounds[k, 0], bounds[k, 1]
+        while at < rows.size and rows[at] < start:
+            at += 1
+        within = 0.0
+        prev = 0.0
+        for t in range(start, stop):
+            w = 0.0
+            for j in range(z.shape[1]):
+                w += z[t, j] * ez[j]
+            if at < rows.size and rows[at] == t:
+                for j in range(xs.shape[1]):
+                    w += xs[at, j] * ex[j]
+                at += 1
+            if t > start:
+                within += w * prev
+            prev = w
+        total += within
     return total
 
 
@@ -440,14 +476,20 @@ class DetectionData:
         assert self.folds is not None
         return _score_grams(per_fold, total, lambda e: self._cross.lag_product(x, e), self.folds.rows, p, terms)
 
-    def score_subsets(self, columns: np.ndarray, subsets: Sequence[Sequence[int]], heldout: bool = True) -> list[Score]:
+    def score_subsets(
+        self, columns: np.ndarray, subsets: Sequence[Sequence[int]], heldout: bool = True, support: np.ndarray | None = None
+    ) -> list[Score]:
         """:meth:`score` of ``columns[:, s]`` (not held) for every list of column positions ``s`` in
         ``subsets``, from one set of cross-products of all the columns: each subset's normal equations,
         in sample and per fold, are a slice of them (``O(n q (p + q))`` once for ``q`` columns, not per
         subset), and its lag-1 product is the pass over all the columns with the others' weights 0.
-        ``columns`` has a row per sample or the rows :meth:`scored` gives."""
+        ``columns`` has a row per sample or the rows :meth:`scored` gives; ``support``: the rows of those
+        (increasing) outside which ``columns`` are zero, if known (their products read those rows only:
+        the dead band's motion)."""
         x = self._cross.rows(np.asarray(columns, dtype=float).reshape(columns.shape[0], -1))
-        per_fold, total = self._cross.extended(x, heldout)
+        if support is not None:
+            x = np.ascontiguousarray(np.take(x, support, axis=0))
+        per_fold, total = self._cross.extended(x, heldout, support)
         assert self.nuisance is not None and self.folds is not None
         p, q = self.nuisance.shape[1], x.shape[1]
         terms = self._own_share_basis(p)
@@ -459,7 +501,7 @@ class DetectionData:
             def lag(e: np.ndarray, at: np.ndarray = at) -> float:
                 whole = np.zeros(p + q + 1)
                 whole[:p], whole[at], whole[-1] = e[:p], e[p:-1], e[-1]
-                return self._cross.lag_product(x, whole)
+                return self._cross.lag_product(x, whole, support)
 
             out.append(_score_grams(per_fold[:, keep][:, :, keep], total[np.ix_(keep, keep)], lag, self.folds.rows, p, terms))
         return out

@@ -56,6 +56,7 @@ from ..errors import InvalidParameterError
 from ..model import BacklashParams, simulate_switching
 from ._causal import CausalWindow, velocity_deg_s
 from ._effect_base import EffectBase
+from ._normal_equations import nonzero_rows
 from ._scoring import BIC_THRESHOLD, Detection, DetectionData, best_detection
 
 #: time constants of the coast after the flank leaves the load, in sample periods (a factor of 8
@@ -277,7 +278,8 @@ class DeadBandMotion(EffectBase):
         split = every_one.n_terms - every_one.n_entry - every_one.n_rest
         ends = np.cumsum([0, split, every_one.n_entry, every_one.n_rest])
         parts = dict(zip(("coast", "entry", "creep at rest"), (range(int(a), int(b)) for a, b in pairwise(ends))))
-        scores = data.score_subsets(every, [[j for n in names for j in parts[n]] for names in VARIANTS])  # one set of cross-products
+        # one set of cross-products, over the rows where the load coasts, enters or creeps only
+        scores = data.score_subsets(every, [[j for n in names for j in parts[n]] for names in VARIANTS], support=nonzero_rows(every))
         for names, s in zip(VARIANTS, scores):
             exit_taus = taus if "coast" in names else ()
             effect = cls(

@@ -35,7 +35,7 @@ from numba import njit
 from scipy.optimize import least_squares
 
 from ..model import BacklashParams, backlash_sensitivity, backlash_sensitivity_spans, simulate_backlash, simulate_switching
-from ._normal_equations import Projector, left_sum_of_squares
+from ._normal_equations import Projector, left_sum_of_squares, nonzero_rows
 from ._scoring import effective_samples
 
 #: an effect may move the play only if the play's standard error stays below this share of it
@@ -182,7 +182,7 @@ class Support:
     @classmethod
     def of(cls, columns: np.ndarray, share: float = SPARSE_SHARE) -> Support | None:
         """The support of ``columns`` (``(n, k)``), or None when it is more than ``share`` of the rows."""
-        rows = np.flatnonzero(np.any(columns != 0, axis=1))
+        rows = nonzero_rows(columns)
         if rows.size > share * columns.shape[0]:
             return None
         values = np.take(columns, rows, axis=0)
