@@ -170,7 +170,8 @@ def test_columns_zero_on_most_rows_score_on_their_support_as_on_every_row(screen
     x = np.zeros((m, 3))
     rows = np.sort(rng.choice(m, m // 30, replace=False))
     x[rows] = rng.normal(0, 1, (rows.size, 3)) + r[folds.row_index[rows] if screened else rows, None]
-    assert np.array_equal(nonzero_rows(x), rows)
+    found = nonzero_rows(x)
+    assert found is not None and np.array_equal(found, rows)
     subsets = [[0], [1, 2], [0, 1, 2]]
     for dense, sparse in zip(data.score_subsets(x, subsets), data.score_subsets(x, subsets, support=rows)):
         for name in ("rss_before", "rss_after", "n_eff", "delta_bic", "own_share", "heldout_gain"):
@@ -184,6 +185,8 @@ def test_nonzero_rows_are_the_rows_with_a_value_other_than_zero() -> None:
     c[[3, 7, 40], [0, 2, 1]] = [1.0, -2.0, np.nan]
     c[9, 1] = -0.0
     assert nonzero_rows(c).tolist() == [3, 7, 40]
+    assert nonzero_rows(c, most=3).tolist() == [3, 7, 40]
+    assert nonzero_rows(c, most=2) is None  # more than two: the pass stops at the third
     assert nonzero_rows(np.zeros((0, 2))).size == 0
 
 

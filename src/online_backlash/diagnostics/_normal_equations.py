@@ -117,19 +117,26 @@ class Projector:
         return ata - b.T @ b
 
 
-def nonzero_rows(columns: np.ndarray) -> np.ndarray:
-    """The rows of ``columns`` (``(n, k)``) with a value other than zero, increasing (one compiled pass)."""
+def nonzero_rows(columns: np.ndarray, most: int | None = None) -> np.ndarray | None:
+    """The rows of ``columns`` (``(n, k)``) with a value other than zero, increasing (one compiled pass);
+    None as soon as there are more than ``most`` of them (the pass stops there: dense columns cost
+    little)."""
     c = np.asarray(columns, dtype=float)
-    keep = np.empty(c.shape[0], dtype=np.bool_)
-    _any_nonzero(c, keep)
-    return np.flatnonzero(keep)
+    rows = np.empty(c.shape[0], dtype=np.int64)
+    found = _nonzero_rows(c, rows, c.shape[0] if most is None else int(most))
+    return None if found < 0 else rows[:found].copy()
 
 
 @njit(cache=True)
-def _any_nonzero(c, keep):  # pragma: no cover - compiled
+def _nonzero_rows(c, rows, most):  # pragma: no cover - compiled
+    """Writes the rows of ``c`` with a nonzero value into ``rows``; their count, or -1 past ``most``."""
+    found = 0
     for t in range(c.shape[0]):
-        keep[t] = False
         for j in range(c.shape[1]):
             if c[t, j] != 0.0:
-                keep[t] = True
+                if found == most:
+                    return -1
+                rows[found] = t
+                found += 1
                 break
+    return found

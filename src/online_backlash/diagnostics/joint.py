@@ -182,8 +182,8 @@ class Support:
     @classmethod
     def of(cls, columns: np.ndarray, share: float = SPARSE_SHARE) -> Support | None:
         """The support of ``columns`` (``(n, k)``), or None when it is more than ``share`` of the rows."""
-        rows = nonzero_rows(columns)
-        if rows.size > share * columns.shape[0]:
+        rows = nonzero_rows(columns, int(share * columns.shape[0]))
+        if rows is None:
             return None
         values = np.take(columns, rows, axis=0)
         values.flags.writeable = False
