@@ -14,6 +14,7 @@ Units: those of the term's columns (degrees of load angle per unit coefficient).
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
@@ -54,6 +55,14 @@ class TermColumns:
         cols.flags.writeable = False
         self._built[id(effect)] = (effect, cols)
         return cols
+
+    def keep_only(self, effects: Sequence[Any]) -> None:
+        """Forget the columns (and supports) of every effect but ``effects`` (the terms taken: the
+        candidates' and the walked settings' columns are not needed again, and on a long record they
+        add up to gigabytes)."""
+        kept = {id(e): e for e in effects}
+        self._built = {k: v for k, v in self._built.items() if kept.get(k) is v[0]}
+        self._supports = {k: v for k, v in self._supports.items() if k in self._built}
 
     def support(self, effect: Any) -> Support | None:
         """The :class:`.joint.Support` of the effect's columns (:meth:`get`): the samples outside which

@@ -537,6 +537,7 @@ def diagnose(
             )
         )
         current = fit
+        built.keep_only([s.effect for s in steps])  # the candidates' columns are not needed again
     for step in steps:
         if step.retuned:
             _rescored(step, u, t, q, uc, float(ratio), period, folds, built, cache)
