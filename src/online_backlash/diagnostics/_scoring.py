@@ -195,56 +195,34 @@ class _Grams:
             bounds = np.array([[0, self.z.shape[0]]], dtype=np.int64)
         if support is None:
             return float(_lag_product_within(self.z, ez, x, ex, bounds))
-        return float(_lag_product_sparse_within(self.z, ez, x, np.ascontiguousarray(support, dtype=np.int64), ex, bounds))
+        return float(_lag_product_within(self.z, ez, x, ex, bounds, np.ascontiguousarray(support, dtype=np.int64)))
 
 
 @njit(cache=True)
-def _lag_product(z, ez, x, ex, start, stop):  # pragma: no cover - compiled
-    """``sum_t w(t) w(t-1)`` for ``w = z @ ez + x @ ex`` over the rows ``start .. stop - 1``, in one pass
-    without forming ``w``."""
-    total = 0.0
-    prev = 0.0
-    for t in range(start, stop):
-        w = 0.0
-        for j in range(z.shape[1]):
-            w += z[t, j] * ez[j]
-        for j in range(x.shape[1]):
-            w += x[t, j] * ex[j]
-        if t > start:
-            total += w * prev
-        prev = w
-    return total
-
-
-@njit(cache=True)
-def _lag_product_within(z, ez, x, ex, bounds):  # pragma: no cover - compiled
-    """:func:`_lag_product` within each run of rows ``bounds[k, 0] .. bounds[k, 1] - 1``, summed in their
-    order (one call, not one per run: a screen has thousands)."""
-    total = 0.0
-    for k in range(bounds.shape[0]):
-        total += _lag_product(z, ez, x, ex, bounds[k, 0], bounds[k, 1])
-    return total
-
-
-@njit(cache=True)
-def _lag_product_sparse_within(z, ez, xs, rows, ex, bounds):  # pragma: no cover - compiled
-    """:func:`_lag_product_within` for ``x`` zero outside ``rows`` (increasing), given as ``xs`` (its
-    rows there): the same sums in the same order, ``x``'s part added where it is not zero."""
+def _lag_product_within(z, ez, x, ex, bounds, rows=None):  # pragma: no cover - compiled
+    """``sum_t w(t) w(t-1)`` for ``w = z @ ez + x @ ex`` within each run of rows ``bounds[k, 0] ..
+    bounds[k, 1] - 1``, summed per run and then in their order (one call, not one per run: a screen
+    has thousands), without forming ``w``. With ``rows`` (increasing), ``x`` is zero outside them and
+    holds its rows there only: its part is added on those rows (the same sums, bit for bit)."""
     total = 0.0
     at = 0
     for k in range(bounds.shape[0]):
         start, stop = bounds[k, 0], bounds[k, 1]
-        while at < rows.size and rows[at] < start:
-            at += 1
+        if rows is not None:
+            while at < rows.size and rows[at] < start:
+                at += 1
         within = 0.0
         prev = 0.0
         for t in range(start, stop):
             w = 0.0
             for j in range(z.shape[1]):
                 w += z[t, j] * ez[j]
-            if at < rows.size and rows[at] == t:
-                for j in range(xs.shape[1]):
-                    w += xs[at, j] * ex[j]
+            if rows is None:
+                for j in range(x.shape[1]):
+                    w += x[t, j] * ex[j]
+            elif at < rows.size and rows[at] == t:
+                for j in range(x.shape[1]):
+                    w += x[at, j] * ex[j]
                 at += 1
             if t > start:
                 within += w * prev
