@@ -52,8 +52,7 @@ class TermColumns:
         if hit is not None and hit[0] is effect:
             return hit[1]
         cols = np.asarray(effect.clone().terms(self.u_deg, self.time_s, self.torque_Nm), dtype=float)
-        cols.flags.writeable = False
-        self._built[id(effect)] = (effect, cols)
+        self.put(effect, cols)
         return cols
 
     def keep_only(self, effects: Sequence[Any]) -> None:

@@ -140,8 +140,14 @@ def play_sensitivity(uc: np.ndarray, params: BacklashParams) -> tuple[np.ndarray
     what the four parameters can do without a near-duplicate.
     """
     x, dx = _simulate(uc, np.array([params.m_left, params.c_left, params.m_right, params.c_right]))
-    s_ml, s_cl, s_mr, s_cr = dx.T
-    return 0.5 * (s_cl + s_cr), np.column_stack((np.ones_like(uc), s_ml, s_mr)), x
+    directions = _backlash_directions(dx)
+    return directions[:, 3], np.ascontiguousarray(directions[:, :3]), x
+
+
+def _backlash_directions(dx: np.ndarray) -> np.ndarray:
+    """``[1, dx/dmL, dx/dmR, dx/d(play)]`` (``n x 4``) from ``dx = d x / d [mL, cL, mR, cR]``: the
+    directions of :func:`play_sensitivity`, the play's last (both widths grown by half)."""
+    return np.column_stack((np.ones(dx.shape[0]), dx[:, 0], dx[:, 2], 0.5 * (dx[:, 1] + dx[:, 3])))
 
 
 def fit_joint(
@@ -437,8 +443,7 @@ def _fit_fixed_columns(
     coef = proj.coef(yc_fitted - (x if rows is None else x[rows]))
     left = yc - x - times(coef) if fitted.shape[1] else yc - x
     left_fitted = left if rows is None else left[rows]
-    # the play's direction dx/d(play) and the other backlash directions (as play_sensitivity)
-    basis = np.column_stack((np.ones(n), dx_fitted[:, 0], dx_fitted[:, 2], 0.5 * (dx_fitted[:, 1] + dx_fitted[:, 3])))
+    basis = _backlash_directions(dx_fitted)  # the other backlash directions, the play's last
     g2 = float(np.dot(basis[:, 3], basis[:, 3]))
     g_left_base = left_sum_of_squares(basis.T @ basis)
     g_left_joint = left_sum_of_squares(proj.left_gram(basis))  # beyond the columns too
