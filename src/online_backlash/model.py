@@ -119,6 +119,24 @@ def switching_at(u, x_prev, mL, cL, mR, cR):  # pragma: no cover - compiled
     return (1.0 if u - (x_prev / mL - cL) <= 0 else 0.0), (1.0 if (x_prev / mR + cR) - u <= 0 else 0.0)
 
 
+@njit(inline="always")
+def switching_step(u, last, prev, a, b, mL, cL, mR, cR):  # pragma: no cover - compiled
+    """One sample of :func:`simulate_switching`: ``(x(t), f1(t), f2(t))`` from the input ``u(t)``, the one
+    before it ``last``, ``prev = x(t-1)`` and ``a, b = f1(t-1), f2(t-1)`` (compiled into the loops that
+    call it)."""
+    if u != last:  # an input that has not moved keeps the switching functions (see simulate_switching)
+        a, b = switching_at(u, prev, mL, cL, mR, cR)
+    # eq. (7); a and b are never both 1 while the band is open (zL < zR, see simulate_switching).
+    # Written out per case (the terms with a factor 0 drop out exactly, up to the sign of a zero)
+    if a and not b:
+        prev = mL * u + mL * cL
+    elif b and not a:
+        prev = mR * u - mR * cR
+    elif a and b:
+        prev = mL * u + mL * cL + mR * u - mR * cR
+    return prev, a, b
+
+
 @njit(cache=True)
 def _switching_loop(u, mL, cL, mR, cR, x0, u_prev, a_prev, b_prev):  # pragma: no cover - compiled
     n = u.shape[0]
@@ -128,16 +146,7 @@ def _switching_loop(u, mL, cL, mR, cR, x0, u_prev, a_prev, b_prev):  # pragma: n
     prev = x0
     last, a, b = u_prev, a_prev, b_prev
     for t in range(n):
-        if u[t] != last:  # an input that has not moved keeps the switching functions (see simulate_switching)
-            a, b = switching_at(u[t], prev, mL, cL, mR, cR)
-        # eq. (7); a and b are never both 1 while the band is open (zL < zR, see simulate_switching).
-        # Written out per case (the terms with a factor 0 drop out exactly, up to the sign of a zero)
-        if a and not b:
-            prev = mL * u[t] + mL * cL
-        elif b and not a:
-            prev = mR * u[t] - mR * cR
-        elif a and b:
-            prev = mL * u[t] + mL * cL + mR * u[t] - mR * cR
+        prev, a, b = switching_step(u[t], last, prev, a, b, mL, cL, mR, cR)
         x[t] = prev
         f1[t] = a
         f2[t] = b
@@ -242,6 +251,18 @@ def _sensitivity_loop(u, mL, cL, mR, cR, x0, x, dx):  # pragma: no cover - compi
     _sensitivity_spans(u, mL, cL, mR, cR, one, one, np.full(1, u.shape[0], dtype=np.int64), np.full(1, x0), x, dx)
 
 
+@njit(inline="always")
+def sensitivity_step(u, prev, mL, cL, mR, cR, d0, d1, d2, d3):  # pragma: no cover - compiled
+    """One sample of eq. (1)-(3) and its derivatives: ``(x(t), d x(t) / d [mL, cL, mR, cR])`` from the
+    input ``u(t)``, ``prev = x(t-1)`` and ``d0 .. d3``, the derivatives of ``x(t-1)`` (compiled into the
+    loops that call it)."""
+    if u <= prev / mL - cL:  # eq. (1)-(2), left line: x = mL (u + cL)
+        return mL * u + mL * cL, u + cL, mL, 0.0, 0.0
+    if u >= prev / mR + cR:  # eq. (1), (3), right line: x = mR (u - cR)
+        return mR * u - mR * cR, 0.0, 0.0, u - cR, -mR
+    return prev, d0, d1, d2, d3  # inside the band x(t) = x(t-1): the derivatives carry over
+
+
 @njit(cache=True, nogil=True)
 def _sensitivity_spans(u, mL, cL, mR, cR, starts, firsts, stops, x0s, x, dx):  # pragma: no cover - compiled
     """Eq. (1)-(3) and the derivatives run from ``starts[k]`` (output ``x0s[k]`` before it, derivatives
@@ -252,13 +273,7 @@ def _sensitivity_spans(u, mL, cL, mR, cR, starts, firsts, stops, x0s, x, dx):  #
         prev = x0s[k]
         d0 = d1 = d2 = d3 = 0.0  # d x(t-1) / d [mL, cL, mR, cR]
         for t in range(starts[k], stops[k]):
-            if u[t] <= prev / mL - cL:  # eq. (1)-(2), left line: x = mL (u + cL)
-                prev = mL * u[t] + mL * cL
-                d0, d1, d2, d3 = u[t] + cL, mL, 0.0, 0.0
-            elif u[t] >= prev / mR + cR:  # eq. (1), (3), right line: x = mR (u - cR)
-                prev = mR * u[t] - mR * cR
-                d0, d1, d2, d3 = 0.0, 0.0, u[t] - cR, -mR
-            # inside the band x(t) = x(t-1): the derivatives carry over
+            prev, d0, d1, d2, d3 = sensitivity_step(u[t], prev, mL, cL, mR, cR, d0, d1, d2, d3)
             if t >= firsts[k]:
                 x[at] = prev
                 dx[at, 0] = d0

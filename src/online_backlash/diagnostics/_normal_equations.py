@@ -101,20 +101,27 @@ class Projector:
         self.factor = pinv_factor(self.columns.gram()) if self.columns.shape[1] else np.empty((0, 0))
 
     def coef(self, v: np.ndarray) -> np.ndarray:
-        if not self.columns.shape[1]:
-            return np.empty(0)
-        return self.factor @ (self.factor.T @ self.columns.t_dot(v))
+        return self.coef_of(self.columns.t_dot(v)) if self.columns.shape[1] else np.empty(0)
+
+    def coef_of(self, cross: np.ndarray) -> np.ndarray:
+        """The coefficients of ``v`` on ``C`` from ``cross = C^T v``."""
+        return self.factor @ (self.factor.T @ cross)
 
     def leave(self, v: np.ndarray) -> np.ndarray:
         return v - self.columns.dot(self.coef(v)) if self.columns.shape[1] else v
 
     def left_gram(self, a: np.ndarray, cross: np.ndarray | None = None) -> np.ndarray:
         """``(P a)^T (P a)`` with ``P`` the projection off ``C``; ``cross`` is ``C^T a`` if known."""
-        ata = a.T @ a
         if not self.columns.shape[1]:
-            return ata
-        b = self.factor.T @ (self.columns.t_dot(a) if cross is None else cross)
-        return ata - b.T @ b
+            return a.T @ a
+        return self.left_of(a.T @ a, self.columns.t_dot(a) if cross is None else cross)
+
+    def left_of(self, gram: np.ndarray, cross: np.ndarray) -> np.ndarray:
+        """``(P a)^T (P a)`` from ``gram = a^T a`` and ``cross = C^T a`` (``a`` itself not needed)."""
+        if not self.columns.shape[1]:
+            return gram
+        b = self.factor.T @ cross
+        return gram - b.T @ b
 
 
 def nonzero_rows(columns: np.ndarray, most: int | None = None) -> np.ndarray | None:

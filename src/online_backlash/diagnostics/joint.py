@@ -29,12 +29,13 @@ separable: its size sets the coefficient, which then fixes its switching part.)
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 from numba import njit
 from scipy.optimize import least_squares
 
-from ..model import BacklashParams, backlash_sensitivity, backlash_sensitivity_spans, simulate_backlash, simulate_switching
+from ..model import BacklashParams, backlash_sensitivity, sensitivity_step, simulate_backlash, switching_step
 from ._normal_equations import Projector, left_sum_of_squares, nonzero_rows
 from ._scoring import effective_samples
 
@@ -99,10 +100,80 @@ def _spans(rows: np.ndarray, switched: tuple[np.ndarray, np.ndarray]) -> tuple[n
     return starts, firsts, stops, x0s
 
 
+@njit(cache=True, nogil=True)
+def _sensitivity_gram(u, y, mL, cL, mR, cR, starts, firsts, stops, x0s, a):  # pragma: no cover - compiled
+    """:func:`~online_backlash.model.backlash_sensitivity_spans` (eq. 1-3 and ``dx = d x / d [mL, cL,
+    mR, cR]``) with, at the rows it returns (``y``: a value per row), ``a = [dx, y - x]`` written and
+    the Gram matrix of ``[1, dx, y - x]`` (6 x 6) returned, from one pass: its sums are kept in
+    registers as the rows are formed (a second pass over ``a``, or a product of it with itself, cost
+    more than the simulation)."""
+    at = 0
+    count = 0.0
+    g01 = g02 = g03 = g04 = g05 = g11 = g12 = g13 = g14 = g15 = g22 = g23 = g24 = g25 = g33 = g34 = g35 = g44 = g45 = g55 = 0.0
+    for k in range(starts.size):
+        prev = x0s[k]
+        d0 = d1 = d2 = d3 = 0.0
+        for t in range(starts[k], stops[k]):
+            prev, d0, d1, d2, d3 = sensitivity_step(u[t], prev, mL, cL, mR, cR, d0, d1, d2, d3)
+            if t >= firsts[k]:
+                v1, v2, v3, v4, v5 = d0, d1, d2, d3, y[at] - prev
+                a[at, 0], a[at, 1], a[at, 2], a[at, 3], a[at, 4] = v1, v2, v3, v4, v5
+                count += 1.0
+                g01 += v1
+                g02 += v2
+                g03 += v3
+                g04 += v4
+                g05 += v5
+                g11 += v1 * v1
+                g12 += v1 * v2
+                g13 += v1 * v3
+                g14 += v1 * v4
+                g15 += v1 * v5
+                g22 += v2 * v2
+                g23 += v2 * v3
+                g24 += v2 * v4
+                g25 += v2 * v5
+                g33 += v3 * v3
+                g34 += v3 * v4
+                g35 += v3 * v5
+                g44 += v4 * v4
+                g45 += v4 * v5
+                g55 += v5 * v5
+                at += 1
+    return np.array(
+        (
+            (count, g01, g02, g03, g04, g05),
+            (g01, g11, g12, g13, g14, g15),
+            (g02, g12, g22, g23, g24, g25),
+            (g03, g13, g23, g33, g34, g35),
+            (g04, g14, g24, g34, g44, g45),
+            (g05, g15, g25, g35, g45, g55),
+        )
+    )
+
+
 def _switched(uc: np.ndarray, params: BacklashParams) -> tuple[np.ndarray, np.ndarray]:
-    """The output from rest at the origin (eq. 4-7) and :func:`engaged_index`, from one simulation."""
-    x, f1, f2 = simulate_switching(uc, params, 0.0)
-    return x, np.maximum.accumulate(np.where((f1 + f2) > 0, np.arange(uc.size), 0))
+    """The output from rest at the origin (eq. 4-7, :func:`~online_backlash.model.simulate_switching`)
+    and :func:`engaged_index`, from one simulation."""
+    u = np.ascontiguousarray(uc, dtype=float)
+    x, index = np.empty(u.size), np.empty(u.size, dtype=np.int64)
+    _switched_loop(u, params.m_left, params.c_left, params.m_right, params.c_right, x, index)
+    return x, index
+
+
+@njit(cache=True, nogil=True)
+def _switched_loop(u, mL, cL, mR, cR, x, index):  # pragma: no cover - compiled
+    """:func:`~online_backlash.model.simulate_switching` from rest at the origin into ``x``, and into
+    ``index`` the last sample up to each with ``f1 + f2 > 0`` (0 before the first)."""
+    prev, last, a, b = 0.0, np.nan, 0.0, 0.0
+    engaged = 0
+    for t in range(u.size):
+        prev, a, b = switching_step(u[t], last, prev, a, b, mL, cL, mR, cR)
+        last = u[t]
+        if a + b > 0:
+            engaged = t
+        x[t] = prev
+        index[t] = engaged
 
 
 def engaged_index(uc: np.ndarray, params: BacklashParams) -> np.ndarray:
@@ -139,15 +210,30 @@ def play_sensitivity(uc: np.ndarray, params: BacklashParams) -> tuple[np.ndarray
     constant offset of ``x``; the constant stands for that direction, so the four columns span
     what the four parameters can do without a near-duplicate.
     """
-    x, dx = _simulate(uc, np.array([params.m_left, params.c_left, params.m_right, params.c_right]))
-    directions = _backlash_directions(dx)
-    return directions[:, 3], np.ascontiguousarray(directions[:, :3]), x
+    u = np.ascontiguousarray(uc, dtype=float)
+    g, others, x = np.empty(u.size), np.empty((u.size, 3)), np.empty(u.size)
+    _directions_loop(u, params.m_left, params.c_left, params.m_right, params.c_right, g, others, x)
+    return g, others, x
 
 
-def _backlash_directions(dx: np.ndarray) -> np.ndarray:
-    """``[1, dx/dmL, dx/dmR, dx/d(play)]`` (``n x 4``) from ``dx = d x / d [mL, cL, mR, cR]``: the
-    directions of :func:`play_sensitivity`, the play's last (both widths grown by half)."""
-    return np.column_stack((np.ones(dx.shape[0]), dx[:, 0], dx[:, 2], 0.5 * (dx[:, 1] + dx[:, 3])))
+@njit(cache=True, nogil=True)
+def _directions_loop(u, mL, cL, mR, cR, g, others, x):  # pragma: no cover - compiled
+    """:func:`play_sensitivity` from rest at the origin, into ``g``, ``others`` and ``x``, written as the
+    model is simulated (the combinations of ``dx/d[mL, cL, mR, cR]`` of :data:`BACKLASH_DIRECTIONS`)."""
+    prev = d0 = d1 = d2 = d3 = 0.0
+    for t in range(u.size):
+        prev, d0, d1, d2, d3 = sensitivity_step(u[t], prev, mL, cL, mR, cR, d0, d1, d2, d3)
+        x[t] = prev
+        others[t, 0], others[t, 1], others[t, 2] = 1.0, d0, d2
+        g[t] = 0.5 * (d1 + d3)
+
+
+#: The backlash's own directions ``[1, dx/dmL, dx/dmR, dx/d(play)]`` of :func:`play_sensitivity` (the
+#: play's last: both widths grown by half), as combinations of the columns ``[1, dx/dmL, dx/dcL,
+#: dx/dmR, dx/dcR, y - x]`` of :func:`_sensitivity_gram`'s Gram matrix (one column per direction)
+BACKLASH_DIRECTIONS = np.array(
+    [[1.0, 0, 0, 0], [0, 1, 0, 0], [0, 0, 0, 0.5], [0, 0, 1, 0], [0, 0, 0, 0.5], [0, 0, 0, 0]]
+)
 
 
 def fit_joint(
@@ -212,6 +298,13 @@ class ColumnParts:
     def _support(self, i: int) -> Support | None:
         return self.supports[i] if self.supports else None
 
+    @cached_property
+    def _gated(self) -> tuple[np.ndarray | None, ...]:
+        """Every part's columns with its gate applied, formed once (the products of a fit read them at
+        every step: an ``n x k`` product with the gate each time cost more than the product itself);
+        None for a part read on its support."""
+        return tuple(None if self._support(i) is not None else c if gate is None else c * gate[:, None] for i, (c, gate) in enumerate(self.parts))
+
     def _at_rows(self, i: int, rows: np.ndarray) -> np.ndarray:
         """Part ``i``'s columns (gated) at ``rows``."""
         c, gate = self.parts[i]
@@ -257,7 +350,7 @@ class ColumnParts:
     def gram(self) -> np.ndarray:
         """``B^T B`` of the block ``B``, part by part (a gated part's gated copy formed once; a pair
         with a support over the rows of the smaller one)."""
-        blocks = [None if self._support(i) is not None else c if gate is None else c * gate[:, None] for i, (c, gate) in enumerate(self.parts)]
+        blocks = self._gated
         ends = np.cumsum([0, *(c.shape[1] for c, _ in self.parts)])
         out = np.empty((ends[-1], ends[-1]))
         for i in range(len(self.parts)):
@@ -276,12 +369,12 @@ class ColumnParts:
         """``B^T a`` of the block ``B`` for ``a`` with a row per sample, part by part (a part with a
         support over its rows)."""
         out = []
-        for i, (c, gate) in enumerate(self.parts):
-            mine = self._support(i)
-            if mine is not None:
-                out.append(self._at_rows(i, mine.rows).T @ np.take(a, mine.rows, axis=0))
+        for i, gated in enumerate(self._gated):
+            if gated is None:
+                rows = self.supports[i].rows  # type: ignore[union-attr]
+                out.append(self._at_rows(i, rows).T @ np.take(a, rows, axis=0))
             else:
-                out.append(c.T @ (a if gate is None else a * (gate[:, None] if a.ndim == 2 else gate)))
+                out.append(gated.T @ a)
         return np.concatenate(out)
 
     def held_at(self, held: np.ndarray, index: np.ndarray) -> ColumnParts:
@@ -305,15 +398,14 @@ class ColumnParts:
         """The block times ``coef``, an ``n``-vector (a part with a support written at its rows only)."""
         out = np.zeros(self.shape[0])
         j = 0
-        for i, (c, gate) in enumerate(self.parts):
-            k = c.shape[1]
+        for i, gated in enumerate(self._gated):
+            k = self.parts[i][0].shape[1]
             if np.any(coef[j : j + k]):
-                mine = self._support(i)
-                if mine is not None:
-                    out[mine.rows] += self._at_rows(i, mine.rows) @ coef[j : j + k]
+                if gated is None:
+                    rows = self.supports[i].rows  # type: ignore[union-attr]
+                    out[rows] += self._at_rows(i, rows) @ coef[j : j + k]
                 else:
-                    v = c @ coef[j : j + k]
-                    out += v if gate is None else v * gate
+                    out += gated @ coef[j : j + k]
             j += k
         return out
 
@@ -376,8 +468,11 @@ def _fit_fixed_columns(
     ``r = P (yc - x(p))`` (``P`` projects off ``columns``) with Jacobian ``-P dx/dp``. It uses them
     only through ``J^T J``, ``J^T r`` and ``|r|^2``, so each point is handed to it as a factor
     ``R`` of ``k + 1`` rows with ``R^T R`` the Gram matrix of ``P [dx/dp, yc - x]`` (``k`` searched
-    parameters): the same steps and the same stopping as on all ``n`` rows, at ``O(n (q + k) k)``
-    per point for ``q`` columns, with no ``n``-row SVD. (trf's full-rank test of ``J`` scales with
+    parameters): the same steps and the same stopping as on all ``n`` rows, at ``O(n q k)``
+    per point for ``q`` columns, with no ``n``-row SVD. The Gram matrix of ``[1, dx/dp, yc - x]`` is
+    summed as the model is simulated (:func:`_sensitivity_gram`); the play guard's directions
+    (:data:`BACKLASH_DIRECTIONS`) and the coefficients at the end come from it and from the columns'
+    products with those rows. (trf's full-rank test of ``J`` scales with
     the row count: the two differ only for a Jacobian singular to about 1e-10 of its largest value.)
     """
     fitted: np.ndarray | ColumnParts
@@ -390,11 +485,17 @@ def _fit_fixed_columns(
 
     yc_fitted = yc if rows is None else yc[rows]
     proj = Projector(fitted)
-    n = yc_fitted.size
-    spans = None if rows is None else _spans(rows, _switched(uc, start) if switched is None else switched)
+    n, q = yc_fitted.size, fitted.shape[1]
+    u = np.ascontiguousarray(uc, dtype=float)
+    if rows is None:  # one span: the whole record from rest at the origin
+        spans = (np.zeros(1, np.int64), np.zeros(1, np.int64), np.full(1, u.size, np.int64), np.zeros(1))
+    else:
+        spans = _spans(rows, _switched(uc, start) if switched is None else switched)
     # p = dp_dv @ v (+ the held play on cR)
     dp_dv = np.array([[1.0, 0, 0], [0, 1, 0], [0, 0, 1], [0, -1, 0]]) if hold_play is not None else np.eye(4)
     k = dp_dv.shape[1]
+    to_search = np.zeros((6, k + 1))  # [1, dx/dp, yc - x] -> [dx/dv, yc - x]
+    to_search[1:5, :k], to_search[5, k] = dp_dv, 1.0
 
     def unpack(v: np.ndarray) -> np.ndarray:
         return dp_dv @ v + (np.array([0, 0, 0, hold_play]) if hold_play is not None else 0.0)
@@ -402,8 +503,16 @@ def _fit_fixed_columns(
     def valid(p: np.ndarray) -> bool:
         return p[0] * p[2] > 0 and p[1] + p[3] >= 0
 
+    a = np.empty((n, 5))  # [dx/dp, yc - x] at the rows fitted, rewritten at every point (not allocated anew)
+
+    def point(p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The Gram matrix of ``[1, dx/dp, yc - x]`` at ``p`` and the columns' products ``C^T [dx/dp, yc - x]``
+        (``a`` rewritten)."""
+        starts, firsts, stops, x0s = spans
+        gram = _sensitivity_gram(u, yc_fitted, float(p[0]), float(p[1]), float(p[2]), float(p[3]), starts, firsts, stops, x0s, a)
+        return gram, proj.columns.t_dot(a) if q else np.empty((0, 5))
+
     last: dict[bytes, tuple[np.ndarray, np.ndarray]] = {}
-    a = np.empty((n, k + 1))  # [P's input: dx/dv, yc - x], rewritten at every point (not allocated anew)
 
     def factor(v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``(r, J)`` of ``k + 1`` rows with the ``J^T J``, ``J^T r`` and ``|r|^2`` of the full problem."""
@@ -415,11 +524,9 @@ def _fit_fixed_columns(
                 # the same cost as n rows of 1e6
                 last[key] = (np.full(k + 1, 1e6 * np.sqrt(n / (k + 1))), np.zeros((k + 1, k)))
             else:
-                x, dx = _simulate(uc, p) if spans is None else backlash_sensitivity_spans(uc, BacklashParams(*p), *spans)
-                a[:, :k] = dx if hold_play is None else dx @ dp_dv
-                np.subtract(yc_fitted, x, out=a[:, k])
-                w, vec = np.linalg.eigh(proj.left_gram(a))
-                r = np.sqrt(np.maximum(w, 0.0))[:, None] * vec.T  # r^T r = the Gram of P a
+                gram, cross = point(p)
+                w, vec = np.linalg.eigh(proj.left_of(to_search.T @ gram @ to_search, cross @ to_search[1:]))
+                r = np.sqrt(np.maximum(w, 0.0))[:, None] * vec.T  # r^T r = the Gram of P [dx/dv, yc - x]
                 last[key] = (r[:, k], -r[:, :k])
         return last[key]
 
@@ -436,17 +543,23 @@ def _fit_fixed_columns(
     v = result.x if np.sum(result.fun**2) < cost0 else v0
     p = unpack(v)
     params = BacklashParams(*p)
-    if spans is None:
-        x, dx_fitted = _simulate(uc, p)
-    else:  # the output over the whole record, its derivatives at the rows fitted only (the runs the search simulated)
-        x, dx_fitted = simulate_backlash(uc, params, 0.0), backlash_sensitivity_spans(uc, params, *spans)[1]
-    coef = proj.coef(yc_fitted - (x if rows is None else x[rows]))
-    left = yc - x - times(coef) if fitted.shape[1] else yc - x
+    gram, cross = point(p)  # a: [dx/dp, yc - x] at the fit
+    coef = proj.coef_of(cross[:, 4]) if q else np.empty(0)
+    if rows is None:
+        left = a[:, 4] - times(coef) if q else a[:, 4].copy()
+    else:  # the output over the whole record (the search simulated the runs of the rows fitted)
+        left = yc - simulate_backlash(uc, params, 0.0)
+        left = left - times(coef) if q else left
     left_fitted = left if rows is None else left[rows]
-    basis = _backlash_directions(dx_fitted)  # the other backlash directions, the play's last
-    g2 = float(np.dot(basis[:, 3], basis[:, 3]))
-    g_left_base = left_sum_of_squares(basis.T @ basis)
-    g_left_joint = left_sum_of_squares(proj.left_gram(basis))  # beyond the columns too
+    # the play guard: the play's direction beyond the other backlash directions, and beyond the columns too
+    basis_gram = BACKLASH_DIRECTIONS.T @ gram @ BACKLASH_DIRECTIONS
+    g2 = float(basis_gram[3, 3])
+    g_left_base = left_sum_of_squares(basis_gram)
+    if q:
+        basis_cross = np.column_stack((proj.columns.t_dot(np.ones(n)), cross[:, :4])) @ BACKLASH_DIRECTIONS[:5]
+        g_left_joint = left_sum_of_squares(proj.left_of(basis_gram, basis_cross))
+    else:
+        g_left_joint = g_left_base
     inflation = (g_left_base / g2) / max(g_left_joint / g2, 1e-12)
     sigma2 = float(np.dot(left_fitted, left_fitted)) / effective_samples(left_fitted)
     play_std = float(np.sqrt(sigma2 / max(g_left_joint, 1e-300)))
