@@ -12,9 +12,11 @@ from online_backlash.diagnostics._normal_equations import nonzero_rows
 from online_backlash.diagnostics._record_cache import RecordCache
 from online_backlash.diagnostics._scoring import DetectionData
 from online_backlash.diagnostics._speed import cardinal_splines, held_spline_columns, record_speed_knots, record_velocity, speed_knots, zero_knot
+from online_backlash.diagnostics._term_columns import TermColumns
 from online_backlash.diagnostics.dead_band import ENTRY_KNOTS, EXIT_TIME_CONSTANTS, DeadBandMotion, _at_period
 from online_backlash.diagnostics.effects import Drift
 from online_backlash.diagnostics.generic import VelocityFunction
+from online_backlash.diagnostics.joint import Support
 
 
 def _record(n: int = 4000, seed: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -213,6 +215,27 @@ def test_dead_band_columns_at_some_rows_are_the_whole_records_there(torque: bool
     assert np.count_nonzero(got) > 500  # the rows cross dead bands, engagements and rests
     np.testing.assert_array_equal(got, whole[rows])
     np.testing.assert_array_equal(effect.columns_at(u, t, q, None), whole)
+    # the rows with a value other than zero, noted by the pass: what a scan of the columns finds
+    for at in (rows, None):
+        columns, nonzero = effect.columns_and_support_at(u, t, q, at)
+        assert np.array_equal(nonzero, nonzero_rows(columns)) and 0 < nonzero.size < columns.shape[0]
+
+
+def test_dead_band_columns_kept_by_the_loop_carry_the_rows_they_are_not_zero_on() -> None:
+    """The loop's store of term columns takes the dead band's support from its pass (no scan): the same
+    :class:`Support` as a scan of the columns gives."""
+    t = np.arange(8000) * 1e-3
+    u = 60.0 * np.sin(2 * np.pi * 0.3 * t) + 3.0 * t  # four reversals: the motion in the dead band is rare
+    q = np.cos(2 * np.pi * 0.3 * t)
+    taus, knots = _at_period(EXIT_TIME_CONSTANTS, 1e-3), _at_period(ENTRY_KNOTS, 1e-3)
+    effect = DeadBandMotion(1.0, 0.5, 1.0, 0.5, taus, knots, True, ())
+    built = TermColumns(u, t, q)
+    columns = built.get(effect)
+    np.testing.assert_array_equal(columns, effect.clone().terms(u, t, q))
+    want = Support.of(np.array(columns))
+    got = built.support(effect)
+    assert want is not None and got is not None
+    assert np.array_equal(got.rows, want.rows) and np.array_equal(got.values, want.values)
 
 
 def test_velocity_function_columns_are_the_cardinal_splines_without_the_zero_knot() -> None:

@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from online_backlash.diagnostics._folds import cycle_folds
+from online_backlash.diagnostics._normal_equations import nonzero_rows
 from online_backlash.diagnostics._scoring import DetectionData, score_columns
 from online_backlash.diagnostics.dead_band import DeadBandMotion
 from online_backlash.diagnostics.effects import LIBRARY, VOCABULARY, Compliance, Delay, Drift, TransmissionError
@@ -241,6 +242,7 @@ def test_dead_band_motion_hands_on_its_columns_on_every_sample_only():
     det = DeadBandMotion.detect(data)
     assert det is not None and det.columns is not None
     np.testing.assert_array_equal(det.columns, det.effect.clone().terms(u, t, q))
+    assert det.nonzero_rows is not None and np.array_equal(det.nonzero_rows, nonzero_rows(det.columns))  # noted by the pass
     from online_backlash.rig import simulate_rig
 
     rec = simulate_rig(duration_s=85.0, reversal_s=(0.4, 1.0), seed=5)  # 49 reversal cycles: a screen of 15

@@ -542,6 +542,8 @@ class Detection:
     #: the effect's columns on every sample of the record (its ``terms`` on a fresh stream), when the
     #: detector formed them anyway (None otherwise): the loop keeps them for its fits
     columns: np.ndarray | None = field(default=None, repr=False, compare=False)
+    #: the rows of ``columns`` with a value other than zero (increasing), when the detector knows them
+    nonzero_rows: np.ndarray | None = field(default=None, repr=False, compare=False)
 
 
 def best_detection(candidates: list[Detection]) -> Detection | None:

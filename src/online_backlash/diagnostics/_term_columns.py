@@ -38,19 +38,28 @@ class TermColumns:
         # keyed by id() too, checked against the columns they were found in (kept in ``_built``)
         self._supports: dict[int, tuple[np.ndarray, Support | None]] = {}
 
-    def put(self, effect: Any, columns: np.ndarray) -> None:
+    def put(self, effect: Any, columns: np.ndarray, nonzero_rows: np.ndarray | None = None) -> None:
         """Keep ``columns`` as the effect's (formed elsewhere: they must be its ``terms`` on a fresh
-        stream over the record, ``(n, effect.n_terms)``), read-only from now on."""
+        stream over the record, ``(n, effect.n_terms)``), read-only from now on; ``nonzero_rows``: their
+        rows with a value other than zero (increasing), when known (else :meth:`support` finds them)."""
         if columns.shape != (self.u_deg.size, effect.n_terms):
             raise ValueError(f"columns of shape {columns.shape} for {effect!r}, expected {(self.u_deg.size, effect.n_terms)}")
         columns.flags.writeable = False
         self._built[id(effect)] = (effect, columns)
+        if nonzero_rows is not None:
+            self._supports[id(effect)] = (columns, Support.of(columns, rows=nonzero_rows))
 
     def get(self, effect: Any) -> np.ndarray:
-        """The effect's columns ``(n, effect.n_terms)`` over the whole record (read-only)."""
+        """The effect's columns ``(n, effect.n_terms)`` over the whole record (read-only); an effect that
+        notes the rows its columns are not zero on as it forms them (``columns_and_support_at``, the dead
+        band's motion) hands them on too."""
         hit = self._built.get(id(effect))
         if hit is not None and hit[0] is effect:
             return hit[1]
+        if hasattr(effect, "columns_and_support_at"):
+            cols, nonzero = effect.columns_and_support_at(self.u_deg, self.time_s, self.torque_Nm, None)
+            self.put(effect, cols, nonzero)
+            return cols
         cols = np.asarray(effect.clone().terms(self.u_deg, self.time_s, self.torque_Nm), dtype=float)
         self.put(effect, cols)
         return cols

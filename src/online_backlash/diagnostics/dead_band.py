@@ -56,7 +56,6 @@ from ..errors import InvalidParameterError
 from ..model import BacklashParams, simulate_switching
 from ._causal import CausalWindow, velocity_deg_s
 from ._effect_base import EffectBase
-from ._normal_equations import nonzero_rows
 from ._scoring import BIC_THRESHOLD, Detection, DetectionData, best_detection
 
 #: time constants of the coast after the flank leaves the load, in sample periods (a factor of 8
@@ -191,19 +190,28 @@ class DeadBandMotion(EffectBase):
 
     def terms(self, u_deg: np.ndarray, time_s: np.ndarray, torque_Nm: np.ndarray) -> np.ndarray:
         """Regressor columns ``(len(u_deg), n_terms)``: coast, torque and entry columns (causal)."""
-        return self._stream(u_deg, time_s, torque_Nm, None)
+        return self._stream(u_deg, time_s, torque_Nm, None)[0]
 
     def columns_at(self, u_deg: np.ndarray, time_s: np.ndarray, torque_Nm: np.ndarray, rows: np.ndarray | None) -> np.ndarray:
         """:meth:`terms` of a fresh stream over the whole record, at the sample indices ``rows`` only
         (increasing; None: every sample): the same numbers, without the record's full block."""
+        return self.columns_and_support_at(u_deg, time_s, torque_Nm, rows)[0]
+
+    def columns_and_support_at(
+        self, u_deg: np.ndarray, time_s: np.ndarray, torque_Nm: np.ndarray, rows: np.ndarray | None
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`columns_at` and the positions of its rows with a value other than zero (increasing;
+        what :func:`._normal_equations.nonzero_rows` finds, noted by the pass as it writes them: the
+        columns are zero outside the rests and entries, most of a record)."""
         fresh: DeadBandMotion = self.clone()  # type: ignore[assignment]
         return fresh._stream(u_deg, time_s, torque_Nm, rows)
 
-    def _stream(self, u_deg: np.ndarray, time_s: np.ndarray, torque_Nm: np.ndarray, rows: np.ndarray | None) -> np.ndarray:
-        """The columns of the next samples (:meth:`terms`), at ``rows`` of them only unless None."""
+    def _stream(self, u_deg: np.ndarray, time_s: np.ndarray, torque_Nm: np.ndarray, rows: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+        """The columns of the next samples (:meth:`terms`), at ``rows`` of them only unless None, and
+        the positions of the rows written with a value other than zero."""
         ue, te, qe, n_past = self._window.extend(u_deg, time_s, torque_Nm)
         if ue.size == 0:
-            return np.empty((0, self.n_terms))
+            return np.empty((0, self.n_terms)), np.empty(0, dtype=np.int64)
         v = velocity_deg_s(ue, te, self.window_samples)[n_past:]
         qz = np.nan_to_num(qe, nan=0.0)
         w = self.smooth_samples
@@ -214,17 +222,18 @@ class DeadBandMotion(EffectBase):
         e, dx = self._switch(u)
         rows = np.arange(u.size) if rows is None else np.ascontiguousarray(rows, dtype=np.int64)
         cols = np.zeros((rows.size, self.n_terms))
+        nonzero = np.zeros(rows.size, dtype=np.bool_)
         # the stream's state: the last sample engaged, the last entry (time, velocity), the output's
         # last move (time, direction, velocity, torque)
         state = np.array([float(engaged_before), *self._entry, *self._moved], dtype=float)
         _columns_pass(
             e, dx, np.ascontiguousarray(t, dtype=float), np.ascontiguousarray(v, dtype=float), np.ascontiguousarray(qs, dtype=float), state,
             np.asarray(self.exit_time_constants_s, dtype=float), self.torque, np.asarray(self.entry_knots_s, dtype=float), self.n_entry,
-            np.asarray(self.rest_time_constants_s, dtype=float), rows, cols,
+            np.asarray(self.rest_time_constants_s, dtype=float), rows, cols, nonzero,
         )
         self._entry = (float(state[1]), float(state[2]))
         self._moved = (float(state[3]), float(state[4]), float(state[5]), float(state[6]))
-        return cols
+        return cols, np.flatnonzero(nonzero)
 
     def describe(self, coef: np.ndarray) -> dict[str, Any]:
         c = [float(v) for v in coef]
@@ -274,12 +283,12 @@ class DeadBandMotion(EffectBase):
         found = []
         every_one = cls(p.m_left, p.c_left, p.m_right, p.c_right, taus, knots, torque, rests)
         # the coast (and torque) columns come first, then the entry's, the creep's last: each a slice
-        every = every_one.columns_at(data.u_deg, data.time_s, data.torque_Nm, data.scored_rows)  # the rows the scores use
+        every, nonzero = every_one.columns_and_support_at(data.u_deg, data.time_s, data.torque_Nm, data.scored_rows)  # the rows the scores use
         split = every_one.n_terms - every_one.n_entry - every_one.n_rest
         ends = np.cumsum([0, split, every_one.n_entry, every_one.n_rest])
         parts = dict(zip(("coast", "entry", "creep at rest"), (range(int(a), int(b)) for a, b in pairwise(ends))))
         # one set of cross-products, over the rows where the load coasts, enters or creeps only
-        scores = data.score_subsets(every, [[j for n in names for j in parts[n]] for names in VARIANTS], support=nonzero_rows(every))
+        scores = data.score_subsets(every, [[j for n in names for j in parts[n]] for names in VARIANTS], support=nonzero)
         for names, s in zip(VARIANTS, scores):
             exit_taus = taus if "coast" in names else ()
             effect = cls(
@@ -300,14 +309,18 @@ class DeadBandMotion(EffectBase):
             return best
         # every sample's columns were formed: the chosen parts' are a slice of them (the same numbers as its terms)
         chosen = [j for n in VARIANTS[found.index(best)] for j in parts[n]]
-        return replace(best, columns=every if len(chosen) == every.shape[1] else np.ascontiguousarray(every[:, chosen]))
+        if len(chosen) == every.shape[1]:
+            return replace(best, columns=every, nonzero_rows=nonzero)
+        mine = np.ascontiguousarray(every[:, chosen])
+        return replace(best, columns=mine, nonzero_rows=nonzero[np.any(mine[nonzero] != 0.0, axis=1)])
 
 
 @njit(cache=True, nogil=True)
-def _columns_pass(e, dx, t, v, qs, state, exit_taus, torque, knots, n_entry, rest_taus, rows, out):  # pragma: no cover - compiled
+def _columns_pass(e, dx, t, v, qs, state, exit_taus, torque, knots, n_entry, rest_taus, rows, out, nonzero):  # pragma: no cover - compiled
     """:meth:`DeadBandMotion.terms`' columns in one pass over the samples, continuing ``state``
     (updated in place, see there), written for the samples ``rows`` (increasing) only, ``out[r]`` for
-    ``rows[r]``. Where the output rests (``dx == 0``: the dead band, or a flank while the motor stands
+    ``rows[r]`` (``out`` zero on entry), and ``nonzero[r]`` set where ``out[r]`` holds a value other
+    than zero. Where the output rests (``dx == 0``: the dead band, or a flank while the motor stands
     still) since it last moved at ``t_m`` with the velocity ``v_m`` and torque ``q_m``, in the direction
     ``d``: ``v_m`` times ``1 - exp(-(t - t_m) / tau)`` per ``exit_taus``, then (``torque``) ``q_m`` and
     the torque's change since; ``1 - exp(-(t - t_m) / tau)`` per ``rest_taus`` in the column of the
@@ -334,9 +347,11 @@ def _columns_pass(e, dx, t, v, qs, state, exit_taus, torque, knots, n_entry, res
                 out[r, n_exit] = q_m
                 out[r, n_exit + 1] = qs[s] - q_m
         k = n_exit + 2 * torque
+        entering = False
         if write and n_entry and now and np.isfinite(t_e):
             since = t[s] - t_e
-            if since < knots[knots.size - 1]:
+            entering = since < knots[knots.size - 1]
+            if entering:
                 i = 0
                 while i < knots.size - 2 and knots[i + 1] <= since:
                     i += 1
@@ -352,6 +367,11 @@ def _columns_pass(e, dx, t, v, qs, state, exit_taus, torque, knots, n_entry, res
                     out[r, k + 2 * j] = shape
                 elif d_m < 0:
                     out[r, k + 2 * j + 1] = shape
+        if resting or entering:  # the only rows written
+            for j in range(out.shape[1]):
+                if out[r, j] != 0.0:
+                    nonzero[r] = True
+                    break
         if write:
             r += 1
         e_prev = now

@@ -272,9 +272,11 @@ class Support:
     values: np.ndarray
 
     @classmethod
-    def of(cls, columns: np.ndarray, share: float = SPARSE_SHARE) -> Support | None:
-        """The support of ``columns`` (``(n, k)``), or None when it is more than ``share`` of the rows."""
-        rows = nonzero_rows(columns, int(share * columns.shape[0]))
+    def of(cls, columns: np.ndarray, share: float = SPARSE_SHARE, rows: np.ndarray | None = None) -> Support | None:
+        """The support of ``columns`` (``(n, k)``), or None when it is more than ``share`` of the rows;
+        ``rows``: the rows with a value other than zero, when known (else found here)."""
+        most = int(share * columns.shape[0])
+        rows = nonzero_rows(columns, most) if rows is None else (rows if rows.size <= most else None)
         if rows is None:
             return None
         values = np.take(columns, rows, axis=0)

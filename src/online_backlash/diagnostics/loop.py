@@ -567,8 +567,8 @@ def _kept_columns(found: Detection, built: TermColumns) -> Detection:
     effect's columns on every sample hands them on: :attr:`._scoring.Detection.columns`)."""
     if found.columns is None:
         return found
-    built.put(found.effect, found.columns)
-    return replace(found, columns=None)
+    built.put(found.effect, found.columns, found.nonzero_rows)
+    return replace(found, columns=None, nonzero_rows=None)
 
 
 def _rescored(
