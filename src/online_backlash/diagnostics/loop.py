@@ -100,6 +100,9 @@ class Step:
     #: the fit just before this term came in and the terms it had then: what ``detection`` was
     #: scored on (see :func:`_rescored`)
     scored_on: tuple[JointFit, tuple[Any, ...]] | None = field(default=None, repr=False)
+    #: the detection data of ``scored_on`` over every sample, kept while the loop runs for a term whose
+    #: setting a later round may move (``neighbours``): :func:`_rescored` scores the final setting on it
+    scored_data: DetectionData | None = field(default=None, repr=False)
     #: True when a later term moved this term's setting (:func:`_tuned`): ``effect`` and the
     #: evidence are of the final setting
     retuned: bool = False
@@ -534,13 +537,15 @@ def diagnose(
                 "not_separable" if rivals else kind, chosen.effect, chosen, current.rms_deg, fit.rms_deg, current.params.play,
                 fit.params.play, fit.play_inflation, fit.play_std_deg, fit.play_held, len(steps) + 1,
                 residual_after_deg=fit.residual_deg, heldout_split=folds.as_dict(), rivals=rivals, scored_on=(current, tuple(done)),
+                scored_data=(data if rows is None else whole) if hasattr(chosen.effect, "neighbours") else None,
             )
         )
         current = fit
         built.keep_only([s.effect for s in steps])  # the candidates' columns are not needed again
     for step in steps:
         if step.retuned:
-            _rescored(step, u, t, q, uc, float(ratio), period, folds, built, cache)
+            _rescored(step)
+        step.scored_data = None  # a record's worth of cross-products: not kept with the result
     _describe(steps, current)
     _hold_out_final(steps, current, u, t, q, uc, float(ratio), period, folds, built)
     _start_as_estimated(steps, start, before)
@@ -571,17 +576,12 @@ def _kept_columns(found: Detection, built: TermColumns) -> Detection:
     return replace(found, columns=None, nonzero_rows=None)
 
 
-def _rescored(
-    step: Step, u: np.ndarray, t: np.ndarray, q: np.ndarray, uc: np.ndarray, ratio: float, period: float, folds: Folds, built: TermColumns,
-    cache: RecordCache,
-) -> None:
+def _rescored(step: Step) -> None:
     """A retuned term's detection scored again with its final setting, on what it was first scored
-    on (the fit just before it came in and the terms it had then): the evidence then describes the
-    setting the parameters report, not the one it came in with."""
-    assert step.scored_on is not None
-    before, done = step.scored_on
-    data, _ = _detection_data(u, t, q, uc, before, list(done), ratio, period, folds, built, cache)
-    step.detection = replace(step.effect.detection(data), rivals=step.detection.rivals)
+    on (the fit just before it came in and the terms it had then: :attr:`Step.scored_data`): the
+    evidence then describes the setting the parameters report, not the one it came in with."""
+    assert step.scored_data is not None  # kept for every term with a setting to move
+    step.detection = replace(step.effect.detection(step.scored_data), rivals=step.detection.rivals)
 
 
 def _start_as_estimated(steps: list[Step], start: InitialState, before: np.ndarray) -> None:
