@@ -21,7 +21,7 @@ from online_backlash.cli import main
 from online_backlash.errors import InvalidParameterError
 from online_backlash.fitting import fit_batch, fit_recursive
 from online_backlash.load_aware import DwellTracker, TorqueBacklash, TorqueBacklashRLS, count_torque_reversals, engaged_flank, torque_deadband, torque_noise_std
-from online_backlash.load_aware.engagement import torque_orientation
+from online_backlash.load_aware.engagement import either_flank_engaged, torque_orientation
 from online_backlash.two_mass_rig import simulate_two_mass
 
 DAVINCI = Path(__file__).resolve().parents[2] / "shared" / "data" / "davinci_tool_gearhead_backlash"
@@ -53,6 +53,9 @@ def test_the_torque_noise_and_the_engaged_flank():
     assert np.all(flank[torque > db] == 1) and np.all(flank[torque < -db] == -1)
     assert count_torque_reversals(flank) == 19  # 10 periods: every zero crossing but the first counted once, noise not
     assert count_torque_reversals(engaged_flank(torque, 0.0)) > 19  # without the dead band the noise flickers
+    edges = np.r_[torque, db, -db, 0.0, -0.0]  # on the dead band's edges: not engaged
+    for deadband in (db, 0.0):
+        assert np.array_equal(either_flank_engaged(edges, deadband), engaged_flank(edges, deadband) != 0)
 
 
 def test_a_non_finite_torque_is_refused_with_its_index():
@@ -60,6 +63,10 @@ def test_a_non_finite_torque_is_refused_with_its_index():
     torque[7] = np.nan
     with pytest.raises(InvalidParameterError, match="index 7"):
         engaged_flank(torque, 0.1)
+    with pytest.raises(InvalidParameterError, match="index 7"):
+        either_flank_engaged(torque, 0.1)
+    with pytest.raises(InvalidParameterError, match="deadband_Nm"):
+        either_flank_engaged(np.zeros(3), -0.1)
 
 
 def test_a_sensor_mounted_the_other_way_round_is_flipped():

@@ -41,7 +41,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import InvalidParameterError
-from ..load_aware.engagement import engaged_flank, torque_deadband
+from ..load_aware.engagement import either_flank_engaged, torque_deadband
 from ._causal import acceleration_deg_s2, lagged_difference, velocity_deg_s
 from ._effect_base import EffectBase
 from ._harmonics import harmonic_columns, held_harmonic
@@ -354,7 +354,7 @@ class Compliance(EffectBase):
             q = np.nan_to_num(q, nan=0.0)
             w = self.smooth_samples
             mean = np.convolve(q, np.ones(w) / w)[: q.size] if w > 1 else q  # the first w-1 rows are in the window's past
-            return mean * (engaged_flank(q, self.deadband_Nm) != 0)
+            return mean * either_flank_engaged(q, self.deadband_Nm)
         acc = acceleration_deg_s2(u, t, self.window_samples)
         if self.proxy == "acceleration":
             return acc

@@ -68,17 +68,29 @@ def torque_deadband(torque_Nm: np.ndarray, n_sigma: float = DEADBAND_SIGMAS) -> 
     return n_sigma * torque_noise_std(torque_Nm)
 
 
+def _torque_and_deadband(torque_Nm: np.ndarray, deadband_Nm: float) -> np.ndarray:
+    """The torque as a checked array, after checking the dead band too."""
+    q = _torque_array(torque_Nm)
+    if not (math.isfinite(deadband_Nm) and deadband_Nm >= 0):
+        raise InvalidParameterError(f"deadband_Nm must be finite and >= 0, got {deadband_Nm!r}")
+    return q
+
+
 def engaged_flank(torque_Nm: np.ndarray, deadband_Nm: float) -> np.ndarray:
     """The engaged flank at each sample: +1 right (torque > deadband), -1 left (torque < -deadband),
     0 neither (int8 array). The measured switching functions: ``f2 = (out == 1)``, ``f1 = (out == -1)``
     (eq. 5-6)."""
-    q = _torque_array(torque_Nm)
-    if not (math.isfinite(deadband_Nm) and deadband_Nm >= 0):
-        raise InvalidParameterError(f"deadband_Nm must be finite and >= 0, got {deadband_Nm!r}")
+    q = _torque_and_deadband(torque_Nm, deadband_Nm)
     out = np.zeros(q.size, dtype=np.int8)
     out[q > deadband_Nm] = 1
     out[q < -deadband_Nm] = -1
     return out
+
+
+def either_flank_engaged(torque_Nm: np.ndarray, deadband_Nm: float) -> np.ndarray:
+    """True where a flank is engaged (``|torque| > deadband``): ``engaged_flank(...) != 0`` as one boolean
+    array (``f1 + f2`` of eq. 5-6 measured), without the flank's sign."""
+    return np.abs(_torque_and_deadband(torque_Nm, deadband_Nm)) > deadband_Nm
 
 
 def count_torque_reversals(flank: np.ndarray) -> int:
