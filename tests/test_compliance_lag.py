@@ -16,9 +16,11 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from online_backlash.diagnostics import synthetic
+from online_backlash.diagnostics import loop, synthetic
 from online_backlash.diagnostics._folds import cycle_folds
+from online_backlash.diagnostics._normal_equations import Projector
 from online_backlash.diagnostics._term_columns import TermColumns
+from online_backlash.diagnostics.dead_band import DeadBandMotion
 from online_backlash.diagnostics.effects import Compliance, Drift
 from online_backlash.diagnostics.joint import fit_guarded
 from online_backlash.diagnostics.loop import _columns, _detection_data, _held, _linearised_refit, _ModelView, _tuned, diagnose_arrays
@@ -114,6 +116,32 @@ def test_the_linearised_refit_orders_the_settings_as_the_joint_refits_do():
     full = [joint(w)[1].rms_deg for w in widths]
     assert np.argsort(linear).tolist() == np.argsort(full).tolist()
     assert np.allclose(linear, full, rtol=0.02)
+
+
+def test_the_walk_reads_the_dead_bands_motion_on_its_support(monkeypatch):
+    """With the dead band's motion among the other terms, the walk's projection reads its columns on
+    the rows where they are not zero (a few per cent of the record), and gives the least squares of
+    every column written out."""
+    t, m, y, q = synthetic.two_mass_compliance(seed=0, duration_s=30.0)
+    u = m / 30.0
+    base = VorosBacklash(refine=True, origin="first").fit(u, y)
+    uc, yc = u - base.u_ref_, y - base.y_ref_
+    p = base.params_
+    built = TermColumns(u, t, q)
+    view = _ModelView.of(uc, p)
+    dead_band = DeadBandMotion(p.m_left, p.c_left, p.m_right, p.c_right, (0.004, 0.032), (0.0, 0.004, 0.016), True, ())
+    terms = [Compliance("torque", deadband_Nm=torque_deadband(np.nan_to_num(q)), smooth_samples=5), dead_band]
+    fit = fit_guarded(uc, yc, _columns(terms, built, view.engaged, view.x), p, _held(terms))
+    formed = []
+    monkeypatch.setattr(loop, "Projector", lambda columns: formed.append(columns) or Projector(columns))
+    walk = _linearised_refit(terms, 0, fit, uc, cycle_folds(u), built)
+    assert formed[0].supports[-1] is not None and formed[0].supports[-1].rows.size < 0.25 * u.size
+    other = Compliance("torque", deadband_Nm=terms[0].deadband_Nm, smooth_samples=8)
+    at = _ModelView.of(uc, fit.params)
+    restored = fit.residual_deg + built.get(terms[0])[:, 0] * fit.coef[0]
+    every = np.column_stack((at.others, at.g, built.get(dead_band), built.get(other)))
+    left = restored - every @ np.linalg.lstsq(every, restored, rcond=None)[0]
+    assert walk([other, dead_band]).rms_deg == pytest.approx(float(np.sqrt(np.mean(left**2))), rel=1e-9)
 
 
 def test_a_retuned_term_reports_the_evidence_of_its_final_setting():

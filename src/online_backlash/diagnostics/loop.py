@@ -682,7 +682,7 @@ def _linearised_refit(terms: list[Any], i: int, fit: JointFit, uc: np.ndarray, f
     supports: list[Support | None] = [None, None]
     for e, part in others:
         nuisance.append((part, None))
-        own = not hasattr(e, "output_columns") and part is built.get(e)  # neither gated nor held
+        own = not (hasattr(e, "output_columns") or getattr(e, "engaged_only", False) or _held([e]).any())  # neither gated nor held
         supports.append(built.support(e) if own and rows is None else None)
     if rows is not None:
         projector = Projector(ColumnParts(tuple(nuisance)).at(rows))
