@@ -90,6 +90,29 @@ def test_scores_left_out_equal_the_scores_of_data_made_without_each_group():
         np.testing.assert_allclose(got.coef, want.coef, rtol=1e-6)  # solved from a Gram formed otherwise: a nearly collinear basis
 
 
+def test_scores_left_out_with_columns_read_on_their_support_equal_those_of_the_block():
+    """Nuisance columns zero outside a few rows, handed on as their values there (``extra``,
+    ``support``), give the scores of the same columns in the block of nuisance columns."""
+    rng = np.random.default_rng(6)
+    n = 6000
+    u = 20 * np.sin(np.linspace(0, 12 * np.pi, n))
+    t = np.arange(n) * 1e-3
+    backlash = np.column_stack((np.ones(n), u, np.cos(np.radians(u))))
+    a = np.sin(np.radians(2 * u))[:, None]
+    rows = np.flatnonzero(np.abs(np.diff(u, prepend=u[0])) < 0.01)  # near the reversals
+    sparse = np.zeros((n, 2))
+    sparse[rows] = rng.normal(size=(rows.size, 2))
+    r = sparse @ np.array([0.01, -0.02]) + 0.003 * a[:, 0] + rng.normal(0, 1e-3, n)
+    coefs = [np.array([0.003]), np.array([0.01, -0.02])]
+    block = DetectionData(u, t, np.full(n, np.nan), r, 30.0, 1e-3, nuisance=np.column_stack((backlash, a, sparse)), n_backlash=3)
+    want = block.scores_left_out([np.array([3]), np.array([4, 5])], coefs)
+    parted = DetectionData(u, t, np.full(n, np.nan), r, 30.0, 1e-3, nuisance=np.column_stack((backlash, a)), n_backlash=3)
+    got = parted.scores_left_out([np.array([3]), np.array([4, 5])], coefs, sparse[rows], rows)
+    for g, w in zip(got, want):
+        for name in ("rss_before", "rss_after", "n_eff", "delta_bic", "own_share", "heldout_gain"):
+            assert np.isclose(getattr(g, name), getattr(w, name), rtol=1e-9), name
+
+
 def test_joint_fit_equals_the_full_length_search():
     """The search handed the (k + 1)-row factor stops where least squares on all n rows stops."""
     rng = np.random.default_rng(4)

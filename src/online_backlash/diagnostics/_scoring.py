@@ -484,33 +484,41 @@ class DetectionData:
             out.append(_score_grams(per_fold[:, keep][:, :, keep], total[np.ix_(keep, keep)], lag, self.folds.rows, p, terms))
         return out
 
-    def scores_left_out(self, groups: Sequence[np.ndarray], coefs: Sequence[np.ndarray]) -> list[Score]:
+    def scores_left_out(
+        self, groups: Sequence[np.ndarray], coefs: Sequence[np.ndarray], extra: np.ndarray | None = None, support: np.ndarray | None = None
+    ) -> list[Score]:
         """For every group of nuisance columns (positions ``groups[i]``, after the backlash's own
         ``n_backlash``), the :class:`Score` of those columns with their part ``W[:, groups[i]] @
         coefs[i]`` put back into the residual and the other nuisance columns kept: what :meth:`score`
         gives on data made with the others as nuisance and that residual, from this data's one set of
         cross-products (each case's Gram is ``M^T G M`` for the matrix ``M`` that forms its columns
-        from these, per fold; its lag-1 product a pass over these columns with the weights ``M e``)."""
+        from these, per fold; its lag-1 product a pass over these columns with the weights ``M e``).
+        ``extra``: more nuisance columns, after these (positions counted on from them), with the rows
+        :meth:`score` takes, or with ``support`` (increasing) their rows there only, zero elsewhere (the
+        dead band's motion): their cross-products read those rows only (:meth:`_Grams.extended`)."""
         assert self.nuisance is not None and self.folds is not None
-        p = self.nuisance.shape[1]
         g = self._cross
-        empty = np.empty((g.z.shape[0], 0))
+        if extra is None:
+            per_fold_all, total_all, extra = g.per_fold, g.total, np.empty((g.z.shape[0], 0))
+        else:
+            per_fold_all, total_all = g.extended(extra, True, support)
+        p = total_all.shape[0] - 1
         out = []
         for group, coef in zip(groups, coefs):
             group = np.asarray(group, dtype=np.intp)
             kept = np.setdiff1d(np.arange(p), group)
-            m = np.zeros((p + 1, p + 1))  # columns of [kept, group, residual + W[:, group] @ coef] from [nuisance, residual]
+            m = np.zeros((p + 1, p + 1))  # columns of [kept, group, residual + W[:, group] @ coef] from [nuisance, extra, residual]
             m[kept, np.arange(kept.size)] = 1.0
             m[group, kept.size + np.arange(group.size)] = 1.0
             m[p, p] = 1.0
             m[group, p] = coef
-            per_fold = np.einsum("ji,fjk,kl->fil", m, g.per_fold, m)
-            total = m.T @ g.total @ m
+            per_fold = np.einsum("ji,fjk,kl->fil", m, per_fold_all, m)
+            total = m.T @ total_all @ m
             q = kept.size
             terms = self._own_share_basis(q)
 
-            def lag(e: np.ndarray, m: np.ndarray = m) -> float:
-                return g.lag_product(empty, m @ e)
+            def lag(e: np.ndarray, m: np.ndarray = m, extra: np.ndarray = extra) -> float:
+                return g.lag_product(extra, m @ e, support)
 
             out.append(_score_grams(per_fold, total, lag, self.folds.rows, q, terms))
         return out

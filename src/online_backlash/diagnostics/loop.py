@@ -42,6 +42,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field, replace
+from functools import reduce
 from itertools import pairwise
 from typing import Any, Protocol
 
@@ -309,6 +310,14 @@ def _held(terms: Sequence[Any]) -> np.ndarray:
     if not terms:
         return np.zeros(0, bool)
     return np.concatenate([np.full(e.n_terms, bool(e.input_side) and not hasattr(e, "output_columns")) for e in terms])
+
+
+def _own_support(effect: Any, built: TermColumns) -> Support | None:
+    """The :class:`.joint.Support` of a term whose columns are read as they are built (neither gated by
+    the engaged samples, nor held through the dead band, nor built on the model's output; what
+    :func:`_held_parts` hands out for it is its own columns), when they are zero on most samples."""
+    plain = not (hasattr(effect, "output_columns") or getattr(effect, "engaged_only", False) or _held([effect]).any())
+    return built.support(effect) if plain else None
 
 
 def _held_parts(terms: Sequence[Any], built: TermColumns, view: _ModelView) -> list[np.ndarray]:
@@ -682,8 +691,7 @@ def _linearised_refit(terms: list[Any], i: int, fit: JointFit, uc: np.ndarray, f
     supports: list[Support | None] = [None, None]
     for e, part in others:
         nuisance.append((part, None))
-        own = not (hasattr(e, "output_columns") or getattr(e, "engaged_only", False) or _held([e]).any())  # neither gated nor held
-        supports.append(built.support(e) if own and rows is None else None)
+        supports.append(_own_support(e, built) if rows is None else None)
     if rows is not None:
         projector = Projector(ColumnParts(tuple(nuisance)).at(rows))
         restored = restored[rows]
@@ -733,16 +741,33 @@ def _hold_out_final(
     backlash directions and the other terms as nuisance: every term from one set of cross-products
     of the backlash directions, all the terms and the final residual
     (:meth:`._scoring.DetectionData.scores_left_out`), the final model's view and the terms' held
-    columns formed once.
+    columns formed once; a term zero on most samples (:func:`_own_support`, the dead band's motion)
+    is read on the rows where it is not, after the others.
     """
     if not steps:
         return
     view = _ModelView.of(uc, final.params)
     terms = [s.effect for s in steps]
-    data, _ = _detection_data(u, t, q, uc, final, terms, ratio, period, folds, built, view=view, done_columns=_held_parts(terms, built, view))
+    parts = _held_parts(terms, built, view)
+    supports = [_own_support(e, built) for e in terms]
+    dense = [part for part, support in zip(parts, supports) if support is None]
+    data, _ = _detection_data(u, t, q, uc, final, terms, ratio, period, folds, built, view=view, done_columns=dense)
+    assert data.nuisance is not None
+    sparse = [(part, support) for part, support in zip(parts, supports) if support is not None]
+    extra = rows = None
+    if len(sparse) == 1:
+        rows, extra = sparse[0][1].rows, sparse[0][1].values
+    elif sparse:
+        rows = reduce(np.union1d, [support.rows for _, support in sparse])
+        extra = np.column_stack([np.take(part, rows, axis=0) for part, _ in sparse])
+    at = {"dense": data.n_backlash, "sparse": data.nuisance.shape[1]}  # where each kind's next columns go
+    groups = []
+    for e, support in zip(terms, supports):
+        kind = "dense" if support is None else "sparse"
+        groups.append(np.arange(at[kind], at[kind] + e.n_terms))
+        at[kind] += e.n_terms
     ends = np.cumsum([0, *(e.n_terms for e in terms)])
-    spans = list(pairwise(ends))
-    scores = data.scores_left_out([data.n_backlash + np.arange(a, b) for a, b in spans], [final.coef[a:b] for a, b in spans])
+    scores = data.scores_left_out(groups, [final.coef[a:b] for a, b in pairwise(ends)], extra, rows)
     for s, score in zip(steps, scores):
         s.heldout_gain_final = score.heldout_gain
 
