@@ -515,6 +515,7 @@ def _fit_fixed_columns(
         return gram, proj.columns.t_dot(a) if q else np.empty((0, 5))
 
     last: dict[bytes, tuple[np.ndarray, np.ndarray]] = {}
+    written: dict[bytes, tuple[np.ndarray, np.ndarray]] = {}  # the point ``a`` holds: its key, Gram matrix and products
 
     def factor(v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``(r, J)`` of ``k + 1`` rows with the ``J^T J``, ``J^T r`` and ``|r|^2`` of the full problem."""
@@ -527,6 +528,8 @@ def _fit_fixed_columns(
                 last[key] = (np.full(k + 1, 1e6 * np.sqrt(n / (k + 1))), np.zeros((k + 1, k)))
             else:
                 gram, cross = point(p)
+                written.clear()
+                written[key] = (gram, cross)
                 w, vec = np.linalg.eigh(proj.left_of(to_search.T @ gram @ to_search, cross @ to_search[1:]))
                 r = np.sqrt(np.maximum(w, 0.0))[:, None] * vec.T  # r^T r = the Gram of P [dx/dv, yc - x]
                 last[key] = (r[:, k], -r[:, :k])
@@ -545,7 +548,7 @@ def _fit_fixed_columns(
     v = result.x if np.sum(result.fun**2) < cost0 else v0
     p = unpack(v)
     params = BacklashParams(*p)
-    gram, cross = point(p)  # a: [dx/dp, yc - x] at the fit
+    gram, cross = written[v.tobytes()] if v.tobytes() in written else point(p)  # a: [dx/dp, yc - x] at the fit
     coef = proj.coef_of(cross[:, 4]) if q else np.empty(0)
     if rows is None:
         left = a[:, 4] - times(coef) if q else a[:, 4].copy()
