@@ -698,11 +698,14 @@ def _linearised_refit(terms: list[Any], i: int, fit: JointFit, uc: np.ndarray, f
     else:
         projector = Projector(ColumnParts(tuple(nuisance), tuple(supports)))
     n = restored.size
+    restored_cross, restored_square = projector.columns.t_dot(restored), float(restored @ restored)  # the same for every setting
 
     def refit(swapped: list[Any]) -> _Linearised:
         x = _held_parts([swapped[i]], built, view)[0]
-        a = np.column_stack((x if rows is None else x[rows], restored))
-        rss = left_sum_of_squares(projector.left_gram(a))
+        x = x if rows is None else x[rows]
+        x_restored = x.T @ restored
+        gram = np.block([[x.T @ x, x_restored[:, None]], [x_restored[None, :], np.array([[restored_square]])]])  # of [x, restored]
+        rss = left_sum_of_squares(projector.left_of(gram, np.column_stack((projector.columns.t_dot(x), restored_cross))))
         return _Linearised(float(np.sqrt(rss / n)))
 
     return refit
