@@ -3,15 +3,19 @@
 For every length (default 2, 10 and 60 minutes), a two-mass rig log (30:1, 1 kHz, 14-bit motor,
 17-bit load, measured torque, continuous rotation with reversals: the compliance case of
 ``bench/closing_loop.py``) is written as CSV; then ``online-backlash estimate --method batch
---json`` and ``online-backlash diagnose --json`` run on it one after the other, in this process
-through ``main(argv)`` (CSV reading included in both), wall clock and CPU time of this process.
-Both commands are run once untimed first (the batch fit on the same log, ``diagnose`` once on a
-30 s log), so that neither pays its imports or the loading of its compiled functions.
-Prints a markdown table with the ratio diagnose / batch (the issue's figure: within 4x), and the
-1-minute load average after each row (on a shared machine CPU seconds are the steadier figure).
+--json`` and ``online-backlash diagnose --json`` are timed on it side by side, each in a process of
+its own (a child of this script, ``--one``) that runs the command through ``main(argv)`` (CSV reading
+included) once on a 30 s log untimed (imports, the loading of compiled functions), then twice on
+the log, timed: wall clock and CPU time of that process. The first timed run meets memory the
+process has not used at this size yet (what a fresh process pays, imports aside), the second meets
+it warm; both commands are treated alike, and neither sees memory the other touched.
 
-Run: ``python bench/diagnose_speed.py`` (about 10 minutes on 2 shared cores);
-``--minutes 2,10`` shrinks it. The CSVs are cached in ``--dir``.
+Prints a markdown table with the ratio diagnose / batch for the first and for the second runs (the
+issue's figure: within 4x), and the 1-minute load average after each row (on a shared machine CPU
+seconds are the steadier figure).
+
+Run: ``python bench/diagnose_speed.py`` (about 2 minutes on 2 cores); ``--minutes 2,10`` shrinks
+it. The CSVs are cached in ``--dir``.
 """
 
 from __future__ import annotations
@@ -22,15 +26,19 @@ import io
 import json
 import os
 import platform
+import subprocess
+import sys
 import time
 from pathlib import Path
 
 from online_backlash.cli import main as cli
 from online_backlash.two_mass_rig import simulate_two_mass
 
-COLUMNS = ["--columns", "time=time,motor=motor,load=load,torque=torque"]
-#: length of the log of the warm-up ``diagnose`` run (imports and compiled caches, not timed), minutes
+COLUMNS = ["--ratio", "30", "--columns", "time=time,motor=motor,load=load,torque=torque", "--json"]
+#: length of the log of the warm-up run (imports and compiled caches, not timed), minutes
 WARM_MINUTES = 0.5
+#: timed runs of each command in its process
+RUNS = 2
 
 
 def write_log(minutes: float, directory: Path) -> Path:
@@ -41,45 +49,72 @@ def write_log(minutes: float, directory: Path) -> Path:
     return path
 
 
-def timed(argv: list[str]) -> tuple[float, float, str]:
-    """Wall and CPU seconds of one CLI run, and its stdout."""
-    out = io.StringIO()
-    w0, c0 = time.perf_counter(), time.process_time()
-    with contextlib.redirect_stdout(out):
-        code = cli(argv)
-    w1, c1 = time.perf_counter(), time.process_time()
-    if code:
-        raise SystemExit(f"{argv[0]} exited with {code}")
-    return w1 - w0, c1 - c0, out.getvalue()
+def argv_of(command: str, path: Path) -> list[str]:
+    return [command, str(path), *COLUMNS, *(["--method", "batch"] if command == "estimate" else [])]
+
+
+def one(command: str, path: Path, warm: Path) -> None:
+    """In the child: the command once on ``warm`` untimed, then :data:`RUNS` times on ``path``; prints
+    JSON ``{"wall": [...], "cpu": [...], "stdout": last run's output}``."""
+    with contextlib.redirect_stdout(io.StringIO()):
+        cli(argv_of(command, warm))
+    walls, cpus, text = [], [], ""
+    for _ in range(RUNS):
+        out = io.StringIO()
+        w0, c0 = time.perf_counter(), time.process_time()
+        with contextlib.redirect_stdout(out):
+            code = cli(argv_of(command, path))
+        walls.append(time.perf_counter() - w0)
+        cpus.append(time.process_time() - c0)
+        if code:
+            raise SystemExit(f"{command} exited with {code}")
+        text = out.getvalue()
+    print(json.dumps({"wall": walls, "cpu": cpus, "stdout": text}))
+
+
+def timed(command: str, path: Path, warm: Path) -> dict:
+    """:func:`one` in a child process (the same interpreter and environment)."""
+    done = subprocess.run(
+        [sys.executable, __file__, "--one", command, str(path), str(warm)], check=True, capture_output=True, text=True, env=os.environ.copy()
+    )
+    return json.loads(done.stdout.strip().splitlines()[-1])
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--minutes", default="2,10,60", help="comma-separated log lengths, minutes")
     parser.add_argument("--dir", default="/tmp/online_backlash_bench", help="where the CSV logs are cached")
+    parser.add_argument("--one", nargs=3, metavar=("COMMAND", "LOG", "WARM_LOG"), help=argparse.SUPPRESS)
     args = parser.parse_args()
+    if args.one:
+        one(args.one[0], Path(args.one[1]), Path(args.one[2]))
+        return
     directory = Path(args.dir)
     directory.mkdir(parents=True, exist_ok=True)
+    warm = write_log(WARM_MINUTES, directory)
     load = ", ".join(f"{v:.2f}" for v in os.getloadavg())
-    print(f"machine: {platform.processor() or platform.machine()}, {os.cpu_count()} CPUs, Python {platform.python_version()}, load average {load}\n")
-    print("| log | samples | batch wall, s | batch CPU, s | diagnose wall, s | diagnose CPU, s | ratio (wall) | ratio (CPU) | terms found | load after |")
-    print("|---|---|---|---|---|---|---|---|---|---|")
-    warm = False
+    print(
+        f"machine: {platform.processor() or platform.machine()}, {os.cpu_count()} CPUs, Python {platform.python_version()}, "
+        f"OPENBLAS_NUM_THREADS={os.environ.get('OPENBLAS_NUM_THREADS', 'unset')}, load average {load}\n"
+    )
+    print(
+        "| log | samples | batch wall, s (1st, 2nd) | diagnose wall, s (1st, 2nd) | ratio wall (1st, 2nd) | ratio CPU (1st, 2nd) "
+        "| terms found | load after |"
+    )
+    print("|---|---|---|---|---|---|---|---|")
     for minutes in (float(m) for m in args.minutes.split(",")):
         path = write_log(minutes, directory)
-        common = [str(path), "--ratio", "30", *COLUMNS]
-        with contextlib.redirect_stdout(io.StringIO()):  # compile caches and imports outside the timing
-            cli(["estimate", *common, "--method", "batch", "--json"])
-            if not warm:  # diagnose's own imports (scipy.optimize, scipy.interpolate) and compiled caches
-                cli(["diagnose", str(write_log(WARM_MINUTES, directory)), "--ratio", "30", *COLUMNS, "--json"])
-                warm = True
-        bw, bc, _ = timed(["estimate", *common, "--method", "batch", "--json"])
-        dw, dc, text = timed(["diagnose", *common, "--json"])
-        d = json.loads(text)
+        batch, diag = timed("estimate", path, warm), timed("diagnose", path, warm)
+        d = json.loads(diag["stdout"])
         found = [e["name"] for e in d["effects"]] + [f"({e['name']})" for e in d["unexplained"]]
+
+        def pair(values: list[float]) -> str:
+            return ", ".join(f"{v:.2f}" for v in values)
+
         print(
-            f"| {minutes:g} min | {d['samples']} | {bw:.2f} | {bc:.2f} | {dw:.2f} | {dc:.2f} | {dw / bw:.2f} | {dc / bc:.2f} | {', '.join(found) or '-'} "
-            f"| {os.getloadavg()[0]:.1f} |",
+            f"| {minutes:g} min | {d['samples']} | {pair(batch['wall'])} | {pair(diag['wall'])} "
+            f"| {pair([a / b for a, b in zip(diag['wall'], batch['wall'])])} | {pair([a / b for a, b in zip(diag['cpu'], batch['cpu'])])} "
+            f"| {', '.join(found) or '-'} | {os.getloadavg()[0]:.1f} |",
             flush=True,
         )
 
