@@ -35,7 +35,7 @@ import numpy as np
 from numba import njit
 from scipy.optimize import least_squares
 
-from ..model import BacklashParams, backlash_sensitivity, sensitivity_step, simulate_backlash, switching_step
+from ..model import BacklashParams, sensitivity_step, simulate_backlash, switching_step
 from ._normal_equations import Projector, left_sum_of_squares, nonzero_rows
 from ._scoring import effective_samples
 
@@ -79,11 +79,6 @@ class JointFit:
     def rms_deg(self) -> float:
         """RMS of the residual, deg."""
         return float(np.sqrt(np.mean(self.residual_deg**2)))
-
-
-def _simulate(uc: np.ndarray, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The backlash output from rest at the origin and ``dx / d[mL, cL, mR, cR]`` (eq. 1-3)."""
-    return backlash_sensitivity(uc, BacklashParams(*p), 0.0)
 
 
 def _spans(rows: np.ndarray, switched: tuple[np.ndarray, np.ndarray]) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:

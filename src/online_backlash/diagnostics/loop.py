@@ -757,10 +757,8 @@ def _hold_out_final(
     data, _ = _detection_data(u, t, q, uc, final, terms, ratio, period, folds, built, view=view, done_columns=dense)
     assert data.nuisance is not None
     sparse = [(part, support) for part, support in zip(parts, supports) if support is not None]
-    extra = rows = None
-    if len(sparse) == 1:
-        rows, extra = sparse[0][1].rows, sparse[0][1].values
-    elif sparse:
+    rows = extra = None
+    if sparse:
         rows = reduce(np.union1d, [support.rows for _, support in sparse])
         extra = np.column_stack([np.take(part, rows, axis=0) for part, _ in sparse])
     at = {"dense": data.n_backlash, "sparse": data.nuisance.shape[1]}  # where each kind's next columns go
