@@ -509,25 +509,25 @@ def _fit_fixed_columns(
         gram = _sensitivity_gram(u, yc_fitted, float(p[0]), float(p[1]), float(p[2]), float(p[3]), starts, firsts, stops, x0s, a)
         return gram, proj.columns.t_dot(a) if q else np.empty((0, 5))
 
-    last: dict[bytes, tuple[np.ndarray, np.ndarray]] = {}
-    written: dict[bytes, tuple[np.ndarray, np.ndarray]] = {}  # the point ``a`` holds: its key, Gram matrix and products
+    # the last point asked for: its key, (r, J), and its point (None where invalid); ``a`` holds the
+    # last valid point simulated, so a hit with a point is what ``a`` holds
+    last: dict[bytes, tuple[np.ndarray, np.ndarray, tuple[np.ndarray, np.ndarray] | None]] = {}
 
-    def factor(v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """``(r, J)`` of ``k + 1`` rows with the ``J^T J``, ``J^T r`` and ``|r|^2`` of the full problem."""
+    def factor(v: np.ndarray) -> tuple[np.ndarray, np.ndarray, tuple[np.ndarray, np.ndarray] | None]:
+        """``(r, J)`` of ``k + 1`` rows with the ``J^T J``, ``J^T r`` and ``|r|^2`` of the full problem,
+        and :func:`point` of ``v`` (None where invalid)."""
         key = v.tobytes()
         if key not in last:
             last.clear()
             p = unpack(v)
             if not valid(p):
                 # the same cost as n rows of 1e6
-                last[key] = (np.full(k + 1, 1e6 * np.sqrt(n / (k + 1))), np.zeros((k + 1, k)))
+                last[key] = (np.full(k + 1, 1e6 * np.sqrt(n / (k + 1))), np.zeros((k + 1, k)), None)
             else:
                 gram, cross = point(p)
-                written.clear()
-                written[key] = (gram, cross)
                 w, vec = np.linalg.eigh(proj.left_of(to_search.T @ gram @ to_search, cross @ to_search[1:]))
                 r = np.sqrt(np.maximum(w, 0.0))[:, None] * vec.T  # r^T r = the Gram of P [dx/dv, yc - x]
-                last[key] = (r[:, k], -r[:, :k])
+                last[key] = (r[:, k], -r[:, :k], (gram, cross))
         return last[key]
 
     def residual(v: np.ndarray) -> np.ndarray:
@@ -543,7 +543,8 @@ def _fit_fixed_columns(
     v = result.x if np.sum(result.fun**2) < cost0 else v0
     p = unpack(v)
     params = BacklashParams(*p)
-    gram, cross = written[v.tobytes()] if v.tobytes() in written else point(p)  # a: [dx/dp, yc - x] at the fit
+    ended = last.get(v.tobytes())
+    gram, cross = ended[2] if ended is not None and ended[2] is not None else point(p)  # a: [dx/dp, yc - x] at the fit
     coef = proj.coef_of(cross[:, 4]) if q else np.empty(0)
     if rows is None:
         left = a[:, 4] - times(coef) if q else a[:, 4].copy()

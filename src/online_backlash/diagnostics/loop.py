@@ -281,28 +281,30 @@ class Diagnosis:
 
 
 def _column_parts(terms: Sequence[Any], built: TermColumns, engaged: np.ndarray, x: np.ndarray) -> ColumnParts:
-    """The terms' columns, as parts (:class:`.joint.ColumnParts`). Those of effects that act only on
+    """The terms' columns, as parts (:class:`.joint.ColumnParts`, :func:`_parts`), with their support when
+    they are zero on most samples (:class:`.joint.Support`, the dead band's motion), for the joint fits."""
+    return ColumnParts(_parts(terms, built, engaged, x), tuple(None if hasattr(e, "output_columns") else built.support(e) for e in terms))
+
+
+def _parts(terms: Sequence[Any], built: TermColumns, engaged: np.ndarray, x: np.ndarray) -> tuple[tuple[np.ndarray, np.ndarray | None], ...]:
+    """The terms' columns and gates, a ``(columns, gate)`` per term. Those of effects that act only on
     engaged samples are zeroed where ``engaged`` (the model's switching functions, eq. 5-6) is False;
     an effect defined on the model's output (``output_columns``, the delay) is built on ``x``, the
-    current backlash output; the others come from ``built`` (once per record), with their support when
-    they are zero on most samples (:class:`.joint.Support`, the dead band's motion)."""
+    current backlash output; the others come from ``built`` (once per record)."""
     n = built.u_deg.size
-    return ColumnParts(
-        tuple(
-            (
-                np.reshape(e.output_columns(x) if hasattr(e, "output_columns") else built.get(e), (n, e.n_terms)),
-                engaged if getattr(e, "engaged_only", False) else None,
-            )
-            for e in terms
-        ),
-        tuple(None if hasattr(e, "output_columns") else built.support(e) for e in terms),
+    return tuple(
+        (
+            np.reshape(e.output_columns(x) if hasattr(e, "output_columns") else built.get(e), (n, e.n_terms)),
+            engaged if getattr(e, "engaged_only", False) else None,
+        )
+        for e in terms
     )
 
 
 def _columns(terms: Sequence[Any], built: TermColumns, engaged: np.ndarray, x: np.ndarray) -> np.ndarray:
-    """The terms' columns (:func:`_column_parts` side by side; a term's own read-only columns when it is
+    """The terms' columns (:func:`_parts` side by side; a term's own read-only columns when it is
     the only one and not gated)."""
-    return _column_parts(terms, built, engaged, x).block()
+    return ColumnParts(_parts(terms, built, engaged, x)).block()
 
 
 def _held(terms: Sequence[Any]) -> np.ndarray:
@@ -321,12 +323,12 @@ def _own_support(effect: Any, built: TermColumns) -> Support | None:
 
 
 def _held_parts(terms: Sequence[Any], built: TermColumns, view: _ModelView) -> list[np.ndarray]:
-    """Each term's columns as the model of ``view`` sees them (:func:`_column_parts`, gated by its
+    """Each term's columns as the model of ``view`` sees them (:func:`_parts`, gated by its
     engaged samples, and the input-side ones held through its dead band, :func:`.joint.hold_columns`):
     one array per term, a term's own read-only columns where neither applies (no block of all of them
     is formed)."""
     out = []
-    for part, term in zip(_column_parts(terms, built, view.engaged, view.x).parts, terms):
+    for part, term in zip(_parts(terms, built, view.engaged, view.x), terms):
         one = ColumnParts((part,)).block()
         out.append(hold_columns(one, _held([term]), view.index))
     return out
