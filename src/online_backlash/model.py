@@ -95,19 +95,25 @@ def switching_functions(
     return heaviside_le0(u - z_left), heaviside_le0(z_right - u)
 
 
+@njit(inline="always")
+def sensitivity_step(u, prev, mL, cL, mR, cR, d0, d1, d2, d3):  # pragma: no cover - compiled
+    """One sample of eq. (1)-(3) and its derivatives: ``(x(t), d x(t) / d [mL, cL, mR, cR])`` from the
+    input ``u(t)``, ``prev = x(t-1)`` and ``d0 .. d3``, the derivatives of ``x(t-1)`` (compiled into the
+    loops that call it)."""
+    if u <= prev / mL - cL:  # eq. (1)-(2), left line: x = mL (u + cL)
+        return mL * u + mL * cL, u + cL, mL, 0.0, 0.0
+    if u >= prev / mR + cR:  # eq. (1), (3), right line: x = mR (u - cR)
+        return mR * u - mR * cR, 0.0, 0.0, u - cR, -mR
+    return prev, d0, d1, d2, d3  # inside the band x(t) = x(t-1): the derivatives carry over
+
+
 @njit(cache=True)
 def _backlash_loop(u, mL, cL, mR, cR, x0):  # pragma: no cover - compiled
     n = u.shape[0]
     x = np.empty(n)
     prev = x0
     for t in range(n):
-        zL = prev / mL - cL  # eq. (2)
-        zR = prev / mR + cR  # eq. (3)
-        # eq. (1), the lines written out as mL u + mL cL and mR u - mR cR
-        if u[t] <= zL:
-            prev = mL * u[t] + mL * cL
-        elif u[t] >= zR:
-            prev = mR * u[t] - mR * cR
+        prev = sensitivity_step(u[t], prev, mL, cL, mR, cR, 0.0, 0.0, 0.0, 0.0)[0]  # eq. (1)-(3); the derivatives unused
         x[t] = prev
     return x
 
@@ -160,10 +166,7 @@ def _backlash_varying_loop(u, mL, cL, mR, cR, x0):  # pragma: no cover - compile
     x = np.empty(n)
     prev = x0
     for t in range(n):
-        if u[t] <= prev / mL - cL[t]:  # eq. (2) with cL(t)
-            prev = mL * u[t] + mL * cL[t]
-        elif u[t] >= prev / mR + cR[t]:  # eq. (3) with cR(t)
-            prev = mR * u[t] - mR * cR[t]
+        prev = sensitivity_step(u[t], prev, mL, cL[t], mR, cR[t], 0.0, 0.0, 0.0, 0.0)[0]  # eq. (1)-(3) with cL(t), cR(t)
         x[t] = prev
     return x
 
@@ -249,18 +252,6 @@ def _sensitivity_loop(u, mL, cL, mR, cR, x0, x, dx):  # pragma: no cover - compi
     """:func:`_sensitivity_spans` over the whole of ``u``, into ``x`` and ``dx`` (every row written)."""
     one = np.zeros(1, dtype=np.int64)
     _sensitivity_spans(u, mL, cL, mR, cR, one, one, np.full(1, u.shape[0], dtype=np.int64), np.full(1, x0), x, dx)
-
-
-@njit(inline="always")
-def sensitivity_step(u, prev, mL, cL, mR, cR, d0, d1, d2, d3):  # pragma: no cover - compiled
-    """One sample of eq. (1)-(3) and its derivatives: ``(x(t), d x(t) / d [mL, cL, mR, cR])`` from the
-    input ``u(t)``, ``prev = x(t-1)`` and ``d0 .. d3``, the derivatives of ``x(t-1)`` (compiled into the
-    loops that call it)."""
-    if u <= prev / mL - cL:  # eq. (1)-(2), left line: x = mL (u + cL)
-        return mL * u + mL * cL, u + cL, mL, 0.0, 0.0
-    if u >= prev / mR + cR:  # eq. (1), (3), right line: x = mR (u - cR)
-        return mR * u - mR * cR, 0.0, 0.0, u - cR, -mR
-    return prev, d0, d1, d2, d3  # inside the band x(t) = x(t-1): the derivatives carry over
 
 
 @njit(cache=True, nogil=True)
