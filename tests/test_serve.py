@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import hashlib
 import io
+import json
 import os
 import select
 import subprocess
@@ -209,3 +210,65 @@ def test_a_missing_store_is_refused(tmp_path, capsys):
     assert main(["serve", "--db", str(tmp_path / "none.db"), "--port", "0"]) == 1
     assert "no history store" in capsys.readouterr().err
     assert not (tmp_path / "none.db").exists() and os.listdir(tmp_path) == []
+
+
+def _history_json(db, gearbox_id: str) -> dict:
+    """``history --json`` of one gearbox, as a subprocess (the command a user would compare a scrape with)."""
+    code = "import sys; from online_backlash.cli import main; sys.exit(main())"
+    done = subprocess.run(
+        [sys.executable, "-c", code, "history", "--db", str(db), "--gearbox", gearbox_id, "--json"],
+        capture_output=True, text=True, timeout=120, check=True,
+    )
+    return json.loads(done.stdout)
+
+
+def test_metrics_are_the_history_figures_to_the_last_digit(server, fleet_db):
+    from prometheus_client.parser import text_string_to_metric_families
+
+    before = time.time()
+    status, kind, body = _get(f"{server}metrics")
+    after = time.time()
+    assert status == 200 and kind.startswith("text/plain; version=")
+    samples: dict[tuple[str, tuple], float] = {}
+    for family in text_string_to_metric_families(body.decode()):
+        assert family.type == "gauge", family
+        for s in family.samples:
+            samples[(s.name, tuple(sorted(s.labels.items())))] = s.value
+    for gearbox_id in ("GB-1", "GB-2"):
+        history = _history_json(fleet_db, gearbox_id)
+        label = (("gearbox", gearbox_id),)
+
+        def value(name: str, labels: tuple = label) -> float:
+            return samples[(f"online_backlash_{name}", labels)]
+
+        last = history["estimates"][-1]
+        assert value("play_arcmin") == history["play_arcmin"]  # exactly: the same float, printed in full
+        assert value("play_std_arcmin") == last["backlash_std_arcmin"]
+        assert value("hours_to_limit") == history["forecast_hours_to_limit"]
+        assert value("warn_arcmin") == history["warn_arcmin"] and value("limit_arcmin") == history["limit_arcmin"]
+        assert value("play_observable") == 1.0
+        age = value("last_estimate_age_seconds")
+        assert before - age <= last["time_unix_s"] + 1e-6 and last["time_unix_s"] <= after - age + 1e-6
+        states = {s: value("state", (("gearbox", gearbox_id), ("state", s))) for s in ("ok", "warning", "alarm", "unknown")}
+        assert states == {s: float(s == history["state"]) for s in states}, states
+    assert {k[1][0][1] for k in samples if k[0] == "online_backlash_play_arcmin"} == {"GB-1", "GB-2"}
+
+
+def test_metrics_leave_out_what_is_not_known(tmp_path):
+    """A gearbox with levels but no estimate yet: its state is unknown and no play sample is made up."""
+    from prometheus_client.parser import text_string_to_metric_families
+
+    from online_backlash.web import create_app
+
+    db = tmp_path / "new.db"
+    with HistoryStore(db, create=True) as store:
+        store.set_alarm_levels("GB-new", 30.0, warn_arcmin=18.0, limit_arcmin=21.0)
+    with open_read_only(db) as store:
+        response = create_app(store).test_client().get("/metrics")
+    assert response.status_code == 200
+    families = text_string_to_metric_families(response.text)
+    samples = {(s.name, tuple(sorted(s.labels.items()))): s.value for f in families for s in f.samples}
+    names = {name for name, _ in samples}
+    assert not names & {"online_backlash_play_arcmin", "online_backlash_play_std_arcmin", "online_backlash_hours_to_limit"}
+    assert samples[("online_backlash_state", (("gearbox", "GB-new"), ("state", "unknown")))] == 1.0
+    assert samples[("online_backlash_limit_arcmin", (("gearbox", "GB-new"),))] == 21.0

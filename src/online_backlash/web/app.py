@@ -7,6 +7,7 @@ Routes (all GET; nothing writes):
 * ``/gearbox/<id>/wear.png``: :func:`~online_backlash.web.figures.wear_png`.
 * ``/gearbox/<id>/characteristic.png``: the loop of the newest estimate with the parameters of
   eq. (1); 404 if no estimate carries them.
+* ``/metrics``: every gearbox's gauges in the Prometheus text format (:mod:`.metrics`).
 """
 
 from __future__ import annotations
@@ -22,6 +23,7 @@ from ..history.report import wear_report
 from ..history.store import HistoryStore
 from .figures import characteristic_png, latest_characteristic, wear_png
 from .fleet import fleet_rows
+from .metrics import metrics_text
 from .readonly import open_read_only
 
 #: Seconds between the page's own reloads.
@@ -76,6 +78,13 @@ def create_app(
             abort(404)
         estimate, params = found
         return _png(characteristic_png(gearbox_id, estimate, params))
+
+    @app.get("/metrics")
+    def metrics() -> Response:
+        from prometheus_client import CONTENT_TYPE_LATEST
+
+        body = metrics_text(store, max_age_h)
+        return Response(body, content_type=CONTENT_TYPE_LATEST, headers={"Cache-Control": "no-store"})
 
     return app
 
