@@ -181,6 +181,20 @@ CASES = {
     "history: no store": Case(("history", "--db", "{db}", "--gearbox", "g"), 1, r"error: no history store at {db}"),
     "history --check: no store": Case(("history", "--db", "{db}", "--gearbox", "g", "--check"), 3, r"^$", r"BACKLASH UNKNOWN - error: no history store"),
     "history: --plot out.xyz": Case(("history", "--db", "{db}", "--gearbox", "g", "--plot", "{d}/w.xyz"), 1, r"error: {d}/w.xyz: cannot draw a plot as \.xyz"),
+    # -- opcua (checked before anything listens)
+    "opcua: bad endpoint": Case(
+        ("opcua", "--db", "{db}", "--endpoint", "http://plant:4840", "--allow-anonymous"), 1, r"error: --endpoint: expected opc\.tcp://HOST:PORT"
+    ),
+    "opcua: endpoint without a port": Case(
+        ("opcua", "--db", "{db}", "--endpoint", "opc.tcp://plant", "--allow-anonymous"), 1, r"error: --endpoint: expected opc\.tcp://HOST:PORT"
+    ),
+    "opcua: no store": Case(("opcua", "--db", "{db}", "--allow-anonymous"), 1, r"error: no history store at {db}"),
+    "opcua: bad certificate path": Case(
+        ("opcua", "--db", "{db}", "--cert", "{d}/none.der", "--key", "{d}/none.pem", "--allow-anonymous"), 1, r"error: {d}/none.der: --cert: no such file"
+    ),
+    "opcua: --cert without --key": Case(("opcua", "--db", "{db}", "--cert", "{d}/good.csv", "--allow-anonymous"), 1, r"error: --cert and --key go together"),
+    "opcua: no user, no anonymous": Case(("opcua", "--db", "{db}"), 1, r"error: give --user NAME \(its password in the environment variable"),
+    "opcua: --poll 0": Case(("opcua", "--db", "{db}", "--poll", "0"), 2, r"error: argument --poll: expected a positive number"),
 }
 
 

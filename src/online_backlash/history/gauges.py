@@ -31,6 +31,8 @@ class GearboxGauges:
         ``ok``, ``warning``, ``alarm`` or ``unknown`` (:mod:`.alarms`), and ``state_reason`` why.
     play_arcmin, play_std_arcmin : float or None
         The latest observable estimate of the play and its standard error, arcmin.
+    play_deg : float or None
+        The same play in degrees, as stored.
     play_time_unix_s : float or None
         The time of that estimate, UNIX seconds.
     play_observable : bool or None
@@ -53,6 +55,7 @@ class GearboxGauges:
     state_reason: str
     play_arcmin: float | None
     play_std_arcmin: float | None
+    play_deg: float | None
     play_time_unix_s: float | None
     play_observable: bool | None
     warn_arcmin: float | None
@@ -77,10 +80,10 @@ def gearbox_gauges(report: WearReport) -> GearboxGauges:
     """The gauges of one gearbox from its wear report (see the module docstring)."""
     status = report.status
     estimates = report.estimates
-    std = None
-    if status.play_time_unix_s is not None:  # the standard error of the estimate the play is read from
+    latest = None
+    if status.play_time_unix_s is not None:  # the estimate the play is read from
         seen = [e for e, ok in zip(estimates, report.observable) if ok and e.time_unix_s == status.play_time_unix_s]
-        std = arcmin(seen[-1].backlash_std_deg) if seen else None
+        latest = seen[-1] if seen else None
     stiffness = [e.stiffness_nm_per_arcmin for e in estimates if e.stiffness_nm_per_arcmin is not None]
     hours = report.summary.as_dict()["forecast_hours_to_limit"]
     return GearboxGauges(
@@ -88,7 +91,8 @@ def gearbox_gauges(report: WearReport) -> GearboxGauges:
         state=status.state,
         state_reason=status.reason,
         play_arcmin=status.play_arcmin,
-        play_std_arcmin=std,
+        play_std_arcmin=None if latest is None else arcmin(latest.backlash_std_deg),
+        play_deg=None if latest is None else latest.backlash_deg,
         play_time_unix_s=status.play_time_unix_s,
         play_observable=bool(estimates[-1].play_observable) if estimates else None,
         warn_arcmin=status.warn_arcmin,

@@ -54,7 +54,9 @@ class StoreCollector(Collector):
 
     def collect(self) -> Iterator[GaugeMetricFamily]:
         now = time.time()
-        reports = (wear_report(self.store, g, max_age_h=self.max_age_h, now_unix_s=now) for g in self.store.gearbox_ids())
+        reports = (
+            wear_report(self.store, g, max_age_h=self.max_age_h, now_unix_s=now) for g in self.store.gearbox_ids()
+        )
         fleet = [gearbox_gauges(report) for report in reports]
         for name, (doc, attribute) in GAUGES.items():
             family = GaugeMetricFamily(PREFIX + name, doc, labels=["gearbox"])
