@@ -11,6 +11,9 @@ class plus one entry in :mod:`~online_backlash.replay.registry`.
     canlog.py         CanLog: python-can's log formats decoded with a DBC (blocks, compiled pairing)
     canopenlog.py     CanopenLog: the same logs of CANopen drives, decoded with their EDS/DCF (SYNC groups)
     serialcapture.py  SerialCapture: raw serial captures through the live parser
+    matv5.py          MatV5Log: MATLAB v4-v7 .mat files (scipy.io)
+    hdf5.py           Hdf5Log: HDF5 files and MATLAB v7.3 .mat files (h5py), read in slices
+    variables.py      what those two share: the tree of variables, names resolved to roles, blocks along samples
     paths.py          a file's suffix
 """
 

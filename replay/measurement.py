@@ -1,9 +1,10 @@
-"""Measurement files (MDF, TDMS, Parquet/Arrow) in the reader registry, and ``.mf4`` by content.
+"""Measurement files (MDF, TDMS, Parquet/Arrow, MATLAB, HDF5) in the reader registry, ``.mf4`` and ``.mat`` by content.
 
 An ``.mf4``/``.mdf`` file is either bus logging (CAN frames, which python-can reads: a CAN log
 decoded with a DBC) or measured signals (a measurement file): :func:`is_measurement_log` decides
 from the file's content, so the CLI knows which options to pass and :func:`open_mdf_or_can`
-opens the right reader. Readers are imported on use (asammdf, npTDMS and pyarrow are heavy).
+opens the right reader. A ``.mat`` file is MATLAB v4-v7 (scipy) or v7.3 (HDF5, h5py): :func:`_mat`
+decides from its header. Readers are imported on use (asammdf, npTDMS, pyarrow, h5py are heavy).
 """
 
 from __future__ import annotations
@@ -35,6 +36,19 @@ def _parquet(path: str | os.PathLike[str], **options: Any) -> SampleSource:
     return ParquetLog(path, **options)
 
 
+def _hdf5(path: str | os.PathLike[str], **options: Any) -> SampleSource:
+    from .hdf5 import Hdf5Log
+
+    return Hdf5Log(path, **options)
+
+
+def _mat(path: str | os.PathLike[str], **options: Any) -> SampleSource:
+    """A MATLAB file: v7.3 (HDF5 inside) or v4-v7, by its header."""
+    from .matv5 import MatV5Log, is_mat_v73
+
+    return _hdf5(path, **options) if os.path.isfile(path) and is_mat_v73(path) else MatV5Log(path, **options)
+
+
 #: suffix -> reader of the measurement-file formats (``.mf4`` is decided by content: :func:`open_mdf_or_can`).
 MEASUREMENT_READERS: dict[str, Callable[..., SampleSource]] = {
     ".mdf": _mdf,
@@ -44,6 +58,9 @@ MEASUREMENT_READERS: dict[str, Callable[..., SampleSource]] = {
     ".arrow": _parquet,
     ".feather": _parquet,
     ".ipc": _parquet,
+    ".mat": _mat,
+    ".h5": _hdf5,
+    ".hdf5": _hdf5,
 }
 #: The suffix of both CAN bus logging (python-can's MF4 format) and measured signals.
 MF4 = ".mf4"

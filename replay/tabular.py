@@ -162,8 +162,9 @@ class ChannelInfo:
     """One column or channel of a file, as ``inspect`` lists it.
 
     ``group`` is the MDF channel group index or TDMS group name (None for flat tables), ``unit``
-    the unit string (None where the format has none), ``samples`` the number of values and
-    ``rate_hz`` the sampling rate where the file states or implies it.
+    the unit string (None where the format has none), ``samples`` the number of values,
+    ``rate_hz`` the sampling rate where the file states or implies it, and ``shape`` the array's
+    shape as its author sees it (MATLAB and HDF5 variables: ``20000x1``).
     """
 
     name: str
@@ -172,6 +173,7 @@ class ChannelInfo:
     group: str | int | None = None
     unit: str | None = None
     rate_hz: float | None = None
+    shape: str | None = None
 
 
 class Resampler:

@@ -78,6 +78,12 @@ def files(tmp_path_factory) -> Path:
 
     pd.read_csv(d / "good.csv").to_csv(d / "german.csv", sep=";", decimal=",", index=False)
     put("run.asc", "date Mon Nov 23 01:00:00.000 pm 2026\nbase hex  timestamps absolute\n")
+    import scipy.io
+
+    scipy.io.savemat(d / "good.mat", {"time": rec.time_s[:, None], "motor": rec.motor_deg[:, None], "load": rec.load_deg[:, None]})
+    data = (d / "good.mat").read_bytes()
+    (d / "trunc.mat").write_bytes(data[: len(data) // 2])
+    put("text.h5", "time,motor,load\n0,0,0\n")  # not HDF5 at all
     return d
 
 
@@ -181,6 +187,15 @@ CASES = {
     "history: no store": Case(("history", "--db", "{db}", "--gearbox", "g"), 1, r"error: no history store at {db}"),
     "history --check: no store": Case(("history", "--db", "{db}", "--gearbox", "g", "--check"), 3, r"^$", r"BACKLASH UNKNOWN - error: no history store"),
     "history: --plot out.xyz": Case(("history", "--db", "{db}", "--gearbox", "g", "--plot", "{d}/w.xyz"), 1, r"error: {d}/w.xyz: cannot draw a plot as \.xyz"),
+    # -- MATLAB and HDF5 files
+    "truncated .mat": Case((*E, "{d}/trunc.mat", *R), 1, r"error: {d}/trunc.mat: not a readable MATLAB file"),
+    "text named .h5": Case((*E, "{d}/text.h5", *R), 1, r"error: {d}/text.h5: not an HDF5 file"),
+    ".mat: missing variable": Case(
+        (*E, "{d}/good.mat", *R, "--columns", "motor=Motor"), 1, r"error: {d}/good.mat: no variable 'Motor' for motor \(closest: \['motor'\]"
+    ),
+    "inspect: truncated .mat": Case(("inspect", "{d}/trunc.mat"), 1, r"error: {d}/trunc.mat: not a readable MATLAB file"),
+    "inspect: text named .h5": Case(("inspect", "{d}/text.h5"), 1, r"error: {d}/text.h5: not an HDF5 file"),
+    "track: truncated .mat": Case((*T, "{d}/trunc.mat", *TRACK), 1, r"error: {d}/trunc.mat: not a readable MATLAB file"),
     # -- opcua (checked before anything listens)
     "opcua: bad endpoint": Case(
         ("opcua", "--db", "{db}", "--endpoint", "http://plant:4840", "--allow-anonymous"), 1, r"error: --endpoint: expected opc\.tcp://HOST:PORT"

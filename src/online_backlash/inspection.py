@@ -2,6 +2,7 @@
 
 :func:`inspect_file` lists a CSV's or Parquet/Arrow table's columns (type, rows), an MDF file's
 channels (group, unit, rate, samples), a TDMS file's ``group/channel`` s (unit, length, rate),
+a MATLAB or HDF5 file's variables (shape, type, length, unit),
 or the CAN IDs seen in a CAN log with their counts, rates and (with a DBC) message names, so a
 user with 400 channels finds the two to map with ``--columns``. Nothing is printed here.
 
@@ -73,13 +74,15 @@ class FileSummary:
         )
 
     def as_dict(self) -> dict[str, Any]:
-        """A JSON-ready dict: ``path``, ``kind``, ``channels`` or ``can_ids`` (and ``frames`` for CAN logs)."""
+        """A JSON-ready dict: ``path``, ``kind``, ``channels`` (with ``shape`` for MATLAB and HDF5 variables) or
+        ``can_ids`` (and ``frames`` for CAN logs)."""
         out: dict[str, Any] = {"path": self.path, "kind": self.kind}
         if self.kind == "can":
             out["frames"] = self.frames
             out["can_ids"] = [{**asdict(i), "id": i.label} for i in self.can_ids]
         else:
-            out["channels"] = [asdict(c) for c in self.channels]
+            # a shape only where the format has arrays (MATLAB, HDF5): the other formats' keys stay as they were
+            out["channels"] = [{k: v for k, v in asdict(c).items() if k != "shape" or v is not None} for c in self.channels]
         return out
 
 
@@ -107,6 +110,8 @@ def inspect_file(
             from .replay.tdms import describe as tdms_channels
 
             return FileSummary(path, "tdms", tdms_channels(path))
+        if suffix in (".mat", ".h5", ".hdf5"):
+            return _variables(path)
         from .replay.parquet import ARROW_SUFFIXES
         from .replay.parquet import describe as table_columns
 
@@ -117,6 +122,18 @@ def inspect_file(
         return _can_ids(path, dbc)
     known = sorted({".csv", *MEASUREMENT_READERS, *CAN_LOG_SUFFIXES})
     raise LogFormatError(path, None, f"inspect reads {', '.join(known)} files, not {suffix or 'files without a suffix'!r}")
+
+
+def _variables(path: str) -> FileSummary:
+    """A MATLAB or HDF5 file's variables (struct fields, group/datasets) with shape, type, length, unit."""
+    from .replay.hdf5 import describe as hdf5_variables
+    from .replay.matv5 import describe as mat_variables
+    from .replay.matv5 import is_mat_v73
+
+    if file_suffix(path) == ".mat" and not is_mat_v73(path):
+        return FileSummary(path, "mat", mat_variables(path))
+    kind, variables = hdf5_variables(path)
+    return FileSummary(path, kind, variables)
 
 
 def _csv_columns(path: str, sample_rows: int = 10000, delimiter: str | None = None, decimal: str | None = None) -> list[ChannelInfo]:

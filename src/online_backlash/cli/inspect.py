@@ -21,14 +21,17 @@ def add_subparser(subparsers: argparse._SubParsersAction) -> None:
         description=(
             "List what a recorded file holds, to find the names for --columns or --motor-signal/--load-signal: "
             "CSV, Parquet and Arrow columns (type, rows); MDF channels (group, unit, rate, samples); "
-            "TDMS group/channels (unit, length, rate); CAN log IDs (frames, rate, DBC message names with --dbc). "
+            "TDMS group/channels (unit, length, rate); MATLAB and HDF5 variables (shape, type, length, unit); "
+            "CAN log IDs (frames, rate, DBC message names with --dbc). "
             "With --eds/--node (repeated: one pair per node, or one --eds for every --node), each CANopen node's TPDO "
             "mapping (COB-ID, transmission type, mapped objects), and a CAN log's COB-IDs named by it; FILE may then be omitted."
         ),
         formatter_class=argparse.ArgumentDefaultsHelpFormatter,
     )
     parser.add_argument(
-        "file", nargs="?", help="a .csv[.gz], .parquet, .arrow/.feather, .mf4/.mdf, .tdms file or a CAN log (.asc .blf .log .trc .mf4 ...)"
+        "file", nargs="?",
+        help="a .csv[.gz], .parquet, .arrow/.feather, .mf4/.mdf, .tdms, .mat, .h5/.hdf5 file "
+        "or a CAN log (.asc .blf .log .trc .mf4 ...)",
     )
     parser.add_argument("--dbc", metavar="FILE", help="name the CAN IDs of a CAN log by this DBC ('rig' for the shipped rig.dbc)")
     parser.add_argument(
@@ -80,10 +83,16 @@ def _print_summary(summary: FileSummary) -> None:
         table = [("id", "frames", "rate_hz", "message")]
         table += [(i.label, str(i.frames), _number(i.rate_hz), i.message or "") for i in summary.can_ids]
     else:
-        print(f"{summary.path}: {summary.kind}, {len(summary.channels)} {'channels' if summary.kind in ('mdf', 'tdms') else 'columns'}")
-        table = [("name", "group", "unit", "type", "samples", "rate_hz")]
+        nouns = {"mdf": "channels", "tdms": "channels", "mat": "variables", "mat-v7.3": "variables"}
+        noun = nouns.get(summary.kind, "variables" if summary.kind == "hdf5" else "columns")
+        print(f"{summary.path}: {summary.kind}, {len(summary.channels)} {noun}")
+        shaped = any(c.shape for c in summary.channels)  # MATLAB and HDF5 arrays: their shape too
+        table = [("name", "group", "unit", "type", *(("shape",) if shaped else ()), "samples", "rate_hz")]
         table += [
-            (c.name, "" if c.group is None else str(c.group), c.unit or "", c.dtype, "" if c.samples is None else str(c.samples), _number(c.rate_hz))
+            (
+                c.name, "" if c.group is None else str(c.group), c.unit or "", c.dtype,
+                *((c.shape or "",) if shaped else ()), "" if c.samples is None else str(c.samples), _number(c.rate_hz),
+            )
             for c in summary.channels
         ]
     _print_table(table)
