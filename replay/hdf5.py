@@ -119,35 +119,29 @@ def _open_h5(path: str) -> Any:
 
 
 class Hdf5Log(VariableLog):
-    """An HDF5 or MATLAB v7.3 file replayed as a stream of samples (see the module docstring).
+    """An HDF5 (``.h5``, ``.hdf5``) or MATLAB v7.3 (``.mat``) file replayed as a stream of samples.
 
-    Parameters
-    ----------
-    path : str or os.PathLike
-        ``.h5``, ``.hdf5``, or a ``.mat`` saved with ``-v7.3``.
-    columns : dict, optional
-        Role -> variable (``group/dataset``, ``struct.field``, ``NAME(:,K)``) for ``motor``, ``load``,
-        ``torque`` (optional) and ``time`` (optional: the time vector beside the motor's).
-    units : str, optional
-        Overrides the motor and load variables' units.
-    motor_cpr, load_cpr : float, optional
-        Counts per revolution of variables in encoder counts.
-    skip_bad : bool
-        Count and skip non-finite or out-of-order samples instead of raising.
-    block_rows : int
-        Samples read at once (memory stays bounded by it).
+    Parameters as :class:`~online_backlash.replay.tabular.MeasurementLog`; ``columns`` maps roles to
+    variables (``group/dataset``, ``struct.field``, ``NAME(:,K)``; :mod:`~online_backlash.replay.variables`).
     """
 
     def _load(self) -> tuple[VariableTree, tuple[Any, ...]]:
         h5 = _open_h5(self.path)
         try:
-            return _tree(h5, self.path), (h5,)
-        except LogFormatError:
+            return _read_tree(h5, self.path), (h5,)
+        except BaseException:
             h5.close()
             raise
-        except Exception as exc:  # a damaged object header
-            h5.close()
-            raise LogFormatError(self.path, None, f"not a readable HDF5 file ({type(exc).__name__}: {exc})") from exc
+
+
+def _read_tree(h5: Any, path: str) -> VariableTree:
+    """The tree of an open file; a damaged object header raises LogFormatError naming the file."""
+    try:
+        return _tree(h5, path)
+    except LogFormatError:
+        raise
+    except Exception as exc:
+        raise LogFormatError(path, None, f"not a readable HDF5 file ({type(exc).__name__}: {exc})") from exc
 
 
 def describe(path: str | os.PathLike[str]) -> tuple[str, list[ChannelInfo]]:
@@ -155,11 +149,7 @@ def describe(path: str | os.PathLike[str]) -> tuple[str, list[ChannelInfo]]:
     path = os.fspath(path)
     h5 = _open_h5(path)
     try:
-        tree = _tree(h5, path)
+        tree = _read_tree(h5, path)
         return ("mat-v7.3" if tree.kind == "MATLAB" else "hdf5"), describe_tree(tree)
-    except LogFormatError:
-        raise
-    except Exception as exc:
-        raise LogFormatError(path, None, f"not a readable HDF5 file ({type(exc).__name__}: {exc})") from exc
     finally:
         h5.close()

@@ -307,6 +307,31 @@ class TabularSource(SampleSource):
         self._pass_last_time = found.last_time
         return SampleChunk(time_s=time, motor_deg=motor, load_deg=load, torque_Nm=torque, after_gap=after_gap), found.last_time
 
+    def _on_motor_time(
+        self,
+        columns: dict[str, np.ndarray],
+        foreign: dict[str, Resampler],
+        first: int,
+        last_time: float,
+        scales: tuple[float, float, float, float],
+    ) -> tuple[SampleChunk, float]:
+        """One block on the motor's time base (``columns["time"]``, seconds, from row ``first``): the roles recorded
+        on other time bases (``foreign``) interpolated onto it, the motor samples outside their span counted in
+        ``counters.skipped`` and left out, then :meth:`_validate_columns` (``scales``: :func:`channel_scales`)."""
+        time = columns["time"]
+        inside = np.ones(time.size, bool)
+        for role, resampler in foreign.items():
+            columns[role], ok = resampler.at(time)
+            inside &= ok
+        self.counters.frames += time.size
+        self.counters.skipped += int(np.count_nonzero(~inside))
+        torque = [columns["torque"] * scales[3]] if "torque" in columns else []
+        arrays = [time, columns["motor"], columns["load"], *torque]
+        numbers: np.ndarray | int = first
+        if not inside.all():
+            arrays, numbers = [a[inside] for a in arrays], np.flatnonzero(inside) + first
+        return self._validate_columns(arrays, numbers, last_time, scales[1:3])
+
     def _reject(self, columns: list[np.ndarray], numbers: np.ndarray | int, found: Screened) -> None:
         """The bad rows :func:`~online_backlash.replay.screen.screen_block` found: LogFormatError naming the first
         (by value before by time, as row-by-row checks find them), or with ``skip_bad`` counted in ``counters.corrupt``."""

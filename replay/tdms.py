@@ -137,23 +137,13 @@ class TdmsLog(MeasurementLog):
             units["time"] = None
         scales = channel_scales(self.path, self.columns, units, self.units, self.motor_cpr, self.load_cpr)
         wave = None if "time" in present else self._waveform("motor", motor)
-        has_torque = "torque" in present
         last_time = -np.inf
         for first in range(0, n, self.block_rows):
             columns = {r: self._slice(r, found[r], first, first + self.block_rows) for r in aligned}
             size = columns["motor"].size
-            time = columns["time"] * scales[0] if wave is None else wave[0] + wave[1] * np.arange(first, first + size)
-            inside = np.ones(size, bool)
-            for r, resampler in foreign.items():
-                columns[r], ok = resampler.at(time)
-                inside &= ok
-            self.counters.frames += size
-            self.counters.skipped += int(np.count_nonzero(~inside))
-            arrays = [time, columns["motor"], columns["load"]] + ([columns["torque"] * scales[3]] if has_torque else [])
-            numbers: np.ndarray | int = first
-            if not inside.all():
-                arrays, numbers = [a[inside] for a in arrays], np.flatnonzero(inside) + first
-            chunk, last_time = self._validate_columns(arrays, numbers, last_time, scales[1:3])
+            waveform = None if wave is None else wave[0] + wave[1] * np.arange(first, first + size)
+            columns["time"] = columns["time"] * scales[0] if waveform is None else waveform
+            chunk, last_time = self._on_motor_time(columns, foreign, first, last_time, scales)
             if len(chunk):
                 yield chunk
 

@@ -296,7 +296,8 @@ class VariableLog(MeasurementLog):
                 None,
                 f"time {time.array.name!r} has {time.array.samples} values, motor {motor.array.name!r} {n}",
             )
-        aligned, foreign = ["time", "motor"], {}
+        aligned = ["time", "motor"]
+        foreign: dict[str, Resampler] = {}
         for role in ("load", "torque"):
             if role not in signals:
                 continue
@@ -314,25 +315,12 @@ class VariableLog(MeasurementLog):
                 foreign[role] = Resampler(self._blocks(own, signals[role]), self.path, self.columns[role])
         units = {r: (signals[r].unit if r in signals else None) for r in ROLES}
         scales = channel_scales(self.path, self.columns, units, self.units, self.motor_cpr, self.load_cpr)
-        has_torque = "torque" in signals
         last_time = -np.inf
         for first in range(0, n, self.block_rows):
             stop = min(first + self.block_rows, n)
             columns = {r: self._values(signals[r], r, first, stop) for r in aligned}
             columns["time"] = columns["time"] * scales[0]
-            inside = np.ones(stop - first, bool)
-            for role, resampler in foreign.items():
-                columns[role], ok = resampler.at(columns["time"])
-                inside &= ok
-            self.counters.frames += stop - first
-            self.counters.skipped += int(np.count_nonzero(~inside))
-            arrays = [columns["time"], columns["motor"], columns["load"]] + (
-                [columns["torque"] * scales[3]] if has_torque else []
-            )
-            numbers: np.ndarray | int = first
-            if not inside.all():
-                arrays, numbers = [a[inside] for a in arrays], np.flatnonzero(inside) + first
-            chunk, last_time = self._validate_columns(arrays, numbers, last_time, scales[1:3])
+            chunk, last_time = self._on_motor_time(columns, foreign, first, last_time, scales)
             if len(chunk):
                 yield chunk
 
