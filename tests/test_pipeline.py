@@ -286,7 +286,8 @@ NEVER_IMPORTS = {
     "bridging": ("replay", "drivers", "codecs", "estimators", "pipeline", "tracking", "history", "diagnostics", "fitting", "cli"),
     "web": ("replay", "drivers", "codecs", "estimators", "pipeline", "tracking", "diagnostics", "fitting", "cli", "publish"),
     "opcua": (
-        "replay", "drivers", "codecs", "estimators", "pipeline", "tracking", "diagnostics", "fitting", "cli", "publish", "web",
+        "replay", "drivers", "codecs", "estimators", "pipeline", "tracking", "diagnostics", "fitting", "cli", "publish",
+        "web",
     ),
     "load_aware": ("replay", "drivers", "codecs", "pipeline", "tracking", "history", "diagnostics", "fitting", "cli", "publish", "web"),
     "fleet": ("replay", "drivers", "codecs", "estimators", "pipeline", "tracking", "history", "diagnostics", "fitting", "cli", "publish", "web"),

@@ -19,6 +19,7 @@ import pytest
 from PIL import Image
 from sqlalchemy.exc import DBAPIError
 
+from online_backlash.history.alarms import STATES
 from online_backlash.history.store import HistoryStore
 from online_backlash.web import open_read_only
 
@@ -249,7 +250,7 @@ def test_metrics_are_the_history_figures_to_the_last_digit(server, fleet_db):
         assert value("play_observable") == 1.0
         age = value("last_estimate_age_seconds")
         assert before - age <= last["time_unix_s"] + 1e-6 and last["time_unix_s"] <= after - age + 1e-6
-        states = {s: value("state", (("gearbox", gearbox_id), ("state", s))) for s in ("ok", "warning", "alarm", "unknown")}
+        states = {s: value("state", (("gearbox", gearbox_id), ("state", s))) for s in STATES}
         assert states == {s: float(s == history["state"]) for s in states}, states
     assert {k[1][0][1] for k in samples if k[0] == "online_backlash_play_arcmin"} == {"GB-1", "GB-2"}
 
@@ -269,6 +270,7 @@ def test_metrics_leave_out_what_is_not_known(tmp_path):
     families = text_string_to_metric_families(response.text)
     samples = {(s.name, tuple(sorted(s.labels.items()))): s.value for f in families for s in f.samples}
     names = {name for name, _ in samples}
-    assert not names & {"online_backlash_play_arcmin", "online_backlash_play_std_arcmin", "online_backlash_hours_to_limit"}
+    unknown = {"online_backlash_play_arcmin", "online_backlash_play_std_arcmin", "online_backlash_hours_to_limit"}
+    assert not names & unknown
     assert samples[("online_backlash_state", (("gearbox", "GB-new"), ("state", "unknown")))] == 1.0
     assert samples[("online_backlash_limit_arcmin", (("gearbox", "GB-new"),))] == 21.0

@@ -82,8 +82,13 @@ class FileSummary:
             out["can_ids"] = [{**asdict(i), "id": i.label} for i in self.can_ids]
         else:
             # a shape only where the format has arrays (MATLAB, HDF5): the other formats' keys stay as they were
-            out["channels"] = [{k: v for k, v in asdict(c).items() if k != "shape" or v is not None} for c in self.channels]
+            out["channels"] = [_channel_dict(c) for c in self.channels]
         return out
+
+
+def _channel_dict(channel: ChannelInfo) -> dict[str, Any]:
+    """A channel as JSON; ``shape`` only where the format has arrays (MATLAB, HDF5)."""
+    return {k: v for k, v in asdict(channel).items() if k != "shape" or v is not None}
 
 
 def inspect_file(
