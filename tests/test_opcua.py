@@ -8,6 +8,7 @@ Every wait is on a line the server prints or a notification the client receives,
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import json
 import os
 import select
@@ -68,6 +69,31 @@ def _client_certificate(folder: Path, keys: Path, name: str) -> tuple[Path, Path
     return cert, key
 
 
+@contextlib.contextmanager
+def _serving(folder: Path, *argv: str):
+    """``online-backlash opcua ARGV`` on a free localhost port, as a process; yields its endpoint and start line."""
+    url = f"opc.tcp://127.0.0.1:{_free_port()}/online-backlash"
+    log = folder / f"opcua-{len(list(folder.glob('opcua-*.log')))}.log"
+    with open(log, "w") as err:
+        proc = subprocess.Popen(
+            [sys.executable, "-c", CLI, "opcua", "--endpoint", url, *argv],
+            stdout=subprocess.PIPE,
+            stderr=err,
+            text=True,
+            env={**os.environ, "ONLINE_BACKLASH_OPCUA_PASSWORD": PASSWORD},
+        )
+    try:
+        ready, _, _ = select.select([proc.stdout], [], [], WAIT_S)
+        line = proc.stdout.readline() if ready else ""
+        assert f"over OPC UA on {url}" in line, f"opcua did not start: {line!r} {log.read_text()}"
+        yield url, line
+    finally:
+        proc.terminate()
+        code = proc.wait(timeout=30)
+        proc.stdout.close()
+        assert code == 0, log.read_text()
+
+
 @pytest.fixture(scope="module")
 def plant(tmp_path_factory):
     """A store with day 1 of GB-7 (warning 13, limit 21 arcmin: ok), a trusted and an untrusted client
@@ -80,29 +106,10 @@ def plant(tmp_path_factory):
     keys.mkdir()
     cert, key = _client_certificate(trusted, keys, "control-room")
     other = _client_certificate(keys, keys, "unknown-laptop")
-    url = f"opc.tcp://127.0.0.1:{_free_port()}/online-backlash"
-    argv = ["opcua", "--db", str(db), "--endpoint", url, "--pki", str(d / "pki"), "--trust", str(trusted)]
-    argv += ["--user", USER, "--poll", "0.5", "--max-age-h", "1e6"]
-    log = d / "opcua.log"
-    with open(log, "w") as err:
-        proc = subprocess.Popen(
-            [sys.executable, "-c", CLI, *argv],
-            stdout=subprocess.PIPE,
-            stderr=err,
-            text=True,
-            env={**os.environ, "ONLINE_BACKLASH_OPCUA_PASSWORD": PASSWORD},
-        )
-    try:
-        ready, _, _ = select.select([proc.stdout], [], [], WAIT_S)
-        line = proc.stdout.readline() if ready else ""
-        assert f"over OPC UA on {url}" in line, f"opcua did not start: {line!r} {log.read_text()}"
+    argv = ("--db", str(db), "--pki", str(d / "pki"), "--trust", str(trusted), "--user", USER)
+    with _serving(d, *argv, "--poll", "0.5", "--max-age-h", "1e6") as (url, line):
         assert "certificate made in" in line and (d / "pki" / "server-cert.der").is_file()
-        yield {"db": db, "url": url, "cert": cert, "key": key, "other": other, "proc": proc}
-    finally:
-        proc.terminate()
-        code = proc.wait(timeout=30)
-        proc.stdout.close()
-        assert code == 0, log.read_text()
+        yield {"db": db, "url": url, "cert": cert, "key": key, "other": other, "dir": d}
 
 
 async def _connect(plant: dict, user: str | None = USER, password: str = PASSWORD, cert: tuple | None = None) -> Client:
@@ -280,3 +287,61 @@ def test_the_server_is_read_only(plant):
 
     errors = asyncio.run(try_to_write())
     assert all(e in ("BadUserAccessDenied", "BadNotWritable") for e in errors), errors
+
+
+def test_a_given_certificate_and_anonymous_sessions_when_allowed(plant):
+    """The certificate made on the first run, given with --cert/--key; --allow-anonymous lets a client in without
+    a login, and it still cannot write."""
+    pki = plant["dir"] / "pki"
+    argv = ("--db", str(plant["db"]), "--cert", str(pki / "server-cert.der"), "--key", str(pki / "server-key.pem"))
+    with _serving(plant["dir"], *argv, "--allow-anonymous", "--max-age-h", "1e6") as (url, line):
+        assert f"certificate {pki / 'server-cert.der'}" in line and "anonymous sessions" in line
+
+        async def anonymous() -> tuple[str, str]:
+            client = await _connect({**plant, "url": url}, user=None)
+            try:
+                gearbox, idx = await _gearbox(client)
+                state = await (await gearbox.get_child(f"{idx}:State")).read_value()
+                try:
+                    await (await gearbox.get_child(f"{idx}:PlayArcmin")).write_value(1.0)
+                    refused = ""
+                except ua.UaStatusCodeError as exc:
+                    refused = type(exc).__name__
+                return state, refused
+            finally:
+                await client.disconnect()
+
+        state, refused = asyncio.run(anonymous())
+    assert state == _history(plant["db"])["state"] and refused in ("BadUserAccessDenied", "BadNotWritable")
+
+
+def test_a_file_that_is_no_certificate_and_a_taken_port_are_one_line_errors(plant, tmp_path, capsys):
+    from online_backlash.cli import main
+
+    bad = tmp_path / "cert.der"
+    bad.write_text("not a certificate")
+    argv = ["opcua", "--db", str(plant["db"]), "--cert", str(bad), "--key", str(bad), "--allow-anonymous"]
+    assert main([*argv, "--endpoint", f"opc.tcp://127.0.0.1:{_free_port()}"]) == 1
+    err = capsys.readouterr().err
+    assert err.startswith(f"error: {bad}: not a usable certificate and private key") and err.count("\n") == 1
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen()
+        port = taken.getsockname()[1]
+        assert (
+            main(
+                [
+                    "opcua",
+                    "--db",
+                    str(plant["db"]),
+                    "--security",
+                    "none",
+                    "--allow-anonymous",
+                    "--endpoint",
+                    f"opc.tcp://127.0.0.1:{port}",
+                ]
+            )
+            == 1
+        )
+    err = capsys.readouterr().err
+    assert err.startswith(f"error: --endpoint opc.tcp://127.0.0.1:{port}: cannot listen there") and err.count("\n") == 1

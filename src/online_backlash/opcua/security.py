@@ -54,7 +54,9 @@ class ReadOnlyUsers(UserManager):
     def get_user(
         self, iserver: Any, username: str | None = None, password: str | None = None, certificate: Any = None
     ) -> User | None:
-        if username is None and certificate is None:
+        # ``certificate`` is the secure channel's client certificate, whatever the token; user certificates
+        # (X509 tokens) are not offered, so a session without a user name is an anonymous one
+        if username is None:
             return User(role=UserRole.User, name="anonymous") if self.allow_anonymous else None
         if self.user is None or self.password is None or username != self.user or password is None:
             return None
