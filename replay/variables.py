@@ -35,7 +35,7 @@ import numpy as np
 from online_backlash.errors import LogFormatError
 from online_backlash.stream import SampleChunk, StreamCounters
 
-from .tabular import ROLES, ChannelInfo, MeasurementLog, Resampler, channel_scales, missing_channel
+from .tabular import ROLES, TIME_UNITS, ChannelInfo, MeasurementLog, Resampler, channel_scales, missing_channel
 
 #: A struct's fields that hold a signal's values (a timeseries saved as a struct, a Simulink export).
 DATA_FIELDS = ("Data", "data", "values", "Values", "signals")
@@ -107,11 +107,11 @@ class Struct:
             elif isinstance(node, Struct):
                 yield from node.arrays()
 
-    def leaves(self) -> Iterator[Array | Opaque]:
-        """Every array and opaque value below, depth first (what ``inspect`` lists)."""
+    def leaves(self) -> Iterator[tuple[Array | Opaque, Struct]]:
+        """Every array and opaque value below with the struct holding it, depth first (what ``inspect`` lists)."""
         for node in self.fields.values():
             if isinstance(node, (Array, Opaque)):
-                yield node
+                yield node, self
             elif isinstance(node, Struct):
                 yield from node.leaves()
 
@@ -227,14 +227,26 @@ def _shape(shape: tuple[int, ...]) -> str:
 
 
 def describe_tree(tree: VariableTree) -> list[ChannelInfo]:
-    """Every array (and opaque value) of a tree with its shape, type, length and unit (``inspect``)."""
+    """Every array (and opaque value) of a tree with its shape, type, length, unit and, where a time vector lies
+    beside it, its sampling rate (``inspect``)."""
     infos = []
-    for leaf in tree.root.leaves():
+    for leaf, home in tree.root.leaves():
         if isinstance(leaf, Array):
-            infos.append(ChannelInfo(leaf.name, leaf.dtype, leaf.samples, None, leaf.unit, shape=_shape(leaf.shape)))
+            rate = _rate(tree.time_beside(Signal(leaf, None, leaf.unit, home)))
+            infos.append(ChannelInfo(leaf.name, leaf.dtype, leaf.samples, None, leaf.unit, rate, _shape(leaf.shape)))
         else:
             infos.append(ChannelInfo(leaf.name, leaf.kind, None, None, None, shape=_shape(leaf.shape)))
     return infos
+
+
+def _rate(time: Signal | None, head: int = 1000) -> float | None:
+    """The sampling rate, Hz, of a time vector (its first ``head`` steps' median; None: none, or in unknown units)."""
+    scale = TIME_UNITS.get((time.unit or "s").strip().lower()) if time is not None else None
+    if time is None or scale is None or time.array.samples < 2:
+        return None
+    steps = np.diff(np.asarray(time.read(0, min(time.array.samples, head + 1)), dtype=float) * scale)
+    steps = steps[np.isfinite(steps) & (steps > 0)]
+    return float(f"{1.0 / np.median(steps):.6g}") if steps.size else None
 
 
 class VariableLog(MeasurementLog):

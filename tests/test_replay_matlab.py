@@ -184,6 +184,8 @@ def test_inspect_lists_variables_with_shape_dtype_and_length(capsys, tmp_path, r
     listed = {
         p: {c.name: (c.shape, c.dtype, c.samples, c.unit) for c in inspect_file(p).channels} for p in (v5, v73, h5)
     }
+    rates = {c.name: c.rate_hz for c in inspect_file(v73).channels}
+    assert rates == {"meas.t": None, "meas.m": 1000.0}  # the rate of the time vector beside it
     n = rec.time_s.size
     assert listed[v5] == {
         "meas.t": (f"{n}x1", "float64", n, None),
@@ -286,3 +288,21 @@ def test_fuzz_bit_flips_and_truncation(small_files, tmp_path, kind, data):
     path = tmp_path / f"fuzz-{kind}.mat"
     path.write_bytes(damaged(small_files[kind], data.draw))
     check_damaged_file(path)
+
+
+def test_track_and_diagnose_read_a_v73_file_and_its_copy_in_v5_is_the_same_log(capsys, tmp_path, rec):
+    """``track`` and ``diagnose`` take a .mat like any log; the same recording saved as v5 after v7.3 is the
+    log already imported (a log is its samples, not its bytes)."""
+    v73, v5 = tmp_path / "rig73.mat", tmp_path / "rig5.mat"
+    meas = {"t": rec.time_s, "EncMotor_deg": rec.motor_deg, "EncLoad_deg": rec.load_deg}
+    write_mat73(v73, {"meas": meas})
+    scipy.io.savemat(v5, {"meas": {k: v[:, None] for k, v in meas.items()}})
+    mapping = ["--columns", "time=meas.t,motor=meas.EncMotor_deg,load=meas.EncLoad_deg"]
+    assert main(["diagnose", str(v73), "--ratio", "30", *mapping, "--json"]) == 0, capsys.readouterr().err
+    diagnosis = json.loads(capsys.readouterr().out)
+    assert diagnosis["samples"] == rec.time_s.size and abs(diagnosis["backlash_before_deg"] - 0.5) < 0.02
+    track = ["--ratio", "30", "--db", str(tmp_path / "wear.db"), "--gearbox", "gb1", "--every", "5", "--quiet", *mapping]
+    assert main(["track", str(v73), *track]) == 0, capsys.readouterr().err
+    assert f"gb1: {v73}: {rec.time_s.size} samples, " in capsys.readouterr().out
+    assert main(["track", str(v5), *track]) == 0, capsys.readouterr().err
+    assert "already imported" in capsys.readouterr().out
