@@ -345,3 +345,13 @@ def test_a_file_that_is_no_certificate_and_a_taken_port_are_one_line_errors(plan
         )
     err = capsys.readouterr().err
     assert err.startswith(f"error: --endpoint opc.tcp://127.0.0.1:{port}: cannot listen there") and err.count("\n") == 1
+
+
+def test_a_password_without_message_security_is_warned_of(tmp_path, capsys, monkeypatch):
+    from online_backlash.cli import main
+
+    monkeypatch.setenv("ONLINE_BACKLASH_OPCUA_PASSWORD", PASSWORD)
+    assert main(["opcua", "--db", str(tmp_path / "none.db"), "--security", "none", "--user", USER]) == 1
+    lines = capsys.readouterr().err.splitlines()
+    assert lines[0] == "warning: --security none: the password of --user crosses the network in plain text"
+    assert lines[1].startswith("error: no history store at ")

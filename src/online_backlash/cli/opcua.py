@@ -7,10 +7,11 @@ import asyncio
 import contextlib
 import logging
 import signal
+import warnings
 from typing import TYPE_CHECKING
 from urllib.parse import urlsplit
 
-from ..errors import InvalidParameterError
+from ..errors import BacklashWarning, InvalidParameterError
 from ._common import positive_float
 
 if TYPE_CHECKING:
@@ -88,6 +89,10 @@ def run(args: argparse.Namespace) -> int:
     endpoint = check_endpoint(args.endpoint)
     security = OpcuaSecurity(args.security, args.cert, args.key, args.pki, args.trust, args.user, args.allow_anonymous)
     security.check()
+    if security.mode == "none" and security.user is not None:
+        warnings.warn(
+            "--security none: the password of --user crosses the network in plain text", BacklashWarning, stacklevel=1
+        )
     if not getattr(args, "debug", False):  # asyncua logs refused connections with their traces: not for a console
         logging.getLogger("asyncua").setLevel(logging.CRITICAL)
     with open_read_only(args.db) as store:
