@@ -355,3 +355,57 @@ def test_a_password_without_message_security_is_warned_of(tmp_path, capsys, monk
     lines = capsys.readouterr().err.splitlines()
     assert lines[0] == "warning: --security none: the password of --user crosses the network in plain text"
     assert lines[1].startswith("error: no history store at ")
+
+
+def _store_with_one_estimate(db: str) -> None:
+    """A gearbox with levels and one observable estimate of 19.5 arcmin (a warning), stored as track stores it."""
+    import time
+
+    from online_backlash.history.store import HistoryStore
+
+    with HistoryStore(db, create=True) as store:
+        store.set_alarm_levels("GB-9", 30.0, warn_arcmin=18.0, limit_arcmin=21.0)
+        gearbox, run = store.begin_run("GB-9", 30.0, "log.csv", "a" * 64, time.time() - 60)
+        row = dict(
+            sample_index=1000,
+            time_unix_s=time.time() - 30,
+            backlash_deg=19.5 / 60,
+            backlash_std_deg=0.002,
+            c_left_deg=None,
+            c_right_deg=None,
+            m_left=None,
+            m_right=None,
+            residual_rms_deg=None,
+            n_samples=1000,
+            operating_hours=0.5,
+            load_revolutions=10.0,
+            reversals=20,
+            stiffness_nm_per_arcmin=4.25,
+        )
+        store.commit(gearbox, run, 1000, {"format": 1}, [row])
+
+
+def test_the_server_in_process_over_either_store(store_db):
+    """PlantServer as a library over SQLite and PostgreSQL (read-only), no message security, an anonymous client:
+    the state and the stiffness are the store's."""
+    from online_backlash.opcua.server import PlantServer
+    from online_backlash.opcua.settings import OpcuaSecurity
+    from online_backlash.web import open_read_only
+
+    _store_with_one_estimate(store_db)
+    url = f"opc.tcp://127.0.0.1:{_free_port()}/online-backlash"
+
+    async def serve_and_read() -> dict:
+        with open_read_only(store_db) as store:
+            server = PlantServer(store, url, OpcuaSecurity("none", allow_anonymous=True))
+            await server.start()
+            try:
+                async with Client(url, timeout=30) as client:
+                    gearbox, idx = await _gearbox(client, "GB-9")
+                    names = ("State", "StateCode", "PlayArcmin", "StiffnessNmPerArcmin")
+                    return {n: await (await gearbox.get_child(f"{idx}:{n}")).read_value() for n in names}
+            finally:
+                await server.stop()
+
+    values = asyncio.run(serve_and_read())
+    assert values == {"State": "warning", "StateCode": 1, "PlayArcmin": 19.5, "StiffnessNmPerArcmin": 4.25}

@@ -255,13 +255,14 @@ def test_metrics_are_the_history_figures_to_the_last_digit(server, fleet_db):
     assert {k[1][0][1] for k in samples if k[0] == "online_backlash_play_arcmin"} == {"GB-1", "GB-2"}
 
 
-def test_metrics_leave_out_what_is_not_known(tmp_path):
-    """A gearbox with levels but no estimate yet: its state is unknown and no play sample is made up."""
+def test_metrics_leave_out_what_is_not_known(store_db):
+    """A gearbox with levels but no estimate yet: its state is unknown and no play sample is made up (SQLite and
+    PostgreSQL, each opened read-only)."""
     from prometheus_client.parser import text_string_to_metric_families
 
     from online_backlash.web import create_app
 
-    db = tmp_path / "new.db"
+    db = store_db
     with HistoryStore(db, create=True) as store:
         store.set_alarm_levels("GB-new", 30.0, warn_arcmin=18.0, limit_arcmin=21.0)
     with open_read_only(db) as store:
