@@ -358,31 +358,15 @@ def test_a_password_without_message_security_is_warned_of(tmp_path, capsys, monk
 
 
 def _store_with_one_estimate(db: str) -> None:
-    """A gearbox with levels and one observable estimate of 19.5 arcmin (a warning), stored as track stores it."""
+    """A gearbox with levels and one observable estimate of 19.5 arcmin (a warning), with a stiffness."""
     import time
+
+    from fleet_store import fill_gearbox
 
     from online_backlash.history.store import HistoryStore
 
     with HistoryStore(db, create=True) as store:
-        store.set_alarm_levels("GB-9", 30.0, warn_arcmin=18.0, limit_arcmin=21.0)
-        gearbox, run = store.begin_run("GB-9", 30.0, "log.csv", "a" * 64, time.time() - 60)
-        row = dict(
-            sample_index=1000,
-            time_unix_s=time.time() - 30,
-            backlash_deg=19.5 / 60,
-            backlash_std_deg=0.002,
-            c_left_deg=None,
-            c_right_deg=None,
-            m_left=None,
-            m_right=None,
-            residual_rms_deg=None,
-            n_samples=1000,
-            operating_hours=0.5,
-            load_revolutions=10.0,
-            reversals=20,
-            stiffness_nm_per_arcmin=4.25,
-        )
-        store.commit(gearbox, run, 1000, {"format": 1}, [row])
+        fill_gearbox(store, "GB-9", [19.5], time.time() - 30, False, stiffness_nm_per_arcmin=4.25)
 
 
 def test_the_server_in_process_over_either_store(store_db):

@@ -16,6 +16,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from fleet_store import fill_gearbox
 from PIL import Image
 from sqlalchemy.exc import DBAPIError
 
@@ -23,7 +24,6 @@ from online_backlash.history.alarms import STATES
 from online_backlash.history.store import HistoryStore
 from online_backlash.web import open_read_only
 
-HOUR = 3600.0
 NOW = time.time()
 CHROMIUM = Path("/usr/bin/chromium")
 CHROMEDRIVER = Path("/usr/bin/chromedriver")
@@ -41,41 +41,10 @@ CHROMIUM_FLAGS = (
 )
 
 
-def _fill(store, gearbox_id, play_arcmin, end_unix_s, with_parameters, warn=18.0, limit=21.0):
-    """Hourly estimates of ``play_arcmin`` ending at ``end_unix_s`` in one complete run; with
-    ``with_parameters`` each also stores eq. (1)'s slopes and dead-band widths (play split evenly)."""
-    store.set_alarm_levels(gearbox_id, 30.0, warn_arcmin=warn, limit_arcmin=limit)
-    gearbox, run = store.begin_run(gearbox_id, 30.0, "log.csv", hashlib.sha256(gearbox_id.encode()).hexdigest(), end_unix_s)
-    n = len(play_arcmin)
-    rows = []
-    for i, p in enumerate(play_arcmin):
-        half = p / 120.0 if with_parameters else None
-        slope = 1.0 if with_parameters else None
-        rows.append(
-            dict(
-                sample_index=1000 * (i + 1),
-                time_unix_s=end_unix_s - (n - 1 - i) * HOUR,
-                backlash_deg=p / 60.0,
-                backlash_std_deg=0.004,
-                c_left_deg=half,
-                c_right_deg=half,
-                m_left=slope,
-                m_right=slope,
-                residual_rms_deg=None,
-                n_samples=1000 * (i + 1),
-                operating_hours=float(i + 1),
-                load_revolutions=100.0 * (i + 1),
-                reversals=50 * (i + 1),
-            )
-        )
-    gearbox, run = store.commit(gearbox, run, 1000 * n, {"format": 1}, rows)
-    store.commit(gearbox, run, 1000 * n, {"format": 1}, counters=dict(frames=n, samples=n, corrupt=0, skipped=0, gaps=0))
-
-
 def _fill_fleet(db) -> None:
     with HistoryStore(db, create=True) as store:
-        _fill(store, "GB-1", np.linspace(10.0, 12.0, 12), NOW - 60.0, with_parameters=True)  # ok, growing
-        _fill(store, "GB-2", np.linspace(15.0, 19.2, 12), NOW - 60.0, with_parameters=False)  # warning
+        fill_gearbox(store, "GB-1", np.linspace(10.0, 12.0, 12), NOW - 60.0, with_parameters=True)  # ok, growing
+        fill_gearbox(store, "GB-2", np.linspace(15.0, 19.2, 12), NOW - 60.0, with_parameters=False)  # warning
 
 
 @pytest.fixture
