@@ -301,7 +301,8 @@ def test_track_and_diagnose_read_a_v73_file_and_its_copy_in_v5_is_the_same_log(c
     assert main(["diagnose", str(v73), "--ratio", "30", *mapping, "--json"]) == 0, capsys.readouterr().err
     diagnosis = json.loads(capsys.readouterr().out)
     assert diagnosis["samples"] == rec.time_s.size and abs(diagnosis["backlash_before_deg"] - 0.5) < 0.02
-    track = ["--ratio", "30", "--db", str(tmp_path / "wear.db"), "--gearbox", "gb1", "--every", "5", "--quiet", *mapping]
+    track = ["--ratio", "30", "--db", str(tmp_path / "wear.db"), "--gearbox", "gb1", "--every", "5", "--quiet"]
+    track += mapping
     assert main(["track", str(v73), *track]) == 0, capsys.readouterr().err
     assert f"gb1: {v73}: {rec.time_s.size} samples, " in capsys.readouterr().out
     assert main(["track", str(v5), *track]) == 0, capsys.readouterr().err
