@@ -357,8 +357,8 @@ def test_a_password_without_message_security_is_warned_of(tmp_path, capsys, monk
     assert lines[1].startswith("error: no history store at ")
 
 
-def _store_with_one_estimate(db: str) -> None:
-    """A gearbox with levels and one observable estimate of 19.5 arcmin (a warning), with a stiffness."""
+def _store_one_gearbox(db: str, gearbox_id: str, play_arcmin: float) -> None:
+    """A gearbox with levels 18 and 21 arcmin and one observable estimate of ``play_arcmin``, with a stiffness."""
     import time
 
     from fleet_store import fill_gearbox
@@ -366,30 +366,37 @@ def _store_with_one_estimate(db: str) -> None:
     from online_backlash.history.store import HistoryStore
 
     with HistoryStore(db, create=True) as store:
-        fill_gearbox(store, "GB-9", [19.5], time.time() - 30, False, stiffness_nm_per_arcmin=4.25)
+        fill_gearbox(store, gearbox_id, [play_arcmin], time.time() - 30, False, stiffness_nm_per_arcmin=4.25)
 
 
 def test_the_server_in_process_over_either_store(store_db):
     """PlantServer as a library over SQLite and PostgreSQL (read-only), no message security, an anonymous client:
-    the state and the stiffness are the store's."""
+    the state and the stiffness are the store's, and a gearbox that appears in the store gets its object and a
+    state event at the next read."""
     from online_backlash.opcua.server import PlantServer
     from online_backlash.opcua.settings import OpcuaSecurity
     from online_backlash.web import open_read_only
 
-    _store_with_one_estimate(store_db)
+    _store_one_gearbox(store_db, "GB-9", 19.5)
     url = f"opc.tcp://127.0.0.1:{_free_port()}/online-backlash"
+    events: list = []
 
-    async def serve_and_read() -> dict:
+    async def serve_and_read() -> tuple[dict, str]:
         with open_read_only(store_db) as store:
-            server = PlantServer(store, url, OpcuaSecurity("none", allow_anonymous=True))
+            server = PlantServer(store, url, OpcuaSecurity("none", allow_anonymous=True), on_event=events.append)
             await server.start()
             try:
                 async with Client(url, timeout=30) as client:
                     gearbox, idx = await _gearbox(client, "GB-9")
                     names = ("State", "StateCode", "PlayArcmin", "StiffnessNmPerArcmin")
-                    return {n: await (await gearbox.get_child(f"{idx}:{n}")).read_value() for n in names}
+                    values = {n: await (await gearbox.get_child(f"{idx}:{n}")).read_value() for n in names}
+                    await asyncio.to_thread(_store_one_gearbox, store_db, "GB-10", 22.0)
+                    await server.refresh()
+                    new, _ = await _gearbox(client, "GB-10")
+                    return values, await (await new.get_child(f"{idx}:State")).read_value()
             finally:
                 await server.stop()
 
-    values = asyncio.run(serve_and_read())
+    values, new_state = asyncio.run(serve_and_read())
     assert values == {"State": "warning", "StateCode": 1, "PlayArcmin": 19.5, "StiffnessNmPerArcmin": 4.25}
+    assert new_state == "alarm" and [(e.gearbox, e.state) for e in events] == [("GB-10", "alarm")]
