@@ -369,10 +369,16 @@ def _store_one_gearbox(db: str, gearbox_id: str, play_arcmin: float) -> None:
         fill_gearbox(store, gearbox_id, [play_arcmin], time.time() - 30, False, stiffness_nm_per_arcmin=4.25)
 
 
+def _store_gone() -> list:
+    from online_backlash.errors import HistoryError
+
+    raise HistoryError("the server closed the connection")
+
+
 def test_the_server_in_process_over_either_store(store_db):
     """PlantServer as a library over SQLite and PostgreSQL (read-only), no message security, an anonymous client:
-    the state and the stiffness are the store's, and a gearbox that appears in the store gets its object and a
-    state event at the next read."""
+    the state and the stiffness are the store's, a gearbox that appears in the store gets its object and a
+    state event at the next read, and a read that fails leaves the values shown, marked uncertain."""
     from online_backlash.opcua.server import PlantServer
     from online_backlash.opcua.settings import OpcuaSecurity
     from online_backlash.web import open_read_only
@@ -380,10 +386,12 @@ def test_the_server_in_process_over_either_store(store_db):
     _store_one_gearbox(store_db, "GB-9", 19.5)
     url = f"opc.tcp://127.0.0.1:{_free_port()}/online-backlash"
     events: list = []
+    errors: list = []
 
     async def serve_and_read() -> tuple[dict, str]:
         with open_read_only(store_db) as store:
-            server = PlantServer(store, url, OpcuaSecurity("none", allow_anonymous=True), on_event=events.append)
+            security = OpcuaSecurity("none", allow_anonymous=True)
+            server = PlantServer(store, url, security, on_event=events.append, on_error=errors.append)
             await server.start()
             try:
                 async with Client(url, timeout=30) as client:
@@ -393,10 +401,21 @@ def test_the_server_in_process_over_either_store(store_db):
                     await asyncio.to_thread(_store_one_gearbox, store_db, "GB-10", 22.0)
                     await server.refresh()
                     new, _ = await _gearbox(client, "GB-10")
-                    return values, await (await new.get_child(f"{idx}:State")).read_value()
+                    new_state = await (await new.get_child(f"{idx}:State")).read_value()
+                    play = await gearbox.get_child(f"{idx}:PlayArcmin")
+                    server.reader.read = _store_gone  # the database goes away: the values stay, marked uncertain
+                    await server.refresh()
+                    gone = await play.read_data_value(raise_on_bad_status=False)
+                    del server.reader.read  # back: the class's method
+                    await server.refresh()
+                    back = await play.read_data_value(raise_on_bad_status=False)
+                    seen = [(d.Value.Value, d.StatusCode.name) for d in (gone, back)]
+                    return values, new_state, seen
             finally:
                 await server.stop()
 
-    values, new_state = asyncio.run(serve_and_read())
+    values, new_state, seen = asyncio.run(serve_and_read())
     assert values == {"State": "warning", "StateCode": 1, "PlayArcmin": 19.5, "StiffnessNmPerArcmin": 4.25}
     assert new_state == "alarm" and [(e.gearbox, e.state) for e in events] == [("GB-10", "alarm")]
+    assert seen == [(19.5, "UncertainLastUsableValue"), (19.5, "Good")]
+    assert errors == ["the server closed the connection", None]

@@ -7,6 +7,7 @@ import asyncio
 import contextlib
 import logging
 import signal
+import sys
 import warnings
 from typing import TYPE_CHECKING
 from urllib.parse import urlsplit
@@ -106,7 +107,17 @@ async def _serve(store: HistoryStore, endpoint: str, security: OpcuaSecurity, ar
     def said(gauges: GearboxGauges) -> None:
         print(f"{gauges.gearbox}: state {gauges.state} ({gauges.state_reason})", flush=True)
 
-    server = PlantServer(store, endpoint, security, poll_s=args.poll, max_age_h=args.max_age_h, on_event=said)
+    def failed(reason: str | None) -> None:
+        if reason is None:
+            print(f"{store.name}: read again; the values are current", file=sys.stderr, flush=True)
+        else:
+            print(
+                f"warning: {store.name}: cannot read ({reason}); values kept as uncertain", file=sys.stderr, flush=True
+            )
+
+    server = PlantServer(
+        store, endpoint, security, poll_s=args.poll, max_age_h=args.max_age_h, on_event=said, on_error=failed
+    )
     stop = asyncio.Event()
     loop = asyncio.get_running_loop()
     for sig in (signal.SIGTERM, signal.SIGINT):

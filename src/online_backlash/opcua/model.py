@@ -164,3 +164,15 @@ class GearboxObject:
         """Write the gearbox's current figures into its variables."""
         for item in ITEMS:
             await self.variables[item.name].write_value(data_value(gauges, item))
+
+    async def mark_uncertain(self) -> None:
+        """Keep every value shown, with the status ``UncertainLastUsableValue`` (the store cannot be read)."""
+        uncertain = ua.StatusCode(ua.UInt32(ua.StatusCodes.UncertainLastUsableValue))
+        for node in self.variables.values():
+            shown = await node.read_data_value(raise_on_bad_status=False)
+            if shown.StatusCode is None or shown.StatusCode.is_good():
+                now = ua.DateTime.now(dt.timezone.utc)
+                stale = ua.DataValue(
+                    Value=shown.Value, StatusCode=uncertain, SourceTimestamp=shown.SourceTimestamp, ServerTimestamp=now
+                )
+                await node.write_value(stale)

@@ -25,7 +25,9 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from asyncua import Node, Server, ua
+from sqlalchemy.exc import SQLAlchemyError
 
+from ..errors import BacklashError
 from ..history.gauges import GearboxGauges, gearbox_gauges
 from ..history.report import wear_report
 from ..history.store import HistoryStore
@@ -89,6 +91,11 @@ class PlantServer:
         Calendar hours after which a gearbox's latest estimate no longer counts (its state is ``unknown``).
     on_event : callable, optional
         Called with each state change's gauges after its event went out (for a log line).
+    on_error : callable, optional
+        Called with the reason when reading the store starts failing, and with None when it works again.
+
+    A read of the store that fails (a database restarting, a network gone) stops nothing: every
+    variable keeps its value with the status ``UncertainLastUsableValue`` until a read works again.
     """
 
     def __init__(
@@ -99,16 +106,20 @@ class PlantServer:
         poll_s: float = 2.0,
         max_age_h: float = 168.0,
         on_event: Callable[[GearboxGauges], None] | None = None,
+        on_error: Callable[[str | None], None] | None = None,
     ) -> None:
         self.reader = FleetReader(store, max_age_h)
         self.endpoint = endpoint
         self.security = security
         self.poll_s = poll_s
         self.on_event = on_event
+        self.on_error = on_error
         self.objects: dict[str, GearboxObject] = {}
         self.states: dict[str, str] = {}
         self.certificate = ""
-        self._events: dict[str, tuple[Any, Any]] = {}
+        #: Why the last read of the store failed (None: it did not); the values shown are then uncertain.
+        self.read_error: str | None = None
+        self._events: dict[str, Any] = {}
         self._server: Server | None = None
 
     async def start(self) -> None:
@@ -135,6 +146,7 @@ class PlantServer:
             ],
         )
         self._server = server
+        self._server_events = await server.get_event_generator(self._alarm_type, ua.ObjectIds.Server)
         await self._show(await asyncio.to_thread(self.reader.read), events=False)
         await server.start()
 
@@ -153,8 +165,26 @@ class PlantServer:
                 await self.refresh()
 
     async def refresh(self) -> None:
-        """Read the store once and show what moved; raise an event for each state that changed."""
-        await self._show(await asyncio.to_thread(self.reader.read), events=True)
+        """Read the store once and show what moved; raise an event for each state that changed.
+
+        A read that fails marks every value uncertain (see the class docstring) instead of raising.
+        """
+        try:
+            fleet = await asyncio.to_thread(self.reader.read)
+        except (BacklashError, SQLAlchemyError, OSError) as exc:
+            if self.read_error is None:
+                for gearbox in self.objects.values():
+                    await gearbox.mark_uncertain()
+            reason = " ".join(f"{exc}".split())
+            if reason != self.read_error and self.on_error is not None:
+                self.on_error(reason)
+            self.read_error = reason
+            return
+        if self.read_error is not None:
+            self.read_error = None
+            if self.on_error is not None:
+                self.on_error(None)
+        await self._show(fleet, events=True)
 
     async def _show(self, fleet: list[GearboxGauges], events: bool) -> None:
         for gauges in fleet:
@@ -163,25 +193,21 @@ class PlantServer:
                 gearbox = self.objects[gauges.gearbox] = await GearboxObject.create(
                     self._folder, self._idx, gauges.gearbox
                 )
-                self._events[gauges.gearbox] = await self._event_generators(gearbox.node)
+                assert self._server is not None
+                self._events[gauges.gearbox] = await self._server.get_event_generator(
+                    self._alarm_type, gearbox.node.nodeid
+                )
             await gearbox.show(gauges)
             before = self.states.get(gauges.gearbox)
             self.states[gauges.gearbox] = gauges.state
             if events and gauges.state != before:
                 await self._state_event(gauges, gearbox.node)
 
-    async def _event_generators(self, node: Node) -> tuple[Any, Any]:
-        """The alarm events of one gearbox, from its object and from the Server object."""
-        assert self._server is not None
-        own = await self._server.get_event_generator(self._alarm_type, node.nodeid)
-        whole = await self._server.get_event_generator(self._alarm_type, ua.ObjectIds.Server)
-        return own, whole
-
     async def _state_event(self, gauges: GearboxGauges, node: Node) -> None:
         play = "no play" if gauges.play_arcmin is None else f"play {gauges.play_arcmin:.2f} arcmin"
         message = f"{gauges.gearbox}: {gauges.state} ({gauges.state_reason}; {play})"
         when = utc(gauges.checked_unix_s)
-        for generator in self._events[gauges.gearbox]:
+        for generator in (self._events[gauges.gearbox], self._server_events):
             event = generator.event
             event.SourceNode = node.nodeid
             event.SourceName = gauges.gearbox
