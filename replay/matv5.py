@@ -71,7 +71,7 @@ def _node(name: str, value: Any, parent: Struct) -> Any:
         return Text(name, "".join(array.reshape(-1)))
     shape = tuple(int(n) for n in array.shape)
     if array.dtype.kind not in "biuf" or array.ndim == 0:
-        kind = "cell array" if array.dtype.kind == "O" else f"MATLAB {type(value).__name__}"
+        kind = "cell or struct array" if array.dtype.kind == "O" else f"MATLAB {type(value).__name__}"
         return Opaque(name, kind, shape)
 
     def read(start: int, stop: int, column: int | None) -> np.ndarray:

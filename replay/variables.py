@@ -180,6 +180,10 @@ class VariableTree:
     def _check_column(self, role: str, name: str, array: Array, column: int | None) -> None:
         if array.samples == 0:
             raise LogFormatError(self.path, None, f"{role} {name!r} is empty ({_shape(array.shape)})")
+        if array.columns > 1 and len(array.shape) > 2:
+            raise LogFormatError(
+                self.path, None, f"{role} {name!r} is a {_shape(array.shape)} array: name a vector or a matrix's column"
+            )
         if column is None and array.columns > 1:
             raise LogFormatError(
                 self.path,

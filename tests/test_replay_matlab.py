@@ -307,3 +307,29 @@ def test_track_and_diagnose_read_a_v73_file_and_its_copy_in_v5_is_the_same_log(c
     assert f"gb1: {v73}: {rec.time_s.size} samples, " in capsys.readouterr().out
     assert main(["track", str(v5), *track]) == 0, capsys.readouterr().err
     assert "already imported" in capsys.readouterr().out
+
+
+def test_arrays_that_hold_no_signal_are_refused_by_name(tmp_path, rec):
+    """A 3-D array, an empty one, a cell array and a column past the matrix's last: each a one-line error naming it."""
+    path = tmp_path / "odd.mat"
+    cells = np.empty((1, 2), dtype=object)
+    cells[0, 0], cells[0, 1] = rec.motor_deg, rec.load_deg
+    scipy.io.savemat(
+        path,
+        {
+            "time": rec.time_s[:, None],
+            "load": rec.load_deg[:, None],
+            "cube": np.zeros((20000, 2, 2)),
+            "none": np.zeros((0, 1)),
+            "cells": cells,
+            "pair": np.zeros((20000, 2)),
+        },
+    )
+    for motor, message in (
+        ("cube", r"motor 'cube' is a 20000x2x2 array: name a vector or a matrix's column"),
+        ("none", r"motor 'none' is empty \(0x1\)"),
+        ("cells", r"motor 'cells' is a cell or struct array, not numbers"),
+        ("pair(:,3)", r"motor 'pair\(:,3\)' has 2 columns \(20000x2\)"),
+    ):
+        with pytest.raises(LogFormatError, match=message):
+            read_all(path, columns={"motor": motor, "load": "load"})
