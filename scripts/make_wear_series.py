@@ -59,7 +59,7 @@ def main() -> None:
         "log_options": {"units": "counts", "motor_cpr": 2**14, "load_cpr": 2**17},
         "hours_column": "hours",
         "estimator_params": {},
-        "every_s": 20.0,
+        "every_s": 30.0,
         "hours_per_day": PLAN.hours_per_day,
         "true_rate_deg_per_hour": PLAN.rate_deg_per_h,
         "true_hours_at_limit": PLAN.limit_h(limit_deg),
