@@ -266,6 +266,7 @@ def test_the_time_unit_rule():
         warnings.simplefilter("error", BacklashWarning)
         assert time_unit_scale(np.arange(0.0, 10.0, 0.001)) == 1.0  # 1 kHz in seconds
         assert time_unit_scale(np.arange(0.0, 60.0, 0.1)) == 1.0  # 10 Hz: slow, but seconds
+        assert time_unit_scale(np.floor(1.7e9 + np.arange(0.0, 5.0, 0.001))) == 1.0  # whole seconds stamped at 1 kHz
         assert time_unit_scale(np.arange(0.0, 1e4, 10.0), "ms") == 1e-3
     with pytest.warns(BacklashWarning, match="read as ms"):
         assert time_unit_scale(np.arange(1.7e12, 1.7e12 + 5000.0, 1.0)) == 1e-3  # UNIX time in milliseconds

@@ -16,7 +16,8 @@ time (UNIX seconds, UTC) by the first of these that a log has, in this order:
    last resort, since a copy made without preserving times (``cp``, a download, an e-mail) moves it.
 
 The time column is in seconds. A log whose time steps by more than :data:`MAX_PERIOD_S` from one
-sample to the next (median of its first samples) is not an encoder log in seconds: its time is
+sample to the next (on average over its first samples: a clock that stamps whole seconds on many
+samples a second is seconds) is not an encoder log in seconds: its time is
 read in the first of milliseconds and microseconds that gives a plausible sample period, with a
 :class:`~online_backlash.errors.BacklashWarning` that says so (:func:`time_unit_scale`;
 ``--time-unit`` overrides), so that milliseconds under a seconds header do not count 1000 times
@@ -205,7 +206,7 @@ def suggest_name_pattern(*paths: str | os.PathLike[str]) -> str | None:
 
 def time_unit_scale(time_s: np.ndarray, unit: str | None = None, source: str = "") -> float:
     """Seconds per unit of a log's time column: ``unit`` (:data:`TIME_UNITS`) if given, else found
-    from the median step of its first :data:`PERIOD_SAMPLES` samples (module docstring), with a
+    from the mean step of its first :data:`PERIOD_SAMPLES` samples (module docstring), with a
     BacklashWarning naming ``source`` when that is not seconds.
 
     >>> time_unit_scale(np.arange(0.0, 5.0, 0.001))
@@ -218,11 +219,10 @@ def time_unit_scale(time_s: np.ndarray, unit: str | None = None, source: str = "
     """
     if unit is not None:
         return TIME_UNITS[unit]
-    steps = np.diff(np.asarray(time_s[: PERIOD_SAMPLES + 1], dtype=float))
-    steps = steps[steps > 0]
-    if steps.size == 0:
+    first = np.asarray(time_s[: PERIOD_SAMPLES + 1], dtype=float)
+    if first.size < 2 or not first[-1] > first[0]:
         return 1.0
-    period = float(np.median(steps))
+    period = float(first[-1] - first[0]) / (first.size - 1)
     if period <= MAX_PERIOD_S:
         return 1.0
     for name, scale in TIME_UNITS.items():
