@@ -223,8 +223,11 @@ class ParquetLog(MeasurementLog):
         origin: list[int] = []  # the first timestamp, for a timestamp time column
         time_type = table.schema.field(self.columns["time"]).type
         for batch in table.batches([self.columns[r] for r in roles], self.block_rows):
-            arrays = [_as_float(batch.column(i), r, self.columns[r], self.path, row, origin) for i, r in enumerate(roles)]
-            start = origin[0] / _TICKS_PER_SECOND[time_type.unit] if origin and pa.types.is_timestamp(time_type) else None
+            arrays = [
+                _as_float(batch.column(i), r, self.columns[r], self.path, row, origin) for i, r in enumerate(roles)
+            ]
+            stamped = origin and pa.types.is_timestamp(time_type)
+            start = origin[0] / _TICKS_PER_SECOND[time_type.unit] if stamped else None
             if start is not None and start >= UNIX_TIME_MIN:  # not a device clock counting from 1970
                 self.time_origin_unix_s = start
                 self.time_origin_name = f"{'Arrow' if self._table._arrow else 'Parquet'} timestamp column"

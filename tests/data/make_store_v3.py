@@ -28,8 +28,8 @@ def make() -> None:
             log = os.path.join(folder, f"day{day}.csv")
             rec.write_csv(log)
             start = (START + dt.timedelta(days=day)).isoformat()
-            argv = ["track", log, "--ratio", "30", "--db", str(OUT), "--gearbox", "old-gb", "--every", "5", "--start", start,
-                    "--limit-arcmin", "21", "--warn-arcmin", "19", "--quiet"]
+            argv = ["track", log, "--ratio", "30", "--db", str(OUT), "--gearbox", "old-gb", "--every", "5"]
+            argv += ["--start", start, "--limit-arcmin", "21", "--warn-arcmin", "19", "--quiet"]
             assert main(argv) == 0
     for suffix in ("-wal", "-shm"):
         assert not Path(f"{OUT}{suffix}").exists()
