@@ -14,7 +14,9 @@ The file is read through a plain file object (no memory map) in fragments of abo
 channel group is read once for all its channels (master time included); a plain channel (byte
 aligned, little endian, no conversion) is viewed where it lies in the records and copied out by
 the block checks' one compiled pass, the others are converted by asammdf. A file asammdf cannot read
-raises :class:`~online_backlash.errors.LogFormatError` naming the file (and the channel).
+raises :class:`~online_backlash.errors.LogFormatError` naming the file (and the channel). The
+header's start time, which the master times count from, is the file's own clock
+(:attr:`~online_backlash.stream.SampleSource.time_origin_unix_s`, :func:`header_start_unix_s`).
 
 An MDF file that holds CAN bus logging (``CAN_DataFrame`` channels, as python-can and bus
 loggers write) is a CAN log: :func:`is_bus_logging` tells them apart.
@@ -23,7 +25,9 @@ loggers write) is a CAN log: :func:`is_bus_logging` tells them apart.
 from __future__ import annotations
 
 import contextlib
+import datetime as dt
 import io
+import math
 import os
 from collections.abc import Iterator
 from typing import IO, Any
@@ -31,7 +35,7 @@ from typing import IO, Any
 import numpy as np
 
 from online_backlash.errors import LogFormatError
-from online_backlash.stream import SampleChunk, StreamCounters
+from online_backlash.stream import UNIX_TIME_MIN, SampleChunk, StreamCounters
 
 from .tabular import ChannelInfo, MeasurementLog, Resampler, channel_scales, missing_channel, open_with
 
@@ -133,6 +137,8 @@ class MdfLog(MeasurementLog):
     def _open(self) -> tuple[Any, ...]:
         self._mdf, stream = _open_mdf(self.path)
         self._mdf.configure(read_fragment_size=self.fragment_bytes)
+        self.time_origin_unix_s = header_start_unix_s(self._mdf)
+        self.time_origin_name = "MDF header start time" if self.time_origin_unix_s is not None else ""
         return self._mdf, stream
 
     # -- channels --------------------------------------------------------------------------
@@ -250,6 +256,23 @@ class MdfLog(MeasurementLog):
         channel = self._mdf.groups[where[0]].channels[where[1]]
         conversion = getattr(channel, "conversion", None)
         return (conversion is not None and getattr(conversion, "unit", None)) or getattr(channel, "unit", None)
+
+
+def header_start_unix_s(mdf: Any) -> float | None:
+    """The measurement's start (the header's start time, which the master channels' times count from), UNIX seconds.
+
+    An MDF4 header holds it in UTC with the recorder's zone offset, or as local time with no zone
+    (then read as UTC); MDF3 as a date and time. None where it is not a date after 2001 (a
+    recorder that left it 0 or never set its clock).
+    """
+    try:
+        start = mdf.header.start_time
+    except (AttributeError, ValueError, OverflowError, OSError):
+        return None
+    if start.tzinfo is None:  # local time of an unknown zone: taken as UTC
+        start = start.replace(tzinfo=dt.timezone.utc)
+    value = start.timestamp()
+    return value if math.isfinite(value) and value >= UNIX_TIME_MIN else None
 
 
 def describe(path: str | os.PathLike[str]) -> list[ChannelInfo]:

@@ -2,7 +2,9 @@
 
 Columns are named as in CSV logs (``time``, ``motor``, ``load``, optional ``torque``; ``columns=``
 maps other names). A ``timestamp`` or ``duration`` time column is converted to seconds; numeric
-columns are read as floats (a null is a non-finite value). A column's unit is taken from its
+columns are read as floats (a null is a non-finite value); the first timestamp of a
+``timestamp`` time column (UTC; a timestamp without a zone is read as UTC) is the file's own
+clock (:attr:`~online_backlash.stream.SampleSource.time_origin_unix_s`). A column's unit is taken from its
 field metadata key ``unit`` where present (else degrees, seconds, N m), and ``units=`` overrides
 the angles' units (:func:`~online_backlash.replay.tabular.channel_scales`).
 
@@ -22,7 +24,7 @@ from typing import Any
 import numpy as np
 
 from online_backlash.errors import LogFormatError
-from online_backlash.stream import SampleChunk, StreamCounters
+from online_backlash.stream import UNIX_TIME_MIN, SampleChunk, StreamCounters
 
 from .tabular import ROLES, ChannelInfo, MeasurementLog, channel_scales, missing_channel
 
@@ -114,6 +116,10 @@ def _unit(field: Any) -> str | None:
     return None
 
 
+#: Ticks per second of Arrow's time units.
+_TICKS_PER_SECOND = {"s": 1, "ms": 1e3, "us": 1e6, "ns": 1e9}
+
+
 def _as_float(column: Any, role: str, name: str, path: str, row: int, origin: list[int]) -> np.ndarray:
     """A column as float64 (null -> NaN); a timestamp or duration in seconds.
 
@@ -124,7 +130,7 @@ def _as_float(column: Any, role: str, name: str, path: str, row: int, origin: li
 
     kind = column.type
     if pa.types.is_timestamp(kind) or pa.types.is_duration(kind):
-        per_second = {"s": 1, "ms": 1e3, "us": 1e6, "ns": 1e9}[kind.unit]
+        per_second = _TICKS_PER_SECOND[kind.unit]
         ticks = column.cast(pa.int64()).to_numpy(zero_copy_only=False)
         if pa.types.is_timestamp(kind):
             if not origin and len(ticks) and np.isfinite(ticks[0]):
@@ -180,6 +186,7 @@ class ParquetLog(MeasurementLog):
 
     def _open(self) -> tuple[Any, ...]:
         self._table = _Table(self.path)
+        self.time_origin_unix_s, self.time_origin_name = None, ""
         return (self._table,)
 
     def _read(self) -> Iterator[SampleChunk]:
@@ -210,10 +217,21 @@ class ParquetLog(MeasurementLog):
 
     def _arrays(self, table: _Table, roles: list[str]) -> Iterator[tuple[int, list[np.ndarray]]]:
         """(first row, float arrays in ``roles`` order) per batch."""
+        import pyarrow as pa
+
         row = 0
         origin: list[int] = []  # the first timestamp, for a timestamp time column
+        time_type = table.schema.field(self.columns["time"]).type
         for batch in table.batches([self.columns[r] for r in roles], self.block_rows):
-            yield row, [_as_float(batch.column(i), r, self.columns[r], self.path, row, origin) for i, r in enumerate(roles)]
+            arrays = [
+                _as_float(batch.column(i), r, self.columns[r], self.path, row, origin) for i, r in enumerate(roles)
+            ]
+            stamped = origin and pa.types.is_timestamp(time_type)
+            start = origin[0] / _TICKS_PER_SECOND[time_type.unit] if stamped else None
+            if start is not None and start >= UNIX_TIME_MIN:  # not a device clock counting from 1970
+                self.time_origin_unix_s = start
+                self.time_origin_name = f"{'Arrow' if self._table._arrow else 'Parquet'} timestamp column"
+            yield row, arrays
             row += batch.num_rows
 
 

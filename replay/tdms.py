@@ -7,7 +7,9 @@ a channel mapped to ``time``. A channel of another length or rate is interpolate
 the motor's time base from its own waveform time (motor samples outside its span are counted in
 ``counters.skipped``). The ``unit_string`` property decides each channel's unit as in
 :func:`~online_backlash.replay.tabular.channel_scales` (no property: degrees, seconds, N m);
-``units=`` overrides the angles' units.
+``units=`` overrides the angles' units. The motor channel's ``wf_start_time`` (UTC, as TDMS
+stores it) is the file's own clock of its waveform time
+(:attr:`~online_backlash.stream.SampleSource.time_origin_unix_s`).
 
 The file is opened with ``TdmsFile.open`` (streaming) and read in slices of ``block_rows``, so
 memory stays flat. A file npTDMS cannot read raises :class:`~online_backlash.errors.LogFormatError`
@@ -16,6 +18,7 @@ naming the file and the channel.
 
 from __future__ import annotations
 
+import datetime as dt
 import os
 from collections.abc import Iterator
 from typing import IO, Any
@@ -23,7 +26,7 @@ from typing import IO, Any
 import numpy as np
 
 from online_backlash.errors import LogFormatError
-from online_backlash.stream import SampleChunk, StreamCounters
+from online_backlash.stream import UNIX_TIME_MIN, SampleChunk, StreamCounters
 
 from .tabular import ROLES, ChannelInfo, MeasurementLog, Resampler, channel_scales, missing_channel, open_with
 
@@ -137,6 +140,8 @@ class TdmsLog(MeasurementLog):
             units["time"] = None
         scales = channel_scales(self.path, self.columns, units, self.units, self.motor_cpr, self.load_cpr)
         wave = None if "time" in present else self._waveform("motor", motor)
+        self.time_origin_unix_s = None if wave is None else wf_start_unix_s(motor.properties.get("wf_start_time"))
+        self.time_origin_name = "TDMS wf_start_time" if self.time_origin_unix_s is not None else ""
         last_time = -np.inf
         for first in range(0, n, self.block_rows):
             columns = {r: self._slice(r, found[r], first, first + self.block_rows) for r in aligned}
@@ -146,6 +151,21 @@ class TdmsLog(MeasurementLog):
             chunk, last_time = self._on_motor_time(columns, foreign, first, last_time, scales)
             if len(chunk):
                 yield chunk
+
+
+def wf_start_unix_s(value: Any) -> float | None:
+    """A waveform's ``wf_start_time`` (npTDMS gives a UTC ``numpy.datetime64``) in UNIX seconds; None where it
+    is missing or not a date after 2001 (LabVIEW writes 1904-01-01 for a waveform without a start time)."""
+    if value is None:
+        return None
+    try:
+        if isinstance(value, dt.datetime):  # naive: UTC
+            seconds = (value if value.tzinfo is not None else value.replace(tzinfo=dt.timezone.utc)).timestamp()
+        else:
+            seconds = float(np.datetime64(value, "ns").astype(np.int64)) / 1e9
+    except (TypeError, ValueError, OverflowError):
+        return None
+    return seconds if np.isfinite(seconds) and seconds >= UNIX_TIME_MIN else None
 
 
 def describe(path: str | os.PathLike[str]) -> list[ChannelInfo]:

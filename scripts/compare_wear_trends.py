@@ -1,7 +1,8 @@
 """Compare the Theil-Sen and the Kalman wear trends (docs/wear-trend.md).
 
-1. The bundled series (``online_backlash.history.series``): 12 daily logs tracked through the
-   recursive estimator into a temporary store, as ``online-backlash demo`` does.
+1. The bundled series (``online_backlash.history.series``): 60 daily 60 s snapshots with the
+   machine's hour meter, tracked through the recursive estimator into a temporary store, as
+   ``online-backlash demo`` does; the trends run on machine hours, one point per snapshot.
 2. A synthetic year of daily estimates whose wear rate triples on day 240 (1e-4 -> 3e-4 deg per
    operating hour, 2 operating hours a day), read through an estimator that lags the play by
    10 operating hours and whose estimates scatter with correlated noise (AR(1), 0.8) of 0.003 deg
@@ -36,18 +37,18 @@ def band_shares(trend, x: np.ndarray, z: np.ndarray) -> tuple[float, float]:
 
 
 def row(name: str, summary, x: np.ndarray, z: np.ndarray, true_rate: float, true_hours: float) -> str:
-    t, f = summary.per_hour, summary.forecast
+    t, f = summary.trend, summary.forecast
     conf, pred = band_shares(t, x, z)
-    inside = "yes" if f.hours_to_limit_low <= true_hours <= f.hours_to_limit_high else "no"
+    inside = "yes" if f.to_limit_low <= true_hours <= f.to_limit_high else "no"
     return (
         f"| {name} | {t.slope:.4g} [{t.slope_low:.4g}, {t.slope_high:.4g}] (true {true_rate:.4g}) "
-        f"| {f.hours_to_limit:.4g} [{f.hours_to_limit_low:.4g}, {f.hours_to_limit_high:.4g}] (true {true_hours:.4g}, inside: {inside}) "
+        f"| {f.to_limit:.4g} [{f.to_limit_low:.4g}, {f.to_limit_high:.4g}] (true {true_hours:.4g}, inside: {inside}) "
         f"| {conf:.0%} | {pred:.0%} |"
     )
 
 
 HEADER = (
-    "| trend | wear rate now, deg/h [95 %] | operating hours to the limit [95 %] | estimates in the confidence band "
+    "| trend | wear rate now, deg/h [95 %] | hours to the limit [95 %] | estimates in the confidence band "
     "| in the prediction band |\n|---|---|---|---|---|"
 )
 
@@ -62,8 +63,8 @@ def bundled(plots: Path | None) -> None:
         for method in ("theil-sen", "kalman"):
             report: WearReport = wear_report(store, series.gearbox, method=method)
             s = report.summary
-            x, z = report.column("operating_hours"), report.column("backlash_deg")
-            true_hours = truth["true_hours_at_limit"] - s.last_hours
+            x, z = report.column("machine_hours"), report.column("backlash_deg")
+            true_hours = truth["true_hours_at_limit"] - s.last_x
             print(row(method, s, x, z, truth["true_rate_deg_per_hour"], true_hours))
             if plots is not None:
                 plot_wear(report, plots / f"wear-trend-bundled-{method}.png")
@@ -112,7 +113,7 @@ def year(plots: Path | None) -> None:
 def _plot_year(summary, data: dict, play, limit: float, path: Path) -> None:
     from matplotlib.figure import Figure
 
-    t = summary.per_hour
+    t = summary.trend
     x = data["operating_hours"]
     grid = np.linspace(0.0, x[-1] + 250.0, 400)
     fig = Figure(figsize=(8.0, 4.8), layout="constrained")

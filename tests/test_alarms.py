@@ -97,7 +97,10 @@ def test_an_estimate_without_std_is_not_observable():
 def test_unknown_when_stale_or_without_a_limit():
     stale = _evaluate([10.0, 22.0], now=1 * HOUR + 169 * HOUR)
     assert (stale.state, stale.exit_code) == ("unknown", 3)
-    assert stale.reason == "no observable estimate in the last 168 h" and stale.play_arcmin == pytest.approx(22.0)
+    # old data are named as old, with their age and date, not as a missing estimate
+    old = "7.0 days old (1970-01-01 01:00 UTC)"
+    assert stale.reason == f"the latest observable estimate is {old}, more than the 168 h allowed"
+    assert stale.play_arcmin == pytest.approx(22.0)
     assert _evaluate([10.0, 22.0], now=1 * HOUR + 2 * HOUR, max_age_h=1.5).state == "unknown"
     assert _evaluate([10.0, 22.0], now=1 * HOUR + 2 * HOUR, max_age_h=2.5).state == "alarm"
     assert _evaluate([10.0, 22.0], warn=None, limit=None).reason == "no limit known"
@@ -114,26 +117,21 @@ def test_worst_state_puts_unknown_between_warning_and_alarm():
 
 
 @pytest.mark.parametrize(
-    ("status", "hours", "since", "line"),
+    ("status", "forecast", "line"),
     [
-        (AlarmStatus("warning", "", 19.2, 0.0, 18.0, 21.0), 310.4, None,
-         "BACKLASH WARNING - GB-7 play 19.2 arcmin, limit 21 in 310 h | play_arcmin=19.2;18;21"),
-        (AlarmStatus("ok", "", 12.04, 0.0, None, 21.0), 2.46, None,
-         "BACKLASH OK - GB-7 play 12.0 arcmin, limit 21 in 2.5 h | play_arcmin=12.0;;21"),
-        (AlarmStatus("ok", "", 12.0, 0.0, 18.0, 21.0), math.inf, None,
-         "BACKLASH OK - GB-7 play 12.0 arcmin, limit 21 not reached by the trend | play_arcmin=12.0;18;21"),
-        (AlarmStatus("warning", "", 20.5, 0.0, 18.0, 21.0), -3.0, None,
-         "BACKLASH WARNING - GB-7 play 20.5 arcmin, limit 21 already reached by the trend | play_arcmin=20.5;18;21"),
-        (AlarmStatus("ok", "", 12.0, 0.0, 18.0, 21.0), None, None,
-         "BACKLASH OK - GB-7 play 12.0 arcmin, limit 21, no forecast | play_arcmin=12.0;18;21"),
-        (AlarmStatus("alarm", "", 22.3, 0.0, 18.0, 21.0, 0.0), -5.0, "2026-11-20T08:00:00+00:00",
+        (AlarmStatus("warning", "", 19.2, 0.0, 18.0, 21.0), "in 310 machine hours, around 2026-12-01",
+         "BACKLASH WARNING - GB-7 play 19.2 arcmin, limit 21 in 310 machine hours, around 2026-12-01 "
+         "| play_arcmin=19.2;18;21"),
+        (AlarmStatus("ok", "", 12.04, 0.0, None, 21.0), "no wear measured",
+         "BACKLASH OK - GB-7 play 12.0 arcmin, limit 21 no wear measured | play_arcmin=12.0;;21"),
+        (AlarmStatus("alarm", "", 22.3, 0.0, 18.0, 21.0, 0.0), "exceeded since 2026-11-20T08:00:00+00:00",
          "BACKLASH CRITICAL - GB-7 play 22.3 arcmin, limit 21 exceeded since 2026-11-20T08:00:00+00:00 | play_arcmin=22.3;18;21"),
-        (AlarmStatus("unknown", "no observable estimate", None, None, 18.0, 21.0), None, None,
+        (AlarmStatus("unknown", "no observable estimate", None, None, 18.0, 21.0), "no forecast yet",
          "BACKLASH UNKNOWN - GB-7 no observable estimate | play_arcmin=U;18;21"),
     ],
 )
-def test_plugin_line_format(status, hours, since, line):
-    assert plugin_line("GB-7", status, hours, since) == line
+def test_plugin_line_format(status, forecast, line):
+    assert plugin_line("GB-7", status, forecast) == line
 
 
 # -- stored levels and migration -------------------------------------------------------------------
@@ -206,7 +204,7 @@ def test_check_one_gearbox_each_state(capsys, fleet_db):
     expected = {"GB-1": (0, "BACKLASH OK - GB-1 play 12.0 arcmin, limit 21 in "),
                 "GB-2": (1, "BACKLASH WARNING - GB-2 play 19.2 arcmin, limit 21 in "),
                 "GB-3": (2, "BACKLASH CRITICAL - GB-3 play 22.8 arcmin, limit 21 exceeded since "),
-                "GB-4": (3, "BACKLASH UNKNOWN - GB-4 no observable estimate in the last 168 h (last play 12.0 arcmin)")}
+                "GB-4": (3, "BACKLASH UNKNOWN - GB-4 the latest observable estimate is 30.0 days old (")}
     for gearbox, (code_expected, start) in expected.items():
         code, out, err = run_cli(capsys, "history", "--db", fleet_db, "--gearbox", gearbox, "--check")
         assert code == code_expected and err == "" and out.startswith(start) and out.count("\n") == 1, out
@@ -242,8 +240,8 @@ def test_history_json_and_text_say_since_when_the_limit_is_exceeded(capsys, flee
     # the trend crossed in the past: dated on the estimates' clock, not extrapolated to decades ago
     assert d["forecast_hours_to_limit"] < 0 and d["forecast_date"] >= d["estimates"][0]["time"][:10]
     code, out, _ = run_cli(capsys, "history", "--db", fleet_db, "--gearbox", "GB-3", "--plot", tmp_path / "gb3.png")
-    assert code == 0 and f"alarm: limit 21 arcmin (0.3500 deg) exceeded since {since} (the estimates' clock, UTC)" in out
-    assert "forecast:" not in out and "state: alarm (play above the limit;" in out
+    assert code == 0 and f"forecast: limit 21 arcmin exceeded since {since} (UTC), play now 22.80 arcmin" in out
+    assert "state: alarm (play above the limit;" in out
     assert (tmp_path / "gb3.png").stat().st_size > 10_000
     code, out, _ = run_cli(capsys, "history", "--db", fleet_db, "--gearbox", "GB-2", "--json")
     d = json.loads(out)

@@ -74,12 +74,15 @@ def test_history_table_trend_and_forecast(capsys, history_db):
     assert lines[0] == "gearbox g1: ratio 30, limit 21 arcmin, 20 estimates"
     assert "backlash deg" in lines[1] and "arcmin" in lines[1] and "op. hours" in lines[1]
     first = lines[3].split()
-    assert first[:2] == ["2023-11-14", "22:43:20"] and float(first[2]) == 0.5
-    assert float(first[7]) == pytest.approx(float(first[5]) * 60, abs=0.01)  # degrees and arcmin agree
+    assert first[:2] == ["2023-11-14", "22:43:20"] and first[2] == "-" and float(first[3]) == 0.5  # no hour meter
+    assert float(first[8]) == pytest.approx(float(first[6]) * 60, abs=0.01)  # degrees and arcmin agree
     assert sum(line.startswith("2023-") for line in lines) == 20
+    # one estimate a day after 0.5 h of logging: snapshots without an hour meter, so the trend runs on calendar days
+    assert next(line for line in lines if line.startswith("clock:")).startswith("clock: calendar days: snapshot logs")
     trend = next(line for line in lines if line.startswith("trend:"))
-    assert float(trend.split()[1]) == pytest.approx(RATE, rel=0.05)
-    assert any(line.startswith("forecast: limit 21 arcmin (0.3500 deg) reached in") for line in lines)
+    assert trend.split()[2:6] == ["arcmin", "per", "calendar", "day"]
+    assert float(trend.split()[1]) == pytest.approx(RATE * 0.5 * 60, rel=0.05)  # arcmin per day
+    assert any(line.startswith("forecast: limit 21 arcmin in ") and " calendar days [" in line for line in lines)
 
 
 def test_history_json_contract(capsys, history_db):
@@ -283,14 +286,25 @@ def test_demo_replays_the_bundled_wear_series(capsys, tmp_path):
     assert main(["demo", "--plot", str(tmp_path / "fit.png")]) == 0
     out = capsys.readouterr().out
     wear = out[out.index("wear history:"):]
-    assert "12 daily logs of gearbox demo-30to1 (true play 0.200 -> 0.300 deg)" in wear and "58 estimates" in wear
-    trend = float(re.search(r"^trend: ([+-][0-9.]+) deg per operating hour", wear, re.M).group(1))
-    true_rate = float(re.search(r"^true wear: +([0-9.]+) deg per operating hour", wear, re.M).group(1))
-    assert trend == pytest.approx(true_rate, rel=0.15)
-    assert re.search(r"^forecast: limit 21 arcmin \(0.3500 deg\) reached in [0-9.]+ operating hours", wear, re.M)
-    dates = re.search(r"^ +around (\S+) \[(\S+), (\S+)\] \(UTC\) at the recent rate of use, counted from the last estimate's time", wear, re.M)
+    assert "60 daily 60 s snapshots of gearbox demo-30to1 on a machine running 16 h a day" in wear
+    assert "(true play 12.0 -> 18.0 arcmin)" in wear
+    assert re.search(r"^clock: machine hours: the machine's hour meter was given with every log$", wear, re.M)
+    trend = float(re.search(r"^trend: ([+-][0-9.]+) arcmin per 1,000 machine hours \[", wear, re.M).group(1))
+    true_rate = float(re.search(r"^true wear: +([+-][0-9.]+) arcmin per 1,000 machine hours", wear, re.M).group(1))
+    assert trend == pytest.approx(true_rate, rel=0.05)
+    assert re.search(r"^use: 16 machine hours per calendar day recently$", wear, re.M)
+    forecast = re.search(
+        r"^forecast: limit 21 arcmin in ([0-9,]+) machine hours \[([0-9,]+), ([0-9,]+)\] from the last estimate, "
+        r"around (\S+) \[(\S+), (\S+)\] \(UTC\) at 16 machine hours per calendar day$", wear, re.M,
+    )
+    hours, low, high = (float(forecast.group(k).replace(",", "")) for k in (1, 2, 3))
+    true_left = re.search(r"on the hour meter, ([0-9,]+) machine hours after the last estimate", wear).group(1)
+    true_left = float(true_left.replace(",", ""))
+    assert low <= hours <= high and hours == pytest.approx(true_left, rel=0.10)
+    true_date = re.search(r"after the last estimate, on (\S+)$", wear, re.M).group(1)
+    assert abs((dt.date.fromisoformat(forecast.group(4)) - dt.date.fromisoformat(true_date)).days) <= 3
     assert "the demo shifts it by" in wear and "dates are UTC on that shifted clock" in wear
     today = dt.datetime.now(dt.timezone.utc).date().isoformat()
-    assert today <= dates.group(2) <= dates.group(1) <= dates.group(3)  # ahead of today, not in the past
+    assert today <= forecast.group(5) <= forecast.group(4) <= forecast.group(6)  # ahead of today, not in the past
     png = tmp_path / "wear-demo.png"
     assert f"wear plot:      {png}" in wear and png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"

@@ -86,7 +86,7 @@ def test_a_level_already_over_the_limit_crossed_in_the_past():
     x_mid, x_early, x_late = trend.crossing(limit)
     assert 40.0 < x_early <= x_mid <= x_late < 60.0
     s = summarise(x * 3600.0, x, x, z, limit, backlash_std_deg=std, method="kalman")
-    assert -60.0 < s.forecast.hours_to_limit < -40.0
+    assert -60.0 < s.forecast.to_limit < -40.0
     assert s.forecast.date_unix_s == pytest.approx(np.interp(x_mid, x, x * 3600.0))  # on the estimates' clock
 
 
@@ -135,5 +135,6 @@ def test_history_trend_kalman_from_the_command_line(capsys, tmp_path):
     assert d["trend_per_hour"]["n_points"] == 30 and d["state"] == "unknown"  # 2023: not recent
     assert main(["history", "--db", str(db), "--gearbox", "g1", "--trend", "kalman", "--plot", str(tmp_path / "k.png")]) == 0
     out = capsys.readouterr().out
-    assert "(95%, Kalman local linear trend, lag-corrected)" in out and (tmp_path / "k.png").stat().st_size > 10_000
-    assert "which is before today (" in out and "the last estimate is from 2023-" in out  # a stale history says so
+    assert "(95%, Kalman local linear trend, lag-corrected, 30 estimates)" in out
+    assert (tmp_path / "k.png").stat().st_size > 10_000
+    assert "before today: the last estimate is from 2023-" in out  # a stale history says so

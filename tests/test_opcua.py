@@ -26,7 +26,8 @@ from cryptography.x509.oid import ExtendedKeyUsageOID
 from online_backlash.opcua.units import unit_id
 
 WEAR = Path(__file__).resolve().parents[1] / "src" / "online_backlash" / "data" / "wear"
-TRACK = ("--ratio", "30", "--gearbox", "GB-7", "--every", "5", "--memory-reversals", "5", "--units", "counts")
+SERIES = json.loads((WEAR / "series.json").read_text())  # 60 daily snapshots, play 12 -> 18 arcmin
+TRACK = ("--ratio", "30", "--gearbox", "GB-7", "--every", "30", "--units", "counts", "--hours-column", "hours")
 COUNTS = ("--motor-cpr", "16384", "--load-cpr", "131072", "--quiet")
 USER, PASSWORD = "plant", "s3cret-pass"
 CLIENT_URI = "urn:online-backlash:test-client"
@@ -34,8 +35,8 @@ CLI = "import sys; from online_backlash.cli import main; sys.exit(main())"
 WAIT_S = 120.0  # the longest any one notification may take (a track run compiles its kernels first)
 
 
-def _track(db: Path, *days: str, levels: tuple[str, ...] = ()) -> None:
-    logs = [str(WEAR / f"day{d}.csv.gz") for d in days]
+def _track(db: Path, *days: int, levels: tuple[str, ...] = ()) -> None:
+    logs = [str(WEAR / SERIES["logs"][d]["file"]) for d in days]
     subprocess.run(
         [sys.executable, "-c", CLI, "track", *logs, "--db", str(db), *TRACK, *COUNTS, *levels], check=True, timeout=600
     )
@@ -96,11 +97,11 @@ def _serving(folder: Path, *argv: str):
 
 @pytest.fixture(scope="module")
 def plant(tmp_path_factory):
-    """A store with day 1 of GB-7 (warning 13, limit 21 arcmin: ok), a trusted and an untrusted client
+    """A store with the first seven snapshots of GB-7 (12-12.6 arcmin; warning 13, limit 21 arcmin: ok), a trusted and an untrusted client
     certificate, and ``online-backlash opcua`` serving the store; yields a dict of what the tests need."""
     d = tmp_path_factory.mktemp("opcua")
     db = d / "wear.db"
-    _track(db, "01", levels=("--warn-arcmin", "13", "--limit-arcmin", "21"))
+    _track(db, *range(7), levels=("--warn-arcmin", "13", "--limit-arcmin", "21"))
     trusted, keys = d / "trusted", d / "keys"
     trusted.mkdir()
     keys.mkdir()
@@ -206,7 +207,7 @@ def test_a_subscriber_sees_the_play_and_the_state_change_while_track_adds_logs(p
             )
             await subscription.subscribe_events(ua.ObjectIds.Server, alarm_type)
             first = await asyncio.wait_for(values.get(), WAIT_S)  # the current value comes first
-            track = asyncio.create_task(asyncio.to_thread(_track, plant["db"], "02", "03", "04"))
+            track = asyncio.create_task(asyncio.to_thread(_track, plant["db"], 40, 50, 59))
             seen, states = [first], []
             while (
                 not states

@@ -150,7 +150,7 @@ def test_the_contracts_keep_their_names_and_order():
         "time", "time_unix_s", "operating_hours", "load_revolutions", "reversals", "backlash_deg", "backlash_std_deg",
         "backlash_arcmin", "backlash_std_arcmin", "c_left_deg", "c_right_deg", "m_left", "m_right", "residual_rms_deg",
         "n_samples", "run_id", "sample_index", "play_observable", "torque_mean_nm", "torque_rms_nm", "torque_reversals",
-        "stiffness_nm_per_arcmin",
+        "stiffness_nm_per_arcmin", "machine_hours",
     )  # fmt: skip
 
 

@@ -22,7 +22,7 @@ from sqlalchemy.exc import DBAPIError
 
 from online_backlash.history.alarms import STATES
 from online_backlash.history.store import HistoryStore
-from online_backlash.web import open_read_only
+from online_backlash.web import fleet_rows, open_read_only
 
 NOW = time.time()
 CHROMIUM = Path("/usr/bin/chromium")
@@ -109,7 +109,7 @@ def _region(screenshot: Image.Image, element) -> np.ndarray:
     return np.asarray(screenshot.convert("L").crop(box), dtype=float)
 
 
-def test_the_page_shows_the_fleet_in_a_real_browser(server, browser, tmp_path):
+def test_the_page_shows_the_fleet_in_a_real_browser(server, browser, fleet_db, tmp_path):
     from selenium.webdriver.common.by import By
 
     browser.get(server)
@@ -118,8 +118,12 @@ def test_the_page_shows_the_fleet_in_a_real_browser(server, browser, tmp_path):
     assert [c[0] for c in cells] == ["GB-1", "GB-2"]
     assert [c[1] for c in cells] == ["ok", "warning"]
     assert cells[0][2].startswith("12.00 ± 0.24") and cells[1][2].startswith("19.20 ± 0.24")
-    assert all("arcmin/1000 h" in c[3] and c[3].startswith("+") for c in cells)
-    assert all(c[4][:2] == "20" and c[5][:2] == "20" for c in cells), cells  # forecast and last-seen dates
+    # the trend and the forecast in the words history uses (issue 28): one formatting for every reader
+    with open_read_only(fleet_db) as store:
+        expected = fleet_rows(store, 168.0)
+    assert [(c[3], c[4]) for c in cells] == [(r.trend, r.forecast) for r in expected]
+    assert all(c[3].startswith("+") and " arcmin per 1,000 " in c[3] and ", around 20" in c[4] for c in cells), cells
+    assert all(c[5][:2] == "20" for c in cells), cells  # last-seen dates
     refresh = browser.find_element(By.CSS_SELECTOR, "meta[http-equiv=refresh]").get_attribute("content")
     assert refresh == "60"
 

@@ -290,13 +290,17 @@ def test_the_bundled_wear_series_shows_its_true_wear(tmp_path):
         again = track_series(series, store)
         report = wear_report(store, series.gearbox)
     m = series.manifest
-    assert len(results) == len(m["logs"]) == 12 and not any(r.already_imported for r in results)
+    assert len(results) == len(m["logs"]) == 60 and not any(r.already_imported for r in results)
     assert all(r.already_imported for r in again)
     s = report.summary.as_dict()
-    # compressed wear (0.1 deg in 300 s of operation): the estimator lags a little; 15 % leaves room for it
-    assert s["trend_deg_per_hour"] == pytest.approx(m["true_rate_deg_per_hour"], rel=0.15)
-    assert report.summary.last_hours + s["forecast_hours_to_limit"] == pytest.approx(m["true_hours_at_limit"], rel=0.15)
+    # two months of daily 60 s snapshots with the hour meter: the trend runs on machine hours, one point a snapshot
+    assert s["trend_clock"] == "machine_hours" and s["snapshot_logs"] and s["trend_points"] >= 55
+    assert s["trend_deg_per_hour"] == pytest.approx(m["true_rate_deg_per_hour"], rel=0.05)
+    assert report.summary.last_hours + s["forecast_hours_to_limit"] == pytest.approx(m["true_hours_at_limit"], rel=0.01)
+    assert s["usage_hours_per_day"] == pytest.approx(m["hours_per_day"], rel=0.02)
+    assert abs(dt.date.fromisoformat(s["forecast_date"]) - dt.date.fromisoformat(m["true_limit_date"][:10])).days <= 1
     assert s["limit_arcmin"] == m["limit_arcmin"]
+    assert results[-1].machine_hours == pytest.approx(m["logs"][-1]["meter_start_h"] + 60.0 / 3600.0, abs=0.002)
 
 
 def test_a_run_resumed_after_another_log_does_not_join_their_samples(tmp_path, wear_logs):

@@ -10,7 +10,7 @@ import pytest
 
 from online_backlash.errors import InvalidParameterError
 from online_backlash.history import trend as trend_module
-from online_backlash.history.trend import fit_trend, forecast, iso_date, summarise, usage_hours_per_day
+from online_backlash.history.trend import fit_trend, forecast, iso_date, summarise, usage_per_day
 
 DAY = 86400.0
 
@@ -92,14 +92,14 @@ def test_recent_rate_of_use():
     days = np.arange(30.0)
     hours = np.where(days < 20, 2.0 * days, 40.0 + 5.0 * (days - 20))  # 2 h/day, then 5 h/day
     t = 1.7e9 + days * DAY
-    assert usage_hours_per_day(t, hours, recent_days=7) == pytest.approx(5.0)
-    assert usage_hours_per_day(t, hours, recent_days=100) == pytest.approx(np.polyfit(days, hours, 1)[0])
+    assert usage_per_day(t, hours, recent_days=7) == pytest.approx(5.0)
+    assert usage_per_day(t, hours, recent_days=100) == pytest.approx(np.polyfit(days, hours, 1)[0])
     # a log a day: the rate over whole days, wherever in its log each estimate falls
     bursts_t = np.concatenate([T + np.array([0.01, 0.02]) for T in days]) * DAY
     bursts_h = np.concatenate([0.05 * k + np.array([0.025, 0.05]) for k in days])
-    assert usage_hours_per_day(bursts_t, bursts_h, recent_days=7) == pytest.approx(0.05, rel=0.05)
-    assert usage_hours_per_day(t[:1], hours[:1]) is None
-    assert usage_hours_per_day(np.full(3, 1.7e9), np.arange(3.0)) is None
+    assert usage_per_day(bursts_t, bursts_h, recent_days=7) == pytest.approx(0.05, rel=0.05)
+    assert usage_per_day(t[:1], hours[:1]) is None
+    assert usage_per_day(np.full(3, 1.7e9), np.arange(3.0)) is None
 
 
 def test_forecast_in_hours_and_calendar_time():
@@ -107,9 +107,9 @@ def test_forecast_in_hours_and_calendar_time():
     trend = fit_trend(x, y)
     f = forecast(trend, 0.35, last_hours=25.0, last_time_unix_s=1.7e9, usage_per_day=2.5)
     central, early, late = trend.crossing(0.35)
-    assert f.hours_to_limit == pytest.approx(central - 25.0)
-    assert (f.hours_to_limit_low, f.hours_to_limit_high) == pytest.approx((early - 25.0, late - 25.0))
-    assert f.date_unix_s == pytest.approx(1.7e9 + f.hours_to_limit / 2.5 * DAY)
+    assert f.to_limit == pytest.approx(central - 25.0)
+    assert (f.to_limit_low, f.to_limit_high) == pytest.approx((early - 25.0, late - 25.0))
+    assert f.date_unix_s == pytest.approx(1.7e9 + f.to_limit / 2.5 * DAY)
     assert f.date_low_unix_s < f.date_unix_s < f.date_high_unix_s
     assert forecast(trend, 0.35, 25.0, 1.7e9, None).date_unix_s is None
 

@@ -8,7 +8,9 @@ learned) plus ``backlash_std_deg``, ``n_reversals``, ``time`` (ISO 8601, UTC), `
 applied to the latest estimate, with the gearbox's warning level and limit in arcmin:
 ``ok | warning | alarm | unknown``; ``unknown`` without a limit, or while the play is not
 observable) goes to ``PREFIX/GEARBOX/state``, *retained*, whenever it changes, and again after
-every (re)connection, so a subscriber that arrives later, or a broker that restarted without
+every (re)connection (``track --listen`` adds the wear figures of the gearbox's history as
+``history`` says them, read when the state changes: ``trend_clock``, ``trend``, ``forecast``,
+``forecast_date_utc``), so a subscriber that arrives later, or a broker that restarted without
 persistence, has it. Whether the publisher is there at all goes, retained, to
 ``PREFIX/GEARBOX/status``: ``online`` on every connection, ``offline`` when it stops, and
 ``offline`` as the client's *last will*, which the broker publishes when the connection is lost
@@ -39,6 +41,7 @@ import math
 import os
 import threading
 import uuid
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 from urllib.parse import urlsplit
@@ -201,6 +204,9 @@ class MqttPublisher:
         :meth:`start` waits this long for the first connection (estimates before it are dropped).
     tls : MqttTls, optional
         CA, client certificate and key for ``mqtts://`` (default: the system's CAs).
+    figures : callable, optional
+        ``figures()`` -> a dict added to the state message (the wear figures of the gearbox's
+        history), called whenever the state changes.
 
     Use as a context manager (or :meth:`start` / :meth:`close`); :meth:`publish` is called with
     every row. :meth:`counts` gives ``mqtt_published``, ``mqtt_dropped`` and ``mqtt_connections``.
@@ -214,6 +220,7 @@ class MqttPublisher:
         limit_arcmin: float | None = None,
         connect_wait_s: float = 2.0,
         tls: MqttTls | None = None,
+        figures: Callable[[], dict[str, Any]] | None = None,
     ) -> None:
         import paho.mqtt.client as mqtt  # loads only when publishing
 
@@ -230,6 +237,8 @@ class MqttPublisher:
         self._lock = threading.Lock()
         self._connected = threading.Event()
         self._state: dict[str, Any] | None = None  # the newest state message
+        self._figures_of = figures
+        self._figures: dict[str, Any] = {}  # the wear figures as of the last change of state
         self._state_sent: str | None = None  # the state the broker has retained from us
         self._success = mqtt.MQTT_ERR_SUCCESS
         client = mqtt.Client(mqtt.CallbackAPIVersion.VERSION2, client_id=f"online-backlash-{gearbox_id}-{uuid.uuid4().hex[:8]}")
@@ -290,6 +299,12 @@ class MqttPublisher:
         self.close()
 
     @property
+    def state(self) -> dict[str, Any] | None:
+        """The newest state message (sent, retained, when the state changes and on every connection)."""
+        with self._lock:
+            return None if self._state is None else dict(self._state)
+
+    @property
     def connected(self) -> bool:
         """Connected to the broker now."""
         return self._connected.is_set()
@@ -308,8 +323,11 @@ class MqttPublisher:
         status = live_state(row, time_unix_s, *self.levels)
         message = estimate_message(row, self.gearbox_id, status.state, time_unix_s)
         with self._lock:
-            self._state = state_message(status, self.gearbox_id, time_unix_s)
             changed = self._state_sent != status.state
+        if changed and self._figures_of is not None:
+            self._figures = self._figures_of()
+        with self._lock:
+            self._state = {**state_message(status, self.gearbox_id, time_unix_s), **self._figures}
         if changed:
             self._send_state()
         sent = self._send(self.target.topic(self.gearbox_id, "estimate"), message, qos=0, retain=False)

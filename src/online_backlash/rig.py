@@ -14,7 +14,7 @@ from __future__ import annotations
 import csv
 import gzip
 import os
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass
 
 import numpy as np
@@ -67,14 +67,19 @@ class RigRecording:
         """Load angle in load-encoder counts (``2**load_bits`` per load revolution), multi-turn."""
         return np.rint(self.load_deg / 360.0 * 2**self.load_bits).astype(np.int64)
 
-    def write_csv(self, path: str | os.PathLike[str], units: str = "deg") -> None:
+    def write_csv(
+        self, path: str | os.PathLike[str], units: str = "deg", extra: Mapping[str, np.ndarray] | None = None
+    ) -> None:
         """Write ``time,motor,load``: seconds and degrees (``units="deg"``, enough digits to keep
         every count) or seconds and encoder counts (``units="counts"``; read back with
-        ``motor_cpr=2**motor_bits, load_cpr=2**load_bits``). A ``.gz`` suffix compresses."""
-        self._write_columns(path, units)
+        ``motor_cpr=2**motor_bits, load_cpr=2**load_bits``), then the ``extra`` columns (name ->
+        values, 6 decimals). A ``.gz`` suffix compresses."""
+        self._write_columns(path, units, extra)
 
-    def _write_columns(self, path: str | os.PathLike[str], units: str, torque: np.ndarray | None = None) -> None:
-        """Write ``time,motor,load`` and, given ``torque`` (N m), a ``torque`` column."""
+    def _write_columns(
+        self, path: str | os.PathLike[str], units: str, extra: Mapping[str, np.ndarray] | None = None
+    ) -> None:
+        """Write ``time,motor,load`` and the ``extra`` columns (a torque in N m, an hour meter in hours)."""
         opener = gzip.open if os.fspath(path).endswith(".gz") else open
         motor: Iterable[object]
         load: Iterable[object]
@@ -86,9 +91,9 @@ class RigRecording:
             raise InvalidParameterError(f"units must be 'deg' or 'counts', got {units!r}")
         columns: list[Iterable[object]] = [(f"{t:.6f}" for t in self.time_s), motor, load]
         header = ["time", "motor", "load"]
-        if torque is not None:
-            columns.append(f"{v:.6f}" for v in torque)
-            header.append("torque")
+        for name, values in (extra or {}).items():
+            columns.append(f"{v:.6f}" for v in values)
+            header.append(name)
         with opener(path, "wt", newline="") as f:
             w = csv.writer(f)
             w.writerow(header)

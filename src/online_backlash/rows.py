@@ -100,7 +100,15 @@ FIELDS: dict[str, RowField] = {
         ),
         _field("torque_mean_nm", float, "N m", "mean transmitted torque of the data since the previous estimate; null without torque", nullable=True),
         _field("torque_rms_nm", float, "N m", "RMS transmitted torque of the data since the previous estimate; null without torque", nullable=True),
-        _field("operating_hours", float, "h", "operating time since the gearbox was new (UsageCounter)"),
+        _field(
+            "operating_hours", float, "h",
+            "operating time since the gearbox was new, counted in the logged samples (UsageCounter)",
+        ),
+        _field(
+            "machine_hours", float, "h",
+            "the machine's hour meter at the estimate (track --operating-hours or --hours-column); null if not given",
+            nullable=True,
+        ),
         _field("load_revolutions", float, "rev", "load shaft travel since the gearbox was new (UsageCounter)"),
         _field("reversals", int, "", "reversals since the gearbox was new (UsageCounter)"),
         _field("frames", int, "", "raw units the source read: CAN frames, serial frames, data rows of a table"),
@@ -134,6 +142,8 @@ STORE_KEYS = (
     "residual_rms_deg", "n_samples", "operating_hours", "load_revolutions", "reversals",
     # schema 3: the load condition of each estimate (the wear trend uses only observable ones)
     "play_observable", "torque_mean_nm", "torque_rms_nm", "torque_reversals", "stiffness_nm_per_arcmin",
+    # the machine's hour meter (issue 28)
+    "machine_hours",
 )
 STORE_COLUMNS = _view(*STORE_KEYS)
 #: Columns of ``history --csv``, in this order.
@@ -141,7 +151,7 @@ HISTORY_CSV_COLUMNS = _view(
     "time_iso", "time_unix_s", "operating_hours", "load_revolutions", "reversals", "backlash_deg", "backlash_std_deg",
     "backlash_arcmin", "backlash_std_arcmin", "c_left_deg", "c_right_deg", "m_left", "m_right", "residual_rms_deg",
     "n_samples", "run_id", "sample_index", "play_observable", "torque_mean_nm", "torque_rms_nm", "torque_reversals",
-    "stiffness_nm_per_arcmin",
+    "stiffness_nm_per_arcmin", "machine_hours",
 )
 
 

@@ -139,9 +139,18 @@ class SampleSource(ABC):
 
     Units: time in seconds, angles in degrees on their own shafts (the motor angle is *not*
     divided by the ratio: :meth:`SampleChunk.referred` does that, in one place), torque in N m.
+
+    A recording that carries a clock of its own (an MDF4 header's start time, a TDMS waveform's
+    ``wf_start_time``, a Parquet timestamp column) says, once its first block has been read, which
+    calendar time its ``time_s = 0`` is: :attr:`time_origin_unix_s` (UNIX seconds, UTC) and
+    :attr:`time_origin_name` (what it was read from); None and "" where it has none.
     """
 
     counters: StreamCounters
+    #: UNIX time (UTC, seconds) of ``time_s = 0`` by the recording's own clock; None: it has none.
+    time_origin_unix_s: float | None = None
+    #: What :attr:`time_origin_unix_s` was read from, e.g. ``"MDF4 header start time"``.
+    time_origin_name: str = ""
 
     @abstractmethod
     def iter_chunks(self, max_samples: int | None = None) -> Iterator[SampleChunk]:

@@ -24,10 +24,17 @@ samples are read (its key). A store written before logs were keyed by their samp
 files' SHA-256 (:func:`file_sha256`) as keys: a log whose sample key the gearbox does not know is
 looked up by that too, so its runs are still found complete or resumed.
 
-Calendar time of a sample: ``start_unix_s + (time_s - first time_s)`` when a start is given;
-the time column itself when it holds UNIX times (at least :data:`UNIX_TIME_MIN`); otherwise
-the log file's modification time is taken as its start. The first run of a log fixes it
-(``runs.started_unix_s``); a resumed run keeps it. :attr:`TrackResult.clock` names the clock used.
+Calendar time of a sample: the log's clock (:mod:`online_backlash.clocks`: a start given for it or
+read from its file name, the time column when it holds UNIX times, the recording's own clock, else
+its file's modification time). The first run of a log fixes it (``runs.started_unix_s``); a resumed
+run keeps it. :attr:`TrackResult.clock` names the clock used. Logs placed by their modification times
+that overlap are refused, naming both and the option that places them
+(:func:`in_time_order`, :func:`check_time_order`).
+
+The machine's own use: with an hour meter (:class:`~online_backlash.hour_meter.MachineUsage`: its
+reading at a log's first sample, or a column recorded with the angles) every estimate stores the
+machine hours at its sample (``machine_hours``), and the checkpoint the last reading; a meter that
+reads less than the gearbox's last reading is refused.
 
 This module sits above :mod:`online_backlash.history` (which only stores rows) and below the
 CLI: it is where readers, estimators and the store meet.
@@ -36,31 +43,49 @@ CLI: it is where readers, estimators and the store meet.
 from __future__ import annotations
 
 import copy
+import dataclasses
 import datetime as dt
 import hashlib
 import math
 import os
+import warnings
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field
 from importlib import resources
-from itertools import chain
+from itertools import chain, pairwise
 from typing import Any, NamedTuple
 
 import numpy as np
 
+from .clocks import (
+    CLOCK_LIVE,
+    CLOCK_MTIME,
+    CLOCK_START,
+    CLOCK_UNIX,
+    ClockOptions,
+    LogClock,
+    log_clock,
+    suggest_name_pattern,
+    time_unit_scale,
+)
 from .effect_terms import effect_to_dict
-from .errors import HistoryError, InvalidParameterError, LogFormatError, NotExcitedError
+from .errors import BacklashWarning, HistoryError, InvalidParameterError, LogFormatError, NotExcitedError
 from .estimators import BacklashRLS
 from .fitting import recursive_estimator
 from .history.condition import LoadCondition
 from .history.series import WearSeries
 from .history.store import Gearbox, HistoryStore, Run
 from .history.usage import UsageCounter
+from .hour_meter import METER_TOLERANCE_H, HourMeter, MachineUsage
 from .load_aware import TorqueBacklashRLS
 from .pipeline import DataClock, Pipeline, check_every, tail
 from .replay import open_log
 from .rows import STORE_COLUMNS, EstimateRow, select, source_counts
-from .stream import UNIX_TIME_MIN, SampleChunk, SampleSource, live_clock_offset, refer_to_load
+from .stream import SampleChunk, SampleSource, live_clock_offset, refer_to_load
+
+__all__ = [
+    "CLOCK_LIVE", "CLOCK_MTIME", "CLOCK_START", "CLOCK_UNIX", "GearboxTracker", "LogClock", "TrackResult", "log_clock",
+]
 
 #: Version of the checkpoint's layout (inside the store's ``gearboxes.checkpoint``).
 CHECKPOINT_FORMAT = 1
@@ -82,31 +107,6 @@ def file_sha256(path: str | os.PathLike[str], block_bytes: int = 1 << 20) -> str
 
 #: Samples at the start of a log whose times and angles identify it (:func:`sample_key`).
 IDENTITY_SAMPLES = 4096
-
-#: The clocks a log's samples can be placed by (:attr:`TrackResult.clock`).
-CLOCK_START, CLOCK_UNIX, CLOCK_MTIME, CLOCK_LIVE = "--start", "UNIX time column", "file modification time", "live: first sample is now"
-
-
-class LogClock(NamedTuple):
-    """How a log's ``time_s`` becomes calendar time: ``offset_s`` seconds to add, and the clock's name."""
-
-    offset_s: float
-    name: str
-
-
-def log_clock(path: str | os.PathLike[str], first_time_s: float, start_unix_s: float | None = None) -> LogClock:
-    """The clock of a log whose first sample is at ``first_time_s`` (see the module docstring)."""
-    if start_unix_s is not None:
-        return LogClock(start_unix_s - first_time_s, CLOCK_START)
-    if first_time_s >= UNIX_TIME_MIN:
-        return LogClock(0.0, CLOCK_UNIX)
-    return LogClock(os.stat(path).st_mtime - first_time_s, CLOCK_MTIME)
-
-
-def log_clock_offset(path: str | os.PathLike[str], first_time_s: float, start_unix_s: float | None = None) -> float:
-    """Seconds to add to the log's ``time_s`` to get UNIX time (see the module docstring)."""
-    return log_clock(path, first_time_s, start_unix_s).offset_s
-
 
 def sample_key(chunks: Iterable[SampleChunk], n: int = IDENTITY_SAMPLES) -> tuple[str | None, Iterator[SampleChunk]]:
     """A log's identity: SHA-256 (hex) of its first ``n`` samples' ``time_s``, ``motor_deg`` and
@@ -132,26 +132,89 @@ def sample_key(chunks: Iterable[SampleChunk], n: int = IDENTITY_SAMPLES) -> tupl
     return digest.hexdigest(), chain(head, it)
 
 
-def first_time_unix_s(path: str | os.PathLike[str], log_options: dict[str, Any] | None = None, start_unix_s: float | None = None) -> float:
-    """Calendar time of a log's first sample, UNIX seconds (reads only its first block)."""
+def scaled_times(chunks: Iterable[SampleChunk], scale: float) -> Iterator[SampleChunk]:
+    """The chunks with their times multiplied by ``scale`` (seconds per unit of the time column)."""
+    if scale == 1.0:
+        yield from chunks
+        return
+    for chunk in chunks:
+        yield dataclasses.replace(chunk, time_s=np.asarray(chunk.time_s, dtype=float) * scale)
+
+
+class FirstBlock(NamedTuple):
+    """Where a log starts: calendar time of its first sample (UNIX s), the clock that placed it, and
+    the time its first block spans (seconds: the least the log lasts)."""
+
+    start_unix_s: float
+    clock: str
+    span_s: float
+
+
+def first_block(
+    path: str | os.PathLike[str], log_options: dict[str, Any] | None = None, clock: ClockOptions | None = None
+) -> FirstBlock:
+    """Where a log starts (:class:`FirstBlock`; reads only its first block)."""
+    clock = clock or ClockOptions()
     with open_log(path, **(log_options or {})) as reader:
         first = next(iter(reader.iter_chunks()), None)
+        origin = (reader.time_origin_unix_s, reader.time_origin_name)
     if first is None or len(first) == 0:
         raise LogFormatError(path, None, "no data rows")
-    first_time_s = float(first.time_s[0])
-    return first_time_s + log_clock(path, first_time_s, start_unix_s).offset_s
+    with warnings.catch_warnings():  # said once, when the log is tracked
+        warnings.simplefilter("ignore", BacklashWarning)
+        scale = time_unit_scale(first.time_s, clock.time_unit, os.fspath(path))
+    first_time_s = float(first.time_s[0]) * scale
+    placed = log_clock(path, first_time_s, clock.start_unix_s, origin, clock.start_pattern)
+    return FirstBlock(first_time_s + placed.offset_s, placed.name, float(first.time_s[-1] - first.time_s[0]) * scale)
+
+
+def first_time_unix_s(
+    path: str | os.PathLike[str], log_options: dict[str, Any] | None = None, clock: ClockOptions | None = None
+) -> float:
+    """Calendar time of a log's first sample, UNIX seconds (reads only its first block)."""
+    return first_block(path, log_options, clock).start_unix_s
 
 
 def in_time_order(
-    paths: Iterable[str | os.PathLike[str]], log_options: Callable[[str], dict[str, Any]], start_unix_s: float | None = None
+    paths: Iterable[str | os.PathLike[str]],
+    log_options: Callable[[str], dict[str, Any]],
+    clock_of: Callable[[str], ClockOptions] | None = None,
 ) -> list[str]:
     """The logs sorted by their first sample's calendar time (stable: equal times keep their order).
 
-    ``log_options(path)`` gives each log's reader options.
+    ``log_options(path)`` gives each log's reader options, ``clock_of(path)`` what the user said of
+    its clock. Logs placed by their files' modification times that overlap (one starts before the
+    first block of the one before it ends: copies made without preserving times) are refused with
+    HistoryError naming both and the option that places them, before anything is tracked.
     """
     named = [os.fspath(p) for p in paths]
-    starts = {p: first_time_unix_s(p, log_options(p), start_unix_s) for p in named}
-    return sorted(named, key=lambda p: starts[p])
+    firsts = {p: first_block(p, log_options(p), clock_of(p) if clock_of is not None else None) for p in named}
+    ordered = sorted(named, key=lambda p: firsts[p].start_unix_s)
+    for before, after in pairwise(ordered):
+        a, b = firsts[before], firsts[after]
+        if a.clock == b.clock == CLOCK_MTIME and b.start_unix_s < a.start_unix_s + a.span_s:
+            inside = f"{before} (placed by its {CLOCK_MTIME} too)"
+            raise HistoryError(mtime_overlap(after, b.start_unix_s, before, inside))
+    return ordered
+
+
+def mtime_overlap(source: str, start_unix_s: float, other: str, inside: str) -> str:
+    """Why a log ``source`` placed by its modification time at ``start_unix_s``, inside the log ``other``
+    (described as ``inside``), is refused, with the option that places them."""
+    pattern = suggest_name_pattern(source, other)
+    if pattern is not None:
+        option = f"their names hold their start times: give --start-from-name '{pattern}'"
+    else:
+        option = (
+            "give each log's start: --start-from-name PATTERN if their names hold it (e.g. '%Y-%m-%d_%H%M%S'), "
+            "a per-log start in a fleet manifest (logs = [{ path = \"...\", start = \"2026-11-02T08:00:00\" }]), "
+            "or --start TIME for one log"
+        )
+    return (
+        f"{source}: starts {_utc(start_unix_s)} by the {CLOCK_MTIME}, inside {inside}: logs whose time starts at 0 are "
+        "placed by their files' modification times, which copies made without preserving times (cp, a download, an "
+        f"e-mail) set to nearly the same moment; nothing was added; {option}"
+    )
 
 
 def log_files(path: str | os.PathLike[str]) -> list[str]:
@@ -192,6 +255,8 @@ class TrackResult:
     note : str or None
         Why no estimate was added, when none was (the log still counts as read: its samples
         stay in the gearbox's state, and the next log continues from them).
+    machine_hours : float or None
+        The machine's hour meter at the log's last sample, hours (None: the log told none).
     """
 
     gearbox_id: str
@@ -205,6 +270,7 @@ class TrackResult:
     counters: dict = field(default_factory=dict)
     clock: str = ""
     note: str | None = None
+    machine_hours: float | None = None
 
 
 class GearboxTracker:
@@ -254,6 +320,8 @@ class GearboxTracker:
         log_options: dict[str, Any] | None = None,
         start_unix_s: float | None = None,
         progress: ProgressCallback | None = None,
+        clock: ClockOptions | None = None,
+        usage: MachineUsage | None = None,
     ) -> TrackResult:
         """Feed one recorded log (resuming an interrupted run of it; nothing if already complete).
 
@@ -264,22 +332,38 @@ class GearboxTracker:
         log_options : dict, optional
             Reader options (``columns``, ``units``, ``motor_cpr``, ``load_cpr``, ``skip_bad``).
         start_unix_s : float, optional
-            Calendar time of the first sample, UNIX seconds (see the module docstring).
+            Calendar time of the first sample, UNIX seconds (see the module docstring); the same as
+            ``clock=ClockOptions(start_unix_s=...)``.
         progress : callable, optional
             ``progress(samples_fed, backlash_deg or None)`` after every block.
+        clock : ClockOptions, optional
+            What the user says of the log's clock (:mod:`online_backlash.clocks`).
+        usage : MachineUsage, optional
+            How the log tells the machine's hours (:mod:`online_backlash.hour_meter`).
         """
         path = os.fspath(path)
         os.stat(path)  # FileNotFoundError naming the path, before any reader is chosen
-        with open_log(path, **(log_options or {})) as reader:
+        clock = clock or ClockOptions()
+        if start_unix_s is not None:
+            clock = dataclasses.replace(clock, start_unix_s=start_unix_s)
+        options = log_options or {}
+        with open_log(path, **options) as reader:
             key, chunks = sample_key(reader.iter_chunks())
             key = self._stored_key(key, path)
+            head = next(chunks, None)
+            scale = 1.0 if head is None else time_unit_scale(head.time_s, clock.time_unit, path)
+            origin = (reader.time_origin_unix_s, reader.time_origin_name)
+            meter = None
+            if usage is not None and usage.given:
+                meter = lambda first_time_s: usage.meter(path, first_time_s, options, scale)  # noqa: E731
             return self.track_chunks(
-                chunks,
+                scaled_times(chain([] if head is None else [head], chunks), scale),
                 path,
                 key=key,
-                clock_offset=lambda first_time_s: log_clock(path, first_time_s, start_unix_s),
+                clock_offset=lambda first_s: log_clock(path, first_s, clock.start_unix_s, origin, clock.start_pattern),
                 counters=lambda: reader.counters.as_dict(),
                 progress=progress,
+                hour_meter=meter,
             )
 
     def track_source(
@@ -313,6 +397,7 @@ class GearboxTracker:
         counters: Callable[[], dict] | None = None,
         progress: ProgressCallback | None = None,
         on_row: RowCallback | None = None,
+        hour_meter: Callable[[float], HourMeter] | None = None,
     ) -> TrackResult:
         """Feed a stream of sample chunks as one run (the engine under :meth:`track_log`).
 
@@ -336,6 +421,10 @@ class GearboxTracker:
             ``progress(samples_fed, backlash_deg or None)`` after every block.
         on_row : callable, optional
             ``on_row(row, time_unix_s)`` with each :class:`~online_backlash.rows.EstimateRow` once committed.
+        hour_meter : callable, optional
+            ``hour_meter(first_time_s)``: the machine's hour meter along the data
+            (:class:`~online_backlash.hour_meter.HourMeter`), asked for only when there are samples to
+            feed. A new run whose meter reads less than the gearbox's last reading is refused (HistoryError).
         """
         self._validate()
         chunks = iter(chunks)
@@ -347,8 +436,13 @@ class GearboxTracker:
         offset, clock_name = placed if isinstance(placed, LogClock) else (placed, "")
         known = self.store.find_gearbox(self.gearbox_id)
         self._check_estimator_params(known)
+        runs = self.store.runs(self.gearbox_id) if known is not None else []
+        stored = next((r for r in runs if key is not None and r.log_sha256 == key), None)
         if key is not None and known is not None and known.ratio == self.ratio:  # a contradicting ratio: begin_run says so
-            check_time_order(self.store.runs(self.gearbox_id), key, source, first_time_s + offset, clock_name)
+            check_time_order(runs, key, source, first_time_s + offset, clock_name)
+        meter = hour_meter(first_time_s) if hour_meter is not None and (stored is None or not stored.complete) else None
+        if meter is not None and stored is None and known is not None:
+            check_machine_hours(known.checkpoint, meter.hours_at(first_time_s), first_time_s + offset, source)
         gearbox, run = self.store.begin_run(self.gearbox_id, self.ratio, source, key, first_time_s + offset, self.limit_arcmin)
         result = TrackResult(self.gearbox_id, run.id, source, resumed_from=run.samples_done, clock=clock_name)
         if run.complete:
@@ -357,7 +451,10 @@ class GearboxTracker:
             return result
         # a resumed run keeps its first clock (begin_run stored it; it is None only in a foreign store)
         clock = (run.started_unix_s if run.started_unix_s is not None else first_time_s + offset) - first_time_s
-        gearbox, run, state, ended = self._feed(gearbox, run, first, chain([first], chunks), clock, result, progress, on_row)
+        everything = chain([first], chunks)
+        gearbox, run, state, ended = self._feed(gearbox, run, first, everything, clock, result, progress, on_row, meter)
+        if meter is not None and ended is not None:
+            result.machine_hours = state.note_machine_hours(meter.hours_at(ended - clock), ended)
         done = result.resumed_from + result.samples_fed
         counts = counters() if counters is not None else {k: done if k == "samples" else 0 for k in _COUNTERS}
         result.counters = {**source_counts(counts), **state.pipeline.gap_tally.values()}
@@ -407,6 +504,7 @@ class GearboxTracker:
         result: TrackResult,
         progress: ProgressCallback | None,
         on_row: RowCallback | None = None,
+        meter: HourMeter | None = None,
     ) -> tuple[Gearbox, Run, TrackerState, float | None]:
         """Skip what the run already committed, learn the rest, commit at every estimate.
 
@@ -414,6 +512,7 @@ class GearboxTracker:
         calendar time of the last sample (None if every sample was skipped).
         """
         state = TrackerState.load(gearbox.checkpoint, self.ratio, self.every_s, self.estimator_params, self.usage_params, first)
+        state.meter = meter
         if run.samples_done == 0 or (gearbox.checkpoint or {}).get("run_id") != run.id:
             state.mark_gap()  # the log does not continue the samples the state saw last
         skip = run.samples_done
@@ -468,7 +567,8 @@ def check_time_order(runs: Iterable[Run], key: str, source: str, start_unix_s: f
     its stored ``runs`` ends: it overlaps a tracked log, or it is older than one.
 
     An interrupted run, whose end is not stored, counts as ending at its start. Raises
-    HistoryError naming the run and the clock that placed the new log.
+    HistoryError naming the run and the clock that placed the new log; one placed by its file's
+    modification time inside a run names the option that places both (:func:`mtime_overlap`).
     """
     runs = list(runs)
     if any(r.log_sha256 == key for r in runs):
@@ -483,6 +583,9 @@ def check_time_order(runs: Iterable[Run], key: str, source: str, start_unix_s: f
     run, end = max(later, key=lambda item: item[1])
     by = f" by the {clock}" if clock else ""
     began = run.started_unix_s if run.started_unix_s is not None else end
+    if start_unix_s >= began and clock == CLOCK_MTIME:
+        inside = f"run {run.id} ({run.source}, {_utc(began)} to {_utc(end)})"
+        raise HistoryError(mtime_overlap(source, start_unix_s, run.source, inside))
     if start_unix_s >= began:
         raise HistoryError(
             f"{source}: starts {_utc(start_unix_s)}{by}, inside run {run.id} ({run.source}, {_utc(began)} to {_utc(end)}) "
@@ -494,6 +597,29 @@ def check_time_order(runs: Iterable[Run], key: str, source: str, start_unix_s: f
         "already tracked for this gearbox; logs are tracked in time order, nothing was added (give the logs in one "
         "call to have them sorted, or track into a new gearbox id; if the clock is wrong, give --start)"
     )
+
+
+def check_machine_hours(checkpoint: dict | None, hours: float, start_unix_s: float, source: str) -> None:
+    """Refuse a new log whose hour meter reads ``hours`` at its first sample (calendar time ``start_unix_s``)
+    below the gearbox's last reading (in its ``checkpoint``): a meter does not go back. One that ran
+    faster than calendar time since is warned of (BacklashWarning): a wrong unit or clock."""
+    last = (checkpoint or {}).get("machine")
+    if not last:
+        return
+    if hours < last["hours"] - METER_TOLERANCE_H:
+        raise HistoryError(
+            f"{source}: the hour meter reads {hours:g} h at its first sample, less than the {last['hours']:g} h of the "
+            f"gearbox's last tracked sample ({_utc(last['time_unix_s'])}); an hour meter does not go back, nothing was "
+            "added (a replaced meter or controller: track into a new gearbox id)"
+        )
+    elapsed_h = (start_unix_s - last["time_unix_s"]) / 3600.0
+    if hours - last["hours"] > 1.01 * elapsed_h + 0.01:
+        warnings.warn(
+            f"{source}: the hour meter advanced {hours - last['hours']:.4g} h in {elapsed_h:.4g} h of calendar time "
+            "since the gearbox's last tracked sample, faster than time itself: check --hours-unit and the log's clock",
+            BacklashWarning,
+            stacklevel=2,
+        )
 
 
 def current_backlash_deg(estimator: Any) -> float | None:
@@ -517,12 +643,24 @@ class TrackerState:
         Operating time, load revolutions and reversals since new.
     condition : LoadCondition
         The torque since the last estimate (stored with the next one).
+    machine : dict or None
+        The machine's last hour-meter reading: ``{"hours": h, "time_unix_s": t}`` (None: none yet).
+    meter : HourMeter or None
+        The hour meter along the log being fed (not saved: each log tells its own).
     """
 
-    def __init__(self, pipeline: Pipeline, usage: UsageCounter, condition: LoadCondition | None = None) -> None:
+    def __init__(
+        self,
+        pipeline: Pipeline,
+        usage: UsageCounter,
+        condition: LoadCondition | None = None,
+        machine: dict | None = None,
+    ) -> None:
         self.pipeline = pipeline
         self.usage = usage
         self.condition = condition if condition is not None else LoadCondition()
+        self.machine = machine
+        self.meter: HourMeter | None = None
 
     @classmethod
     def load(
@@ -552,7 +690,8 @@ class TrackerState:
         estimator = (TorqueBacklashRLS if saved.get("estimator") == TorqueBacklashRLS.__name__ else BacklashRLS).from_state(saved)
         clock = DataClock.from_state(every_s, checkpoint)
         usage = UsageCounter.from_state(checkpoint["usage"])
-        return cls(Pipeline(estimator, ratio, every_s, clock), usage, LoadCondition.from_state(checkpoint.get("condition")))
+        condition = LoadCondition.from_state(checkpoint.get("condition"))
+        return cls(Pipeline(estimator, ratio, every_s, clock), usage, condition, checkpoint.get("machine"))
 
     def checkpoint(self, run_id: int | None = None) -> dict:
         """The state as a JSON-serialisable dict, noting the run whose sample it saw last."""
@@ -562,8 +701,14 @@ class TrackerState:
             "estimator": self.pipeline.estimator.state_dict(),
             "usage": self.usage.state_dict(),
             "condition": self.condition.state_dict(),
+            "machine": self.machine,
             **self.pipeline.clock.state_dict(),
         }
+
+    def note_machine_hours(self, hours: float, time_unix_s: float) -> float:
+        """Remember the hour meter's reading ``hours`` at calendar time ``time_unix_s`` (for the next checkpoint)."""
+        self.machine = {"hours": hours, "time_unix_s": time_unix_s}
+        return hours
 
     def mark_gap(self) -> None:
         """The next sample does not continue the last one."""
@@ -577,7 +722,11 @@ class TrackerState:
             "load_revolutions": self.usage.load_revolutions,
             "reversals": self.usage.reversals,
         }
-        values = {**row.values(), **usage, **self.condition.take(), "sample_index": sample_index, "time_unix_s": time_unix_s}
+        machine = None if self.meter is None else self.note_machine_hours(self.meter.hours_at(row.time_s), time_unix_s)
+        values = {
+            **row.values(), **usage, **self.condition.take(), "sample_index": sample_index, "time_unix_s": time_unix_s,
+            "machine_hours": machine,
+        }
         est = self.pipeline.estimator
         if getattr(est, "takes_torque", False):  # the play is seen only where the torque reversed since the last estimate
             values["play_observable"] = bool(values["play_observable"]) and self.condition.reversed_since_last(est.n_reversals_)
@@ -587,7 +736,8 @@ class TrackerState:
 def track_series(
     series: WearSeries, store: HistoryStore, progress: ProgressCallback | None = None, shift_s: float = 0.0
 ) -> list[TrackResult]:
-    """Track every log of a wear series into ``store`` under its gearbox id (a log already there adds nothing).
+    """Track every log of a wear series into ``store`` under its gearbox id (a log already there adds nothing),
+    with its hour meter (the manifest's ``hours_column``).
 
     ``shift_s`` moves the series' clock (each log starts at its manifest ``start`` plus ``shift_s``).
     """
@@ -595,9 +745,11 @@ def track_series(
     tracker = GearboxTracker(
         store, m["gearbox"], m["ratio"], every_s=m["every_s"], limit_arcmin=m["limit_arcmin"], estimator_params=m["estimator_params"]
     )
+    usage = MachineUsage(hours_column=m.get("hours_column"))
     results = []
     for item in series.files:
         with resources.as_file(item) as path:
             start = series.start_unix_s(item) + shift_s if shift_s else None
-            results.append(tracker.track_log(path, m["log_options"], start_unix_s=start, progress=progress))
+            result = tracker.track_log(path, m["log_options"], start_unix_s=start, progress=progress, usage=usage)
+            results.append(result)
     return results

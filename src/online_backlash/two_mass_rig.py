@@ -28,7 +28,7 @@ from __future__ import annotations
 
 import math
 import os
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 
 import numba
@@ -68,10 +68,12 @@ class TwoMassRecording(RigRecording):
         n = self.time_s.size
         return SampleChunk(self.time_s, self.motor_deg, self.load_deg, self.torque_Nm, np.zeros(n, dtype=bool))
 
-    def write_csv(self, path: str | os.PathLike[str], units: str = "deg") -> None:
+    def write_csv(
+        self, path: str | os.PathLike[str], units: str = "deg", extra: Mapping[str, np.ndarray] | None = None
+    ) -> None:
         """Write ``time,motor,load,torque`` (seconds, degrees or counts as
-        :meth:`RigRecording.write_csv`, N m). A ``.gz`` suffix compresses."""
-        self._write_columns(path, units, torque=self.torque_Nm)
+        :meth:`RigRecording.write_csv`, N m), then the ``extra`` columns. A ``.gz`` suffix compresses."""
+        self._write_columns(path, units, {"torque": self.torque_Nm, **(extra or {})})
 
     @property
     def reversals_of_torque(self) -> int:

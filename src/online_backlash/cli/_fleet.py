@@ -63,9 +63,10 @@ def track_gearbox(job: GearboxJob) -> GearboxOutcome:
     try:
         args = parse_track_argv(list(job.argv))
         with HistoryStore(args.db, create=True) as store:
-            logs = track_command.ordered_logs(argparse.Namespace(**{**vars(args), "quiet": True}))
+            per_log = {path: dict(keys) for path, keys in job.per_log.items()}
+            logs = track_command.ordered_logs(argparse.Namespace(**{**vars(args), "quiet": True}), per_log)
             tracker = track_command.gearbox_tracker(store, args, logs)
-            for result in track_command.track_logs(tracker, args, logs):
+            for result in track_command.track_logs(tracker, args, logs, per_log=per_log):
                 outcome.results.append(result)
     except (BacklashError, OSError) as exc:
         outcome.error = str(exc)

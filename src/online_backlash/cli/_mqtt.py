@@ -5,11 +5,12 @@ from __future__ import annotations
 import argparse
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 from ..errors import InvalidParameterError
 
 if TYPE_CHECKING:
+    from ..history.store import HistoryStore
     from ..publish import MqttPublisher, MqttTls
     from ..rows import EstimateRow
 
@@ -46,9 +47,15 @@ def add_listen_mqtt_options(parser: argparse.ArgumentParser) -> None:
 
 @contextmanager
 def mqtt_publisher(
-    url: str | None, gearbox_id: str | None, warn_arcmin: float | None, limit_arcmin: float | None, tls: MqttTls | None = None
+    url: str | None,
+    gearbox_id: str | None,
+    warn_arcmin: float | None,
+    limit_arcmin: float | None,
+    tls: MqttTls | None = None,
+    figures: Callable[[], dict[str, Any]] | None = None,
 ) -> Iterator[MqttPublisher | None]:
-    """The running publisher for ``--mqtt URL`` (None without ``--mqtt``), closed at the end."""
+    """The running publisher for ``--mqtt URL`` (None without ``--mqtt``), closed at the end; ``figures()`` gives
+    the wear figures its state messages carry (``track --listen``: :func:`history_figures`)."""
     if url is None:
         yield None
         return
@@ -56,8 +63,31 @@ def mqtt_publisher(
         raise InvalidParameterError("--mqtt publishes under the gearbox's id: give --gearbox ID")
     from ..publish import MqttPublisher
 
-    with MqttPublisher(url, gearbox_id, warn_arcmin, limit_arcmin, tls=tls) as publisher:
+    with MqttPublisher(url, gearbox_id, warn_arcmin, limit_arcmin, tls=tls, figures=figures) as publisher:
         yield publisher
+
+
+def history_figures(store: HistoryStore, gearbox_id: str) -> Callable[[], dict[str, Any]]:
+    """The wear figures of a gearbox's stored history as ``history`` says them, for its MQTT state message
+    (none while the store holds no estimate of it)."""
+
+    def figures() -> dict[str, Any]:
+        from ..errors import BacklashError
+        from ..history.report import wear_report
+        from ..history.text import wear_figures
+
+        try:
+            report = wear_report(store, gearbox_id)
+        except BacklashError:  # a side channel: the gearbox's first estimate may not be committed yet
+            return {}
+        words = wear_figures(report)
+        summary = report.summary.as_dict()
+        return {
+            "trend_clock": summary["trend_clock"], "trend": words.trend_short, "forecast": words.forecast_short,
+            "forecast_date_utc": summary["forecast_date_utc"],
+        }
+
+    return figures
 
 
 def row_sink(publisher: MqttPublisher | None, then: Callable[[EstimateRow], None]) -> Callable[[EstimateRow], None]:

@@ -1,7 +1,9 @@
 """``online-backlash demo``: the main job on data bundled with the package (no rig needed).
 
-First one recording (estimate and characteristic plot), then a multi-day series of short logs
-of one gearbox wearing, replayed into a temporary SQLite wear history: trend, forecast, wear plot.
+First one recording (estimate and characteristic plot), then two months of daily 60 s snapshots
+of one gearbox wearing on a machine that runs 16 h a day, with its hour meter, replayed into a
+temporary SQLite wear history: trend against machine hours, forecast in machine hours and as a
+date, wear plot.
 """
 
 from __future__ import annotations
@@ -27,8 +29,8 @@ def add_subparser(subparsers: argparse._SubParsersAction) -> None:
         "demo",
         help="run the main job on a bundled recording (no rig needed)",
         description="Estimate the backlash of a bundled 30:1 gearbox recording (true play 0.50 deg) and plot the fit; "
-        "then replay a bundled 12-day series of one gearbox wearing into a temporary wear history and forecast "
-        "when its play crosses the limit.",
+        "then replay two months of daily snapshots of one gearbox wearing, with its machine's hour meter, into a "
+        "temporary wear history and forecast in machine hours and as a date when its play crosses the limit.",
         formatter_class=argparse.ArgumentDefaultsHelpFormatter,
     )
     parser.add_argument("--plot", default="backlash-demo.png", help="where to write the plot (PNG)")
@@ -56,7 +58,10 @@ def run(args: argparse.Namespace) -> int:
 
 def wear_demo(plot_path: str | Path) -> None:
     """Replay the bundled wear series into a temporary SQLite history; print trend and forecast; plot."""
+    import datetime as dt
+
     from ..history import HistoryStore, bundled_wear_series, plot_wear, wear_report  # SQLAlchemy, scipy: only here
+    from ..history.text import amount, rate
     from ..tracking import track_series
 
     series = bundled_wear_series()
@@ -65,21 +70,28 @@ def wear_demo(plot_path: str | Path) -> None:
     with tempfile.TemporaryDirectory() as folder, HistoryStore(Path(folder) / "wear.db", create=True) as store:
         track_series(series, store, shift_s=shift_s)
         report = wear_report(store, series.gearbox)
+    logs = truth["logs"]
     print()
     print(
-        f"wear history:   {len(series.files)} daily logs of gearbox {series.gearbox} (true play "
-        f"{truth['logs'][0]['play_deg_first']:.3f} -> {truth['logs'][-1]['play_deg_last']:.3f} deg), "
-        f"replayed into a temporary SQLite store: {len(report.estimates)} estimates"
+        f"wear history:   {len(series.files)} daily 60 s snapshots of gearbox {series.gearbox} on a machine running "
+        f"{truth['hours_per_day']:g} h a day, each with its hour meter (true play {logs[0]['play_deg_first'] * 60:.1f} "
+        f"-> {logs[-1]['play_deg_last'] * 60:.1f} arcmin), replayed into a temporary SQLite store: "
+        f"{len(report.estimates)} estimates"
     )
     print(
-        f"clock:          the series was recorded {truth['logs'][0]['start'][:10]} .. {truth['logs'][-1]['start'][:10]}; "
+        f"dates:          the series was recorded {logs[0]['start'][:10]} .. {logs[-1]['start'][:10]}; "
         f"the demo shifts it by {shift_s / 86400:.0f} days so that its last log is the latest one before now; "
         "dates are UTC on that shifted clock"
     )
     print("\n".join(describe_trend(report)))
+    clock = report.summary.clock
+    left = truth["true_hours_at_limit"] - (report.summary.last_x or 0.0)
+    limit_date = dt.datetime.fromisoformat(truth["true_limit_date"]).timestamp() + shift_s
+    on = dt.datetime.fromtimestamp(limit_date, dt.timezone.utc).date()
     print(
-        f"true wear:      {truth['true_rate_deg_per_hour']:.4g} deg per operating hour; the limit is reached at "
-        f"{truth['true_hours_at_limit']:.4g} operating hours ({truth['true_hours_at_limit'] - report.summary.last_hours:.3g} after the last estimate)"
+        f"true wear:      {rate(truth['true_rate_deg_per_hour'], clock)}; the limit is reached at "
+        f"{amount(truth['true_hours_at_limit'], clock)} on the hour meter, {amount(left, clock)} after the last "
+        f"estimate, on {on}"
     )
     plot_wear(report, plot_path)
     print(f"wear plot:      {plot_path}")

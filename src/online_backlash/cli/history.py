@@ -9,7 +9,7 @@ import sys
 from typing import TYPE_CHECKING
 
 from ..errors import BacklashError, InvalidParameterError
-from ..rows import HISTORY_CSV_COLUMNS
+from ..rows import ARCMIN_PER_DEG, HISTORY_CSV_COLUMNS
 from ._common import check_plot_path, nonempty_text, print_json
 
 if TYPE_CHECKING:
@@ -105,6 +105,7 @@ def run_check(args: argparse.Namespace) -> int:
     from ..history.alarms import PLUGIN_STATUS, plugin_line, worst_state
     from ..history.report import wear_report
     from ..history.store import HistoryStore
+    from ..history.text import wear_figures
 
     if (args.gearbox is None) == (not args.all):
         print("BACKLASH UNKNOWN - give --gearbox ID or --all with --check")
@@ -120,8 +121,7 @@ def run_check(args: argparse.Namespace) -> int:
         print(f"BACKLASH UNKNOWN - no gearbox in {args.db}")
         return PLUGIN_STATUS["unknown"][1]
     for report in reports:
-        status = report.status_dict()
-        print(plugin_line(report.gearbox.id, report.status, report.summary.as_dict()["forecast_hours_to_limit"], status["limit_exceeded_since"]))
+        print(plugin_line(report.gearbox.id, report.status, wear_figures(report).forecast_short))
     return PLUGIN_STATUS[worst_state([r.status.state for r in reports])][1]
 
 
@@ -143,11 +143,15 @@ def describe(report: WearReport) -> str:
     hidden = int((~report.observable).sum())
     counted = f", {hidden} with the play not observable (marked *, left out of the trend)" if hidden else ""
     lines = [f"gearbox {g.id}: ratio {g.ratio:g}, limit {limit}{warn}, {len(report.estimates)} estimates{counted}"]
-    header = f"{'time (UTC)':<20} {'op. hours':>10} {'load rev':>10} {'reversals':>9} {'backlash deg':>12} {'std deg':>9} {'arcmin':>8} {'std arcmin':>10}"
+    header = (
+        f"{'time (UTC)':<20} {'machine h':>10} {'op. hours':>10} {'load rev':>10} {'reversals':>9} "
+        f"{'backlash deg':>12} {'std deg':>9} {'arcmin':>8} {'std arcmin':>10}"
+    )
     lines += [header, "-" * len(header)]
     for row, seen in zip(report.rows(), report.observable):
         lines.append(
-            f"{row['time'][:19].replace('T', ' '):<20} {row['operating_hours']:>10.3f} {row['load_revolutions']:>10.1f} "
+            f"{row['time'][:19].replace('T', ' '):<20} {_num(row['machine_hours'], '10.2f'):>10} "
+            f"{row['operating_hours']:>10.3f} {row['load_revolutions']:>10.1f} "
             f"{row['reversals']:>9d} {_num(row['backlash_deg'], '12.4f'):>12} {_num(row['backlash_std_deg'], '9.4f'):>9} "
             f"{_num(row['backlash_arcmin'], '8.2f'):>8} {_num(row['backlash_std_arcmin'], '10.2f'):>10}{'' if seen else ' *'}"
         )
@@ -159,47 +163,24 @@ def describe(report: WearReport) -> str:
 
 
 def describe_trend(report: WearReport) -> list[str]:
-    """Trend and forecast lines (shared with ``demo``)."""
-    s = report.summary.as_dict()
-    if s["trend_deg_per_hour"] is None:
-        return ["trend: needs at least 3 estimates at different operating hours"]
-    lo, hi = s["trend_deg_per_hour_interval"]
-    conf = f"{s['trend_confidence']:.0%}"
-    method = "Kalman local linear trend, lag-corrected" if s["trend_method"] == "kalman" else "Theil-Sen"
-    lines = [
-        f"trend: {s['trend_deg_per_hour']:+.4g} deg per operating hour [{lo:+.4g}, {hi:+.4g}] ({conf}, {method}), "
-        f"now {s['trend_backlash_deg_now']:.4f} deg on the trend line",
-    ]
-    if s["trend_deg_per_revolution"] is not None:
-        lines.append(f"       {s['trend_deg_per_revolution'] * 1000:+.4g} deg per 1000 load revolutions")
-    if s["usage_hours_per_day"] is not None:
-        lines.append(f"use: {s['usage_hours_per_day']:.3g} operating hours per day recently")
-    if s["limit_deg"] is None:
-        lines.append("forecast: no limit (give --limit-arcmin, or store one with track --limit-arcmin)")
-        return lines
-    h, (h_lo, h_hi) = s["forecast_hours_to_limit"], s["forecast_hours_to_limit_interval"]
-    limit = f"limit {s['limit_arcmin']:g} arcmin ({s['limit_deg']:.4f} deg)"
-    since = report.status_dict()["limit_exceeded_since"]
-    if since is not None:
-        lines.append(
-            f"alarm: {limit} exceeded since {since} (the estimates' clock, UTC); "
-            f"play now {report.status.play_arcmin:.1f} arcmin"
-        )
-        return lines
-    if not math.isfinite(h):
-        lines.append(f"forecast: {limit} not reached (the trend does not grow)")
-        return lines
-    interval = f"[{h_lo:.3g}, {_num(h_hi, '.3g')}]"
-    if h < 0:
-        lines.append(f"forecast: {limit} crossed by the trend line {-h:.3g} operating hours before the last estimate {interval}")
-    else:
-        lines.append(f"forecast: {limit} reached in {h:.3g} operating hours {interval} from the last estimate")
-    if s["forecast_date"] is not None:
-        d_lo, d_hi = s["forecast_date_interval"]
-        clock = "on the estimates' clock" if h < 0 else "at the recent rate of use, counted from the last estimate's time"
-        lines.append(f"          around {s['forecast_date']} [{d_lo}, {d_hi or 'never'}] (UTC) {clock}")
-        today = report.status_dict()["checked_at"][:10]
-        if h >= 0 and s["forecast_date"] < today:
-            last = report.rows()[-1]["time"][:10]
-            lines.append(f"          which is before today ({today}): the last estimate is from {last}; track newer logs")
+    """Clock, trend, use and forecast lines (shared with ``demo``), in the words of
+    :func:`~online_backlash.history.text.wear_figures`."""
+    from ..history.clock import LOAD_REVOLUTIONS, OPERATING_HOURS
+    from ..history.text import amount, rate, wear_figures
+
+    f, s = wear_figures(report), report.summary
+    lines = [f"clock: {f.clock}", f"trend: {f.trend}"]
+    if s.trend is not None and s.last_x is not None:
+        lines[-1] += f", now {float(s.trend.line(s.last_x)) * ARCMIN_PER_DEG:.2f} arcmin on the trend line"
+    if s.per_revolution is not None and s.clock.key != "load_revolutions":
+        lines.append(f"       {rate(s.per_revolution.slope, LOAD_REVOLUTIONS)}")
+    hf = s.hours_forecast
+    if s.clock.key == "load_revolutions" and s.per_hour is not None:  # the logs cover the running: their hours count
+        lines.append(f"       {rate(s.per_hour.slope, OPERATING_HOURS)}")
+        if hf is not None and math.isfinite(hf.to_limit) and hf.to_limit >= 0:
+            interval = f"[{hf.to_limit_low:.3g}, {_num(hf.to_limit_high, '.3g')}]"
+            lines.append(f"       limit in {amount(hf.to_limit, OPERATING_HOURS)} {interval}")
+    if f.use:
+        lines.append(f"use: {f.use}")
+    lines.append(f"forecast: {f.forecast}")
     return lines

@@ -14,17 +14,31 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from typing import TYPE_CHECKING, Any
 
+from ..clocks import TIME_UNITS as TIME_UNIT_NAMES
 from ..errors import InvalidParameterError
 from ..rows import describe_counts
 from ._common import add_can_decoding_options, add_log_options, add_ratio_option, positive_float, print_json
 from ._live import on_interrupt, open_can_source, open_serial_source
-from ._mqtt import add_mqtt_option, mqtt_publisher, mqtt_summary_line, mqtt_tls
+from ._mqtt import add_mqtt_option, history_figures, mqtt_publisher, mqtt_summary_line, mqtt_tls
 from .estimate import log_options
 from .history import add_db_options
 
 if TYPE_CHECKING:
+    from ..clocks import ClockOptions
     from ..history.store import HistoryStore
+    from ..hour_meter import MachineUsage
     from ..tracking import GearboxTracker, ProgressCallback, RowCallback, TrackResult
+
+
+def _hours(text: str) -> float:
+    """argparse type of an hour-meter reading: finite, >= 0 hours."""
+    try:
+        value = float(text)
+    except ValueError:
+        value = -1.0
+    if not (value >= 0 and value != float("inf")):
+        raise argparse.ArgumentTypeError(f"expected an hour-meter reading in hours (a number >= 0), got {text!r}")
+    return value
 
 
 def _unix_time(text: str) -> float:
@@ -62,12 +76,47 @@ def add_subparser(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument(
         "--warn-arcmin", type=float, metavar="X", help="store this warning level of the play with the gearbox (not above the limit)"
     )
-    parser.add_argument(
+    clocks = parser.add_argument_group(
+        "clocks: where a log lies in time and in the machine's use (see docs/wear-trend.md)"
+    )
+    clocks.add_argument(
         "--start",
         type=_unix_time,
         metavar="TIME",
-        help="calendar time of the log's first sample (ISO 8601, UTC unless given); default: the time column "
-        "if it holds UNIX times, else the file's modification time",
+        help="calendar time of the log's first sample (ISO 8601, UTC unless given); default: --start-from-name, the "
+        "time column if it holds UNIX times, the file's own start time (MDF4 header, TDMS wf_start_time, Parquet "
+        "timestamps), else the file's modification time",
+    )
+    clocks.add_argument(
+        "--start-from-name",
+        metavar="PATTERN",
+        help="take each log's start from its file name, a strftime pattern found in it, e.g. "
+        "'%%Y-%%m-%%d_%%H%%M%%S' for gb7_2026-11-02_080000.csv (UTC unless it has %%z)",
+    )
+    clocks.add_argument(
+        "--time-unit",
+        choices=tuple(TIME_UNIT_NAMES),
+        help="unit of the log's time column; default: seconds, or ms/us when it steps by more than 0.2 from sample "
+        "to sample (said in a warning)",
+    )
+    clocks.add_argument(
+        "--operating-hours",
+        type=_hours,
+        metavar="H",
+        help="the machine's hour meter at the log's first sample, hours (one log; per log in a fleet manifest): "
+        "the wear trend and forecast run on machine hours",
+    )
+    clocks.add_argument(
+        "--hours-column",
+        metavar="NAME",
+        help="the column (CSV, MDF4, TDMS, Parquet) or DBC signal that records the machine's hour meter with the "
+        "angles",
+    )
+    clocks.add_argument(
+        "--hours-unit",
+        default="h",
+        metavar="UNIT",
+        help="unit of --hours-column: h, min, s, or hours per count (a cycle counter: its cycle time in hours)",
     )
     parser.add_argument(
         "--memory-reversals",
@@ -125,8 +174,14 @@ def check_track_args(args: argparse.Namespace) -> None:
         raise InvalidParameterError("--listen tracks live: give --raw-log DIR and no logs")
     if args.mqtt is not None and args.listen is None:
         raise InvalidParameterError("--mqtt publishes live estimates: use it with --listen")
-    if args.start is not None and len(args.logs) != 1:
-        raise InvalidParameterError(f"--start gives the start of one log; {len(args.logs)} logs were given")
+    check_one_log_options(args, len(args.logs), "per log: a fleet manifest")
+    if args.start is not None and args.start_from_name is not None:
+        raise InvalidParameterError("give the log's start as --start or --start-from-name, not both")
+    log_only = ("operating_hours", "hours_column", "start_from_name")
+    if args.listen is not None and any(getattr(args, k) is not None for k in log_only):
+        raise InvalidParameterError("--operating-hours, --hours-column, --start-from-name are for logs, not --listen")
+    usage_of(args, None)  # the hour meter's options, checked
+    clock_of(args, None)
     if args.diagnose and args.listen is not None:
         raise InvalidParameterError("--diagnose diagnoses the first log: track a log first, then --listen continues with its effects")
     check_alarm_levels(args.warn_arcmin, args.limit_arcmin)
@@ -150,7 +205,8 @@ def run(args: argparse.Namespace) -> int:
         if args.listen is not None:
             known = store.find_gearbox(args.gearbox)
             warn, limit = (known.warn_arcmin, known.limit_arcmin) if known is not None else (args.warn_arcmin, args.limit_arcmin)
-            with mqtt_publisher(args.mqtt, args.gearbox, warn, limit, tls=mqtt_tls(args)) as publisher:
+            figures = history_figures(store, args.gearbox)
+            with mqtt_publisher(args.mqtt, args.gearbox, warn, limit, tls=mqtt_tls(args), figures=figures) as publisher:
                 with _progress_bar(f"{args.listen} live", show_progress) as progress:
                     result = _track_live(tracker, args, progress, None if publisher is None else publisher.publish)
                 if publisher is not None:
@@ -181,25 +237,61 @@ def _log_options(args: argparse.Namespace, path: str) -> dict[str, Any]:
     return log_options(argparse.Namespace(**{**vars(args), "log": path}))
 
 
-def ordered_logs(args: argparse.Namespace) -> list[str]:
+#: Per log (its path): what a fleet manifest says of it (``start`` UNIX seconds, ``operating_hours``).
+PerLog = dict[str, dict[str, float]]
+
+
+def check_one_log_options(args: argparse.Namespace, logs: int, note: str) -> None:
+    """``--start`` and ``--operating-hours`` describe one log: refuse them with ``logs`` other than one."""
+    for option in ("start", "operating_hours"):
+        if getattr(args, option) is not None and logs != 1:
+            flag = "--" + option.replace("_", "-")
+            raise InvalidParameterError(f"{flag} is given for one log; {logs} logs were given ({note})")
+
+
+def clock_of(args: argparse.Namespace, path: str | None, per_log: PerLog | None = None) -> ClockOptions:
+    """What the command line (and a manifest's entry for ``path``) says of a log's clock."""
+    from ..clocks import ClockOptions
+
+    start = (per_log or {}).get(path or "", {}).get("start", args.start)
+    pattern = args.start_from_name if start is None else None
+    return ClockOptions(start_unix_s=start, start_pattern=pattern, time_unit=args.time_unit)
+
+
+def usage_of(args: argparse.Namespace, path: str | None, per_log: PerLog | None = None) -> MachineUsage:
+    """How the command line (and a manifest's entry for ``path``) says a log tells the machine's hours."""
+    from ..hour_meter import MachineUsage, hours_per_unit
+
+    reading = (per_log or {}).get(path or "", {}).get("operating_hours", args.operating_hours)
+    column = None if reading is not None else args.hours_column
+    return MachineUsage(operating_hours=reading, hours_column=column, hours_per_count=hours_per_unit(args.hours_unit))
+
+
+def ordered_logs(args: argparse.Namespace, per_log: PerLog | None = None) -> list[str]:
     """The logs given (a ``listen --raw-log`` folder: its finished captures), sorted by their first
     sample's calendar time; a note on stderr when that is not the order given."""
     from ..tracking import in_time_order, log_files
 
     given = [f for path in args.logs for f in log_files(path)]
-    if args.start is not None and len(given) != 1:
-        raise InvalidParameterError(f"--start gives the start of one log; {len(given)} logs were given (folders count their files)")
-    ordered = in_time_order(given, lambda p: _log_options(args, p), args.start)
+    check_one_log_options(args, len(given), "folders count their files")
+    ordered = in_time_order(given, lambda p: _log_options(args, p), lambda p: clock_of(args, p, per_log))
     if ordered != given and not args.quiet:
         print(f"note: {args.gearbox}: logs tracked in the order of their first samples' time: {', '.join(ordered)}", file=sys.stderr)
     return ordered
 
 
-def track_logs(tracker: GearboxTracker, args: argparse.Namespace, logs: list[str], show_progress: bool = False) -> Iterator[TrackResult]:
+def track_logs(
+    tracker: GearboxTracker,
+    args: argparse.Namespace,
+    logs: list[str],
+    show_progress: bool = False,
+    per_log: PerLog | None = None,
+) -> Iterator[TrackResult]:
     """Track ``logs`` in this order into the tracker's gearbox, one result per log as it completes."""
     for path in logs:
         with _progress_bar(path, show_progress) as progress:
-            yield tracker.track_log(path, _log_options(args, path), start_unix_s=args.start, progress=progress)
+            clock, usage = clock_of(args, path, per_log), usage_of(args, path, per_log)
+            yield tracker.track_log(path, _log_options(args, path), progress=progress, clock=clock, usage=usage)
 
 
 def _diagnosed_effects(store: HistoryStore, args: argparse.Namespace, first: str) -> dict[str, Any]:
@@ -265,8 +357,11 @@ def report(result: TrackResult, as_json: bool) -> None:
     if last is not None:
         std = last["backlash_std_deg"]
         line += (
-            f"; backlash {last['backlash_deg']:.4f} deg (std {std:.4f}) after {last['operating_hours']:.3f} operating hours"
+            f"; backlash {last['backlash_deg']:.4f} deg (std {std:.4f}) after {last['operating_hours']:.3f} "
+            "operating hours logged"
         )
+    if result.machine_hours is not None:
+        line += f"; hour meter {result.machine_hours:.2f} h at its end"
     counts = describe_counts(result.counters)
     clock = f"; placed in time by the {result.clock}" if result.clock else ""
     print(f"{line}\n  source: {counts}{clock}" if counts or clock else line)

@@ -9,7 +9,8 @@ observable, e.g. no reversal since the estimator started).
 ``unknown``
     No limit is known, or there is no observable estimate, or the latest one is older than
     ``max_age_h`` hours of calendar time (default :data:`DEFAULT_MAX_AGE_H`, 7 days: a
-    gearbox that ran a log a day and then nothing for a week has no current reading).
+    gearbox that ran a log a day and then nothing for a week has no current reading); the
+    reason says which (an old estimate is named with its age and date, not as a missing one).
 ``alarm``
     The play is above the limit (``play > limit``, the plugin convention). The state says
     since when: the time of the first estimate of the trailing run of observable estimates
@@ -24,7 +25,7 @@ In the plugin format (monitoring-plugins guidelines), ``ok | warning | alarm | u
 performance data ``play_arcmin=VALUE;WARN;CRIT`` (``U`` for an unknown value, an empty field
 for a level not set)::
 
-    BACKLASH WARNING - GB-7 play 19.2 arcmin, limit 21 in 310 h | play_arcmin=19.2;18;21
+    BACKLASH WARNING - GB-7 play 19.2 arcmin, limit 21 in 310 machine hours, around 2026-12-01 | play_arcmin=19.2;18;21
 
 Several gearboxes are summarised by their worst state, in the order ``ok < warning < unknown <
 alarm`` (an unknown gearbox may be worn, a gearbox over its limit certainly is).
@@ -32,6 +33,7 @@ alarm`` (an unknown gearbox may be worn, a gearbox over its limit certainly is).
 
 from __future__ import annotations
 
+import datetime as dt
 import math
 from dataclasses import dataclass
 
@@ -152,7 +154,10 @@ def evaluate_alarm(
     last_play, last_time = float(np.round(play[-1], 10)), float(t[-1])
     age_h = (now_unix_s - last_time) / 3600.0
     if age_h > max_age_h:
-        return AlarmStatus("unknown", f"no observable estimate in the last {max_age_h:g} h", last_play, last_time, **levels)
+        when = dt.datetime.fromtimestamp(last_time, dt.timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
+        old = f"{age_h / 24:.1f} days old ({when})"
+        reason = f"the latest observable estimate is {old}, more than the {max_age_h:g} h allowed"
+        return AlarmStatus("unknown", reason, last_play, last_time, **levels)
     if limit_arcmin is None:
         return AlarmStatus("unknown", "no limit known", last_play, last_time, **levels)
     if last_play > limit_arcmin:
@@ -175,21 +180,17 @@ def _level(value: float | None) -> str:
     return "" if value is None else f"{value:g}"
 
 
-def _hours(h: float) -> str:
-    return f"{h:.0f}" if abs(h) >= 10 else f"{h:.2g}"
-
-
-def plugin_line(gearbox_id: str, status: AlarmStatus, hours_to_limit: float | None, since_text: str | None = None) -> str:
+def plugin_line(gearbox_id: str, status: AlarmStatus, forecast: str) -> str:
     """One line in the Nagios/Icinga plugin format (see the module docstring).
 
-    ``hours_to_limit`` is the forecast in operating hours (``inf``: the trend does not reach
-    the limit; None: no forecast); ``since_text`` the time the limit was exceeded, as text.
+    ``forecast`` is the limit's forecast in a few words, as every reader of the history says it
+    (:attr:`~online_backlash.history.text.WearFigures.forecast_short`).
 
     Examples
     --------
     >>> s = AlarmStatus("warning", "", 19.2, 0.0, 18.0, 21.0)
-    >>> plugin_line("GB-7", s, 310.4)
-    'BACKLASH WARNING - GB-7 play 19.2 arcmin, limit 21 in 310 h | play_arcmin=19.2;18;21'
+    >>> plugin_line("GB-7", s, "in 310 machine hours")
+    'BACKLASH WARNING - GB-7 play 19.2 arcmin, limit 21 in 310 machine hours | play_arcmin=19.2;18;21'
     """
     text = f"BACKLASH {status.plugin_status} - {gearbox_id}"
     play = status.play_arcmin
@@ -198,16 +199,6 @@ def plugin_line(gearbox_id: str, status: AlarmStatus, hours_to_limit: float | No
         if play is not None:
             text += f" (last play {play:.1f} arcmin)"
     else:
-        text += f" play {play:.1f} arcmin, limit {_level(status.limit_arcmin)}"
-        if status.state == "alarm":
-            text += f" exceeded since {since_text}" if since_text else " exceeded"
-        elif hours_to_limit is None:
-            text += ", no forecast"
-        elif math.isinf(hours_to_limit):
-            text += " not reached by the trend"
-        elif hours_to_limit <= 0:
-            text += " already reached by the trend"
-        else:
-            text += f" in {_hours(hours_to_limit)} h"
+        text += f" play {play:.1f} arcmin, limit {_level(status.limit_arcmin)} {forecast}"
     value = "U" if play is None else f"{play:.1f}"
     return f"{text} | play_arcmin={value};{_level(status.warn_arcmin)};{_level(status.limit_arcmin)}"

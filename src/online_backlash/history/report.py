@@ -12,6 +12,7 @@ trend, the forecast and the alarm state: their apparent play is a load condition
 
 from __future__ import annotations
 
+import math
 import time
 from dataclasses import asdict, dataclass
 
@@ -20,8 +21,9 @@ import numpy as np
 from ..errors import InvalidParameterError
 from ..rows import ARCMIN_PER_DEG, HISTORY_CSV_COLUMNS, arcmin
 from .alarms import DEFAULT_MAX_AGE_H, AlarmStatus, check_alarm_levels, evaluate_alarm
+from .clock import Recording, recording
 from .kalman import estimator_lag_hours
-from .store import Estimate, Gearbox, HistoryStore
+from .store import Estimate, Gearbox, HistoryStore, Run
 from .trend import WearSummary, iso_time, summarise
 
 __all__ = [
@@ -108,6 +110,22 @@ def observable_mask(estimates: list[Estimate]) -> np.ndarray:
     return np.array([bool(e.play_observable) and e.backlash_deg is not None for e in estimates], dtype=bool)
 
 
+def logs_recording(runs: list[Run], estimates: list[Estimate]) -> Recording:
+    """How much of the calendar a gearbox's logs recorded (:class:`~.clock.Recording`), from its runs' first and
+    last samples (a run whose end is not stored: its last estimate)."""
+    last_estimate: dict[int, float] = {}
+    for e in estimates:
+        last_estimate[e.run_id] = max(e.time_unix_s, last_estimate.get(e.run_id, -math.inf))
+    starts, ends = [], []
+    for r in runs:
+        if r.started_unix_s is None:
+            continue
+        end = r.ended_unix_s if r.ended_unix_s is not None else last_estimate.get(r.id, r.started_unix_s)
+        starts.append(r.started_unix_s)
+        ends.append(end)
+    return recording(np.array(starts), np.array(ends))
+
+
 def estimator_lag(gearbox: Gearbox, estimates: list[Estimate]) -> float:
     """The lag of the gearbox's recursive estimator in operating hours (:func:`.kalman.estimator_lag_hours`).
 
@@ -149,7 +167,7 @@ def wear_report(
         raise InvalidParameterError(
             f"gearbox {gearbox.id!r} in {store.name}: {exc} (store valid levels with track --warn-arcmin/--limit-arcmin)"
         ) from exc
-    names = ("time_unix_s", "operating_hours", "load_revolutions", "backlash_deg", "backlash_std_deg")
+    names = ("time_unix_s", "operating_hours", "load_revolutions", "backlash_deg", "backlash_std_deg", "machine_hours")
     arrays = {name: estimate_column(estimates, name) for name in names}
     seen = observable_mask(estimates)
     summary = summarise(
@@ -160,6 +178,8 @@ def wear_report(
         method=method,
         lag_hours=estimator_lag(gearbox, estimates),
         observable=seen,
+        recorded=logs_recording(store.runs(gearbox_id), estimates),
+        group=np.array([e.run_id for e in estimates], dtype=np.int64),
     )
     now = time.time() if now_unix_s is None else now_unix_s
     play = np.where(seen, arrays["backlash_deg"], np.nan)  # a play not observed raises no alarm and clears none

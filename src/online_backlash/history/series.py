@@ -1,8 +1,9 @@
 """The multi-day wear series bundled with the package (:func:`online_backlash.tracking.track_series` replays it into a store).
 
-``src/online_backlash/data/wear/`` holds daily logs of one synthetic gearbox wearing and
-``series.json`` describing them (gearbox id, ratio, limit, reader options, estimator settings
-and the true wear), made by ``scripts/make_wear_series.py``.
+``src/online_backlash/data/wear/`` holds daily snapshot logs of one synthetic gearbox wearing,
+with the machine's hour meter as a column, and ``series.json`` describing them (gearbox id,
+ratio, limit, reader options, the hour-meter column, estimator settings and the true wear
+against the machine's hours), made by ``scripts/make_wear_series.py``.
 """
 
 from __future__ import annotations
@@ -23,7 +24,9 @@ class WearSeries:
     ----------
     manifest : dict
         The parsed ``series.json``: ``gearbox``, ``ratio``, ``limit_arcmin``, ``log_options``,
-        ``estimator_params``, ``every_s``, ``true_rate_deg_per_hour``, ``true_hours_at_limit``, ``logs``.
+        ``hours_column`` (the hour meter), ``estimator_params``, ``every_s``, ``hours_per_day``,
+        ``true_rate_deg_per_hour`` (per machine hour), ``true_hours_at_limit`` (the hour meter when
+        the play reaches the limit), ``true_limit_date``, ``logs``.
     files : list
         The logs (``importlib.resources`` traversables).
     """
@@ -48,7 +51,7 @@ class WearSeries:
 
 
 def bundled_wear_series() -> WearSeries:
-    """The series shipped in ``src/online_backlash/data/wear`` (12 daily 25 s logs, play 0.20 -> 0.30 deg)."""
+    """The series shipped in ``src/online_backlash/data/wear`` (60 daily 60 s snapshots, play 12 -> 18 arcmin)."""
     folder = resources.files("online_backlash") / "data" / "wear"
     manifest = json.loads((folder / "series.json").read_text(encoding="utf-8"))
     return WearSeries(manifest, [folder / log["file"] for log in manifest["logs"]])

@@ -31,7 +31,9 @@ Tables
     ``play_observable`` (false: the data did not show the play, e.g. a preloaded drive whose
     torque never reversed; ``backlash_deg`` is then NULL or the play last seen, and the trend
     leaves the row out), ``torque_mean_nm``, ``torque_rms_nm`` (of the data since the estimate
-    before), ``torque_reversals`` and ``stiffness_nm_per_arcmin`` (NULL without torque).
+    before), ``torque_reversals`` and ``stiffness_nm_per_arcmin`` (NULL without torque); the
+    machine's own usage (schema 4): ``machine_hours``, its hour meter at the estimate (NULL where
+    the log came without one; ``operating_hours`` counts only the time in motion the logs recorded).
     ``(run_id, sample_index)`` is unique, so a row can never be written twice.
 
 Times are UNIX seconds (UTC), angles degrees on the load side.
@@ -46,7 +48,8 @@ store as it was (DDL is transactional in both SQLite and PostgreSQL). A store st
 newer version than this code knows is refused rather than guessed at. To change the schema:
 edit the tables, append a migration from the current version, and increment
 :data:`SCHEMA_VERSION`. Version 1 is the first schema; version 2 adds ``gearboxes.warn_arcmin``;
-version 3 adds the load condition of each estimate and lets ``backlash_deg`` be NULL.
+version 3 adds the load condition of each estimate and lets ``backlash_deg`` be NULL;
+version 4 adds ``estimates.machine_hours``.
 
 Every write that belongs together (estimate rows, the run's resume point and the gearbox's
 checkpoint) is one transaction: a process killed at any instant leaves either all or none of it.
@@ -95,7 +98,7 @@ from .alarms import check_alarm_levels
 APPLICATION = "online-backlash"
 
 #: Version of the schema defined in this module.
-SCHEMA_VERSION = 3
+SCHEMA_VERSION = 4
 
 
 def _add_warn_arcmin(conn: Connection) -> None:
@@ -117,10 +120,9 @@ def _add_load_condition(conn: Connection) -> None:
     NOT NULL constraint, so there the table is rebuilt from the current definition and the rows
     copied; PostgreSQL alters the column.
     """
-    old = [c.name for c in estimates_table.columns if c.name not in _V3_COLUMNS]
-    names = ", ".join(old)
     if conn.dialect.name == "sqlite":
         conn.exec_driver_sql("ALTER TABLE estimates RENAME TO estimates_v2")
+        names = ", ".join(c["name"] for c in inspect(conn).get_columns("estimates_v2"))  # the columns schema 2 had
         for index in estimates_table.indexes:
             conn.exec_driver_sql(f"DROP INDEX IF EXISTS {index.name}")
         estimates_table.create(conn)
@@ -135,9 +137,26 @@ def _add_load_condition(conn: Connection) -> None:
         conn.exec_driver_sql(f"ALTER TABLE estimates ADD COLUMN IF NOT EXISTS {name} {sql_type}{default}")
 
 
+def _add_machine_hours(conn: Connection) -> None:
+    """Version 3 -> 4: each estimate's machine hours (the machine's hour meter, issue 28; NULL: not given).
+
+    The estimates stored before keep their logged operating hours; their machine hours are not
+    known. (An SQLite store coming from version 2 has the column already: version 3 rebuilt its
+    table from the current definition.)
+    """
+    if "machine_hours" in {c["name"] for c in inspect(conn).get_columns("estimates")}:
+        return
+    column_type = Double().compile(dialect=conn.dialect)
+    conn.exec_driver_sql(f"ALTER TABLE estimates ADD COLUMN machine_hours {column_type}")
+
+
 #: ``MIGRATIONS[i]`` upgrades a store from schema version ``i`` to ``i + 1``, given a connection
 #: inside the upgrade transaction.
-MIGRATIONS: dict[int, Callable[[Connection], None]] = {1: _add_warn_arcmin, 2: _add_load_condition}
+MIGRATIONS: dict[int, Callable[[Connection], None]] = {
+    1: _add_warn_arcmin,
+    2: _add_load_condition,
+    3: _add_machine_hours,
+}
 
 _SQLITE_MAGIC = b"SQLite format 3\x00"
 
@@ -271,6 +290,7 @@ class Estimate:
     torque_rms_nm: float | None = None
     torque_reversals: int | None = None
     stiffness_nm_per_arcmin: float | None = None
+    machine_hours: float | None = None
 
 
 def resolve_url(db: str | os.PathLike[str]) -> URL:
@@ -340,8 +360,8 @@ class HistoryStore:
     >>> import tempfile, os
     >>> path = os.path.join(tempfile.mkdtemp(), "wear.db")
     >>> with HistoryStore(path, create=True) as store:
-    ...     store.schema_version
-    3
+    ...     store.schema_version == SCHEMA_VERSION
+    True
     """
 
     def __init__(self, db: str | os.PathLike[str], create: bool = False, read_only: bool = False) -> None:

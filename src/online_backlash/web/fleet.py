@@ -7,9 +7,7 @@ from dataclasses import dataclass
 
 from ..history.report import WearReport, wear_report
 from ..history.store import HistoryStore
-
-#: Hours per thousand operating hours, for the trend column (arcmin per 1000 h).
-_KILOHOUR = 1000.0
+from ..history.text import wear_figures
 
 
 @dataclass(frozen=True)
@@ -17,8 +15,9 @@ class FleetRow:
     """What the fleet table shows of one gearbox (strings ready for the page).
 
     ``state`` is ``ok | warning | alarm | unknown``; ``play`` the latest observable estimate in
-    arcmin with its standard deviation; ``trend`` the wear rate in arcmin per 1000 operating
-    hours; ``forecast`` the date the trend reaches the limit (or why there is none);
+    arcmin with its standard deviation; ``trend`` the wear rate against the trend's clock and
+    ``forecast`` when the trend reaches the limit (or why there is none), in the words of
+    ``history`` (:func:`~online_backlash.history.text.wear_figures`); ``clock`` that clock;
     ``last_seen`` the time of the latest estimate (UTC, the estimates' clock).
     """
 
@@ -30,6 +29,7 @@ class FleetRow:
     forecast: str
     last_seen: str
     n_estimates: int
+    clock: str = ""
 
 
 def _fmt(value: float | None, fmt: str) -> str:
@@ -45,39 +45,20 @@ def _play(report: WearReport) -> str:
     return f"{play:.2f} ± {_fmt(std, '.2f')}" if std is not None else f"{play:.2f}"
 
 
-def _trend(report: WearReport) -> str:
-    slope_deg_per_h = report.summary.as_dict()["trend_deg_per_hour"]
-    if slope_deg_per_h is None:
-        return "needs 3 estimates"
-    return f"{slope_deg_per_h * 60.0 * _KILOHOUR:+.3g} arcmin/1000 h"
-
-
-def _forecast(report: WearReport) -> str:
-    status, summary = report.status_dict(), report.summary.as_dict()
-    if status["limit_exceeded_since"] is not None:
-        return f"limit exceeded since {status['limit_exceeded_since'][:10]}"
-    if summary["limit_deg"] is None:
-        return "no limit stored"
-    hours = summary["forecast_hours_to_limit"]
-    if hours is None or not math.isfinite(hours):
-        return "not reached (no growth)"
-    if summary["forecast_date"] is None:
-        return f"in {hours:.3g} operating hours"
-    return summary["forecast_date"]
-
-
 def fleet_row(report: WearReport) -> FleetRow:
     """The table row of one gearbox's report."""
     rows = report.rows()
+    figures = wear_figures(report)
     return FleetRow(
         gearbox=report.gearbox.id,
         state=report.status.state,
         state_reason=report.status.reason,
         play=_play(report),
-        trend=_trend(report),
-        forecast=_forecast(report),
+        trend=figures.trend_short,
+        forecast=figures.forecast_short,
         last_seen=rows[-1]["time"][:19].replace("T", " ") if rows else "never",
         n_estimates=len(rows),
+        clock=figures.clock,
     )
 
 
