@@ -146,11 +146,11 @@ def test_can_log_ids_with_counts_rates_and_dbc_names(capsys, tmp_path):
     "name, content, reason",
     [
         ("missing.mf4", None, "no such file"),
-        ("notes.txt", b"hello", "inspect reads"),
+        ("notes.xyz", b"hello", "inspect reads"),
         ("broken.mf4", b"MDF     4.10    " + bytes(50), "not a readable MDF file"),
         ("broken.parquet", b"PAR1garbage", "not a readable Parquet file"),
         ("broken.tdms", b"TDSn" + bytes(40), "not a readable TDMS file"),
-        ("empty.csv", b"", "cannot read as CSV"),
+        ("empty.csv", b"", "1: empty file"),
     ],
 )
 def test_bad_files_give_one_error_line_naming_the_file(capsys, tmp_path, name, content, reason):

@@ -89,18 +89,50 @@ def add_log_options(parser: argparse.ArgumentParser) -> None:
 
 
 def add_csv_dialect_options(group: argparse._ActionsContainer) -> None:
-    """``--delimiter C --decimal M``: override the sniffed CSV dialect (German Excel: ``--delimiter ';' --decimal ,``)."""
+    """``--delimiter C --decimal M --comment C --encoding E``: override what is sniffed of a CSV or delimited text
+    file (German Excel: ``--delimiter ';' --decimal ,``; a Windows export: ``--encoding cp1252``)."""
     group.add_argument(
         "--delimiter", type=_delimiter, metavar="C",
         help="CSV field separator (one character; 'tab' for a tab); default: sniffed from the file (, ; tab |)",
     )
     group.add_argument("--decimal", choices=(".", ","), help="CSV decimal mark; default: sniffed (',' only with a separator other than ',')")
+    group.add_argument(
+        "--comment", metavar="C", type=_comment,
+        help="CSV lines starting with this character are comments, skipped anywhere; default: '#' lines before "
+        "the header",
+    )
+    group.add_argument(
+        "--encoding", metavar="NAME", type=_encoding,
+        help="CSV text encoding, e.g. cp1252 (Windows), latin-1, utf-16; default: UTF-8, or what a byte-order "
+        "mark says",
+    )
 
 
 def csv_dialect_options(args: argparse.Namespace) -> dict[str, str]:
-    """The ``delimiter``/``decimal`` keyword arguments of a CSV reader that the user gave."""
-    given = {"delimiter": getattr(args, "delimiter", None), "decimal": getattr(args, "decimal", None)}
+    """The ``delimiter``/``decimal``/``comment``/``encoding`` keyword arguments of a CSV reader that the user gave."""
+    given = {name: getattr(args, name, None) for name in ("delimiter", "decimal", "comment", "encoding")}
     return {k: v for k, v in given.items() if v is not None}
+
+
+def _comment(text: str) -> str:
+    from ..replay.csv import check_dialect
+
+    return _checked(text, lambda c: check_dialect(None, None, c))[1]
+
+
+def _encoding(text: str) -> str:
+    from ..replay.csv import check_encoding
+
+    return _checked(text, check_encoding)[1]
+
+
+def _checked(text: str, parse: Callable[[str], Any]) -> tuple[Any, str]:
+    """``(parse(text), text)``: a value parsed or checked by the library, its InvalidParameterError as argparse's
+    error of the option."""
+    try:
+        return parse(text), text
+    except InvalidParameterError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from exc
 
 
 def _delimiter(text: str) -> str:
@@ -255,12 +287,8 @@ node_id_type = _integer_in(1, 127)
 def wrap_deg_type(text: str) -> Any:
     """argparse type of ``--wrap-deg``: ``DEG`` or ``motor=DEG,load=DEG`` (:func:`~online_backlash.codecs.dbc.parse_wrap_deg`)."""
     from ..codecs.dbc import parse_wrap_deg
-    from ..errors import InvalidParameterError
 
-    try:
-        return parse_wrap_deg(text)
-    except InvalidParameterError as exc:
-        raise argparse.ArgumentTypeError(str(exc)) from exc
+    return _checked(text, parse_wrap_deg)[0]
 
 
 def positive_float(text: str) -> float:

@@ -86,6 +86,7 @@ def add_subparser(subparsers: argparse._SubParsersAction) -> None:
 def log_options(args: argparse.Namespace) -> dict:
     """Reader options from the log-format arguments (by the log's suffix)."""
     from ..replay import log_suffix  # the readers (python-can, asammdf) load only when a log is read, not for --help
+    from ..replay.csv import CSV_SUFFIXES
     from ..replay.measurement import is_measurement_log
 
     suffix = log_suffix(args.log)
@@ -96,7 +97,8 @@ def log_options(args: argparse.Namespace) -> dict:
             "serial_format": args.serial_format, "motor_cpr": args.motor_cpr, "load_cpr": args.load_cpr,
             "skip_bad": args.skip_bad_rows, "realtime": getattr(args, "realtime", False), **timing,
         }
-    if suffix != ".csv" and not is_measurement_log(args.log):  # a CAN log (or an unknown suffix, which open_log reports)
+    # a CAN log (or an unknown suffix, which open_log reports)
+    if suffix not in CSV_SUFFIXES and not is_measurement_log(args.log):
         counts = {k: None if v is None else int(v) for k, v in (("motor_cpr", args.motor_cpr), ("load_cpr", args.load_cpr))}
         return {
             **can_decoding_options(args), **counts, "skip_bad": args.skip_bad_rows, "realtime": getattr(args, "realtime", False), **timing,
@@ -107,8 +109,8 @@ def log_options(args: argparse.Namespace) -> dict:
         "motor_cpr": args.motor_cpr,
         "load_cpr": args.load_cpr,
         "skip_bad": args.skip_bad_rows,
-        **(timing if suffix == ".csv" else {}),
-        **(csv_dialect_options(args) if suffix == ".csv" else {}),
+        **(timing if suffix in CSV_SUFFIXES else {}),
+        **(csv_dialect_options(args) if suffix in CSV_SUFFIXES else {}),
     }
 
 

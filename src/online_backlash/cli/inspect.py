@@ -28,7 +28,9 @@ def add_subparser(subparsers: argparse._SubParsersAction) -> None:
         formatter_class=argparse.ArgumentDefaultsHelpFormatter,
     )
     parser.add_argument(
-        "file", nargs="?", help="a .csv[.gz], .parquet, .arrow/.feather, .mf4/.mdf, .tdms file or a CAN log (.asc .blf .log .trc .mf4 ...)"
+        "file", nargs="?",
+        help="a .csv[.gz] (or delimited .txt .tsv), .parquet, .arrow/.feather, .mf4/.mdf, .tdms file "
+        "or a CAN log (.asc .blf .log .trc .mf4 ...)",
     )
     parser.add_argument("--dbc", metavar="FILE", help="name the CAN IDs of a CAN log by this DBC ('rig' for the shipped rig.dbc)")
     parser.add_argument(
