@@ -15,6 +15,9 @@ from ..errors import BacklashError, BacklashWarning, InvalidParameterError, NotE
 
 #: Exit code of a command that failed (argparse uses 2 for bad options, an interrupt 130).
 EXIT_ERROR = 1
+#: Exit code of a report without a play figure (the data do not show the play, or the fit gave no number):
+#: the report is printed, the reason goes to stderr, and a script never takes a missing play for a result.
+EXIT_NO_PLAY = 3
 
 
 def run_command(func: Callable[[argparse.Namespace], int | None], args: argparse.Namespace) -> int:
@@ -143,11 +146,21 @@ def _delimiter(text: str) -> str:
     return value
 
 
-def warn_if_implausible(report: Any, args: argparse.Namespace) -> None:
-    """Print one line ``warning: LOG: ...`` on stderr when the fit of ``args.log`` looks like wrong units or ratio."""
-    note = report.plausibility(args.ratio)
+def warn_if_implausible(note: str | None, source: str) -> None:
+    """Print one line ``warning: SOURCE: note`` on stderr when a fit's plausibility check
+    (:func:`~online_backlash.fitting.plausibility`) found likely wrong units or ratio."""
     if note is not None:
-        print(f"warning: {args.log}: {note}", file=sys.stderr)
+        print(f"warning: {source}: {note}", file=sys.stderr)
+
+
+def play_exit_code(play_deg: float, source: str, reason: str | None = None) -> int:
+    """The exit code of a command that printed a play: 0 for a finite ``play_deg``; else one line
+    ``error: SOURCE: no play: reason`` on stderr and :data:`EXIT_NO_PLAY` (never exit 0 with a NaN play)."""
+    if math.isfinite(play_deg):
+        return 0
+    why = reason or "the fit gave no finite play: check the units (--units, --motor-cpr/--load-cpr) and --ratio"
+    print(f"error: {source}: no play: {why}", file=sys.stderr)
+    return EXIT_NO_PLAY
 
 
 def check_plot_path(path: str | None) -> None:
@@ -166,7 +179,7 @@ def add_ratio_option(parser: argparse.ArgumentParser, required: bool = True) -> 
     """``--ratio R``: motor:load gear ratio; negative for a stage that reverses direction."""
     parser.add_argument(
         "--ratio",
-        type=nonzero_float,
+        type=gear_ratio,
         required=required,
         help="gear ratio motor:load (motor angle is divided by it; negative for a reversing stage)",
     )
@@ -299,12 +312,18 @@ def positive_float(text: str) -> float:
     return value
 
 
-def nonzero_float(text: str) -> float:
-    """argparse type of a finite, non-zero number (a gear ratio; negative for a reversing stage)."""
-    value = _float(text)
-    if not (math.isfinite(value) and value != 0):
-        raise argparse.ArgumentTypeError(f"expected a finite non-zero number, got {text!r}")
-    return value
+def gear_ratio(text: str) -> float:
+    """argparse type of a gear ratio motor:load (negative for a reversing stage): a finite, non-zero number
+    whose magnitude is within :data:`~online_backlash.stream.RATIO_LIMITS`."""
+    from ..stream import RATIO_LIMITS, check_ratio
+
+    try:
+        return check_ratio(_float(text))
+    except InvalidParameterError:
+        low, high = RATIO_LIMITS
+        raise argparse.ArgumentTypeError(
+            f"expected a finite non-zero number, a gear ratio motor:load with {low:g} <= |R| <= {high:g}; got {text!r}"
+        ) from None
 
 
 def nonempty_text(text: str) -> str:

@@ -6,8 +6,18 @@ import argparse
 
 from .._allocator import keep_freed_memory
 from ..bridging import GapTally
+from ..fitting import plausibility
 from ..rows import describe_counts, source_counts
-from ._common import add_can_decoding_options, add_log_options, add_ratio_option, check_plot_path, positive_float, print_json
+from ._common import (
+    add_can_decoding_options,
+    add_log_options,
+    add_ratio_option,
+    check_plot_path,
+    play_exit_code,
+    positive_float,
+    print_json,
+    warn_if_implausible,
+)
 from .estimate import read_counted, write_trace
 
 
@@ -83,4 +93,6 @@ def run(args: argparse.Namespace) -> int:
         print(text)
         if describe_counts(counts):
             print(f"source: {describe_counts(counts)}")
-    return 0
+    base = result.base
+    warn_if_implausible(plausibility(base.m_left_, base.m_right_, base.backlash_, args.ratio), args.log)
+    return play_exit_code(result.final.params.play, args.log)

@@ -23,6 +23,7 @@ from ._common import (
     check_plot_path,
     csv_dialect_options,
     parse_column_map,
+    play_exit_code,
     positive_float,
     print_json,
     warn_if_implausible,
@@ -152,8 +153,8 @@ def run(args: argparse.Namespace) -> int:
         print_json(report.as_dict())
     else:
         print(describe(report, args.log))
-    warn_if_implausible(report, args)
-    return 0
+    warn_if_implausible(report.plausibility(args.ratio), args.log)
+    return play_exit_code(report.backlash_deg, args.log, report.no_play_reason())
 
 
 def write_trace(

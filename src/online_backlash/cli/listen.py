@@ -18,7 +18,7 @@ from typing import Any
 from ..errors import LogFormatError, SourceError
 from ..fitting import describe, fit_recursive
 from ..rows import EstimateRow, arcmin
-from ._common import add_can_decoding_options, add_ratio_option, print_json
+from ._common import add_can_decoding_options, add_ratio_option, play_exit_code, print_json
 from ._live import on_interrupt, open_can_source, open_serial_source
 from ._mqtt import add_listen_mqtt_options, mqtt_publisher, mqtt_summary_line, mqtt_tls, row_sink
 
@@ -146,7 +146,7 @@ def run(args: argparse.Namespace) -> int:
         print(f"received:       {_counts(source.counters.as_dict())} in {summary['duration_s']:.1f} s; raw log in {args.raw_log}")
         if publisher is not None:
             print(mqtt_summary_line(publisher))
-    return 0
+    return play_exit_code(report.backlash_deg, label, report.no_play_reason())
 
 
 def _counts(counts: dict[str, int]) -> str:

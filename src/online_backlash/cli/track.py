@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import datetime as dt
+import math
 import sys
 from collections.abc import Iterator
 from contextlib import contextmanager
@@ -263,10 +264,11 @@ def report(result: TrackResult, as_json: bool) -> None:
         line += f" ({result.note})"
     last = result.last_estimate
     if last is not None:
-        std = last["backlash_std_deg"]
-        line += (
-            f"; backlash {last['backlash_deg']:.4f} deg (std {std:.4f}) after {last['operating_hours']:.3f} operating hours"
-        )
+        play, std, hours = last["backlash_deg"], last["backlash_std_deg"], last["operating_hours"]
+        if play is not None and math.isfinite(play):
+            line += f"; backlash {play:.4f} deg (std {std:.4f}) after {hours:.3f} operating hours"
+        else:  # stored as not observable: no figure, never a nan
+            line += f"; the play not observable in the last estimate, after {hours:.3f} operating hours"
     counts = describe_counts(result.counters)
     clock = f"; placed in time by the {result.clock}" if result.clock else ""
     print(f"{line}\n  source: {counts}{clock}" if counts or clock else line)
