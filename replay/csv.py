@@ -334,6 +334,7 @@ class CsvLog(TabularSource):
         self.dialect: CsvDialect | None = None
         self._delimiter = delimiter or ","
         self.columns = role_names(columns)
+        self.units = units
         self.motor_scale = angle_scale(units, motor_cpr, "motor")
         self.load_scale = angle_scale(units, load_cpr, "load")
         self.skip_bad = skip_bad
@@ -359,6 +360,7 @@ class CsvLog(TabularSource):
         if missing:
             reason = f"header has no column {missing} (columns: {names}); map them with columns=/--columns"
             raise LogFormatError(self.path, line_no, reason)
+        self._warn_of_named_units(self.units)
         has_torque = self.columns["torque"] in names
         roles = _REQUIRED + (("torque",) if has_torque else ())
         self._n_columns = len(names)

@@ -80,6 +80,10 @@ def files(tmp_path_factory) -> Path:
     import pandas as pd
 
     pd.read_csv(d / "good.csv").to_csv(d / "german.csv", sep=";", decimal=",", index=False)
+    radians = pd.read_csv(d / "good.csv")
+    radians[["motor", "load"]] = np.radians(radians[["motor", "load"]])  # the rig's encoder grid, written in radians
+    radians.to_csv(d / "radians.csv", index=False)
+    pd.read_csv(d / "good.csv").rename(columns={"motor": "motor [rad]"}).to_csv(d / "named_rad.csv", index=False)
     put("run.asc", "date Mon Nov 23 01:00:00.000 pm 2026\nbase hex  timestamps absolute\n")
     return d
 
@@ -130,6 +134,14 @@ CASES = {
     "counts under a degrees header": Case(
         (*E, str(DEMO), *R), EXIT_NO_PLAY, r"warning: .*demo_rig_30to1.csv.gz: fitted slope 8, not near \+-1 .*units.*--ratio 3.75"
     ),
+    "radians under a degrees header": Case(
+        (*E, "{d}/radians.csv", *R), 0, r"warning: {d}/radians.csv: the angles step by a grid of radians \(motor 'motor' by 2 pi/16384, "
+        r"load 'load' by 2 pi/131072.*give --units rad", r"backlash:\s+0.0087 deg"
+    ),
+    "a header naming radians read as degrees": Case(
+        (*E, "{d}/named_rad.csv", *R, "--columns", "motor=motor [rad]"), 0,
+        r"warning: {d}/named_rad.csv: column 'motor \[rad\]' names its unit 'rad', but the motor angles are read as deg: give --units rad",
+    ),
     # -- estimate: options
     "--columns without =": Case((*E, "{d}/good.csv", *R, "--columns", "time"), 1, r"error: --columns expects role=column pairs.*got 'time'"),
     "--columns unknown role": Case((*E, "{d}/good.csv", *R, "--columns", "speed=v"), 1, r"error: unknown column roles \['speed'\]"),
@@ -164,6 +176,9 @@ CASES = {
     "track: one row says why": Case((*T, "{d}/onerow.csv", *TRACK), 0, r"^$", r"1 samples, 0 estimates added \(the estimator has not started: only 1 samples"),
     "track: no motion says why": Case((*T, "{d}/nomotion.csv", *TRACK), 0, r"^$", r"0 estimates added \(the estimator has not started"),
     "track: shorter than --every says why": Case((*T, "{d}/good.csv", *TRACK), 0, r"^$", r"0 estimates added \(less than --every 60 s of data"),
+    "track: radians under a degrees header": Case(
+        (*T, "{d}/radians.csv", *TRACK, "--every", "1"), 0, r"warning: {d}/radians.csv: the angles step by a grid of radians", r"estimates added"
+    ),
     "track: --gearbox empty": Case((*T, "{d}/good.csv", *R, "--db", "{db}", "--gearbox", ""), 2, r"error: argument --gearbox: expected a non-empty name"),
     "track: --limit-arcmin -1": Case((*T, "{d}/good.csv", *TRACK, "--limit-arcmin", "-1"), 1, r"error: the limit must be a finite positive angle in arcmin"),
     "track: --every 0": Case((*T, "{d}/good.csv", *TRACK, "--every", "0"), 2, r"error: argument --every: expected a positive number"),
@@ -172,6 +187,7 @@ CASES = {
     "diagnose: --plot out.xyz": Case((*D, "{d}/good.csv", *R, "--plot", "{d}/out.xyz"), 1, r"error: {d}/out.xyz: cannot draw a plot as \.xyz; use .*\.png"),
     "diagnose: time all zeros": Case((*D, "{d}/zerotime.csv", *R), 1, r"error: {d}/zerotime.csv:10001: time column 'time' never advances"),
     "diagnose: duplicated timestamps, no numpy warning": Case((*D, "{d}/dup.csv", *R), 0, r"warning: {d}/dup.csv: 10 of 10000 samples repeat"),
+    "diagnose: radians under a degrees header": Case((*D, "{d}/radians.csv", *R), 0, r"warning: {d}/radians.csv: the angles step by a grid of radians"),
     "diagnose: every sample twice": Case((*D, "{d}/twice.csv", *R), 0, r"warning: {d}/twice.csv: 10000 of 20000 samples repeat", r"backlash"),
     "diagnose: --ratio 1e308": Case((*D, "{d}/good.csv", "--ratio", "1e308"), 2, r"error: argument --ratio: .*0.0001 <= \|R\| <= 100000; got '1e308'"),
     "diagnose: --ratio 0.0001 warns": Case((*D, "{d}/good.csv", "--ratio", "0.0001"), 0, r"warning: {d}/good.csv: fitted slope 3.333e-06, not near \+-1"),

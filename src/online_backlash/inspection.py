@@ -25,6 +25,7 @@ import os
 from collections import Counter
 from collections.abc import Sequence
 from dataclasses import asdict, dataclass, field, replace
+from pathlib import Path
 from typing import Any
 
 from .errors import LogFormatError
@@ -57,13 +58,15 @@ class CanIdInfo:
 
 @dataclass
 class FileSummary:
-    """What :func:`inspect_file` found in ``path`` (a file of format ``kind``)."""
+    """What :func:`inspect_file` found in ``path`` (a file of format ``kind``); ``truncated`` says why a file is
+    cut short (None when whole): the counts are then what is readable up to the cut."""
 
     path: str
     kind: str
     channels: list[ChannelInfo] = field(default_factory=list)
     can_ids: list[CanIdInfo] = field(default_factory=list)
     frames: int | None = None
+    truncated: str | None = None
 
     def matching(self, pattern: str | None) -> FileSummary:
         """The summary restricted to names matching a shell pattern (``*enc*``), case-insensitive; a plain word matches as a substring."""
@@ -77,8 +80,8 @@ class FileSummary:
         )
 
     def as_dict(self) -> dict[str, Any]:
-        """A JSON-ready dict: ``path``, ``kind``, ``channels`` or ``can_ids`` (and ``frames`` for CAN logs)."""
-        out: dict[str, Any] = {"path": self.path, "kind": self.kind}
+        """A JSON-ready dict: ``path``, ``kind``, ``truncated``, ``channels`` or ``can_ids`` (and ``frames`` for CAN logs)."""
+        out: dict[str, Any] = {"path": self.path, "kind": self.kind, "truncated": self.truncated}
         if self.kind == "can":
             out["frames"] = self.frames
             out["can_ids"] = [{**asdict(i), "id": i.label} for i in self.can_ids]
@@ -111,7 +114,8 @@ def inspect_file(
         if suffix == ".tdms":
             from .replay.tdms import describe as tdms_channels
 
-            return FileSummary(path, "tdms", tdms_channels(path))
+            channels, cut = tdms_channels(path)
+            return FileSummary(path, "tdms", channels, truncated=cut)
         from .replay.parquet import ARROW_SUFFIXES
         from .replay.parquet import describe as table_columns
 
@@ -178,8 +182,8 @@ def _column_type(cells: Sequence[str], decimal: str) -> str:
 
 
 def _can_ids(path: str, dbc: str | os.PathLike[str] | None) -> FileSummary:
-    """Frames per CAN ID of a python-can log, with the DBC's message names."""
-    import can
+    """Frames per CAN ID of a python-can log, with the DBC's message names (a truncated BLF: up to the cut)."""
+    from .replay.canlog import blf_cut, open_can_log
 
     names = _dbc_names(dbc) if dbc is not None else {}
     counts: Counter[tuple[int, bool]] = Counter()
@@ -187,7 +191,7 @@ def _can_ids(path: str, dbc: str | os.PathLike[str] | None) -> FileSummary:
     last: dict[tuple[int, bool], float] = {}
     index = 0
     try:
-        with can.LogReader(path) as reader:
+        with open_can_log(Path(path)) as reader:
             for index, message in enumerate(reader):  # noqa: B007 (index names the failing frame)
                 if message.is_error_frame:
                     continue
@@ -195,6 +199,9 @@ def _can_ids(path: str, dbc: str | os.PathLike[str] | None) -> FileSummary:
                 counts[key] += 1
                 first.setdefault(key, message.timestamp)
                 last[key] = message.timestamp
+        cut = blf_cut(Path(path), reader)
+    except LogFormatError:
+        raise
     except Exception as exc:  # every python-can reader fails its own way on a damaged file
         raise LogFormatError(path, index, f"cannot read the CAN log ({type(exc).__name__}: {exc})") from exc
     ids = []
@@ -202,7 +209,7 @@ def _can_ids(path: str, dbc: str | os.PathLike[str] | None) -> FileSummary:
         span = last[(can_id, extended)] - first[(can_id, extended)]
         rate = float(f"{(n - 1) / span:.6g}") if n > 1 and span > 0 else None
         ids.append(CanIdInfo(can_id, extended, n, rate, names.get((can_id, extended))))
-    return FileSummary(path, "can", can_ids=ids, frames=sum(counts.values()))
+    return FileSummary(path, "can", can_ids=ids, frames=sum(counts.values()), truncated=cut)
 
 
 def _dbc_names(dbc: str | os.PathLike[str]) -> dict[tuple[int, bool], str]:

@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import argparse
+import sys
 from dataclasses import replace
 from typing import TYPE_CHECKING, Any
 
@@ -65,6 +66,8 @@ def run(args: argparse.Namespace) -> int:
         out = summary.as_dict()
     if nodes:
         out["nodes"] = [node.as_dict() for node in nodes]
+    if summary is not None and summary.truncated is not None:
+        print(f"warning: {summary.path}: {summary.truncated}; the counts are what is readable up to the cut", file=sys.stderr)
     if args.json:
         print_json(out)
         return 0
