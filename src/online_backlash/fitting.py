@@ -22,6 +22,7 @@ from .bridging import GapTally
 from .estimators import BacklashRLS, VorosBacklash
 from .estimators.uncertainty import SCATTER_EVERY_S, EstimateAt, RecursivePlayScatter
 from .load_aware import DwellTracker, TorqueBacklash, TorqueBacklashRLS
+from .load_aware.datasheet import DatasheetFigures
 from .load_aware.engagement import torque_orientation
 from .load_aware.report import batch_keys, has_torque, kinematic_keys, recursive_keys, why_not_observable
 from .pipeline import OrderedWorker, Pipeline, PipelineStep, check_every
@@ -116,6 +117,17 @@ class BacklashReport:
     def plausibility(self, ratio: float) -> str | None:
         """:func:`plausibility` of this fit (a torque column: ``torque_reversals`` is set)."""
         return plausibility(self.m_left, self.m_right, self.backlash_deg, ratio, self.torque_reversals is not None)
+
+    def take_datasheet(self, drawn: BacklashReport) -> BacklashReport:
+        """Take the data-sheet figures (stiffness, lost motion, hysteresis loss: :class:`DatasheetFigures`' keys)
+        of the batch fit ``drawn`` whose curve was plotted, so that the text and the plot show one figure,
+        computed once; marked ``datasheet_fit``. A fit without torque has none to take. Returns self."""
+        if drawn.torque_reversals is None:
+            return self
+        keys = drawn.as_dict()
+        self.add_load_keys({name: keys.get(name) for name in DatasheetFigures.__dataclass_fields__})
+        self.extra["datasheet_fit"] = "batch fit of the whole log, as plotted"
+        return self
 
     def no_play_reason(self) -> str | None:
         """Why the report has no finite play, in one line (None when it has one): the data's reason
@@ -337,7 +349,8 @@ def _load_lines(report: BacklashReport) -> list[str]:
         )
     if report.lost_motion_arcmin is not None:
         at = report.extra.get("lost_motion_torque_Nm", math.nan)
-        lines.append(f"lost motion:    {report.lost_motion_arcmin:.3f} arcmin at +-{at:.4g} N m ({report.extra.get('lost_motion_basis')})")
+        basis = "; ".join(b for b in (report.extra.get("lost_motion_basis"), report.extra.get("datasheet_fit")) if b)
+        lines.append(f"lost motion:    {report.lost_motion_arcmin:.3f} arcmin at +-{at:.4g} N m ({basis})")
     if report.hysteresis_loss_arcmin is not None:
         lines.append(f"hysteresis loss: {report.hysteresis_loss_arcmin:.3f} arcmin")
     return lines

@@ -13,6 +13,12 @@ from typing import Any
 
 from ..errors import BacklashError, BacklashWarning, InvalidParameterError, NotExcitedError
 
+#: The formats a log may be in, as ``estimate``, ``diagnose`` and ``track`` read them (the help of their LOG argument).
+LOG_FORMATS = (
+    ".csv[.gz] or delimited .txt/.tsv (a torque column is used when mapped); a measurement file "
+    "(.mf4 .mdf .tdms .parquet .arrow .feather, channels by --columns); a CAN log (.asc .blf .log .trc .mf4 ..., "
+    "with --dbc or --eds); a serial capture (.serial, with --serial-format)"
+)
 #: Exit code of a command that failed (argparse uses 2 for bad options, an interrupt 130).
 EXIT_ERROR = 1
 #: Exit code of a report without a play figure (the data do not show the play, or the fit gave no number):
@@ -161,6 +167,23 @@ def play_exit_code(play_deg: float, source: str, reason: str | None = None) -> i
     why = reason or "the fit gave no finite play: check the units (--units, --motor-cpr/--load-cpr) and --ratio"
     print(f"error: {source}: no play: {why}", file=sys.stderr)
     return EXIT_NO_PLAY
+
+
+def files_written(args: argparse.Namespace) -> dict[str, str]:
+    """What a command wrote besides its report: ``--plot``, ``--trace`` and ``--report`` files, kind -> path
+    (printed after a text report, or as the JSON key ``written``, so a user knows where to look)."""
+    return {kind: getattr(args, kind) for kind in ("plot", "trace", "report") if getattr(args, kind, None)}
+
+
+def print_report(text_or_json: str | dict[str, Any], written: dict[str, str]) -> None:
+    """Print a command's report (a text, or a dict as one JSON object with the key ``written`` added when
+    files were written) and, after a text, one line per file written: ``plot:           FILE``."""
+    if isinstance(text_or_json, dict):
+        print_json({**text_or_json, **({"written": written} if written else {})})
+        return
+    print(text_or_json)
+    for kind, path in written.items():
+        print(f"{kind + ':':<16}{path}")
 
 
 def check_plot_path(path: str | None) -> None:

@@ -9,13 +9,15 @@ from ..bridging import GapTally
 from ..fitting import plausibility
 from ..rows import describe_counts, source_counts
 from ._common import (
+    LOG_FORMATS,
     add_can_decoding_options,
     add_log_options,
     add_ratio_option,
     check_plot_path,
+    files_written,
     play_exit_code,
     positive_float,
-    print_json,
+    print_report,
     warn_if_implausible,
 )
 from .estimate import read_counted, write_trace
@@ -33,9 +35,7 @@ def add_subparser(subparsers: argparse._SubParsersAction) -> None:
         formatter_class=argparse.ArgumentDefaultsHelpFormatter,
     )
     parser.add_argument(
-        "log",
-        help="recorded log: .csv[.gz] (a torque column is used when mapped); a CAN log (with --dbc); a serial capture (with --serial-format)",
-    )
+        "log", help=f"recorded log: {LOG_FORMATS}")
     add_ratio_option(parser)
     parser.add_argument("--json", action="store_true", help="print one JSON object")
     parser.add_argument("--plot", metavar="FILE.png", help="write the residual before/after plot")
@@ -87,12 +87,8 @@ def run(args: argparse.Namespace) -> int:
     if args.report:
         with open(args.report, "w", encoding="utf-8") as f:
             f.write(text + "\n")
-    if args.json:
-        print_json({**result.as_dict(), **counts})
-    else:
-        print(text)
-        if describe_counts(counts):
-            print(f"source: {describe_counts(counts)}")
+    source_line = f"\nsource: {describe_counts(counts)}" if describe_counts(counts) else ""
+    print_report({**result.as_dict(), **counts} if args.json else text + source_line, files_written(args))
     base = result.base
     warn_if_implausible(plausibility(base.m_left_, base.m_right_, base.backlash_, args.ratio), args.log)
     return play_exit_code(result.final.params.play, args.log)

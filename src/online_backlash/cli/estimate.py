@@ -16,16 +16,18 @@ from ..pipeline import READ_AHEAD
 from ..rows import TRACE_COLUMNS, EstimateRow
 from ..stream import SampleChunk, SampleSource, read_all
 from ._common import (
+    LOG_FORMATS,
     add_can_decoding_options,
     add_log_options,
     add_ratio_option,
     can_decoding_options,
     check_plot_path,
     csv_dialect_options,
+    files_written,
     parse_column_map,
     play_exit_code,
     positive_float,
-    print_json,
+    print_report,
     warn_if_implausible,
 )
 
@@ -42,10 +44,7 @@ def add_subparser(subparsers: argparse._SubParsersAction) -> None:
         formatter_class=argparse.ArgumentDefaultsHelpFormatter,
     )
     parser.add_argument(
-        "log",
-        help="recorded log: .csv[.gz]; a measurement file (.mf4 .mdf .tdms .parquet .arrow, channels by --columns); "
-        "a CAN log (.asc .blf .log .trc ..., with --dbc); a serial capture (.serial, with --serial-format)",
-    )
+        "log", help=f"recorded log: {LOG_FORMATS}; or a listen --raw-log folder")
     add_ratio_option(parser)
     parser.add_argument("--method", choices=("recursive", "batch"), default="recursive", help="estimator")
     parser.add_argument("--json", action="store_true", help="print one JSON object")
@@ -128,11 +127,13 @@ def run(args: argparse.Namespace) -> int:
 
     keep_freed_memory()  # a one-shot process: its large arrays reuse the memory freed by the last ones
     check_plot_path(args.plot)
+    fitted = None
     if args.method == "batch":
         if args.trace:
             raise InvalidParameterError("--trace needs --method recursive")
         chunk, source = read_counted(args)
-        report, _ = fit_batch(chunk, args.ratio, rated_torque_Nm=args.rated_torque)
+        fitted = fit_batch(chunk, args.ratio, rated_torque_Nm=args.rated_torque)
+        report = fitted[0]
     else:
         params = {
             "memory_reversals": args.memory_reversals, "memory_s": args.memory_s, "sample_period_s": args.sample_period,
@@ -148,11 +149,10 @@ def run(args: argparse.Namespace) -> int:
         from ..plotting import plot_fit  # matplotlib: only for a plot
 
         whole = chunk if args.method == "batch" else read_counted(args)[0]
-        plot_fit(whole, args.ratio, args.plot, rated_torque_Nm=args.rated_torque, title=os.path.basename(args.log))
-    if args.json:
-        print_json(report.as_dict())
-    else:
-        print(describe(report, args.log))
+        drawn = plot_fit(whole, args.ratio, args.plot, rated_torque_Nm=args.rated_torque, title=os.path.basename(args.log), fitted=fitted)
+        if fitted is None:  # the data-sheet figures of the curve drawn, not a second set from the recursive fit
+            report.take_datasheet(drawn)
+    print_report(report.as_dict() if args.json else describe(report, args.log), files_written(args))
     warn_if_implausible(report.plausibility(args.ratio), args.log)
     return play_exit_code(report.backlash_deg, args.log, report.no_play_reason())
 

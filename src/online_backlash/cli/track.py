@@ -17,7 +17,7 @@ from typing import TYPE_CHECKING, Any
 
 from ..errors import InvalidParameterError
 from ..rows import describe_counts
-from ._common import add_can_decoding_options, add_log_options, add_ratio_option, positive_float, print_json
+from ._common import LOG_FORMATS, add_can_decoding_options, add_log_options, add_ratio_option, positive_float, print_json
 from ._live import on_interrupt, open_can_source, open_serial_source
 from ._mqtt import add_mqtt_option, mqtt_publisher, mqtt_summary_line, mqtt_tls
 from .estimate import log_options
@@ -52,9 +52,7 @@ def add_subparser(subparsers: argparse._SubParsersAction) -> None:
         "logs",
         nargs="*",
         metavar="LOG",
-        help="recorded logs (tracked in the order of their first samples' time), or listen --raw-log folders: .csv[.gz]; "
-        "CAN logs (.asc .blf .log .trc ..., with --dbc); "
-        "serial captures (.serial, with --serial-format)",
+        help=f"recorded logs (tracked in the order of their first samples' time), or listen --raw-log folders: {LOG_FORMATS}",
     )
     add_ratio_option(parser, required=False)
     add_db_options(parser, gearbox_required=False)
