@@ -129,7 +129,8 @@ def plot_fit(
     u, y = chunk.referred(ratio)
     if isinstance(est, TorqueBacklash):
         keys = report.as_dict()
-        figures = DatasheetFigures(**{name: keys.get(name) for name in DatasheetFigures.__dataclass_fields__})
+        values: dict[str, Any] = {name: keys.get(name) for name in DatasheetFigures.__dataclass_fields__}
+        figures = DatasheetFigures(**values)
         plot_hysteresis(hysteresis_curve(est, u, y, chunk.torque_Nm, figures), path, title, note)
     else:
         plot_characteristic(u, y, est.predict(u, y[0]), path, title)
