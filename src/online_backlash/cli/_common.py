@@ -318,6 +318,8 @@ def _integer_in(low: int, high: int) -> Callable[[str], int]:
 
 #: argparse type of a CANopen node-ID (1..127).
 node_id_type = _integer_in(1, 127)
+#: argparse type of a TCP port (0: any free one).
+port_type = _integer_in(0, 65535)
 
 
 def wrap_deg_type(text: str) -> Any:

@@ -96,8 +96,8 @@ def add_subparser(subparsers: argparse._SubParsersAction) -> None:
     live.add_argument("--port", help="pyserial URL (serial): /dev/ttyUSB0, COM3, socket://host:port")
     live.add_argument("--baud", type=int, default=115200, help="baud rate (serial)")
     live.add_argument("--raw-log", metavar="DIR", help="directory for the raw captures, written before decoding (required with --listen)")
-    live.add_argument("--duration", type=float, metavar="S", help="stop after S seconds; without it, at Ctrl-C")
-    live.add_argument("--timeout", type=float, metavar="S", help="fail when nothing arrives for S seconds")
+    live.add_argument("--duration", type=positive_float, metavar="S", help="stop after S seconds; without it, at Ctrl-C")
+    live.add_argument("--timeout", type=positive_float, metavar="S", help="fail when nothing arrives for S seconds")
     live.add_argument(
         "--period", type=float, metavar="S",
         help="nominal sample period for gap detection; learnt if not given. With a frame counter, sample times are then first time + counter periods x S",
