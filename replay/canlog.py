@@ -224,7 +224,9 @@ def blf_cut(path: Path, reader: can.io.generic.MessageReader) -> str | None:
     if not isinstance(reader, can.BLFReader) or path.name.lower().endswith(".gz"):
         return None
     actual, announced = path.stat().st_size, reader.file_size
-    return f"truncated: {actual} of the {announced} bytes its header announces" if announced and actual < announced else None
+    if not announced or actual >= announced:
+        return None
+    return f"truncated: {actual} of the {announced} bytes its header announces"
 
 
 def open_can_log(path: Path) -> can.io.generic.MessageReader:

@@ -218,7 +218,8 @@ def open_text(path: str, encoding: str | None = None) -> io.TextIOWrapper:
     """
     check_encoding(encoding)
     try:
-        raw: IO[bytes] = gzip.open(path, "rb") if path.lower().endswith(".gz") else open(path, "rb")  # type: ignore[assignment]
+        gz = path.lower().endswith(".gz")
+        raw: IO[bytes] = gzip.open(path, "rb") if gz else open(path, "rb")  # type: ignore[assignment]
     except IsADirectoryError as exc:
         raise LogFormatError(path, None, "is a folder, not a CSV file") from exc
     except OSError as exc:

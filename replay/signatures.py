@@ -17,7 +17,8 @@ from online_backlash.errors import LogFormatError
 
 @dataclass(frozen=True)
 class Signature:
-    """A format's name as people say it, the bytes its files start with (any of them), and those a whole file ends with."""
+    """A format's name as people say it, the bytes its files start with (any of them), and those a whole
+    file ends with."""
 
     kind: str
     starts: tuple[bytes, ...]
@@ -62,11 +63,11 @@ def check_signature(path: str | os.PathLike[str], kind: str) -> None:
     if size == 0:
         raise LogFormatError(path, None, f"empty file, not {sign.a_file}")
     if not any(head.startswith(s) for s in sign.starts):
-        raise LogFormatError(path, None, f"not {sign.a_file}: it starts with {head[:8]!r} where {sign.a_file} starts with {_spelled(sign.starts)}")
+        where = f"where {sign.a_file} starts with {_spelled(sign.starts)}"
+        raise LogFormatError(path, None, f"not {sign.a_file}: it starts with {head[:8]!r} {where}")
     if sign.ends and not any(tail.endswith(s) for s in sign.ends):
-        raise LogFormatError(
-            path, None, f"truncated {sign.kind} file: it does not end with {_spelled(sign.ends)} as a whole one does ({size} bytes)"
-        )
+        ending = f"it does not end with {_spelled(sign.ends)} as a whole one does ({size} bytes)"
+        raise LogFormatError(path, None, f"truncated {sign.kind} file: {ending}")
 
 
 def library_failure(path: str | os.PathLike[str], kind: str, exc: BaseException) -> LogFormatError:
@@ -75,5 +76,6 @@ def library_failure(path: str | os.PathLike[str], kind: str, exc: BaseException)
     sign = SIGNATURES[kind]
     if isinstance(exc, (struct.error, EOFError)):
         size = os.path.getsize(path)
-        return LogFormatError(path, None, f"truncated or damaged {sign.kind} file: a block it links to runs past its end ({size} bytes)")
+        where = f"a block it links to runs past its end ({size} bytes)"
+        return LogFormatError(path, None, f"truncated or damaged {sign.kind} file: {where}")
     return LogFormatError(path, None, f"not a readable {sign.kind} file ({type(exc).__name__}: {exc})")

@@ -126,9 +126,10 @@ def open_with(
 ) -> tuple[Any, IO[bytes]]:
     """``(reader(file object), file object)`` for the file at ``path``, opened here and closed here if the reader fails.
 
-    A file that is empty or does not start as a ``kind`` file does (:func:`~online_backlash.replay.signatures.check_signature`)
-    is refused before the library reads it; a library reader that fails on a damaged file (any exception)
-    becomes LogFormatError naming the file and saying what is wrong in its terms
+    A file that is empty or does not start as a ``kind`` file does
+    (:func:`~online_backlash.replay.signatures.check_signature`) is refused before the library reads
+    it; a library reader that fails on a damaged file (any exception) becomes LogFormatError naming
+    the file and saying what is wrong in its terms
     (:func:`~online_backlash.replay.signatures.library_failure`); ``on_failure`` may release what the
     library left behind.
     """
@@ -314,12 +315,13 @@ class TabularSource(SampleSource):
     def _warn_of_radians(self, angles_deg: dict[str, np.ndarray], scales: tuple[float, float]) -> None:
         """One BacklashWarning when angles read as degrees as they are (scale 1) step on a grid of radians
         (:func:`~online_backlash.replay.unit_hints.radian_counts`), naming the columns and ``--units rad``."""
-        found = {role: radian_counts(values) for (role, values), scale in zip(angles_deg.items(), scales) if scale == 1.0}
+        as_read = [(role, values) for (role, values), scale in zip(angles_deg.items(), scales) if scale == 1.0]
+        found = {role: radian_counts(values) for role, values in as_read}
         named = [f"{role} {self.columns[role]!r} by 2 pi/{n}" for role, n in found.items() if n is not None]
         if named:
             warnings.warn(
-                f"{self.path}: the angles step by a grid of radians ({', '.join(named)}: an encoder's counts written in "
-                "radians), not of degrees, but are read as degrees: give --units rad",
+                f"{self.path}: the angles step by a grid of radians ({', '.join(named)}: an encoder's counts "
+                "written in radians), not of degrees, but are read as degrees: give --units rad",
                 BacklashWarning,
                 stacklevel=2,
             )
@@ -332,8 +334,8 @@ class TabularSource(SampleSource):
             if named is not None:
                 fix = f"--units counts --{role}-cpr N" if named in COUNT_UNITS else f"--units {named}"
                 warnings.warn(
-                    f"{self.path}: column {self.columns[role]!r} names its unit {named!r}, but the {role} angles are read "
-                    f"as {read_as or 'deg'}: give {fix}",
+                    f"{self.path}: column {self.columns[role]!r} names its unit {named!r}, but the {role} angles are "
+                    f"read as {read_as or 'deg'}: give {fix}",
                     BacklashWarning,
                     stacklevel=2,
                 )

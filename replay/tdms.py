@@ -48,7 +48,8 @@ def _open_tdms(path: str) -> tuple[Any, IO[bytes], bool]:
 
 @contextlib.contextmanager
 def _nptdms_log() -> Iterator[list[str]]:
-    """The lines npTDMS's loggers (``nptdms.*``, each with its own console handler) log meanwhile, kept instead of printed."""
+    """The lines npTDMS's loggers (``nptdms.*``, each with its own console handler) log meanwhile, kept
+    instead of printed."""
     said: list[str] = []
 
     def keep(record: logging.LogRecord) -> bool:

@@ -52,7 +52,8 @@ def radian_counts(angles: np.ndarray) -> int | None:
         return None
     grid = float(np.sum(steps) / np.sum(whole))
     per_radian, per_degree = 2 * math.pi / grid, 360.0 / grid
-    if abs(per_radian - round(per_radian)) > WHOLE or abs(per_degree - round(per_degree)) <= WHOLE or per_radian < MIN_COUNTS:
+    on_radians = abs(per_radian - round(per_radian)) <= WHOLE and per_radian >= MIN_COUNTS
+    if not on_radians or abs(per_degree - round(per_degree)) <= WHOLE:
         return None
     return round(per_radian)
 

@@ -225,6 +225,9 @@ CASES = {
     "--ratio 1e308": Case((*E, "{d}/good.csv", "--ratio", "1e308"), 2, r"error: argument --ratio: .*<= \|R\| <= 100000; got '1e308'"),
     "--ratio 1e-300": Case((*E, "{d}/good.csv", "--ratio", "1e-300"), 2, r"error: argument --ratio: .*0.0001 <= \|R\|"),
     "--ratio text": Case((*E, "{d}/good.csv", "--ratio", "thirty"), 2, r"error: argument --ratio: expected a finite non-zero number"),
+    "--memory-s 0": Case((*E, "{d}/good.csv", *R, "--memory-s", "0"), 2, r"error: argument --memory-s: expected a positive number, got '0'"),
+    "--bridge-s -1": Case((*E, "{d}/good.csv", *R, "--bridge-s", "-1"), 2, r"error: argument --bridge-s: expected a number >= 0, got '-1'"),
+    "--period -1": Case((*E, "{d}/good.csv", *R, "--period", "-1"), 2, r"error: argument --period: expected a positive number"),
     "--units unknown": Case((*E, "{d}/good.csv", *R, "--units", "furlong"), 2, r"error: argument --units: invalid choice"),
     "--units counts without cpr": Case((*E, "{d}/good.csv", *R, "--units", "counts"), 1, r"error: motor is in encoder counts .*needs a positive motor_cpr"),
     "--motor-cpr negative": Case(
@@ -260,6 +263,7 @@ CASES = {
     "diagnose: time all zeros": Case((*D, "{d}/zerotime.csv", *R), 1, r"error: {d}/zerotime.csv:10001: time column 'time' never advances"),
     "diagnose: duplicated timestamps, no numpy warning": Case((*D, "{d}/dup.csv", *R), 0, r"warning: {d}/dup.csv: 10 of 10000 samples repeat"),
     "diagnose: radians under a degrees header": Case((*D, "{d}/radians.csv", *R), 0, r"warning: {d}/radians.csv: the angles step by a grid of radians"),
+    "diagnose: --max-terms -1": Case((*D, "{d}/good.csv", *R, "--max-terms", "-1"), 2, r"error: argument --max-terms: expected a number 0\.\."),
     "diagnose: every sample twice": Case((*D, "{d}/twice.csv", *R), 0, r"warning: {d}/twice.csv: 10000 of 20000 samples repeat", r"backlash"),
     "diagnose: --ratio 1e308": Case((*D, "{d}/good.csv", "--ratio", "1e308"), 2, r"error: argument --ratio: .*0.0001 <= \|R\| <= 100000; got '1e308'"),
     "diagnose: --ratio 0.0001 warns": Case((*D, "{d}/good.csv", "--ratio", "0.0001"), 0, r"warning: {d}/good.csv: fitted slope 3.333e-06, not near \+-1"),

@@ -37,10 +37,14 @@ PLAUSIBLE_PLAY_DEG = 5.0
 #: its worker thread, with ``ahead`` > 0 (:class:`~online_backlash.pipeline.OrderedWorker`; 0: inline).
 BOOKKEEPING_AHEAD = 2
 
-__all__ = ["ARCMIN_PER_DEG", "TRACE_COLUMNS", "BacklashReport", "describe", "fit_batch", "fit_recursive", "plausibility"]
+__all__ = [
+    "ARCMIN_PER_DEG", "TRACE_COLUMNS", "BacklashReport", "describe", "fit_batch", "fit_recursive", "plausibility",
+]
 
 
-def plausibility(m_left: float, m_right: float, backlash_deg: float, ratio: float, with_torque: bool = False) -> str | None:
+def plausibility(
+    m_left: float, m_right: float, backlash_deg: float, ratio: float, with_torque: bool = False
+) -> str | None:
     """One sentence naming the likely cause when a fit of eq. (1) looks like wrong units or ratio, else None.
 
     After referring (``u = motor / ratio``) the flanks of eq. (1) have slopes near +-1; a slope
@@ -56,15 +60,15 @@ def plausibility(m_left: float, m_right: float, backlash_deg: float, ratio: floa
     if slopes and not all(low <= abs(m) <= high for m in slopes):
         m = float(np.mean(slopes))
         return (
-            f"fitted slope {m:.4g}, not near +-1 after referring: the motor and load angles are likely in different units "
-            f"(encoder counts under a degrees header: give --units counts --motor-cpr N --load-cpr N; or wrong counts per "
-            f"revolution), or the ratio is off (--ratio {ratio / m:.4g} would give slope 1)"
+            f"fitted slope {m:.4g}, not near +-1 after referring: the motor and load angles are likely in different "
+            f"units (encoder counts under a degrees header: give --units counts --motor-cpr N --load-cpr N; or wrong "
+            f"counts per revolution), or the ratio is off (--ratio {ratio / m:.4g} would give slope 1)"
         )
     if np.isfinite(backlash_deg) and backlash_deg < 0:
         why = (
-            "with torque, the flank offsets at zero torque are an extrapolation the data do not support here (the torque "
-            "barely varies on each flank, so wind-up and play are confounded): read lost_motion_arcmin, or leave out the "
-            "torque column for the kinematic play"
+            "with torque, the flank offsets at zero torque are an extrapolation the data do not support here (the "
+            "torque barely varies on each flank, so wind-up and play are confounded): read lost_motion_arcmin, or "
+            "leave out the torque column for the kinematic play"
             if with_torque
             else "the flanks cross: check the sign of --ratio and the units"
         )

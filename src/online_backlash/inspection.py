@@ -80,7 +80,8 @@ class FileSummary:
         )
 
     def as_dict(self) -> dict[str, Any]:
-        """A JSON-ready dict: ``path``, ``kind``, ``truncated``, ``channels`` or ``can_ids`` (and ``frames`` for CAN logs)."""
+        """A JSON-ready dict: ``path``, ``kind``, ``truncated``, ``channels`` or ``can_ids`` (and ``frames``
+        for CAN logs)."""
         out: dict[str, Any] = {"path": self.path, "kind": self.kind, "truncated": self.truncated}
         if self.kind == "can":
             out["frames"] = self.frames

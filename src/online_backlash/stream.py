@@ -176,7 +176,8 @@ def check_ratio(ratio: float) -> float:
     if not isinstance(ratio, (int, float)) or not math.isfinite(ratio) or ratio == 0:
         raise InvalidParameterError(f"ratio must be a finite non-zero number, got {ratio!r}")
     if not low <= abs(ratio) <= high:
-        raise InvalidParameterError(f"ratio must be a gear ratio with {low:g} <= |ratio| <= {high:g} (motor:load), got {ratio!r}")
+        limits = f"{low:g} <= |ratio| <= {high:g}"
+        raise InvalidParameterError(f"ratio must be a gear ratio with {limits} (motor:load), got {ratio!r}")
     return float(ratio)
 
 

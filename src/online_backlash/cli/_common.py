@@ -337,6 +337,18 @@ def positive_float(text: str) -> float:
     return value
 
 
+def nonnegative_float(text: str) -> float:
+    """argparse type of options that must be finite and zero or more, e.g. ``--bridge-s`` seconds."""
+    value = _float(text)
+    if not (math.isfinite(value) and value >= 0):
+        raise argparse.ArgumentTypeError(f"expected a number >= 0, got {text!r}")
+    return value
+
+
+#: argparse type of a count that may be 0 (``--max-terms``).
+count_type = _integer_in(0, 10**9)
+
+
 def gear_ratio(text: str) -> float:
     """argparse type of a gear ratio motor:load (negative for a reversing stage): a finite, non-zero number
     whose magnitude is within :data:`~online_backlash.stream.RATIO_LIMITS`."""

@@ -42,7 +42,7 @@ def open_serial_source(args: argparse.Namespace) -> LiveSource:
 def _live_options(args: argparse.Namespace) -> dict[str, Any]:
     """The options every live source takes: counts per revolution, raw capture, period, duration, timeout."""
     if os.path.exists(args.raw_log) and not os.path.isdir(args.raw_log):
-        raise InvalidParameterError(f"--raw-log {args.raw_log}: is a file; the raw captures go into a folder (made if missing)")
+        raise InvalidParameterError(f"--raw-log {args.raw_log}: is a file; the raw captures go into a folder")
     return {
         "motor_cpr": args.motor_cpr,
         "load_cpr": args.load_cpr,

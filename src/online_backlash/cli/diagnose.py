@@ -14,6 +14,7 @@ from ._common import (
     add_log_options,
     add_ratio_option,
     check_plot_path,
+    count_type,
     files_written,
     play_exit_code,
     positive_float,
@@ -40,14 +41,14 @@ def add_subparser(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("--json", action="store_true", help="print one JSON object")
     parser.add_argument("--plot", metavar="FILE.png", help="write the residual before/after plot")
     parser.add_argument("--report", metavar="FILE.md", help="write a Markdown report")
-    parser.add_argument("--max-terms", type=int, default=6, help="most terms (named or generic) to add")
+    parser.add_argument("--max-terms", type=count_type, default=6, help="most terms (named or generic) to add")
     parser.add_argument(
         "--floor-ratio", type=positive_float, metavar="R",
         help="stop adding terms once the residual RMS is within R times the noise floor (the loop's default: 1.25; "
         "a larger R stops sooner, e.g. 1.5)",
     )
     parser.add_argument(
-        "--screen-cycles", type=int, metavar="N",
+        "--screen-cycles", type=count_type, metavar="N",
         help="on a record of at least 3N reversal cycles and 300,000 samples, score and refit the candidates on N cycles "
         "spread over it (more if N hold fewer than 100,000 samples), then configure and fit the terms chosen on every sample "
         "(the loop's default: 10; 0: every cycle, slower on long logs)",

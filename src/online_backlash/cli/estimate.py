@@ -24,6 +24,7 @@ from ._common import (
     check_plot_path,
     csv_dialect_options,
     files_written,
+    nonnegative_float,
     parse_column_map,
     play_exit_code,
     positive_float,
@@ -60,19 +61,23 @@ def add_subparser(subparsers: argparse._SubParsersAction) -> None:
     group = parser.add_argument_group("recursive method")
     group.add_argument("--trace", metavar="FILE.csv", help="write the estimate over time: " + ",".join(TRACE_COLUMNS))
     group.add_argument("--every", metavar="S", type=positive_float, default=1.0, help="seconds of data between trace rows")
-    group.add_argument("--memory-reversals", type=float, default=10.0, help="memory of the estimator, in reversals")
-    group.add_argument("--memory-s", type=float, help="memory in seconds of motion (instead of / besides reversals)")
-    group.add_argument("--sample-period", type=float, default=0.001, help="sampling period of the log, seconds")
     group.add_argument(
-        "--bridge-s", type=float, default=BRIDGE_S,
+        "--memory-reversals", type=positive_float, default=10.0, help="memory of the estimator, in reversals"
+    )
+    group.add_argument(
+        "--memory-s", type=positive_float, help="memory in seconds of motion (instead of / besides reversals)"
+    )
+    group.add_argument("--sample-period", type=positive_float, default=0.001, help="sampling period of the log, s")
+    group.add_argument(
+        "--bridge-s", type=nonnegative_float, default=BRIDGE_S,
         help="longest gap (seconds) the estimator is carried across, keeping its state; 0: every gap restarts it",
     )
     group.add_argument(
-        "--jump-deg", type=float, default=JUMP_DEG,
+        "--jump-deg", type=nonnegative_float, default=JUMP_DEG,
         help="a step of either angle (deg, load side) larger than this across a gap is a jump in the data and restarts",
     )
     parser.add_argument(
-        "--period", type=float, metavar="S",
+        "--period", type=positive_float, metavar="S",
         help="nominal sample period for gap detection (CSV, CAN log, serial capture), as given to listen/track; learnt if not given. "
         "With a frame counter (CAN, serial, CANopen), sample times are then first time + counter periods x S, not the jittery timestamps",
     )
@@ -149,7 +154,8 @@ def run(args: argparse.Namespace) -> int:
         from ..plotting import plot_fit  # matplotlib: only for a plot
 
         whole = chunk if args.method == "batch" else read_counted(args)[0]
-        drawn = plot_fit(whole, args.ratio, args.plot, rated_torque_Nm=args.rated_torque, title=os.path.basename(args.log), fitted=fitted)
+        title = os.path.basename(args.log)
+        drawn = plot_fit(whole, args.ratio, args.plot, rated_torque_Nm=args.rated_torque, title=title, fitted=fitted)
         if fitted is None:  # the data-sheet figures of the curve drawn, not a second set from the recursive fit
             report.take_datasheet(drawn)
     print_report(report.as_dict() if args.json else describe(report, args.log), files_written(args))

@@ -67,7 +67,8 @@ def run(args: argparse.Namespace) -> int:
     if nodes:
         out["nodes"] = [node.as_dict() for node in nodes]
     if summary is not None and summary.truncated is not None:
-        print(f"warning: {summary.path}: {summary.truncated}; the counts are what is readable up to the cut", file=sys.stderr)
+        readable = "the counts are what is readable up to the cut"
+        print(f"warning: {summary.path}: {summary.truncated}; {readable}", file=sys.stderr)
     if args.json:
         print_json(out)
         return 0

@@ -67,14 +67,16 @@ def add_subparser(subparsers: argparse._SubParsersAction) -> None:
 def _add_common(parser: argparse.ArgumentParser) -> None:
     add_ratio_option(parser)
     parser.add_argument("--raw-log", required=True, metavar="DIR", help="directory for the raw captures (written before decoding)")
-    parser.add_argument("--duration", type=positive_float, metavar="S", help="stop after S seconds; without it, at Ctrl-C")
+    parser.add_argument("--duration", type=positive_float, metavar="S", help="stop after S seconds; else at Ctrl-C")
     parser.add_argument("--timeout", type=positive_float, metavar="S", help="fail when nothing arrives for S seconds")
     parser.add_argument(
         "--period", type=float, metavar="S",
         help="nominal sample period for gap detection; learnt if not given. With a frame counter, sample times are then first time + counter periods x S",
     )
     parser.add_argument("--json", action="store_true", help="print the summary as one JSON object on stdout")
-    parser.add_argument("--status-every", type=positive_float, default=0.5, metavar="S", help="seconds of data between status lines")
+    parser.add_argument(
+        "--status-every", type=positive_float, default=0.5, metavar="S", help="seconds of data between status lines"
+    )
     group = parser.add_argument_group("recursive estimator")
     group.add_argument("--memory-reversals", type=float, default=10.0, help="memory of the estimator, in reversals")
     group.add_argument("--memory-s", type=float, help="memory in seconds of motion (instead of / besides reversals)")

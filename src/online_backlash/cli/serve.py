@@ -23,7 +23,7 @@ def add_subparser(subparsers: argparse._SubParsersAction) -> None:
     )
     parser.add_argument("--db", required=True, help="history store: an SQLite file path or postgresql://user@host/dbname")
     parser.add_argument("--host", default="127.0.0.1", help="address to listen on (0.0.0.0: every interface)")
-    parser.add_argument("--port", type=port_type, default=8080, help="TCP port 0-65535 (0: any free port, printed at start)")
+    parser.add_argument("--port", type=port_type, default=8080, help="TCP port 0-65535 (0: any free one, printed)")
     parser.add_argument("--refresh", type=float, default=30.0, metavar="S", help="the page reloads every S seconds")
     parser.add_argument("--max-age-h", type=float, default=168.0, metavar="H", help="a gearbox is 'unknown' when its latest estimate is older than H hours")
     parser.set_defaults(func=run)
@@ -50,7 +50,8 @@ def _listening(host: str, port: int) -> socket.socket:
             errno.EADDRINUSE: ": another program listens there; stop it or give another --port (0: any free port)",
             errno.EACCES: ": ports below 1024 need root; give another --port",
         }
-        raise InvalidParameterError(f"cannot listen on {host}:{port}: {exc.strerror or exc}{hints.get(exc.errno or 0, '')}") from exc
+        why = f"{exc.strerror or exc}{hints.get(exc.errno or 0, '')}"
+        raise InvalidParameterError(f"cannot listen on {host}:{port}: {why}") from exc
     return listening
 
 

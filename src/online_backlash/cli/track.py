@@ -17,7 +17,14 @@ from typing import TYPE_CHECKING, Any
 
 from ..errors import InvalidParameterError
 from ..rows import describe_counts
-from ._common import LOG_FORMATS, add_can_decoding_options, add_log_options, add_ratio_option, positive_float, print_json
+from ._common import (
+    LOG_FORMATS,
+    add_can_decoding_options,
+    add_log_options,
+    add_ratio_option,
+    positive_float,
+    print_json,
+)
 from ._live import on_interrupt, open_can_source, open_serial_source
 from ._mqtt import add_mqtt_option, mqtt_publisher, mqtt_summary_line, mqtt_tls
 from .estimate import log_options
@@ -52,7 +59,8 @@ def add_subparser(subparsers: argparse._SubParsersAction) -> None:
         "logs",
         nargs="*",
         metavar="LOG",
-        help=f"recorded logs (tracked in the order of their first samples' time), or listen --raw-log folders: {LOG_FORMATS}",
+        help="recorded logs (tracked in the order of their first samples' time), or listen --raw-log folders: "
+        + LOG_FORMATS,
     )
     add_ratio_option(parser, required=False)
     add_db_options(parser, gearbox_required=False)
@@ -96,7 +104,7 @@ def add_subparser(subparsers: argparse._SubParsersAction) -> None:
     live.add_argument("--port", help="pyserial URL (serial): /dev/ttyUSB0, COM3, socket://host:port")
     live.add_argument("--baud", type=int, default=115200, help="baud rate (serial)")
     live.add_argument("--raw-log", metavar="DIR", help="directory for the raw captures, written before decoding (required with --listen)")
-    live.add_argument("--duration", type=positive_float, metavar="S", help="stop after S seconds; without it, at Ctrl-C")
+    live.add_argument("--duration", type=positive_float, metavar="S", help="stop after S seconds; else at Ctrl-C")
     live.add_argument("--timeout", type=positive_float, metavar="S", help="fail when nothing arrives for S seconds")
     live.add_argument(
         "--period", type=float, metavar="S",

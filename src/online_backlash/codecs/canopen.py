@@ -262,9 +262,10 @@ def counts_per_rev(od: ObjectDictionary, node_id: int, path: str | os.PathLike[s
     if resolution is not None:
         return resolution
     feed_note = "the feed constant 0x6092 is 1/1, the unit default, and " if feed is not None else ""
+    missing = f"{feed_note}no position encoder resolution 0x608F; a set feed constant 0x6092 / gear ratio 0x6091 would"
+    missing += " give them"
     raise LogFormatError(
-        path, None, f"node {node_id}: no counts per revolution in the dictionary ({feed_note}no position encoder resolution "
-        f"0x608F; a set feed constant 0x6092 / gear ratio 0x6091 would give them): give {option}"
+        path, None, f"node {node_id}: no counts per revolution in the dictionary ({missing}): give {option}"
     )
 
 
