@@ -171,15 +171,15 @@ def play_exit_code(play_deg: float, source: str, reason: str | None = None) -> i
 
 def files_written(args: argparse.Namespace) -> dict[str, str]:
     """What a command wrote besides its report: ``--plot``, ``--trace`` and ``--report`` files, kind -> path
-    (printed after a text report, or as the JSON key ``written``, so a user knows where to look)."""
+    (printed after a text report, so a user knows where to look)."""
     return {kind: getattr(args, kind) for kind in ("plot", "trace", "report") if getattr(args, kind, None)}
 
 
 def print_report(text_or_json: str | dict[str, Any], written: dict[str, str]) -> None:
-    """Print a command's report (a text, or a dict as one JSON object with the key ``written`` added when
-    files were written) and, after a text, one line per file written: ``plot:           FILE``."""
+    """Print a command's report (a text, or a dict as one JSON object, whose reader gave the paths) and, after
+    a text, one line per file written: ``plot:           FILE``."""
     if isinstance(text_or_json, dict):
-        print_json({**text_or_json, **({"written": written} if written else {})})
+        print_json(text_or_json)
         return
     print(text_or_json)
     for kind, path in written.items():
