@@ -67,14 +67,14 @@ def add_subparser(subparsers: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    keep_freed_memory()  # a one-shot process: its large arrays reuse the memory freed by the last ones
+    check_plot_path(args.plot)
+    chunk, source = read_counted(args)  # first: a file that cannot be read fails before the diagnostics load
     # imported here: the diagnostics (scipy) load only for this subcommand, not for every CLI start
     from ..diagnostics.loop import diagnose
     from ..diagnostics.plot import plot_diagnosis
     from ..diagnostics.report import markdown_report
 
-    keep_freed_memory()  # a one-shot process: its large arrays reuse the memory freed by the last ones
-    check_plot_path(args.plot)
-    chunk, source = read_counted(args)
     counts = {**source_counts(source.counters.as_dict()), **GapTally.of_chunk(chunk).values()}
     options = {} if args.floor_ratio is None else {"floor_ratio": args.floor_ratio}
     if args.screen_cycles is not None:

@@ -115,7 +115,6 @@ def _print_node(node: NodeMapping) -> None:
 def _canopen_nodes(args: argparse.Namespace) -> list[NodeMapping]:
     """The ``(--eds, --node)`` pairs (one --eds for every --node, or one each; ``--load-node``/``--load-eds``
     add one more, as in ``estimate``), each node's mapping read from its dictionary."""
-    from ..codecs.canopen import NodeMapping
     from ..errors import InvalidParameterError
 
     eds, node_ids = args.eds or [], args.node or []
@@ -134,6 +133,8 @@ def _canopen_nodes(args: argparse.Namespace) -> list[NodeMapping]:
         pairs.append((args.load_eds or eds[0], args.load_node))
     elif args.load_eds is not None:
         raise InvalidParameterError("--load-eds is the dictionary of --load-node: give --load-node too")
+    from ..codecs.canopen import NodeMapping  # canopen loads only for dictionaries
+
     seen = [node for _, node in pairs]
     twice = sorted({node for node in seen if seen.count(node) > 1})
     if twice:
