@@ -98,6 +98,10 @@ def files(tmp_path_factory) -> Path:
     with open(d / "zeros.csv", "wb") as f:
         f.truncate(2 << 30)  # 2 GiB of NUL bytes, sparse: no disk used
     (d / "store.db").mkdir()
+    from test_canopen import write_eds  # a drive's EDS as the canopen library writes it
+
+    defaults = {0x6091: (1, 1), 0x6092: (1, 1)}  # the factor group of canopen's sample drive e35.eds, left at its defaults
+    write_eds(d / "feed_default.eds", 3, [(0x6064, 0), (0x60E4, 1)], resolution=None, factor_group=defaults)
     return d
 
 
@@ -314,6 +318,11 @@ CASES = {
     "track: 2 GiB of NUL bytes named .csv": Case((*T, "{d}/zeros.csv", *TRACK), 1, r"error: {d}/zeros.csv:1: not a text CSV file: NUL bytes"),
     "track: --ratio 1e308": Case((*T, "{d}/good.csv", "--ratio", "1e308", "--db", "{db}", "--gearbox", "g"), 2, r"error: argument --ratio: .*got '1e308'"),
     "track: a Windows export without --encoding": Case((*T, "{d}/windows.csv", *TRACK, *WINDOWS), 1, r"error: {d}/windows.csv:1: not a text CSV file"),
+    "an EDS with the feed constant at its default and no 0x608F": Case(
+        (*E, "{d}/run.asc", *R, "--eds", "{d}/feed_default.eds", "--node", "3", "--load-cpr", "4096"), 1,
+        r"error: {d}/feed_default.eds: node 3: no counts per revolution in the dictionary \(the feed constant 0x6092 is 1/1, the unit "
+        r"default, and no position encoder resolution 0x608F.*\): give --motor-cpr$",
+    ),
     # -- inspect: what is readable, in the file's own terms
     "inspect: rows with fewer fields than the header": Case((*INS, "{d}/ragged_rows.csv"), 1, r"error: {d}/ragged_rows.csv:9: expected 3 columns, got 2$"),
     "inspect: random bytes named .tdms": Case((*INS, "{d}/random.tdms"), 1, r"error: {d}/random.tdms: not a TDMS file"),
