@@ -14,7 +14,9 @@ delivered, so a raw log recorded live replays to the same samples, counters and 
 
 A reader that fails (truncated or malformed file) raises :class:`LogFormatError` naming the file
 and the 0-based index of the frame it could not read; with ``skip_bad=True`` the failure is
-counted as one corrupt frame and that file ends there (python-can's readers cannot resume).
+counted as one corrupt frame and that file ends there (python-can's readers cannot resume). A
+``.blf`` that is empty or not BLF at all is refused before python-can reads it, and one shorter
+than its header says is truncated (:func:`blf_cut`: python-can stops quietly at the cut).
 """
 
 from __future__ import annotations
@@ -36,6 +38,7 @@ from online_backlash.errors import InvalidParameterError, LogFormatError
 from online_backlash.stream import SampleChunk, SampleSource, rechunk
 
 from .paths import file_suffix
+from .signatures import check_signature
 
 #: Suffixes python-can reads (``.csv`` is ours: see :mod:`online_backlash.replay.csv`).
 CAN_LOG_SUFFIXES = tuple(s for s in can.io.player.MESSAGE_READERS if s != ".csv")
@@ -165,7 +168,12 @@ class CanLog(SampleSource):
         mean the file cannot be read on from there, and become LogFormatError with the frame index.
         """
         try:
-            self._reader = _log_reader(path)
+            self._reader = open_can_log(path)
+        except LogFormatError:  # empty, or not of its format at all
+            if not self.skip_bad:
+                raise
+            self._count_bad()
+            return None
         except OSError as exc:
             if not path.exists():
                 raise LogFormatError(path, None, f"cannot open: {exc.strerror or exc}") from exc
@@ -175,21 +183,25 @@ class CanLog(SampleSource):
             self._bad(path, 0, exc)
             return None
         messages = iter(can.MessageSync(self._reader) if self.realtime else self._reader)
-        if isinstance(self._reader, can.BLFReader) and path.suffix.lower() == ".blf":
-            return self._whole_blf(path, self._reader.file_size, messages)
+        if isinstance(self._reader, can.BLFReader):
+            return self._whole_blf(path, self._reader, messages)
         return messages
 
-    def _whole_blf(self, path: Path, header_size: int, messages: Iterator[can.Message]) -> Iterator[can.Message]:
-        """python-can's BLF reader stops quietly at a cut; the header's file size tells."""
+    def _whole_blf(self, path: Path, reader: can.BLFReader, messages: Iterator[can.Message]) -> Iterator[can.Message]:
+        """python-can's BLF reader stops quietly at a cut; the header's file size tells (:func:`blf_cut`)."""
         yield from messages
-        actual = path.stat().st_size
-        if header_size and actual < header_size:
-            raise _Truncated(f"truncated: {actual} of the {header_size} bytes its header announces")
+        cut = blf_cut(path, reader)
+        if cut is not None:
+            raise _Truncated(f"{cut}: the frames after the cut are lost")
 
     def _bad(self, path: Path, index: int, exc: BaseException) -> None:
-        reason = f"unreadable frame ({type(exc).__name__}: {exc})"
+        reason = str(exc) if isinstance(exc, _Truncated) else f"unreadable frame ({type(exc).__name__}: {exc})"
         if not self.skip_bad:
             raise LogFormatError(path, index, reason) from exc
+        self._count_bad()
+
+    def _count_bad(self) -> None:
+        """A file that failed, counted as one corrupt frame (``skip_bad``)."""
         self.counters.frames += 1
         self.counters.corrupt += 1
 
@@ -206,14 +218,28 @@ class _Truncated(Exception):
     """Raised inside the frame iterator when a file turns out to be cut short."""
 
 
-def _log_reader(path: Path) -> can.io.generic.MessageReader:
-    """python-can's reader for ``path`` (by suffix, ``.gz`` looked through), times absolute.
+def blf_cut(path: Path, reader: can.io.generic.MessageReader) -> str | None:
+    """Why a BLF file read by ``reader`` (python-can's, which stops quietly at a cut) is truncated: its size is
+    less than its header announces; None for a whole file or another format."""
+    if not isinstance(reader, can.BLFReader) or path.name.lower().endswith(".gz"):
+        return None
+    actual, announced = path.stat().st_size, reader.file_size
+    if not announced or actual >= announced:
+        return None
+    return f"truncated: {actual} of the {announced} bytes its header announces"
+
+
+def open_can_log(path: Path) -> can.io.generic.MessageReader:
+    """python-can's reader for ``path`` (by suffix, ``.gz`` looked through), times absolute; a ``.blf`` that is
+    empty or not BLF raises LogFormatError saying so (:func:`~online_backlash.replay.signatures.check_signature`).
 
     ASC stores times relative to its header date; ask for absolute ones, as live. The file is
     opened here (in the mode and encoding python-can would use), so that it is closed again when
     the reader rejects it, and so that ``.gz`` files get the same reader options.
     """
     suffix = file_suffix(path)
+    if suffix == ".blf" and not path.name.lower().endswith(".gz"):
+        check_signature(path, "BLF")
     reader = can.io.player.MESSAGE_READERS[suffix]
     options = {"relative_timestamp": False} if suffix == ".asc" else {}
     if not issubclass(reader, can.io.generic.FileIOMessageReader):

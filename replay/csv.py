@@ -19,11 +19,20 @@ the line where it ends.
 The dialect is sniffed from the first few KB (:func:`sniff_dialect`), as people write CSV: a
 UTF-8 byte-order mark (Excel's "CSV UTF-8"), ``,``, ``;``, tab or ``|`` as separator, a decimal
 comma with ``;`` (German Excel, ``pandas.to_csv(sep=";", decimal=",")``), quoted cells and CRLF
-line ends. ``delimiter=`` and ``decimal=`` override the guess.
+line ends. ``delimiter=`` and ``decimal=`` override the guess. Lines before the header that start
+with ``#`` (a logger's ``# logger v2.1``) are skipped; ``comment=`` names another character, and with
+it a line starting with that character is skipped anywhere in the file.
+
+The text encoding is UTF-8 unless a byte-order mark says UTF-8, UTF-16 (LE or BE, as Excel saves
+"Unicode text": tab separated, CRLF, ``.txt``) or UTF-32, or ``encoding=`` names one (``cp1252`` for
+a Windows export with ``°`` in its header). A file whose first KB hold NUL bytes is not text and is
+refused at once, however large. Delimited text is read from ``.csv``, ``.txt`` and ``.tsv`` files
+(:data:`CSV_SUFFIXES`).
 """
 
 from __future__ import annotations
 
+import codecs
 import csv
 import gzip
 import io
@@ -32,10 +41,10 @@ import operator
 import os
 import re
 import zlib
-from collections.abc import Iterator
+from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
 from itertools import islice, repeat
-from typing import Any
+from typing import IO, Any
 
 import numpy as np
 
@@ -46,8 +55,20 @@ from online_backlash.stream import SampleChunk, StreamCounters, read_all, rechun
 from .tabular import REQUIRED as _REQUIRED
 from .tabular import TabularSource, angle_scale, role_names
 
+#: Suffixes of delimited text logs (each also as ``.gz``).
+CSV_SUFFIXES = (".csv", ".txt", ".tsv")
 #: Separators the sniffer chooses from.
 DELIMITERS = ",;\t|"
+#: What starts the comment lines skipped before the header when no ``comment`` is given.
+SNIFFED_COMMENT = "#"
+#: Byte-order marks and the codec that reads past each (UTF-32 before UTF-16: its LE mark starts with UTF-16's).
+BYTE_ORDER_MARKS = (
+    (codecs.BOM_UTF8, "utf-8-sig"),
+    (codecs.BOM_UTF32_LE, "utf-32"),
+    (codecs.BOM_UTF32_BE, "utf-32"),
+    (codecs.BOM_UTF16_LE, "utf-16"),
+    (codecs.BOM_UTF16_BE, "utf-16"),
+)
 #: Decimal marks a CSV may use.
 DECIMALS = (".", ",")
 #: Characters read to sniff the dialect.
@@ -66,20 +87,59 @@ def unreadable(path: str, line: int, exc: Exception) -> LogFormatError:
     """
     if isinstance(exc, UnicodeDecodeError):
         line += bytes(exc.object[: exc.start]).count(b"\n")
-        return LogFormatError(path, line, f"not a text CSV file: not UTF-8 ({exc.reason})")
-    return LogFormatError(path, line, f"damaged or truncated file: it ends here ({type(exc).__name__}: {exc})")
+        byte = bytes(exc.object[exc.start : exc.start + 1])
+        utf8 = exc.encoding.startswith("utf-8")
+        hint = "; give its encoding with --encoding (e.g. cp1252 for a Windows export)" if utf8 else ""
+        what = f"not {_codec_label(exc.encoding)} (byte 0x{byte.hex().upper()}: {exc.reason}){hint}"
+        return LogFormatError(path, line, f"not a text CSV file: {what}")
+    if isinstance(exc, EOFError):
+        detail = "the compressed data stop before the gzip end marker"
+    elif isinstance(exc, (zlib.error, gzip.BadGzipFile)):
+        detail = f"not valid gzip data: {exc}"
+    else:
+        detail = f"{type(exc).__name__}: {exc}"
+    return LogFormatError(path, line, f"damaged or truncated file: it ends here ({detail})")
+
+
+def _codec_label(encoding: str) -> str:
+    """``UTF-8`` for ``utf-8-sig``, else the codec's own name as Python spells it."""
+    name = codecs.lookup(encoding).name
+    return "UTF-8" if name.startswith("utf-8") else name
 
 
 @dataclass(frozen=True)
 class CsvDialect:
-    """How a CSV file is written: its field ``delimiter`` and its ``decimal`` mark (quotes are ``"``)."""
+    """How a CSV file is written: its field ``delimiter``, its ``decimal`` mark (quotes are ``"``), the
+    ``comment`` character of the lines skipped anywhere (None: none), and the number of comment lines
+    before the header (``preamble``)."""
 
     delimiter: str = ","
     decimal: str = "."
+    comment: str | None = None
+    preamble: int = 0
 
 
-def check_dialect(delimiter: str | None, decimal: str | None) -> None:
-    """Raise InvalidParameterError unless ``delimiter`` (one character) and ``decimal`` (``.`` or ``,``) can be used."""
+def check_encoding(encoding: str | None) -> None:
+    """Raise InvalidParameterError unless ``encoding`` is None or a text codec Python knows (``cp1252``, ``utf-16``)."""
+    if encoding is None:
+        return
+    try:
+        info = codecs.lookup(encoding)
+    except LookupError:
+        raise InvalidParameterError(f"unknown text encoding {encoding!r}; e.g. utf-8, cp1252, utf-16") from None
+    if not getattr(info, "_is_text_encoding", True):
+        raise InvalidParameterError(f"{encoding!r} is not a text encoding; e.g. utf-8, cp1252, latin-1, utf-16")
+
+
+def check_dialect(delimiter: str | None, decimal: str | None, comment: str | None = None) -> None:
+    """Raise InvalidParameterError unless ``delimiter`` (one character), ``decimal`` (``.`` or ``,``) and ``comment``
+    (one character other than them, not a digit, sign or point) can be used."""
+    unusable = comment is not None and (len(comment) != 1 or comment.isalnum() or comment in "+-.\"\r\n")
+    if unusable or (comment is not None and comment in (delimiter, decimal)):
+        raise InvalidParameterError(
+            f"comment must be one character such as # or %, not a digit, letter, sign, point or the separator; "
+            f"got {comment!r}"
+        )
     if delimiter is not None and (len(delimiter) != 1 or delimiter in '"\r\n' or delimiter.isalnum() or delimiter in "+-."):
         raise InvalidParameterError(f"delimiter must be one character such as , ; | or a tab, not a quote, sign, point or letter; got {delimiter!r}")
     if decimal is not None and decimal not in DECIMALS:
@@ -88,25 +148,33 @@ def check_dialect(delimiter: str | None, decimal: str | None) -> None:
         raise InvalidParameterError(f"delimiter and decimal mark are both {delimiter!r}")
 
 
-def sniff_dialect(sample: str, delimiter: str | None = None, decimal: str | None = None) -> CsvDialect:
-    r"""The dialect of a CSV file from its first characters ``sample`` (header row first).
+def sniff_dialect(
+    sample: str, delimiter: str | None = None, decimal: str | None = None, comment: str | None = None
+) -> CsvDialect:
+    r"""The dialect of a CSV file from its first characters ``sample`` (header row first, after comment lines).
 
-    The separator is :class:`csv.Sniffer`'s choice among :data:`DELIMITERS` (or, when it cannot
-    tell, the one the header row holds most of; ``,`` if none); the decimal mark is ``,`` when
-    the separator is not ``,`` and the data cells hold more numbers written ``1,5`` than ``1.5``.
-    ``delimiter`` and ``decimal`` override the guess.
+    Lines before the header that start with ``comment`` (None: with :data:`SNIFFED_COMMENT`, ``#``)
+    are its ``preamble``. The separator is :class:`csv.Sniffer`'s choice among :data:`DELIMITERS`
+    (or, when it cannot tell, the one the header row holds most of; ``,`` if none); the decimal
+    mark is ``,`` when the separator is not ``,`` and the data cells hold more numbers written
+    ``1,5`` than ``1.5``. ``delimiter`` and ``decimal`` override the guess.
 
     Examples
     --------
     >>> sniff_dialect("time;motor;load\n0,001;1,5;2,5\n")
-    CsvDialect(delimiter=';', decimal=',')
+    CsvDialect(delimiter=';', decimal=',', comment=None, preamble=0)
     >>> sniff_dialect('"time","motor","load"\r\n"0.001","1.5","2.5"\r\n')
-    CsvDialect(delimiter=',', decimal='.')
+    CsvDialect(delimiter=',', decimal='.', comment=None, preamble=0)
+    >>> sniff_dialect("# logger v2.1\n# rig 7\ntime\tmotor\tload\n0.001\t1.5\t2.5\n")
+    CsvDialect(delimiter='\t', decimal='.', comment=None, preamble=2)
     """
-    check_dialect(delimiter, decimal)
+    check_dialect(delimiter, decimal, comment)
     lines = sample.splitlines()
     if len(sample) >= SNIFF_CHARS and len(lines) > 2:
         lines = lines[:-1]  # the last line may be cut
+    marker = comment or SNIFFED_COMMENT
+    preamble = next((i for i, line in enumerate(lines) if not line.lstrip().startswith(marker)), len(lines))
+    lines = lines[preamble:]
     if delimiter is None:
         try:
             delimiter = csv.Sniffer().sniff("\n".join(lines), delimiters=DELIMITERS).delimiter
@@ -122,37 +190,84 @@ def sniff_dialect(sample: str, delimiter: str | None = None, decimal: str | None
             decimal = "," if commas > points else "."
     if delimiter == decimal:
         raise InvalidParameterError(f"delimiter and decimal mark are both {delimiter!r}; give --delimiter or --decimal")
-    return CsvDialect(delimiter, decimal)
+    return CsvDialect(delimiter, decimal, comment, preamble)
 
 
-def open_text(path: str) -> io.TextIOWrapper:
-    """The CSV file at ``path`` (``.gz`` looked through) as UTF-8 text, a byte-order mark dropped, line ends kept.
+def text_encoding(head: bytes, path: str, encoding: str | None = None) -> str:
+    """The codec of a text file whose first bytes are ``head``: ``encoding`` if given, else the one its byte-order
+    mark names (:data:`BYTE_ORDER_MARKS`), else UTF-8; LogFormatError when, with neither, ``head`` holds NUL bytes
+    (binary data, or UTF-16 without a mark), so a large binary file is refused before it is read."""
+    if encoding is not None:
+        return encoding
+    for mark, codec in BYTE_ORDER_MARKS:
+        if head.startswith(mark):
+            return codec
+    if b"\0" in head:
+        raise LogFormatError(
+            path, 1, f"not a text CSV file: NUL bytes in its first {len(head)} bytes (binary data; "
+            "UTF-16 text without a byte-order mark needs --encoding utf-16-le or utf-16-be)"
+        )
+    return "utf-8-sig"
 
-    Raises LogFormatError naming the file when it cannot be opened.
+
+def open_text(path: str, encoding: str | None = None) -> io.TextIOWrapper:
+    """The CSV file at ``path`` (``.gz`` looked through) as text (:func:`text_encoding`), a byte-order mark dropped,
+    line ends kept.
+
+    Raises LogFormatError naming the file when it cannot be opened or is not text.
     """
+    check_encoding(encoding)
     try:
-        if path.lower().endswith(".gz"):
-            return io.TextIOWrapper(gzip.open(path, "rb"), encoding="utf-8-sig", newline="")
-        return open(path, encoding="utf-8-sig", newline="")
+        gz = path.lower().endswith(".gz")
+        raw: IO[bytes] = gzip.open(path, "rb") if gz else open(path, "rb")  # type: ignore[assignment]
     except IsADirectoryError as exc:
         raise LogFormatError(path, None, "is a folder, not a CSV file") from exc
     except OSError as exc:
         reason = "no such file or folder" if isinstance(exc, FileNotFoundError) else exc.strerror or str(exc)
         raise LogFormatError(path, None, f"cannot open: {reason}") from exc
+    try:
+        codec = text_encoding(raw.read(SNIFF_CHARS), path, encoding)
+        raw.seek(0)
+    except UNREADABLE as exc:
+        raw.close()
+        raise unreadable(path, 1, exc) from exc
+    except BaseException:
+        raw.close()
+        raise
+    return io.TextIOWrapper(raw, encoding=codec, newline="")
 
 
-def file_dialect(f: io.TextIOBase, path: str, delimiter: str | None = None, decimal: str | None = None) -> CsvDialect:
-    """:func:`sniff_dialect` of the open text file ``f`` at its start; ``f`` is rewound to the start."""
+def file_dialect(
+    f: io.TextIOBase, path: str, delimiter: str | None = None, decimal: str | None = None, comment: str | None = None
+) -> CsvDialect:
+    """:func:`sniff_dialect` of the open text file ``f`` at its start; ``f`` is left at its header row
+    (after the dialect's ``preamble`` of comment lines)."""
     try:
         try:
             sample = f.read(SNIFF_CHARS)
         except UnicodeDecodeError:  # a bad byte somewhere in the first block: the reader names its line later
             f.seek(0)
-            sample = f.buffer.read(SNIFF_CHARS).decode("utf-8-sig", "replace")  # type: ignore[attr-defined]
+            raw = f.buffer.read(SNIFF_CHARS)  # type: ignore[attr-defined]
+            sample = raw.decode(f.encoding or "utf-8-sig", "replace")
         f.seek(0)
+        dialect = sniff_dialect(sample, delimiter, decimal, comment)
+        for _ in range(dialect.preamble):
+            f.readline()
     except UNREADABLE as exc:
         raise unreadable(path, 1, exc) from exc
-    return sniff_dialect(sample, delimiter, decimal)
+    return dialect
+
+
+def header_names(line: str, dialect: CsvDialect) -> list[str]:
+    """The column names of a header row (spaces and a byte-order mark a given encoding left around them dropped)."""
+    return [name.strip().lstrip("\ufeff").strip() for name in next(csv.reader([line], delimiter=dialect.delimiter), [])]
+
+
+def uncommented(lines: Iterable[str], comment: str | None) -> Iterable[str]:
+    """``lines`` with each comment line (first non-blank character ``comment``) made blank, so line numbers stay."""
+    if comment is None:
+        return lines
+    return ("\n" if line.lstrip().startswith(comment) else line for line in lines)
 
 
 class CsvLog(TabularSource):
@@ -180,6 +295,10 @@ class CsvLog(TabularSource):
         Field separator (one character, e.g. ``;`` or a tab); None: sniffed.
     decimal : {".", ","}, optional
         Decimal mark of the numbers; None: sniffed.
+    encoding : str, optional
+        Text encoding (``cp1252``, ``utf-16``, ...); None: UTF-8, or what a byte-order mark says.
+    comment : str, optional
+        A line starting with this character is skipped wherever it is; None: only ``#`` lines before the header.
 
     Attributes
     ----------
@@ -203,14 +322,20 @@ class CsvLog(TabularSource):
         period_s: float | None = None,
         delimiter: str | None = None,
         decimal: str | None = None,
+        encoding: str | None = None,
+        comment: str | None = None,
     ) -> None:
-        check_dialect(delimiter, decimal)
+        check_dialect(delimiter, decimal, comment)
+        check_encoding(encoding)
         self.path = os.fspath(path)
         self.delimiter = delimiter
         self.decimal = decimal
+        self.encoding = encoding
+        self.comment = comment
         self.dialect: CsvDialect | None = None
         self._delimiter = delimiter or ","
         self.columns = role_names(columns)
+        self.units = units
         self.motor_scale = angle_scale(units, motor_cpr, "motor")
         self.load_scale = angle_scale(units, load_cpr, "load")
         self.skip_bad = skip_bad
@@ -227,14 +352,16 @@ class CsvLog(TabularSource):
             self._file = None
 
     # -- reading ---------------------------------------------------------------------------
-    def _header(self, f: io.TextIOBase) -> tuple[list[int], bool]:
+    def _header(self, f: io.TextIOBase, line_no: int) -> tuple[list[int], bool]:
         line = f.readline()
         if not line.strip():
-            raise LogFormatError(self.path, 1, "empty file: expected a header row naming the columns")
-        names = [n.strip() for n in next(csv.reader([line], delimiter=self._delimiter))]
+            raise LogFormatError(self.path, line_no, "empty file: expected a header row naming the columns")
+        names = header_names(line, self.dialect or CsvDialect())
         missing = [self.columns[r] for r in _REQUIRED if self.columns[r] not in names]
         if missing:
-            raise LogFormatError(self.path, 1, f"header has no column {missing} (columns: {names}); map them with columns=/--columns")
+            reason = f"header has no column {missing} (columns: {names}); map them with columns=/--columns"
+            raise LogFormatError(self.path, line_no, reason)
+        self._warn_of_named_units(self.units)
         has_torque = self.columns["torque"] in names
         roles = _REQUIRED + (("torque",) if has_torque else ())
         self._n_columns = len(names)
@@ -247,7 +374,7 @@ class CsvLog(TabularSource):
 
     def _read(self) -> Iterator[SampleChunk]:
         self.close()
-        self._file = f = open_text(self.path)
+        self._file = f = open_text(self.path, self.encoding)
         try:
             yield from self._read_blocks(f)
         finally:
@@ -255,13 +382,13 @@ class CsvLog(TabularSource):
 
     def _read_blocks(self, f: io.TextIOBase) -> Iterator[SampleChunk]:
         self.counters = StreamCounters()
-        self.dialect = file_dialect(f, self.path, self.delimiter, self.decimal)
+        self.dialect = file_dialect(f, self.path, self.delimiter, self.decimal, self.comment)
         self._delimiter = self.dialect.delimiter
+        line_no = self.dialect.preamble + 1  # lines consumed so far, the header's included
         try:
-            usecols, has_torque = self._header(f)
+            usecols, has_torque = self._header(f, line_no)
         except UNREADABLE as exc:
-            raise unreadable(self.path, 1, exc) from exc
-        line_no = 1  # lines consumed so far
+            raise unreadable(self.path, line_no, exc) from exc
         last_time = -math.inf
         while True:
             lines: list[str] = []
@@ -271,7 +398,7 @@ class CsvLog(TabularSource):
                 raise unreadable(self.path, line_no + len(lines) + 1, exc) from exc
             if not lines:
                 break
-            values, line_numbers = self._parse_block(lines, line_no, usecols)
+            values, line_numbers = self._parse_block(list(uncommented(lines, self.comment)), line_no, usecols)
             line_no += len(lines)
             chunk, last_time = self._validate(values, line_numbers, has_torque, last_time)
             if len(chunk):

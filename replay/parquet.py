@@ -26,6 +26,7 @@ import numpy as np
 from online_backlash.errors import LogFormatError
 from online_backlash.stream import UNIX_TIME_MIN, SampleChunk, StreamCounters
 
+from .signatures import check_signature, library_failure
 from .tabular import ROLES, ChannelInfo, MeasurementLog, channel_scales, missing_channel
 
 #: Suffixes read as Arrow IPC files rather than Parquet.
@@ -41,6 +42,8 @@ class _Table:
 
         self.path = path
         self._arrow = os.path.splitext(path.lower())[1] in ARROW_SUFFIXES
+        kind = "Arrow" if self._arrow else "Parquet"
+        check_signature(path, kind)
         try:
             if self._arrow:
                 # read, not memory-mapped: a map counts every page of the file it touched as resident
@@ -58,10 +61,10 @@ class _Table:
             if isinstance(exc, FileNotFoundError) or not os.path.isfile(path):
                 raise LogFormatError(path, None, f"cannot open: {exc.strerror or exc}") from exc
             self.close()
-            raise LogFormatError(path, None, f"not a readable {'Arrow' if self._arrow else 'Parquet'} file ({exc})") from exc
+            raise library_failure(path, kind, exc) from exc
         except Exception as exc:  # pyarrow.ArrowInvalid and friends
             self.close()
-            raise LogFormatError(path, None, f"not a readable {'Arrow' if self._arrow else 'Parquet'} file ({type(exc).__name__}: {exc})") from exc
+            raise library_failure(path, kind, exc) from exc
 
     @property
     def rows(self) -> int:

@@ -14,14 +14,12 @@ from typing import Any
 from online_backlash.errors import LogFormatError
 from online_backlash.stream import SampleChunk, SampleSource, read_all
 
-from .csv import CsvLog
+from .csv import CSV_SUFFIXES, CsvLog
 from .measurement import MEASUREMENT_READERS, MF4, open_mdf_or_can
 from .paths import file_suffix
 
 #: suffix -> reader; each reader takes ``(path, **options)`` and returns a SampleSource.
-LOG_READERS: dict[str, Callable[..., SampleSource]] = {
-    ".csv": CsvLog,
-}
+LOG_READERS: dict[str, Callable[..., SampleSource]] = {suffix: CsvLog for suffix in CSV_SUFFIXES}
 
 
 def _can_log(path: str | os.PathLike[str], **options: Any) -> SampleSource:

@@ -32,6 +32,8 @@ from online_backlash.errors import BacklashWarning, InvalidParameterError, LogFo
 from online_backlash.stream import SampleChunk, SampleSource, StreamCounters, rechunk
 
 from .screen import Screened, screen_block
+from .signatures import check_signature, library_failure
+from .unit_hints import radian_counts, unit_mismatch
 
 ROLES = ("time", "motor", "load", "torque")
 REQUIRED = ("time", "motor", "load")
@@ -124,10 +126,14 @@ def open_with(
 ) -> tuple[Any, IO[bytes]]:
     """``(reader(file object), file object)`` for the file at ``path``, opened here and closed here if the reader fails.
 
-    A library reader that fails on a damaged file (any exception) becomes LogFormatError naming
-    the file and saying it is not a readable ``kind`` file; ``on_failure`` may release what the
+    A file that is empty or does not start as a ``kind`` file does
+    (:func:`~online_backlash.replay.signatures.check_signature`) is refused before the library reads
+    it; a library reader that fails on a damaged file (any exception) becomes LogFormatError naming
+    the file and saying what is wrong in its terms
+    (:func:`~online_backlash.replay.signatures.library_failure`); ``on_failure`` may release what the
     library left behind.
     """
+    check_signature(path, kind)
     try:
         stream = open(path, "rb")
     except OSError as exc:
@@ -138,7 +144,7 @@ def open_with(
         stream.close()
         if on_failure is not None:
             on_failure(exc)
-        raise LogFormatError(path, None, f"not a readable {kind} file ({type(exc).__name__}: {exc})") from exc
+        raise library_failure(path, kind, exc) from exc
 
 
 def role_names(columns: dict[str, str] | None) -> dict[str, str]:
@@ -294,6 +300,7 @@ class TabularSource(SampleSource):
             self._gap_rule = GapDetector(None, self.period_s)
             self._repeated_times = 0
             self._first_time = float(time[0]) if time.size else math.nan
+            self._warn_of_radians({"motor": motor, "load": load}, scales)
         elif math.isnan(self._first_time) and time.size:
             self._first_time = float(time[0])
         if time.size:
@@ -331,6 +338,33 @@ class TabularSource(SampleSource):
         if not inside.all():
             arrays, numbers = [a[inside] for a in arrays], np.flatnonzero(inside) + first
         return self._validate_columns(arrays, numbers, last_time, scales[1:3])
+    def _warn_of_radians(self, angles_deg: dict[str, np.ndarray], scales: tuple[float, float]) -> None:
+        """One BacklashWarning when angles read as degrees as they are (scale 1) step on a grid of radians
+        (:func:`~online_backlash.replay.unit_hints.radian_counts`), naming the columns and ``--units rad``."""
+        as_read = [(role, values) for (role, values), scale in zip(angles_deg.items(), scales) if scale == 1.0]
+        found = {role: radian_counts(values) for role, values in as_read}
+        named = [f"{role} {self.columns[role]!r} by 2 pi/{n}" for role, n in found.items() if n is not None]
+        if named:
+            warnings.warn(
+                f"{self.path}: the angles step by a grid of radians ({', '.join(named)}: an encoder's counts "
+                "written in radians), not of degrees, but are read as degrees: give --units rad",
+                BacklashWarning,
+                stacklevel=2,
+            )
+
+    def _warn_of_named_units(self, read_as: str | None) -> None:
+        """One BacklashWarning per motor or load column whose name states a unit other than ``read_as``
+        (:func:`~online_backlash.replay.unit_hints.unit_mismatch`: ``motor_counts`` read as degrees)."""
+        for role in ("motor", "load"):
+            named = unit_mismatch(self.columns[role], read_as)
+            if named is not None:
+                fix = f"--units counts --{role}-cpr N" if named in COUNT_UNITS else f"--units {named}"
+                warnings.warn(
+                    f"{self.path}: column {self.columns[role]!r} names its unit {named!r}, but the {role} angles are "
+                    f"read as {read_as or 'deg'}: give {fix}",
+                    BacklashWarning,
+                    stacklevel=2,
+                )
 
     def _reject(self, columns: list[np.ndarray], numbers: np.ndarray | int, found: Screened) -> None:
         """The bad rows :func:`~online_backlash.replay.screen.screen_block` found: LogFormatError naming the first

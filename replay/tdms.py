@@ -13,12 +13,17 @@ stores it) is the file's own clock of its waveform time
 
 The file is opened with ``TdmsFile.open`` (streaming) and read in slices of ``block_rows``, so
 memory stays flat. A file npTDMS cannot read raises :class:`~online_backlash.errors.LogFormatError`
-naming the file and the channel.
+naming the file and the channel. A file cut short (a recorder stopped mid-segment, a copy cut in
+half) is read by npTDMS up to the cut with only a log line as a sign: that is taken as the sign
+(:func:`_open_tdms`), and the file is refused as truncated, or with ``skip_bad`` read up to the cut
+with the cut counted as one corrupt frame.
 """
 
 from __future__ import annotations
 
+import contextlib
 import datetime as dt
+import logging
 import os
 from collections.abc import Iterator
 from typing import IO, Any
@@ -30,12 +35,44 @@ from online_backlash.stream import UNIX_TIME_MIN, SampleChunk, StreamCounters
 
 from .tabular import ROLES, ChannelInfo, MeasurementLog, Resampler, channel_scales, missing_channel, open_with
 
+#: What npTDMS logs when the file ends inside a segment (its only sign of a file cut short).
+_CUT_SHORT = ("Last segment", "not a multiple of the chunk size")
 
-def _open_tdms(path: str) -> tuple[Any, IO[bytes]]:
-    """npTDMS's streaming reader over a file object this module closes (npTDMS leaves it open when it fails)."""
+
+def _open_tdms(path: str) -> tuple[Any, IO[bytes], bool]:
+    """npTDMS's streaming reader over a file object this module closes (npTDMS leaves it open when it fails),
+    and whether the file is cut short (npTDMS said so in its log, which is kept off the console here)."""
     from nptdms import TdmsFile  # imported on use
 
-    return open_with(path, "TDMS", TdmsFile.open)
+    with _nptdms_log() as said:
+        tdms, stream = open_with(path, "TDMS", TdmsFile.open)
+    return tdms, stream, any(sign in line for line in said for sign in _CUT_SHORT)
+
+
+@contextlib.contextmanager
+def _nptdms_log() -> Iterator[list[str]]:
+    """The lines npTDMS's loggers (``nptdms.*``, each with its own console handler) log meanwhile, kept
+    instead of printed."""
+    said: list[str] = []
+
+    def keep(record: logging.LogRecord) -> bool:
+        said.append(record.getMessage())
+        return False
+
+    loggers = [logging.getLogger(name) for name in list(logging.root.manager.loggerDict) if name.startswith("nptdms.")]
+    for logger in loggers:
+        logger.addFilter(keep)
+    try:
+        yield said
+    finally:
+        for logger in loggers:
+            logger.removeFilter(keep)
+
+
+def _cut_short(channels: dict[str, Any]) -> str:
+    """The reason of a TDMS file cut short, with what npTDMS can read of each channel."""
+    lengths = ", ".join(f"{name} {len(channel)}" for name, channel in channels.items())
+    return f"truncated: the file ends inside its last segment (readable values: {lengths})"
 
 
 def _channels(tdms: Any) -> dict[str, Any]:
@@ -71,9 +108,10 @@ class TdmsLog(MeasurementLog):
     """
 
     _tdms: Any = None
+    _cut = False
 
     def _open(self) -> tuple[Any, ...]:
-        self._tdms, stream = _open_tdms(self.path)
+        self._tdms, stream, self._cut = _open_tdms(self.path)
         return self._tdms, stream
 
     def _locate(self, role: str, channels: dict[str, Any]) -> Any:
@@ -127,6 +165,11 @@ class TdmsLog(MeasurementLog):
             channels = _channels(self._tdms)
         except Exception as exc:
             raise LogFormatError(self.path, None, f"not a readable TDMS file ({type(exc).__name__}: {exc})") from exc
+        if self._cut:
+            if not self.skip_bad:
+                raise LogFormatError(self.path, None, f"{_cut_short(channels)}; --skip-bad-rows reads up to the cut")
+            self.counters.frames += 1  # the cut: one corrupt frame, as a CAN log's
+            self.counters.corrupt += 1
         found = {r: self._locate(r, channels) for r in ROLES}
         present = [r for r in ROLES if found[r] is not None]
         motor = found["motor"]
@@ -168,10 +211,11 @@ def wf_start_unix_s(value: Any) -> float | None:
     return seconds if np.isfinite(seconds) and seconds >= UNIX_TIME_MIN else None
 
 
-def describe(path: str | os.PathLike[str]) -> list[ChannelInfo]:
-    """Every ``group/channel`` of a TDMS file with its unit, length and waveform rate (``inspect``)."""
+def describe(path: str | os.PathLike[str]) -> tuple[list[ChannelInfo], str | None]:
+    """Every ``group/channel`` of a TDMS file with its unit, readable length and waveform rate (``inspect``),
+    and why the file is truncated (None when it is whole)."""
     path = os.fspath(path)
-    tdms, stream = _open_tdms(path)
+    tdms, stream, cut = _open_tdms(path)
     try:
         infos = []
         for name, channel in _channels(tdms).items():
@@ -180,7 +224,7 @@ def describe(path: str | os.PathLike[str]) -> list[ChannelInfo]:
             rate = float(f"{1.0 / float(increment):.6g}") if isinstance(increment, (int, float)) and increment > 0 else None
             dtype = np.dtype(channel.dtype).name if channel.dtype is not None else "none"
             infos.append(ChannelInfo(name, dtype, len(channel), channel.group_name, props.get("unit_string"), rate))
-        return infos
+        return infos, _cut_short(_channels(tdms)) if cut else None
     except Exception as exc:
         raise LogFormatError(path, None, f"not a readable TDMS file ({type(exc).__name__}: {exc})") from exc
     finally:

@@ -56,10 +56,11 @@ def _record(name: str, index: int, members: list[ODVariable], array: bool = Fals
 
 def write_eds(
     path: Path, node: int, mapped: list[tuple[int, int]], *, resolution: int | None, trans_type: int = 1, sync: bool = True,
-    second: list[tuple[int, int]] | None = None,
+    second: list[tuple[int, int]] | None = None, factor_group: dict[int, tuple[int, int]] | None = None,
 ) -> Path:
     """A servo drive's EDS written by ``canopen.export_od``: TPDO1 (COB-ID $NODEID+0x180) maps ``mapped`` objects (32 bits each),
-    TPDO2 ($NODEID+0x280) the ``second`` ones, both of transmission type ``trans_type``."""
+    TPDO2 ($NODEID+0x280) the ``second`` ones, both of transmission type ``trans_type``; ``factor_group`` gives the
+    CiA 402 ratio objects 0x6091 (gear ratio) and 0x6092 (feed constant) as (sub 1, sub 2)."""
     od = canopen.ObjectDictionary()
     u8, u32, i32 = datatypes.UNSIGNED8, datatypes.UNSIGNED32, datatypes.INTEGER32
     if sync:
@@ -85,6 +86,12 @@ def write_eds(
             _var("Highest sub-index supported", 0x608F, 0, u8, 2),
             _var("Encoder increments", 0x608F, 1, u32, resolution),
             _var("Motor revolutions", 0x608F, 2, u32, 1),
+        ]))
+    names = {0x6091: ("Gear ratio", "Motor shaft revolutions", "Driving shaft revolutions"), 0x6092: ("Feed constant", "Feed", "Shaft revolutions")}
+    for index, (top, bottom) in (factor_group or {}).items():
+        name, first, second_name = names[index]
+        od.add_object(_record(name, index, [
+            _var("Number of entries", index, 0, u8, 2), _var(first, index, 1, u32, top), _var(second_name, index, 2, u32, bottom),
         ]))
     canopen.export_od(od, str(path))
     return path
@@ -337,6 +344,46 @@ def test_listen_can_live_on_a_virtual_bus_replays_to_the_same_estimate(tmp_path,
     assert main(["estimate", str(raw), "--eds", str(eds), "--node", "3", "--load-cpr", str(2**LOAD_BITS), "--ratio", "30", "--json"]) == 0
     replayed = json.loads(capsys.readouterr().out)
     assert replayed["backlash_deg"] == live["backlash_deg"] and replayed["samples"] == live["samples"]
+
+
+E35_RESOLUTION = 2000  # 0x608F of the canopen package's sample CiA 402 drive, examples/eds/e35.eds
+
+
+@pytest.fixture(scope="module")
+def e35_like(tmp_path_factory) -> dict[str, Path]:
+    """Drives whose factor group is the one of the ``canopen`` package's sample drive ``e35.eds``: feed constant
+    0x6092 = 1/1 and gear ratio 0x6091 = 1/1 (the unit defaults), position encoder resolution 0x608F = 2000/1
+    (written here from the library's objects: the wheel does not ship the file)."""
+    folder = tmp_path_factory.mktemp("e35")
+    defaults = {0x6091: (1, 1), 0x6092: (1, 1)}
+    return {
+        "e35": write_eds(folder / "e35_like.eds", 3, [(0x6064, 0), (0x60E4, 1)], resolution=E35_RESOLUTION, factor_group=defaults),
+        "no_resolution": write_eds(folder / "feed_only.eds", 3, [(0x6064, 0), (0x60E4, 1)], resolution=None, factor_group=defaults),
+        "set_feed": write_eds(folder / "set_feed.eds", 3, [(0x6064, 0)], resolution=E35_RESOLUTION, factor_group={0x6092: (3600, 1), 0x6091: (2, 1)}),
+    }
+
+
+def test_a_feed_constant_at_its_unit_default_takes_the_encoder_resolution(tmp_path, capsys, rec, e35_like):
+    """e35.eds read as 1 count per revolution gave ``backlash: nan deg`` with exit 0; 0x608F gives the real play."""
+    layout = CanopenLayout.from_files(e35_like["e35"], 3, load_cpr=2**LOAD_BITS)
+    assert layout.motor.counts_per_rev == E35_RESOLUTION
+    assert CanopenLayout.from_files(e35_like["set_feed"], 3, load_node=4, load_cpr=100).motor.counts_per_rev == 1800  # 3600 / 2
+    rig = Rig("co-e35", {3: e35_like["e35"]})
+    log = tmp_path / "e35.blf"
+    values = {(3, 0x6064, 0): int32(counts(rec.motor_deg, E35_RESOLUTION)), (3, 0x60E4, 1): int32(counts(rec.load_deg, 2**LOAD_BITS))}
+    try:
+        record("co-e35", lambda: rig.play(rec, values), log)
+    finally:
+        rig.close()
+    assert main(["estimate", str(log), "--eds", str(e35_like["e35"]), "--node", "3", "--load-cpr", str(2**LOAD_BITS), "--ratio", "30", "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["backlash_deg"] == pytest.approx(0.5, abs=0.05)
+    assert main(["estimate", str(log), "--eds", str(e35_like["no_resolution"]), "--node", "3", "--load-cpr", "4096", "--ratio", "30"]) == 1
+    err = capsys.readouterr().err
+    assert err == (
+        f"error: {e35_like['no_resolution']}: node 3: no counts per revolution in the dictionary (the feed constant 0x6092 is 1/1, "
+        "the unit default, and no position encoder resolution 0x608F; a set feed constant 0x6092 / gear ratio 0x6091 would give "
+        "them): give --motor-cpr\n"
+    )
 
 
 def test_bad_dictionaries_and_nodes_name_the_file_and_the_object(tmp_path, capsys, drives):

@@ -105,6 +105,7 @@ def test_parquet_and_csv_columns_with_types_and_rows(capsys, tmp_path):
     assert out == {
         "path": str(csv_path),
         "kind": "csv",
+        "truncated": None,
         "channels": [
             {"name": "time", "dtype": "float64", "samples": 3, "group": None, "unit": None, "rate_hz": None},
             {"name": "motor", "dtype": "float64", "samples": 3, "group": None, "unit": None, "rate_hz": None},
@@ -146,11 +147,14 @@ def test_can_log_ids_with_counts_rates_and_dbc_names(capsys, tmp_path):
     "name, content, reason",
     [
         ("missing.mf4", None, "no such file"),
-        ("notes.txt", b"hello", "inspect reads"),
+        ("notes.xyz", b"hello", "inspect reads"),
         ("broken.mf4", b"MDF     4.10    " + bytes(50), "not a readable MDF file"),
-        ("broken.parquet", b"PAR1garbage", "not a readable Parquet file"),
-        ("broken.tdms", b"TDSn" + bytes(40), "not a readable TDMS file"),
-        ("empty.csv", b"", "cannot read as CSV"),
+        ("broken.parquet", b"PAR1garbage", "truncated Parquet file: it does not end with 'PAR1'"),
+        ("broken.tdms", b"TDSn" + bytes(40), "not a TDMS file: it starts with b'TDSn"),
+        ("random.tdms", np.random.default_rng(1).bytes(5000), "not a TDMS file: it starts with"),
+        ("random.blf", np.random.default_rng(2).bytes(5000), "not a BLF file: it starts with"),
+        ("empty.blf", b"", "empty file, not a BLF file"),
+        ("empty.csv", b"", "1: empty file"),
     ],
 )
 def test_bad_files_give_one_error_line_naming_the_file(capsys, tmp_path, name, content, reason):
@@ -160,3 +164,39 @@ def test_bad_files_give_one_error_line_naming_the_file(capsys, tmp_path, name, c
     code, out, err = run(capsys, str(path))
     assert code == 1 and out == ""
     assert err.startswith(f"error: {path}") and reason in err and len(err.strip().splitlines()) == 1
+
+
+def _cut(path, share: float = 0.5):
+    data = path.read_bytes()
+    cut = path.with_name(f"cut_{path.name}")
+    cut.write_bytes(data[: int(len(data) * share)])
+    return cut
+
+
+def test_files_cut_short_say_so_in_their_own_terms(capsys, tmp_path, many_channels):
+    """Written by their libraries, then cut in half: a TDMS file and a BLF list what is readable and say they are
+    truncated (before: npTDMS's log lines, the header's count, exit 0 in silence); an MDF4 and a Parquet file that
+    cannot be read say they are cut short, not "unpack requires a buffer of 8 bytes"."""
+    n = 4000
+    tdms = tmp_path / "bench.tdms"
+    with TdmsWriter(tdms) as writer:  # one segment, as one write of LabVIEW's
+        writer.write_segment([ChannelObject("Enc", name, np.arange(n, dtype=float), properties={"wf_increment": 1e-3}) for name in ("Motor", "Load")])
+    code, out, err = run(capsys, str(_cut(tdms)))
+    samples = {c["name"]: c["samples"] for c in json.loads(run(capsys, str(_cut(tdms)), "--json")[1])["channels"]}
+    assert code == 0 and "[nptdms" not in err and "Enc/Motor" in out
+    assert err.startswith(f"warning: {_cut(tdms)}: truncated: the file ends inside its last segment (readable values: Enc/Motor")
+    assert 0 < samples["Enc/Motor"] < n and samples["Enc/Load"] < n
+    blf = tmp_path / "bus.blf"
+    with can.BLFWriter(str(blf)) as writer:
+        for i in range(n):
+            writer.on_message_received(can.Message(timestamp=1.7e9 + i * 1e-3, arbitration_id=0x101, data=i.to_bytes(4, "little")))
+    summary = inspect_json(capsys, str(_cut(blf)))
+    assert 0 < summary["frames"] < n and summary["truncated"].startswith("truncated: ") and "bytes its header announces" in summary["truncated"]
+    assert inspect_json(capsys, str(blf))["truncated"] is None
+    code, _, err = run(capsys, str(_cut(many_channels)))
+    assert code == 1 and err == f"error: {_cut(many_channels)}: truncated or damaged MDF file: a block it links to runs past its end " \
+        f"({_cut(many_channels).stat().st_size} bytes)\n"
+    table = tmp_path / "lake.parquet"
+    pq.write_table(pa.table({"time": np.arange(n) * 1e-3, "motor": np.zeros(n), "load": np.zeros(n)}), table)
+    code, _, err = run(capsys, str(_cut(table)))
+    assert code == 1 and "truncated Parquet file: it does not end with 'PAR1' as a whole one does" in err

@@ -18,6 +18,7 @@ import numpy as np
 import pytest
 
 from online_backlash.cli import main
+from online_backlash.cli._common import EXIT_NO_PLAY
 from online_backlash.errors import InvalidParameterError
 from online_backlash.fitting import fit_batch, fit_recursive
 from online_backlash.load_aware import DwellTracker, TorqueBacklash, TorqueBacklashRLS, count_torque_reversals, engaged_flank, torque_deadband, torque_noise_std
@@ -34,8 +35,12 @@ STIFFNESS = 0.1  # N m/arcmin, the simulator's default
 
 
 def _estimate(capsys, path: Path, *argv: str) -> dict:
-    assert main(["estimate", str(path), *argv, "--json"]) == 0, capsys.readouterr().err
-    return json.loads(capsys.readouterr().out)
+    """``estimate --json``: exit 0 with a play, EXIT_NO_PLAY (and the report) without one."""
+    code = main(["estimate", str(path), *argv, "--json"])
+    out, err = capsys.readouterr()
+    report = json.loads(out)
+    assert code == (0 if report["backlash_deg"] is not None else EXIT_NO_PLAY), err
+    return report
 
 
 # -- engagement from the torque ------------------------------------------------------------------
@@ -169,8 +174,10 @@ def test_a_preloaded_drive_reports_no_play(capsys, logs):
         d = _estimate(capsys, out / "preloaded.csv", "--ratio", "30", "--method", method)
         assert d["play_observable"] is False and d["backlash_deg"] is None and d["torque_reversals"] == 0
         assert d["lost_motion_arcmin"] is None and d["stiffness_nm_per_arcmin"] == pytest.approx(STIFFNESS, rel=0.1)
-    assert main(["estimate", str(out / "preloaded.csv"), "--ratio", "30"]) == 0
-    text = capsys.readouterr().out
+    assert main(["estimate", str(out / "preloaded.csv"), "--ratio", "30"]) == EXIT_NO_PLAY  # never exit 0 without a play
+    text, err = capsys.readouterr()
+    assert err.startswith(f"error: {out / 'preloaded.csv'}: no play: not observable: the transmitted torque never reversed")
+    assert "backlash:       none" in text
     assert sum("not observable" in line for line in text.splitlines()) == 1
     assert "torque never reversed" in text
 

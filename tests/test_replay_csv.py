@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import codecs
 import csv
 import gzip
 import math
@@ -15,7 +16,7 @@ from hypothesis import strategies as st
 
 from online_backlash.codecs.gaps import GapDetector
 from online_backlash.errors import BacklashWarning, InvalidParameterError, LogFormatError
-from online_backlash.replay import CsvLog, open_log, read_csv_arrays
+from online_backlash.replay import CsvLog, open_log, read_csv_arrays, read_log_arrays
 from online_backlash.replay.csv import CsvDialect, sniff_dialect
 from online_backlash.stream import Sample
 
@@ -340,3 +341,83 @@ def test_measured_recordings_load_and_fit_sensibly(name):
     # the data README measures 1.6-1.7 deg of total lost motion (gearhead, output side)
     assert 1.4 < est.backlash_ < 2.0
     assert 0.97 < est.m_left_ < 1.03 and 0.97 < est.m_right_ < 1.03
+
+
+def _excel_rows(frame) -> list[list[str]]:
+    return [list(frame.columns)] + [[repr(v) for v in row] for row in frame.itertuples(index=False)]
+
+
+def _comment_preamble(path: Path, frame) -> dict:
+    with open(path, "w", newline="") as f:
+        f.write("# logger v2.1\n# rig 7, channel map below\n")
+        csv.writer(f).writerows(_excel_rows(frame))
+    return {}
+
+
+def _windows_semicolon(path: Path, frame) -> dict:
+    """A Windows export: cp1252, ``;``, decimal comma, a degree sign in the header."""
+    with open(path, "w", encoding="cp1252", newline="") as f:
+        writer = csv.writer(f, delimiter=";")
+        writer.writerow(["time [s]", "motor [°]", "load [°]"])
+        writer.writerows([[repr(v).replace(".", ",") for v in row] for row in frame.itertuples(index=False)])
+    return {"encoding": "cp1252", "columns": {"time": "time [s]", "motor": "motor [°]", "load": "load [°]"}}
+
+
+def _excel_unicode_text(path: Path, frame, codec: str = "utf-16") -> dict:
+    """Excel's "Unicode text": UTF-16 with a byte-order mark, tab separated, CRLF (``codecs`` writes the mark)."""
+    with codecs.open(str(path), "w", encoding=codec) as f:
+        if codec != "utf-16":  # utf-16 writes its own mark; the explicit-endian codecs do not
+            f.write("\ufeff")
+        csv.writer(f, delimiter="\t", lineterminator="\r\n").writerows(_excel_rows(frame))
+    return {}
+
+
+@pytest.mark.parametrize(
+    "name, writer",
+    [
+        ("commented.csv", _comment_preamble),
+        ("windows.csv", _windows_semicolon),
+        ("unicode.txt", _excel_unicode_text),
+        ("unicode_be.txt", lambda p, f: _excel_unicode_text(p, f, "utf-16-be")),
+        ("utf8_bom.tsv", lambda p, f: _excel_unicode_text(p, f, "utf-8")),
+    ],
+)
+def test_files_people_have_read_the_same_samples(tmp_path, name, writer):
+    import pandas as pd
+
+    frame = pd.DataFrame({"time": np.arange(50) * 1e-3, "motor": np.sin(np.arange(50) / 7.0) * 30, "load": np.cos(np.arange(50) / 9.0)})
+    options = writer(tmp_path / name, frame)
+    chunk = read_log_arrays(tmp_path / name, **options)
+    assert np.array_equal(chunk.time_s, frame["time"]) and np.array_equal(chunk.motor_deg, frame["motor"])
+    assert np.array_equal(chunk.load_deg, frame["load"])
+
+
+def test_a_comment_character_skips_its_lines_anywhere_and_lines_keep_their_numbers(tmp_path):
+    path = write(tmp_path, "% exported 2026-11-22\ntime,motor,load\n0,1,2\n% pause\n0.001,1,2\n  % resumed\n0.002,x,2\n", "pct.csv")
+    with pytest.raises(LogFormatError, match=r"pct.csv:7: not a number"):
+        read_csv_arrays(path, comment="%")
+    with pytest.raises(LogFormatError, match=r"pct.csv:1: header has no column"):
+        read_csv_arrays(path)  # '%' is not sniffed: only '#'
+    path.write_text(path.read_text().replace("0.002,x,2", "0.002,1,2"))
+    assert read_csv_arrays(path, comment="%").time_s.tolist() == [0.0, 0.001, 0.002]
+    with pytest.raises(InvalidParameterError, match="comment must be one character"):
+        CsvLog(path, comment="1")
+
+
+def test_a_byte_not_in_utf8_names_the_encoding_option(tmp_path):
+    path = tmp_path / "win.csv"
+    path.write_bytes("time;motor [°];load\n0;1;2\n".encode("cp1252"))
+    with pytest.raises(LogFormatError, match=r"win.csv:1: not a text CSV file: not UTF-8 \(byte 0xB0.*--encoding"):
+        read_csv_arrays(path, columns={"motor": "motor [°]"})
+    with pytest.raises(InvalidParameterError, match="unknown text encoding 'klingon'"):
+        CsvLog(path, encoding="klingon")
+
+
+def test_nul_bytes_are_refused_from_the_first_block_however_large_the_file(tmp_path):
+    """A 2 GiB sparse file of NUL bytes (no disk used): refused from its first 4 KB, not read to its end
+    (before: "field larger than field limit" after 18 s)."""
+    path = tmp_path / "zeros.csv"
+    with open(path, "wb") as f:
+        f.truncate(2 << 30)
+    with pytest.raises(LogFormatError, match=r"zeros.csv:1: not a text CSV file: NUL bytes in its first 4096 bytes \(binary data"):
+        read_csv_arrays(path)

@@ -118,7 +118,7 @@ def test_a_truncated_blf_names_the_file_and_the_frame(tmp_path, frames):
     data = path.read_bytes()
     cut = tmp_path / "cut.blf"
     cut.write_bytes(data[: len(data) // 2])
-    with pytest.raises(LogFormatError, match=r"cut\.blf:\d+: unreadable frame") as info:
+    with pytest.raises(LogFormatError, match=r"cut\.blf:\d+: truncated: \d+ of the \d+ bytes its header announces") as info:
         list(open_log(cut, **SPLIT))
     assert 0 < info.value.line < len(frames)
     log = open_log(cut, **SPLIT, skip_bad=True)

@@ -111,8 +111,10 @@ def test_non_finite_and_backward_time_raise_or_are_counted(tmp_path):
 
 
 def test_a_truncated_file_raises_or_gives_its_complete_part(small, tmp_path):
-    # npTDMS reads the complete segments of a file cut short (a recorder that crashed): what it
-    # gives is whole samples of both channels; a file cut inside its first header is an error
+    # npTDMS reads the complete segments of a file cut short (a recorder that crashed), with only a
+    # log line as a sign: the file is refused as truncated, naming what is readable; with skip_bad
+    # the whole samples of both channels are read and the cut counted as corrupt (issue 26);
+    # a file cut inside its first header is an error
     data = small.read_bytes()
     path = tmp_path / "cut5.tdms"
     path.write_bytes(data[:5])
@@ -121,8 +123,11 @@ def test_a_truncated_file_raises_or_gives_its_complete_part(small, tmp_path):
     for cut in (len(data) // 2, len(data) - 7):
         path = tmp_path / f"cut{cut}.tdms"
         path.write_bytes(data[:cut])
-        values, counters = read_all(path, columns=MAP)
-        assert 0 < values.shape[0] <= 200 and counters.frames == counters.samples + counters.skipped
+        with pytest.raises(LogFormatError, match=rf"cut{cut}.tdms: truncated: the file ends inside its last segment \(readable values: Rig/Motor"):
+            read_all(path, columns=MAP)
+        values, counters = read_all(path, columns=MAP, skip_bad=True)
+        assert 0 < values.shape[0] <= 200 and counters.frames == counters.samples + counters.skipped + counters.corrupt
+        assert counters.corrupt == 1
         np.testing.assert_allclose(values[:, 1], 30 * np.sin(values[:, 0]))
         np.testing.assert_allclose(values[:, 2], np.sin(values[:, 0]), atol=1e-12)
 

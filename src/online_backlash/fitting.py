@@ -22,6 +22,7 @@ from .bridging import GapTally
 from .estimators import BacklashRLS, VorosBacklash
 from .estimators.uncertainty import SCATTER_EVERY_S, EstimateAt, RecursivePlayScatter
 from .load_aware import DwellTracker, TorqueBacklash, TorqueBacklashRLS
+from .load_aware.datasheet import DatasheetFigures
 from .load_aware.engagement import torque_orientation
 from .load_aware.report import batch_keys, has_torque, kinematic_keys, recursive_keys, why_not_observable
 from .pipeline import OrderedWorker, Pipeline, PipelineStep, check_every
@@ -36,7 +37,48 @@ PLAUSIBLE_PLAY_DEG = 5.0
 #: its worker thread, with ``ahead`` > 0 (:class:`~online_backlash.pipeline.OrderedWorker`; 0: inline).
 BOOKKEEPING_AHEAD = 2
 
-__all__ = ["ARCMIN_PER_DEG", "TRACE_COLUMNS", "BacklashReport", "describe", "fit_batch", "fit_recursive"]
+__all__ = [
+    "ARCMIN_PER_DEG", "TRACE_COLUMNS", "BacklashReport", "describe", "fit_batch", "fit_recursive", "plausibility",
+]
+
+
+def plausibility(
+    m_left: float, m_right: float, backlash_deg: float, ratio: float, with_torque: bool = False
+) -> str | None:
+    """One sentence naming the likely cause when a fit of eq. (1) looks like wrong units or ratio, else None.
+
+    After referring (``u = motor / ratio``) the flanks of eq. (1) have slopes near +-1; a slope
+    ``m`` far from that (``|m|`` outside :data:`PLAUSIBLE_SLOPE`) means the two angles are in
+    different units (counts under a degrees header, wrong counts per revolution) or the ratio
+    is off by ``m`` (``ratio / m`` would give slope 1). A play ``backlash_deg`` above
+    :data:`PLAUSIBLE_PLAY_DEG` degrees points at counts read as degrees; a negative play is not
+    physical (``with_torque``: wind-up and play not told apart). Shared by ``estimate`` (the
+    report's fit) and ``diagnose`` (its base fit).
+    """
+    slopes = [m for m in (m_left, m_right) if np.isfinite(m)]
+    low, high = PLAUSIBLE_SLOPE
+    if slopes and not all(low <= abs(m) <= high for m in slopes):
+        m = float(np.mean(slopes))
+        return (
+            f"fitted slope {m:.4g}, not near +-1 after referring: the motor and load angles are likely in different "
+            f"units (encoder counts under a degrees header: give --units counts --motor-cpr N --load-cpr N; or wrong "
+            f"counts per revolution), or the ratio is off (--ratio {ratio / m:.4g} would give slope 1)"
+        )
+    if np.isfinite(backlash_deg) and backlash_deg < 0:
+        why = (
+            "with torque, the flank offsets at zero torque are an extrapolation the data do not support here (the "
+            "torque barely varies on each flank, so wind-up and play are confounded): read lost_motion_arcmin, or "
+            "leave out the torque column for the kinematic play"
+            if with_torque
+            else "the flanks cross: check the sign of --ratio and the units"
+        )
+        return f"a negative play ({backlash_deg:.4g} deg) is not physical: {why}"
+    if np.isfinite(backlash_deg) and abs(backlash_deg) > PLAUSIBLE_PLAY_DEG:
+        return (
+            f"a play of {backlash_deg:.4g} deg is more than gearboxes have: check the units (counts read as degrees: "
+            "--units counts --motor-cpr N --load-cpr N) and the ratio"
+        )
+    return None
 
 
 @dataclass
@@ -77,39 +119,28 @@ class BacklashReport:
         )
 
     def plausibility(self, ratio: float) -> str | None:
-        """One sentence naming the likely cause when the fit looks like wrong units or ratio, else None.
+        """:func:`plausibility` of this fit (a torque column: ``torque_reversals`` is set)."""
+        return plausibility(self.m_left, self.m_right, self.backlash_deg, ratio, self.torque_reversals is not None)
 
-        After referring (``u = motor / ratio``) the flanks of eq. (1) have slopes near +-1; a slope
-        ``m`` far from that (``|m|`` outside :data:`PLAUSIBLE_SLOPE`) means the two angles are in
-        different units (counts under a degrees header, wrong counts per revolution) or the ratio
-        is off by ``m`` (``ratio / m`` would give slope 1). A play above :data:`PLAUSIBLE_PLAY_DEG`
-        degrees points at counts read as degrees; a negative play is not physical (with torque: wind-up
-        and play not told apart).
-        """
-        slopes = [m for m in (self.m_left, self.m_right) if np.isfinite(m)]
-        low, high = PLAUSIBLE_SLOPE
-        if slopes and not all(low <= abs(m) <= high for m in slopes):
-            m = float(np.mean(slopes))
-            return (
-                f"fitted slope {m:.4g}, not near +-1 after referring: the motor and load angles are likely in different units "
-                f"(encoder counts under a degrees header: give --units counts --motor-cpr N --load-cpr N; or wrong counts per "
-                f"revolution), or the ratio is off (--ratio {ratio / m:.4g} would give slope 1)"
-            )
-        if np.isfinite(self.backlash_deg) and self.backlash_deg < 0:
-            why = (
-                "with torque, the flank offsets at zero torque are an extrapolation the data do not support here (the torque "
-                "barely varies on each flank, so wind-up and play are confounded): read lost_motion_arcmin, or leave out the "
-                "torque column for the kinematic play"
-                if self.torque_reversals is not None
-                else "the flanks cross: check the sign of --ratio and the units"
-            )
-            return f"a negative play ({self.backlash_deg:.4g} deg) is not physical: {why}"
-        if np.isfinite(self.backlash_deg) and abs(self.backlash_deg) > PLAUSIBLE_PLAY_DEG:
-            return (
-                f"a play of {self.backlash_deg:.4g} deg is more than gearboxes have: check the units (counts read as degrees: "
-                "--units counts --motor-cpr N --load-cpr N) and the ratio"
-            )
-        return None
+    def take_datasheet(self, drawn: BacklashReport) -> BacklashReport:
+        """Take the data-sheet figures (stiffness, lost motion, hysteresis loss: :class:`DatasheetFigures`' keys)
+        of the batch fit ``drawn`` whose curve was plotted, so that the text and the plot show one figure,
+        computed once; marked ``datasheet_fit``. A fit without torque has none to take. Returns self."""
+        if drawn.torque_reversals is None:
+            return self
+        keys = drawn.as_dict()
+        self.add_load_keys({name: keys.get(name) for name in DatasheetFigures.__dataclass_fields__})
+        self.extra["datasheet_fit"] = "batch fit of the whole log, as plotted"
+        return self
+
+    def no_play_reason(self) -> str | None:
+        """Why the report has no finite play, in one line (None when it has one): the data's reason
+        where the play is not observable, else a fit that gave no number (check units and ratio)."""
+        if math.isfinite(self.backlash_deg):
+            return None
+        return why_not_observable(self.as_dict()) or (
+            "the fit gave no finite play: check the units (--units, --motor-cpr/--load-cpr) and --ratio"
+        )
 
     def add_load_keys(self, keys: Mapping[str, Any]) -> BacklashReport:
         """Take the load-aware keys (:mod:`online_backlash.load_aware.report`): the declared ones as
@@ -285,7 +316,9 @@ def describe(report: BacklashReport, source: str | os.PathLike[str] | None = Non
     lines += [
         f"method:         {report.method}",
         f"samples:        {report.samples}",
-        f"backlash:       {report.backlash_deg:.4f} deg  ({report.backlash_arcmin:.2f} arcmin, load side)",
+        f"backlash:       {report.backlash_deg:.4f} deg  ({report.backlash_arcmin:.2f} arcmin, load side)"
+        if math.isfinite(report.backlash_deg)
+        else "backlash:       none",
         f"  left flank:   {report.c_left_deg:.4f} deg from the start position, slope {report.m_left:.5f}",
         f"  right flank:  {report.c_right_deg:.4f} deg from the start position, slope {report.m_right:.5f}",
         f"residual RMS:   {report.residual_rms_deg:.5f} deg",
@@ -306,7 +339,7 @@ def describe(report: BacklashReport, source: str | os.PathLike[str] | None = Non
 def _load_lines(report: BacklashReport) -> list[str]:
     """The report's load-aware lines: why the play is not observable (one line), the data-sheet figures."""
     lines = []
-    reason = why_not_observable(report.as_dict())
+    reason = report.no_play_reason()
     if reason is not None:
         bound = report.backlash_lower_bound_deg
         lines.append(f"play:           {reason}" + (f"; at least {bound:.4f} deg" if bound else ""))
@@ -320,7 +353,8 @@ def _load_lines(report: BacklashReport) -> list[str]:
         )
     if report.lost_motion_arcmin is not None:
         at = report.extra.get("lost_motion_torque_Nm", math.nan)
-        lines.append(f"lost motion:    {report.lost_motion_arcmin:.3f} arcmin at +-{at:.4g} N m ({report.extra.get('lost_motion_basis')})")
+        basis = "; ".join(b for b in (report.extra.get("lost_motion_basis"), report.extra.get("datasheet_fit")) if b)
+        lines.append(f"lost motion:    {report.lost_motion_arcmin:.3f} arcmin at +-{at:.4g} N m ({basis})")
     if report.hysteresis_loss_arcmin is not None:
         lines.append(f"hysteresis loss: {report.hysteresis_loss_arcmin:.3f} arcmin")
     return lines

@@ -24,16 +24,21 @@ import csv
 import fnmatch
 import os
 from collections import Counter
+from collections.abc import Sequence
 from dataclasses import asdict, dataclass, field, replace
+from pathlib import Path
 from typing import Any
 
 from .errors import LogFormatError
-from .replay.csv import file_dialect, open_text, unreadable
+from .replay.csv import CSV_SUFFIXES, UNREADABLE, file_dialect, header_names, open_text, uncommented, unreadable
 from .replay.measurement import MEASUREMENT_READERS, is_measurement_log
 from .replay.paths import file_suffix
 from .replay.tabular import ChannelInfo
 
 __all__ = ["CanIdInfo", "ChannelInfo", "FileSummary", "inspect_file"]
+
+#: Rows of a CSV whose cells decide each column's type.
+SAMPLE_ROWS = 10000
 
 
 @dataclass(frozen=True)
@@ -54,13 +59,15 @@ class CanIdInfo:
 
 @dataclass
 class FileSummary:
-    """What :func:`inspect_file` found in ``path`` (a file of format ``kind``)."""
+    """What :func:`inspect_file` found in ``path`` (a file of format ``kind``); ``truncated`` says why a file is
+    cut short (None when whole): the counts are then what is readable up to the cut."""
 
     path: str
     kind: str
     channels: list[ChannelInfo] = field(default_factory=list)
     can_ids: list[CanIdInfo] = field(default_factory=list)
     frames: int | None = None
+    truncated: str | None = None
 
     def matching(self, pattern: str | None) -> FileSummary:
         """The summary restricted to names matching a shell pattern (``*enc*``), case-insensitive; a plain word matches as a substring."""
@@ -74,9 +81,9 @@ class FileSummary:
         )
 
     def as_dict(self) -> dict[str, Any]:
-        """A JSON-ready dict: ``path``, ``kind``, ``channels`` (with ``shape`` for MATLAB and HDF5 variables) or
-        ``can_ids`` (and ``frames`` for CAN logs)."""
-        out: dict[str, Any] = {"path": self.path, "kind": self.kind}
+        """A JSON-ready dict: ``path``, ``kind``, ``truncated``, ``channels`` (with ``shape`` for MATLAB and HDF5
+        variables) or ``can_ids`` (and ``frames`` for CAN logs)."""
+        out: dict[str, Any] = {"path": self.path, "kind": self.kind, "truncated": self.truncated}
         if self.kind == "can":
             out["frames"] = self.frames
             out["can_ids"] = [{**asdict(i), "id": i.label} for i in self.can_ids]
@@ -92,20 +99,21 @@ def _channel_dict(channel: ChannelInfo) -> dict[str, Any]:
 
 
 def inspect_file(
-    path: str | os.PathLike[str], dbc: str | os.PathLike[str] | None = None, delimiter: str | None = None, decimal: str | None = None
+    path: str | os.PathLike[str], dbc: str | os.PathLike[str] | None = None, **csv_options: str | None
 ) -> FileSummary:
     """List what the file at ``path`` holds (its format chosen as :func:`~online_backlash.replay.open_log` does).
 
-    ``dbc`` names the CAN IDs of a CAN log; ``delimiter`` and ``decimal`` override a CSV's sniffed
-    dialect (:func:`~online_backlash.replay.csv.sniff_dialect`). Raises LogFormatError for a file that cannot be read
-    or a format with nothing to list (a raw serial capture).
+    ``dbc`` names the CAN IDs of a CAN log; ``csv_options`` (``delimiter``, ``decimal``, ``comment``, ``encoding``)
+    override what is sniffed of a CSV (:func:`~online_backlash.replay.csv.sniff_dialect`). Raises LogFormatError for a
+    file that cannot be read (a CSV row with another number of fields than its header, named by its line) or a
+    format with nothing to list (a raw serial capture).
     """
     path = os.fspath(path)
     if not os.path.isfile(path):
         raise LogFormatError(path, None, "no such file" if not os.path.exists(path) else "not a file: inspect one file")
     suffix = file_suffix(path)
-    if suffix == ".csv":
-        return FileSummary(path, "csv", _csv_columns(path, delimiter=delimiter, decimal=decimal))
+    if suffix in CSV_SUFFIXES:
+        return FileSummary(path, "csv", _csv_columns(path, **csv_options))
     if is_measurement_log(path):
         if suffix in (".mf4", ".mdf"):
             from .replay.mdf import describe as mdf_channels
@@ -114,7 +122,8 @@ def inspect_file(
         if suffix == ".tdms":
             from .replay.tdms import describe as tdms_channels
 
-            return FileSummary(path, "tdms", tdms_channels(path))
+            channels, cut = tdms_channels(path)
+            return FileSummary(path, "tdms", channels, truncated=cut)
         if suffix in (".mat", ".h5", ".hdf5"):
             return _variables(path)
         from .replay.parquet import ARROW_SUFFIXES
@@ -125,7 +134,7 @@ def inspect_file(
 
     if suffix in CAN_LOG_SUFFIXES:
         return _can_ids(path, dbc)
-    known = sorted({".csv", *MEASUREMENT_READERS, *CAN_LOG_SUFFIXES})
+    known = sorted({*CSV_SUFFIXES, *MEASUREMENT_READERS, *CAN_LOG_SUFFIXES})
     raise LogFormatError(path, None, f"inspect reads {', '.join(known)} files, not {suffix or 'files without a suffix'!r}")
 
 
@@ -141,33 +150,62 @@ def _variables(path: str) -> FileSummary:
     return FileSummary(path, kind, variables)
 
 
-def _csv_columns(path: str, sample_rows: int = 10000, delimiter: str | None = None, decimal: str | None = None) -> list[ChannelInfo]:
-    """The header's columns, each with the type pandas infers from the first rows and the file's data row count
-    (the dialect sniffed as the CSV reader does, or given)."""
-    import pandas as pd
+def _csv_columns(
+    path: str, delimiter: str | None = None, decimal: str | None = None, comment: str | None = None,
+    encoding: str | None = None,
+) -> list[ChannelInfo]:
+    """The header's columns, each with its type in the first :data:`SAMPLE_ROWS` rows and the file's data row count,
+    the file read as the CSV reader reads it (encoding, dialect and comment lines sniffed or given); a row with
+    another number of fields than the header raises LogFormatError naming its line."""
+    with open_text(path, encoding) as f:
+        dialect = file_dialect(f, path, delimiter, decimal, comment)
+        consumed = dialect.preamble  # lines before the one being read: the header, then the rows the reader has read
+        reader = csv.reader(uncommented(f, comment), delimiter=dialect.delimiter)  # reads on from the header's end
+        head: list[list[str]] = []
+        rows = 0
+        try:
+            header = header_names(f.readline(), dialect)
+            if not any(header):
+                raise LogFormatError(path, consumed + 1, "empty file: expected a header row naming the columns")
+            consumed += 1
+            for fields in reader:
+                if not fields or not any(cell.strip() for cell in fields):
+                    continue
+                if len(fields) != len(header):
+                    reason = f"expected {len(header)} columns, got {len(fields)}"
+                    raise LogFormatError(path, consumed + reader.line_num, reason)
+                rows += 1
+                if len(head) < SAMPLE_ROWS:
+                    head.append(fields)
+        except UNREADABLE as exc:
+            raise unreadable(path, consumed + reader.line_num + 1, exc) from exc
+        except csv.Error as exc:
+            raise LogFormatError(path, consumed + reader.line_num, f"not a CSV row ({exc})") from exc
+    columns = list(zip(*head)) if head else [()] * len(header)
+    return [ChannelInfo(name, _column_type(cells, dialect.decimal), rows) for name, cells in zip(header, columns)]
 
+
+def _column_type(cells: Sequence[str], decimal: str) -> str:
+    """``int64``, ``float64`` (numbers with the file's ``decimal`` mark; an empty cell among integers too) or
+    ``string``, as pandas would infer the column (``string`` for a header without rows)."""
+    filled = [cell.strip() for cell in cells if cell.strip()]
+    if not cells:
+        return "string"
     try:
-        with open_text(path) as f:
-            dialect = file_dialect(f, path, delimiter, decimal)
-            header = next(csv.reader([f.readline()], delimiter=dialect.delimiter), [])
-            rows = sum(1 for line in f if line.strip())
-        with open_text(path) as f:
-            head = pd.read_csv(f, nrows=sample_rows, sep=dialect.delimiter, decimal=dialect.decimal)
-    except LogFormatError:
-        raise
-    except UnicodeDecodeError as exc:
-        raise unreadable(path, 1, exc) from exc
-    except (OSError, EOFError, ValueError, pd.errors.ParserError) as exc:
-        raise LogFormatError(path, None, f"cannot read as CSV ({type(exc).__name__}: {exc})") from exc
-    if not [h for h in header if h.strip()]:
-        raise LogFormatError(path, 1, "empty file: expected a header row naming the columns")
-    dtypes = {str(k): str(v) if pd.api.types.is_numeric_dtype(v) else "string" for k, v in head.dtypes.items()}
-    return [ChannelInfo(name.strip(), dtypes.get(name, "object"), rows) for name in header]
+        [int(cell) for cell in filled]
+        return "int64" if len(filled) == len(cells) else "float64"
+    except ValueError:
+        pass
+    try:
+        [float(cell.replace(decimal, ".")) for cell in filled]
+        return "float64"
+    except ValueError:
+        return "string"
 
 
 def _can_ids(path: str, dbc: str | os.PathLike[str] | None) -> FileSummary:
-    """Frames per CAN ID of a python-can log, with the DBC's message names."""
-    import can
+    """Frames per CAN ID of a python-can log, with the DBC's message names (a truncated BLF: up to the cut)."""
+    from .replay.canlog import blf_cut, open_can_log
 
     names = _dbc_names(dbc) if dbc is not None else {}
     counts: Counter[tuple[int, bool]] = Counter()
@@ -175,7 +213,7 @@ def _can_ids(path: str, dbc: str | os.PathLike[str] | None) -> FileSummary:
     last: dict[tuple[int, bool], float] = {}
     index = 0
     try:
-        with can.LogReader(path) as reader:
+        with open_can_log(Path(path)) as reader:
             for index, message in enumerate(reader):  # noqa: B007 (index names the failing frame)
                 if message.is_error_frame:
                     continue
@@ -183,6 +221,9 @@ def _can_ids(path: str, dbc: str | os.PathLike[str] | None) -> FileSummary:
                 counts[key] += 1
                 first.setdefault(key, message.timestamp)
                 last[key] = message.timestamp
+        cut = blf_cut(Path(path), reader)
+    except LogFormatError:
+        raise
     except Exception as exc:  # every python-can reader fails its own way on a damaged file
         raise LogFormatError(path, index, f"cannot read the CAN log ({type(exc).__name__}: {exc})") from exc
     ids = []
@@ -190,7 +231,7 @@ def _can_ids(path: str, dbc: str | os.PathLike[str] | None) -> FileSummary:
         span = last[(can_id, extended)] - first[(can_id, extended)]
         rate = float(f"{(n - 1) / span:.6g}") if n > 1 and span > 0 else None
         ids.append(CanIdInfo(can_id, extended, n, rate, names.get((can_id, extended))))
-    return FileSummary(path, "can", can_ids=ids, frames=sum(counts.values()))
+    return FileSummary(path, "can", can_ids=ids, frames=sum(counts.values()), truncated=cut)
 
 
 def _dbc_names(dbc: str | os.PathLike[str]) -> dict[tuple[int, bool], str]:

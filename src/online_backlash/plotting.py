@@ -104,21 +104,34 @@ def plot_hysteresis(curve: Any, path: str | os.PathLike[str], title: str = "", n
 
 
 def plot_fit(
-    chunk: Any, ratio: float, path: str | os.PathLike[str], *, rated_torque_Nm: float | None = None, title: str = "", note: str = ""
-) -> None:
-    """Fit a whole log by the batch method and plot it: with a torque column the data-sheet hysteresis
-    curve (:func:`plot_hysteresis`), without one the backlash characteristic (:func:`plot_characteristic`).
+    chunk: Any,
+    ratio: float,
+    path: str | os.PathLike[str],
+    *,
+    rated_torque_Nm: float | None = None,
+    title: str = "",
+    note: str = "",
+    fitted: tuple[Any, Any] | None = None,
+) -> Any:
+    """Plot the batch fit of a whole log: with a torque column the data-sheet hysteresis curve
+    (:func:`plot_hysteresis`), without one the backlash characteristic (:func:`plot_characteristic`).
 
-    ``chunk`` is the whole log as a :class:`~online_backlash.stream.SampleChunk`; ``ratio`` motor:load.
+    ``chunk`` is the whole log as a :class:`~online_backlash.stream.SampleChunk`; ``ratio`` motor:load;
+    ``fitted`` the ``(report, estimator)`` of :func:`~online_backlash.fitting.fit_batch` on it, when
+    already made (else it is fitted here). Returns that report: the curve's lost motion is the
+    report's, computed once, so that a text and the plot show one figure.
     """
     from .fitting import fit_batch  # the fit, only when a plot is asked for
     from .load_aware import TorqueBacklash
-    from .load_aware.datasheet import datasheet_figures, hysteresis_curve
+    from .load_aware.datasheet import DatasheetFigures, hysteresis_curve
 
-    _, est = fit_batch(chunk, ratio, rated_torque_Nm=rated_torque_Nm)
+    report, est = fitted if fitted is not None else fit_batch(chunk, ratio, rated_torque_Nm=rated_torque_Nm)
     u, y = chunk.referred(ratio)
     if isinstance(est, TorqueBacklash):
-        figures = datasheet_figures(est, u, y, chunk.torque_Nm, rated_torque_Nm)
+        keys = report.as_dict()
+        values: dict[str, Any] = {name: keys.get(name) for name in DatasheetFigures.__dataclass_fields__}
+        figures = DatasheetFigures(**values)
         plot_hysteresis(hysteresis_curve(est, u, y, chunk.torque_Nm, figures), path, title, note)
     else:
         plot_characteristic(u, y, est.predict(u, y[0]), path, title)
+    return report

@@ -173,15 +173,30 @@ class SampleSource(ABC):
         self.close()
 
 
+#: Range of a gear ratio's magnitude, motor:load: a speed-up of 1:10,000 to a reduction of 100,000:1 (a worm and a
+#: planetary stage); beyond it the referred motor angle carries no resolvable motion or swamps the fit (--ratio 1e308).
+RATIO_LIMITS = (1e-4, 1e5)
+
+
+def check_ratio(ratio: float) -> float:
+    """``ratio`` as a float if it is a gear ratio motor:load: finite, non-zero, ``|ratio|`` within
+    :data:`RATIO_LIMITS`; else InvalidParameterError saying what was expected."""
+    low, high = RATIO_LIMITS
+    if not isinstance(ratio, (int, float)) or not math.isfinite(ratio) or ratio == 0:
+        raise InvalidParameterError(f"ratio must be a finite non-zero number, got {ratio!r}")
+    if not low <= abs(ratio) <= high:
+        limits = f"{low:g} <= |ratio| <= {high:g}"
+        raise InvalidParameterError(f"ratio must be a gear ratio with {limits} (motor:load), got {ratio!r}")
+    return float(ratio)
+
+
 def refer_to_load(motor_deg: np.ndarray | float, ratio: float) -> np.ndarray | float:
     """Motor angle referred to the load side, degrees: ``u = motor_deg / ratio``.
 
     ``ratio`` is the gear ratio motor:load (e.g. 30 for a 30:1 reducer); it is negative
-    for a stage that reverses the direction of rotation.
+    for a stage that reverses the direction of rotation (:func:`check_ratio`).
     """
-    if not isinstance(ratio, (int, float)) or not math.isfinite(ratio) or ratio == 0:
-        raise InvalidParameterError(f"ratio must be a finite non-zero number, got {ratio!r}")
-    return motor_deg / ratio
+    return motor_deg / check_ratio(ratio)
 
 
 @dataclass

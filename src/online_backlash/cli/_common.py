@@ -13,8 +13,17 @@ from typing import Any
 
 from ..errors import BacklashError, BacklashWarning, InvalidParameterError, NotExcitedError
 
+#: The formats a log may be in, as ``estimate``, ``diagnose`` and ``track`` read them (the help of their LOG argument).
+LOG_FORMATS = (
+    ".csv[.gz] or delimited .txt/.tsv (a torque column is used when mapped); a measurement file "
+    "(.mf4 .mdf .tdms .parquet .arrow .feather, channels by --columns); a CAN log (.asc .blf .log .trc .mf4 ..., "
+    "with --dbc or --eds); a serial capture (.serial, with --serial-format)"
+)
 #: Exit code of a command that failed (argparse uses 2 for bad options, an interrupt 130).
 EXIT_ERROR = 1
+#: Exit code of a report without a play figure (the data do not show the play, or the fit gave no number):
+#: the report is printed, the reason goes to stderr, and a script never takes a missing play for a result.
+EXIT_NO_PLAY = 3
 
 
 def run_command(func: Callable[[argparse.Namespace], int | None], args: argparse.Namespace) -> int:
@@ -89,18 +98,50 @@ def add_log_options(parser: argparse.ArgumentParser) -> None:
 
 
 def add_csv_dialect_options(group: argparse._ActionsContainer) -> None:
-    """``--delimiter C --decimal M``: override the sniffed CSV dialect (German Excel: ``--delimiter ';' --decimal ,``)."""
+    """``--delimiter C --decimal M --comment C --encoding E``: override what is sniffed of a CSV or delimited text
+    file (German Excel: ``--delimiter ';' --decimal ,``; a Windows export: ``--encoding cp1252``)."""
     group.add_argument(
         "--delimiter", type=_delimiter, metavar="C",
         help="CSV field separator (one character; 'tab' for a tab); default: sniffed from the file (, ; tab |)",
     )
     group.add_argument("--decimal", choices=(".", ","), help="CSV decimal mark; default: sniffed (',' only with a separator other than ',')")
+    group.add_argument(
+        "--comment", metavar="C", type=_comment,
+        help="CSV lines starting with this character are comments, skipped anywhere; default: '#' lines before "
+        "the header",
+    )
+    group.add_argument(
+        "--encoding", metavar="NAME", type=_encoding,
+        help="CSV text encoding, e.g. cp1252 (Windows), latin-1, utf-16; default: UTF-8, or what a byte-order "
+        "mark says",
+    )
 
 
 def csv_dialect_options(args: argparse.Namespace) -> dict[str, str]:
-    """The ``delimiter``/``decimal`` keyword arguments of a CSV reader that the user gave."""
-    given = {"delimiter": getattr(args, "delimiter", None), "decimal": getattr(args, "decimal", None)}
+    """The ``delimiter``/``decimal``/``comment``/``encoding`` keyword arguments of a CSV reader that the user gave."""
+    given = {name: getattr(args, name, None) for name in ("delimiter", "decimal", "comment", "encoding")}
     return {k: v for k, v in given.items() if v is not None}
+
+
+def _comment(text: str) -> str:
+    from ..replay.csv import check_dialect
+
+    return _checked(text, lambda c: check_dialect(None, None, c))[1]
+
+
+def _encoding(text: str) -> str:
+    from ..replay.csv import check_encoding
+
+    return _checked(text, check_encoding)[1]
+
+
+def _checked(text: str, parse: Callable[[str], Any]) -> tuple[Any, str]:
+    """``(parse(text), text)``: a value parsed or checked by the library, its InvalidParameterError as argparse's
+    error of the option."""
+    try:
+        return parse(text), text
+    except InvalidParameterError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from exc
 
 
 def _delimiter(text: str) -> str:
@@ -111,11 +152,38 @@ def _delimiter(text: str) -> str:
     return value
 
 
-def warn_if_implausible(report: Any, args: argparse.Namespace) -> None:
-    """Print one line ``warning: LOG: ...`` on stderr when the fit of ``args.log`` looks like wrong units or ratio."""
-    note = report.plausibility(args.ratio)
+def warn_if_implausible(note: str | None, source: str) -> None:
+    """Print one line ``warning: SOURCE: note`` on stderr when a fit's plausibility check
+    (:func:`~online_backlash.fitting.plausibility`) found likely wrong units or ratio."""
     if note is not None:
-        print(f"warning: {args.log}: {note}", file=sys.stderr)
+        print(f"warning: {source}: {note}", file=sys.stderr)
+
+
+def play_exit_code(play_deg: float, source: str, reason: str | None = None) -> int:
+    """The exit code of a command that printed a play: 0 for a finite ``play_deg``; else one line
+    ``error: SOURCE: no play: reason`` on stderr and :data:`EXIT_NO_PLAY` (never exit 0 with a NaN play)."""
+    if math.isfinite(play_deg):
+        return 0
+    why = reason or "the fit gave no finite play: check the units (--units, --motor-cpr/--load-cpr) and --ratio"
+    print(f"error: {source}: no play: {why}", file=sys.stderr)
+    return EXIT_NO_PLAY
+
+
+def files_written(args: argparse.Namespace) -> dict[str, str]:
+    """What a command wrote besides its report: ``--plot``, ``--trace`` and ``--report`` files, kind -> path
+    (printed after a text report, so a user knows where to look)."""
+    return {kind: getattr(args, kind) for kind in ("plot", "trace", "report") if getattr(args, kind, None)}
+
+
+def print_report(text_or_json: str | dict[str, Any], written: dict[str, str]) -> None:
+    """Print a command's report (a text, or a dict as one JSON object, whose reader gave the paths) and, after
+    a text, one line per file written: ``plot:           FILE``."""
+    if isinstance(text_or_json, dict):
+        print_json(text_or_json)
+        return
+    print(text_or_json)
+    for kind, path in written.items():
+        print(f"{kind + ':':<16}{path}")
 
 
 def check_plot_path(path: str | None) -> None:
@@ -134,7 +202,7 @@ def add_ratio_option(parser: argparse.ArgumentParser, required: bool = True) -> 
     """``--ratio R``: motor:load gear ratio; negative for a stage that reverses direction."""
     parser.add_argument(
         "--ratio",
-        type=nonzero_float,
+        type=gear_ratio,
         required=required,
         help="gear ratio motor:load (motor angle is divided by it; negative for a reversing stage)",
     )
@@ -250,17 +318,15 @@ def _integer_in(low: int, high: int) -> Callable[[str], int]:
 
 #: argparse type of a CANopen node-ID (1..127).
 node_id_type = _integer_in(1, 127)
+#: argparse type of a TCP port (0: any free one).
+port_type = _integer_in(0, 65535)
 
 
 def wrap_deg_type(text: str) -> Any:
     """argparse type of ``--wrap-deg``: ``DEG`` or ``motor=DEG,load=DEG`` (:func:`~online_backlash.codecs.dbc.parse_wrap_deg`)."""
     from ..codecs.dbc import parse_wrap_deg
-    from ..errors import InvalidParameterError
 
-    try:
-        return parse_wrap_deg(text)
-    except InvalidParameterError as exc:
-        raise argparse.ArgumentTypeError(str(exc)) from exc
+    return _checked(text, parse_wrap_deg)[0]
 
 
 def positive_float(text: str) -> float:
@@ -271,12 +337,30 @@ def positive_float(text: str) -> float:
     return value
 
 
-def nonzero_float(text: str) -> float:
-    """argparse type of a finite, non-zero number (a gear ratio; negative for a reversing stage)."""
+def nonnegative_float(text: str) -> float:
+    """argparse type of options that must be finite and zero or more, e.g. ``--bridge-s`` seconds."""
     value = _float(text)
-    if not (math.isfinite(value) and value != 0):
-        raise argparse.ArgumentTypeError(f"expected a finite non-zero number, got {text!r}")
+    if not (math.isfinite(value) and value >= 0):
+        raise argparse.ArgumentTypeError(f"expected a number >= 0, got {text!r}")
     return value
+
+
+#: argparse type of a count that may be 0 (``--max-terms``).
+count_type = _integer_in(0, 10**9)
+
+
+def gear_ratio(text: str) -> float:
+    """argparse type of a gear ratio motor:load (negative for a reversing stage): a finite, non-zero number
+    whose magnitude is within :data:`~online_backlash.stream.RATIO_LIMITS`."""
+    from ..stream import RATIO_LIMITS, check_ratio
+
+    try:
+        return check_ratio(_float(text))
+    except InvalidParameterError:
+        low, high = RATIO_LIMITS
+        raise argparse.ArgumentTypeError(
+            f"expected a finite non-zero number, a gear ratio motor:load with {low:g} <= |R| <= {high:g}; got {text!r}"
+        ) from None
 
 
 def nonempty_text(text: str) -> str:

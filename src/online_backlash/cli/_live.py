@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import os
 import signal
 import threading
 from collections.abc import Callable
@@ -40,6 +41,8 @@ def open_serial_source(args: argparse.Namespace) -> LiveSource:
 
 def _live_options(args: argparse.Namespace) -> dict[str, Any]:
     """The options every live source takes: counts per revolution, raw capture, period, duration, timeout."""
+    if os.path.exists(args.raw_log) and not os.path.isdir(args.raw_log):
+        raise InvalidParameterError(f"--raw-log {args.raw_log}: is a file; the raw captures go into a folder")
     return {
         "motor_cpr": args.motor_cpr,
         "load_cpr": args.load_cpr,

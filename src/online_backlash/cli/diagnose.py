@@ -6,8 +6,21 @@ import argparse
 
 from .._allocator import keep_freed_memory
 from ..bridging import GapTally
+from ..fitting import plausibility
 from ..rows import describe_counts, source_counts
-from ._common import add_can_decoding_options, add_log_options, add_ratio_option, check_plot_path, positive_float, print_json
+from ._common import (
+    LOG_FORMATS,
+    add_can_decoding_options,
+    add_log_options,
+    add_ratio_option,
+    check_plot_path,
+    count_type,
+    files_written,
+    play_exit_code,
+    positive_float,
+    print_report,
+    warn_if_implausible,
+)
 from .estimate import read_counted, write_trace
 
 
@@ -23,21 +36,19 @@ def add_subparser(subparsers: argparse._SubParsersAction) -> None:
         formatter_class=argparse.ArgumentDefaultsHelpFormatter,
     )
     parser.add_argument(
-        "log",
-        help="recorded log: .csv[.gz] (a torque column is used when mapped); a CAN log (with --dbc); a serial capture (with --serial-format)",
-    )
+        "log", help=f"recorded log: {LOG_FORMATS}")
     add_ratio_option(parser)
     parser.add_argument("--json", action="store_true", help="print one JSON object")
     parser.add_argument("--plot", metavar="FILE.png", help="write the residual before/after plot")
     parser.add_argument("--report", metavar="FILE.md", help="write a Markdown report")
-    parser.add_argument("--max-terms", type=int, default=6, help="most terms (named or generic) to add")
+    parser.add_argument("--max-terms", type=count_type, default=6, help="most terms (named or generic) to add")
     parser.add_argument(
         "--floor-ratio", type=positive_float, metavar="R",
         help="stop adding terms once the residual RMS is within R times the noise floor (the loop's default: 1.25; "
         "a larger R stops sooner, e.g. 1.5)",
     )
     parser.add_argument(
-        "--screen-cycles", type=int, metavar="N",
+        "--screen-cycles", type=count_type, metavar="N",
         help="on a record of at least 3N reversal cycles and 300,000 samples, score and refit the candidates on N cycles "
         "spread over it (more if N hold fewer than 100,000 samples), then configure and fit the terms chosen on every sample "
         "(the loop's default: 10; 0: every cycle, slower on long logs)",
@@ -56,14 +67,14 @@ def add_subparser(subparsers: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    keep_freed_memory()  # a one-shot process: its large arrays reuse the memory freed by the last ones
+    check_plot_path(args.plot)
+    chunk, source = read_counted(args)  # first: a file that cannot be read fails before the diagnostics load
     # imported here: the diagnostics (scipy) load only for this subcommand, not for every CLI start
     from ..diagnostics.loop import diagnose
     from ..diagnostics.plot import plot_diagnosis
     from ..diagnostics.report import markdown_report
 
-    keep_freed_memory()  # a one-shot process: its large arrays reuse the memory freed by the last ones
-    check_plot_path(args.plot)
-    chunk, source = read_counted(args)
     counts = {**source_counts(source.counters.as_dict()), **GapTally.of_chunk(chunk).values()}
     options = {} if args.floor_ratio is None else {"floor_ratio": args.floor_ratio}
     if args.screen_cycles is not None:
@@ -77,10 +88,8 @@ def run(args: argparse.Namespace) -> int:
     if args.report:
         with open(args.report, "w", encoding="utf-8") as f:
             f.write(text + "\n")
-    if args.json:
-        print_json({**result.as_dict(), **counts})
-    else:
-        print(text)
-        if describe_counts(counts):
-            print(f"source: {describe_counts(counts)}")
-    return 0
+    source_line = f"\nsource: {describe_counts(counts)}" if describe_counts(counts) else ""
+    print_report({**result.as_dict(), **counts} if args.json else text + source_line, files_written(args))
+    base = result.base
+    warn_if_implausible(plausibility(base.m_left_, base.m_right_, base.backlash_, args.ratio), args.log)
+    return play_exit_code(result.final.params.play, args.log)

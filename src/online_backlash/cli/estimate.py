@@ -16,15 +16,19 @@ from ..pipeline import READ_AHEAD
 from ..rows import TRACE_COLUMNS, EstimateRow
 from ..stream import SampleChunk, SampleSource, read_all
 from ._common import (
+    LOG_FORMATS,
     add_can_decoding_options,
     add_log_options,
     add_ratio_option,
     can_decoding_options,
     check_plot_path,
     csv_dialect_options,
+    files_written,
+    nonnegative_float,
     parse_column_map,
+    play_exit_code,
     positive_float,
-    print_json,
+    print_report,
     warn_if_implausible,
 )
 
@@ -41,10 +45,7 @@ def add_subparser(subparsers: argparse._SubParsersAction) -> None:
         formatter_class=argparse.ArgumentDefaultsHelpFormatter,
     )
     parser.add_argument(
-        "log",
-        help="recorded log: .csv[.gz]; a measurement file (.mf4 .mdf .tdms .parquet .arrow, channels by --columns); "
-        "a CAN log (.asc .blf .log .trc ..., with --dbc); a serial capture (.serial, with --serial-format)",
-    )
+        "log", help=f"recorded log: {LOG_FORMATS}; or a listen --raw-log folder")
     add_ratio_option(parser)
     parser.add_argument("--method", choices=("recursive", "batch"), default="recursive", help="estimator")
     parser.add_argument("--json", action="store_true", help="print one JSON object")
@@ -60,19 +61,23 @@ def add_subparser(subparsers: argparse._SubParsersAction) -> None:
     group = parser.add_argument_group("recursive method")
     group.add_argument("--trace", metavar="FILE.csv", help="write the estimate over time: " + ",".join(TRACE_COLUMNS))
     group.add_argument("--every", metavar="S", type=positive_float, default=1.0, help="seconds of data between trace rows")
-    group.add_argument("--memory-reversals", type=float, default=10.0, help="memory of the estimator, in reversals")
-    group.add_argument("--memory-s", type=float, help="memory in seconds of motion (instead of / besides reversals)")
-    group.add_argument("--sample-period", type=float, default=0.001, help="sampling period of the log, seconds")
     group.add_argument(
-        "--bridge-s", type=float, default=BRIDGE_S,
+        "--memory-reversals", type=positive_float, default=10.0, help="memory of the estimator, in reversals"
+    )
+    group.add_argument(
+        "--memory-s", type=positive_float, help="memory in seconds of motion (instead of / besides reversals)"
+    )
+    group.add_argument("--sample-period", type=positive_float, default=0.001, help="sampling period of the log, s")
+    group.add_argument(
+        "--bridge-s", type=nonnegative_float, default=BRIDGE_S,
         help="longest gap (seconds) the estimator is carried across, keeping its state; 0: every gap restarts it",
     )
     group.add_argument(
-        "--jump-deg", type=float, default=JUMP_DEG,
+        "--jump-deg", type=nonnegative_float, default=JUMP_DEG,
         help="a step of either angle (deg, load side) larger than this across a gap is a jump in the data and restarts",
     )
     parser.add_argument(
-        "--period", type=float, metavar="S",
+        "--period", type=positive_float, metavar="S",
         help="nominal sample period for gap detection (CSV, CAN log, serial capture), as given to listen/track; learnt if not given. "
         "With a frame counter (CAN, serial, CANopen), sample times are then first time + counter periods x S, not the jittery timestamps",
     )
@@ -86,6 +91,7 @@ def add_subparser(subparsers: argparse._SubParsersAction) -> None:
 def log_options(args: argparse.Namespace) -> dict:
     """Reader options from the log-format arguments (by the log's suffix)."""
     from ..replay import log_suffix  # the readers (python-can, asammdf) load only when a log is read, not for --help
+    from ..replay.csv import CSV_SUFFIXES
     from ..replay.measurement import is_measurement_log
 
     suffix = log_suffix(args.log)
@@ -96,7 +102,8 @@ def log_options(args: argparse.Namespace) -> dict:
             "serial_format": args.serial_format, "motor_cpr": args.motor_cpr, "load_cpr": args.load_cpr,
             "skip_bad": args.skip_bad_rows, "realtime": getattr(args, "realtime", False), **timing,
         }
-    if suffix != ".csv" and not is_measurement_log(args.log):  # a CAN log (or an unknown suffix, which open_log reports)
+    # a CAN log (or an unknown suffix, which open_log reports)
+    if suffix not in CSV_SUFFIXES and not is_measurement_log(args.log):
         counts = {k: None if v is None else int(v) for k, v in (("motor_cpr", args.motor_cpr), ("load_cpr", args.load_cpr))}
         return {
             **can_decoding_options(args), **counts, "skip_bad": args.skip_bad_rows, "realtime": getattr(args, "realtime", False), **timing,
@@ -107,8 +114,8 @@ def log_options(args: argparse.Namespace) -> dict:
         "motor_cpr": args.motor_cpr,
         "load_cpr": args.load_cpr,
         "skip_bad": args.skip_bad_rows,
-        **(timing if suffix == ".csv" else {}),
-        **(csv_dialect_options(args) if suffix == ".csv" else {}),
+        **(timing if suffix in CSV_SUFFIXES else {}),
+        **(csv_dialect_options(args) if suffix in CSV_SUFFIXES else {}),
     }
 
 
@@ -125,11 +132,13 @@ def run(args: argparse.Namespace) -> int:
 
     keep_freed_memory()  # a one-shot process: its large arrays reuse the memory freed by the last ones
     check_plot_path(args.plot)
+    fitted = None
     if args.method == "batch":
         if args.trace:
             raise InvalidParameterError("--trace needs --method recursive")
         chunk, source = read_counted(args)
-        report, _ = fit_batch(chunk, args.ratio, rated_torque_Nm=args.rated_torque)
+        fitted = fit_batch(chunk, args.ratio, rated_torque_Nm=args.rated_torque)
+        report = fitted[0]
     else:
         params = {
             "memory_reversals": args.memory_reversals, "memory_s": args.memory_s, "sample_period_s": args.sample_period,
@@ -145,13 +154,13 @@ def run(args: argparse.Namespace) -> int:
         from ..plotting import plot_fit  # matplotlib: only for a plot
 
         whole = chunk if args.method == "batch" else read_counted(args)[0]
-        plot_fit(whole, args.ratio, args.plot, rated_torque_Nm=args.rated_torque, title=os.path.basename(args.log))
-    if args.json:
-        print_json(report.as_dict())
-    else:
-        print(describe(report, args.log))
-    warn_if_implausible(report, args)
-    return 0
+        title = os.path.basename(args.log)
+        drawn = plot_fit(whole, args.ratio, args.plot, rated_torque_Nm=args.rated_torque, title=title, fitted=fitted)
+        if fitted is None:  # the data-sheet figures of the curve drawn, not a second set from the recursive fit
+            report.take_datasheet(drawn)
+    print_report(report.as_dict() if args.json else describe(report, args.log), files_written(args))
+    warn_if_implausible(report.plausibility(args.ratio), args.log)
+    return play_exit_code(report.backlash_deg, args.log, report.no_play_reason())
 
 
 def write_trace(

@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import argparse
+import sys
 from dataclasses import replace
 from typing import TYPE_CHECKING, Any
 
@@ -30,7 +31,7 @@ def add_subparser(subparsers: argparse._SubParsersAction) -> None:
     )
     parser.add_argument(
         "file", nargs="?",
-        help="a .csv[.gz], .parquet, .arrow/.feather, .mf4/.mdf, .tdms, .mat, .h5/.hdf5 file "
+        help="a .csv[.gz] (or delimited .txt .tsv), .parquet, .arrow/.feather, .mf4/.mdf, .tdms, .mat, .h5/.hdf5 file "
         "or a CAN log (.asc .blf .log .trc .mf4 ...)",
     )
     parser.add_argument("--dbc", metavar="FILE", help="name the CAN IDs of a CAN log by this DBC ('rig' for the shipped rig.dbc)")
@@ -66,6 +67,9 @@ def run(args: argparse.Namespace) -> int:
         out = summary.as_dict()
     if nodes:
         out["nodes"] = [node.as_dict() for node in nodes]
+    if summary is not None and summary.truncated is not None:
+        readable = "the counts are what is readable up to the cut"
+        print(f"warning: {summary.path}: {summary.truncated}; {readable}", file=sys.stderr)
     if args.json:
         print_json(out)
         return 0
@@ -118,7 +122,6 @@ def _print_node(node: NodeMapping) -> None:
 def _canopen_nodes(args: argparse.Namespace) -> list[NodeMapping]:
     """The ``(--eds, --node)`` pairs (one --eds for every --node, or one each; ``--load-node``/``--load-eds``
     add one more, as in ``estimate``), each node's mapping read from its dictionary."""
-    from ..codecs.canopen import NodeMapping
     from ..errors import InvalidParameterError
 
     eds, node_ids = args.eds or [], args.node or []
@@ -137,6 +140,8 @@ def _canopen_nodes(args: argparse.Namespace) -> list[NodeMapping]:
         pairs.append((args.load_eds or eds[0], args.load_node))
     elif args.load_eds is not None:
         raise InvalidParameterError("--load-eds is the dictionary of --load-node: give --load-node too")
+    from ..codecs.canopen import NodeMapping  # canopen loads only for dictionaries
+
     seen = [node for _, node in pairs]
     twice = sorted({node for node in seen if seen.count(node) > 1})
     if twice:

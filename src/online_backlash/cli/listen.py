@@ -18,7 +18,7 @@ from typing import Any
 from ..errors import LogFormatError, SourceError
 from ..fitting import describe, fit_recursive
 from ..rows import EstimateRow, arcmin
-from ._common import add_can_decoding_options, add_ratio_option, print_json
+from ._common import add_can_decoding_options, add_ratio_option, play_exit_code, positive_float, print_json
 from ._live import on_interrupt, open_can_source, open_serial_source
 from ._mqtt import add_listen_mqtt_options, mqtt_publisher, mqtt_summary_line, mqtt_tls, row_sink
 
@@ -67,14 +67,16 @@ def add_subparser(subparsers: argparse._SubParsersAction) -> None:
 def _add_common(parser: argparse.ArgumentParser) -> None:
     add_ratio_option(parser)
     parser.add_argument("--raw-log", required=True, metavar="DIR", help="directory for the raw captures (written before decoding)")
-    parser.add_argument("--duration", type=float, metavar="S", help="stop after S seconds; without it, at Ctrl-C")
-    parser.add_argument("--timeout", type=float, metavar="S", help="fail when nothing arrives for S seconds")
+    parser.add_argument("--duration", type=positive_float, metavar="S", help="stop after S seconds; else at Ctrl-C")
+    parser.add_argument("--timeout", type=positive_float, metavar="S", help="fail when nothing arrives for S seconds")
     parser.add_argument(
         "--period", type=float, metavar="S",
         help="nominal sample period for gap detection; learnt if not given. With a frame counter, sample times are then first time + counter periods x S",
     )
     parser.add_argument("--json", action="store_true", help="print the summary as one JSON object on stdout")
-    parser.add_argument("--status-every", type=float, default=0.5, metavar="S", help="seconds of data between status lines")
+    parser.add_argument(
+        "--status-every", type=positive_float, default=0.5, metavar="S", help="seconds of data between status lines"
+    )
     group = parser.add_argument_group("recursive estimator")
     group.add_argument("--memory-reversals", type=float, default=10.0, help="memory of the estimator, in reversals")
     group.add_argument("--memory-s", type=float, help="memory in seconds of motion (instead of / besides reversals)")
@@ -146,7 +148,7 @@ def run(args: argparse.Namespace) -> int:
         print(f"received:       {_counts(source.counters.as_dict())} in {summary['duration_s']:.1f} s; raw log in {args.raw_log}")
         if publisher is not None:
             print(mqtt_summary_line(publisher))
-    return 0
+    return play_exit_code(report.backlash_deg, label, report.no_play_reason())
 
 
 def _counts(counts: dict[str, int]) -> str:

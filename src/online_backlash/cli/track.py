@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import datetime as dt
+import math
 import sys
 from collections.abc import Iterator
 from contextlib import contextmanager
@@ -17,7 +18,14 @@ from typing import TYPE_CHECKING, Any
 from ..clocks import TIME_UNITS as TIME_UNIT_NAMES
 from ..errors import InvalidParameterError
 from ..rows import describe_counts
-from ._common import add_can_decoding_options, add_log_options, add_ratio_option, positive_float, print_json
+from ._common import (
+    LOG_FORMATS,
+    add_can_decoding_options,
+    add_log_options,
+    add_ratio_option,
+    positive_float,
+    print_json,
+)
 from ._live import on_interrupt, open_can_source, open_serial_source
 from ._mqtt import add_mqtt_option, history_figures, mqtt_publisher, mqtt_summary_line, mqtt_tls
 from .estimate import log_options
@@ -65,9 +73,8 @@ def add_subparser(subparsers: argparse._SubParsersAction) -> None:
         "logs",
         nargs="*",
         metavar="LOG",
-        help="recorded logs (tracked in the order of their first samples' time), or listen --raw-log folders: .csv[.gz]; "
-        "CAN logs (.asc .blf .log .trc ..., with --dbc); "
-        "serial captures (.serial, with --serial-format)",
+        help="recorded logs (tracked in the order of their first samples' time), or listen --raw-log folders: "
+        + LOG_FORMATS,
     )
     add_ratio_option(parser, required=False)
     add_db_options(parser, gearbox_required=False)
@@ -146,8 +153,8 @@ def add_subparser(subparsers: argparse._SubParsersAction) -> None:
     live.add_argument("--port", help="pyserial URL (serial): /dev/ttyUSB0, COM3, socket://host:port")
     live.add_argument("--baud", type=int, default=115200, help="baud rate (serial)")
     live.add_argument("--raw-log", metavar="DIR", help="directory for the raw captures, written before decoding (required with --listen)")
-    live.add_argument("--duration", type=float, metavar="S", help="stop after S seconds; without it, at Ctrl-C")
-    live.add_argument("--timeout", type=float, metavar="S", help="fail when nothing arrives for S seconds")
+    live.add_argument("--duration", type=positive_float, metavar="S", help="stop after S seconds; else at Ctrl-C")
+    live.add_argument("--timeout", type=positive_float, metavar="S", help="fail when nothing arrives for S seconds")
     live.add_argument(
         "--period", type=float, metavar="S",
         help="nominal sample period for gap detection; learnt if not given. With a frame counter, sample times are then first time + counter periods x S",
@@ -355,11 +362,11 @@ def report(result: TrackResult, as_json: bool) -> None:
         line += f" ({result.note})"
     last = result.last_estimate
     if last is not None:
-        std = last["backlash_std_deg"]
-        line += (
-            f"; backlash {last['backlash_deg']:.4f} deg (std {std:.4f}) after {last['operating_hours']:.3f} "
-            "operating hours logged"
-        )
+        play, std, hours = last["backlash_deg"], last["backlash_std_deg"], last["operating_hours"]
+        if play is not None and math.isfinite(play):
+            line += f"; backlash {play:.4f} deg (std {std:.4f}) after {hours:.3f} operating hours logged"
+        else:  # stored as not observable: no figure, never a nan
+            line += f"; the play not observable in the last estimate, after {hours:.3f} operating hours logged"
     if result.machine_hours is not None:
         line += f"; hour meter {result.machine_hours:.2f} h at its end"
     counts = describe_counts(result.counters)

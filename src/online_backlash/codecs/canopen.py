@@ -7,7 +7,8 @@ The motor angle is *position actual value* 0x6064 of the motor node; the load an
 second node (an encoder on the load shaft) or *additional position actual value* 0x60E4 of the
 same node (:func:`find_encoder`). Counts per revolution come from the dictionary where it has them
 (:func:`counts_per_rev`: position units per motor revolution = feed constant 0x6092 / gear ratio
-0x6091, else the position encoder resolution 0x608F) or from the options.
+0x6091 where the feed constant is set; with the feed constant at its unit default 1/1 the position
+is in encoder increments, per the position encoder resolution 0x608F) or from the options.
 
 Synchronous TPDOs (transmission type 0-240): one sample is what the SYNC producer asked for: the
 SYNC frame (COB-ID 0x80 or the dictionary's 0x1005) opens a period, the TPDOs that carry the two
@@ -244,19 +245,27 @@ def _ratio(od: ObjectDictionary, index: int) -> float | None:
 
 def counts_per_rev(od: ObjectDictionary, node_id: int, path: str | os.PathLike[str], given: float | None, option: str) -> float:
     """Position units of 0x6064 per revolution of the node's shaft: ``given``, else feed constant 0x6092
-    over gear ratio 0x6091 (CiA 402 factor group), else position encoder resolution 0x608F
-    (increments / motor revolutions); LogFormatError naming ``path`` and ``option`` when none is known."""
+    over gear ratio 0x6091 (CiA 402 factor group) where the feed constant is set, else position encoder
+    resolution 0x608F (increments / motor revolutions); LogFormatError naming ``path``, the objects and
+    ``option`` when none is known.
+
+    A feed constant of 1/1 is the unit default of drives that leave the factor group alone (the
+    ``canopen`` package's sample drive ``e35.eds``, 0x608F 2000/1): their position is in encoder
+    increments, not in revolutions (1 per revolution would make every count 360 degrees).
+    """
     if given is not None:
         return _positive(given, option)
     feed = _ratio(od, FEED_CONSTANT)
-    if feed is not None:
+    if feed is not None and feed != 1.0:
         return feed / (_ratio(od, GEAR_RATIO) or 1.0)
     resolution = _ratio(od, POSITION_ENCODER_RESOLUTION)
     if resolution is not None:
         return resolution
+    feed_note = "the feed constant 0x6092 is 1/1, the unit default, and " if feed is not None else ""
+    missing = f"{feed_note}no position encoder resolution 0x608F; a set feed constant 0x6092 / gear ratio 0x6091 would"
+    missing += " give them"
     raise LogFormatError(
-        path, None, f"node {node_id}: no counts per revolution in the dictionary (0x608F position encoder resolution, "
-        f"0x6092 feed constant / 0x6091 gear ratio): give {option}"
+        path, None, f"node {node_id}: no counts per revolution in the dictionary ({missing}): give {option}"
     )
 
 

@@ -66,6 +66,19 @@ def lagged_difference(a: np.ndarray, lag: int) -> np.ndarray:
     return out
 
 
+def sample_period_s(time_s: np.ndarray) -> float:
+    """The record's sample period, s: the median of its time steps that advance (a logger that writes
+    a sample twice repeats its time stamp: a step of 0 is no period; with half the steps 0 the plain
+    median was 0, and the initial state's time constants with it); 1.0 for a record without such a step.
+
+    >>> sample_period_s(np.array([0.0, 0.0, 0.5, 0.5, 1.0, 1.0]))
+    0.5
+    """
+    steps = np.diff(np.asarray(time_s, dtype=float))
+    steps = steps[steps > 0]
+    return float(np.median(steps)) if steps.size else 1.0
+
+
 def velocity_deg_s(u: np.ndarray, t: np.ndarray, window: int) -> np.ndarray:
     """Causal velocity ``(u[i] - u[i-w]) / (t[i] - t[i-w])``, deg/s; 0 where no time has passed.
 

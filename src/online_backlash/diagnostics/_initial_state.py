@@ -65,6 +65,7 @@ from typing import Any
 import numpy as np
 
 from ..model import BacklashParams, simulate_backlash, switching_functions
+from ._causal import sample_period_s
 from ._scoring import BIC_THRESHOLD
 
 #: viscous time constants of the coast tried, in sample periods
@@ -348,7 +349,7 @@ def estimate_initial_state(params: BacklashParams, uc_deg: np.ndarray, yc_deg: n
     k_rest = first_engagement(uc, rest, params)  # a load held at 0 until the first flank: the engagement of today's model
     if k_rest < MIN_SAMPLES or t.size < 2:
         return InitialState()
-    period = float(np.median(np.diff(t)))
+    period = sample_period_s(t)
     best: dict[bool, tuple[float, int, InitialState]] = {}  # per kind (moving at the first sample, kicked later)
     starts = np.unique(np.round(np.geomspace(1, k_rest - 1, min(MAX_STARTS, k_rest - 1))).astype(int))
     for j, tau in itertools.product((0, *starts), (period * j for j in TIME_CONSTANTS)):

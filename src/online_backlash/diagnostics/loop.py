@@ -53,6 +53,7 @@ from ..estimators import VorosBacklash
 from ..estimators._validation import check_int, check_real
 from ..model import simulate_backlash
 from ..stream import SampleChunk
+from ._causal import sample_period_s
 from ._folds import SCREEN_CYCLES, Folds, cycle_folds
 from ._initial_state import InitialState, estimate_initial_state
 from ._normal_equations import Projector, left_sum_of_squares
@@ -224,7 +225,7 @@ class Diagnosis:
 
     def profiles(self, bins: int = 40) -> dict[str, tuple[Profile, Profile]]:
         """The simulation residual before and after, binned against time, load angle, motor angle and velocity."""
-        period = float(np.median(np.diff(self.time_s))) if self.time_s.size > 1 else 1.0
+        period = sample_period_s(self.time_s)
         variables = {
             "time": (self.time_s, "s"),
             "load angle": (self.load_deg, "deg"),
@@ -249,7 +250,7 @@ class Diagnosis:
         per-flank harmonics), velocity (delay, velocity function), torque or acceleration
         (compliance), time (drift), time since the switching functions changed (dead band motion)."""
         name = step.effect.name
-        period = float(np.median(np.diff(self.time_s))) if self.time_s.size > 1 else 1.0
+        period = sample_period_s(self.time_s)
         if name == "compliance":
             if getattr(step.effect, "proxy", "") == "torque" and self.torque_Nm is not None:
                 return "torque", "N m", np.nan_to_num(self.torque_Nm, nan=0.0)
@@ -437,7 +438,7 @@ def diagnose(
     before = simulation_residual(base.params_, uc, yc, start.path_deg)
     yc = yc - start.correction_deg(base.params_, uc)  # every fit below runs the model from rest: the start taken out
     noise = noise_floor(y)
-    period = round(float(np.median(np.diff(t))), 12) if t.size > 1 else 1.0  # 0.001, not 0.000999999...
+    period = round(sample_period_s(t), 12)  # 0.001, not 0.000999999...
     folds = cycle_folds(u)
     screen = folds.screen(screen_cycles) if screen_cycles else folds  # a long record's candidates: scored and refitted on these cycles
     rows = screen.cycle_rows if screen.screened else None  # the candidates' refits: every sample of the screen's cycles

@@ -6,6 +6,7 @@ import os
 
 import numpy as np
 
+from ._causal import sample_period_s
 from .loop import Diagnosis
 from .residuals import profile, time_spectrum
 
@@ -19,7 +20,7 @@ def plot_diagnosis(diagnosis: Diagnosis, path: str | os.PathLike[str], title: st
 
     d = diagnosis
     before, after = d.residual_before_deg, d.residual_after_deg
-    period = float(np.median(np.diff(d.time_s))) if d.time_s.size > 1 else 1.0
+    period = sample_period_s(d.time_s)
     step = max(1, before.size // 20000)
     per_step = d.step_residuals()
     rows = 3 + (len(per_step) + 1) // 2

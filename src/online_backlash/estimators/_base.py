@@ -21,13 +21,14 @@ torque in N m.
 
 from __future__ import annotations
 
+import contextlib
 import copy
 import inspect
 import itertools
 import math
 import warnings
 from abc import ABC, abstractmethod
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from typing import Any, Generic, TypeVar
 
@@ -42,6 +43,22 @@ from ._validation import check_int, check_magnitude, check_option, check_real
 _STARTS = ("batch", "cold")
 _ORIGINS = ("first", "zero")
 _WARM_ATTEMPTS = 4  # batch attempts (at 1x..4x warm_start_samples) before a cold start
+
+
+@contextlib.contextmanager
+def _convergence_recorded() -> Iterator[list[warnings.WarningMessage]]:
+    """The ConvergenceWarnings issued inside, recorded instead of shown. ``catch_warnings`` takes every
+    thread's warnings meanwhile (a log reader's, read ahead in its thread): the others are issued again
+    on leaving, so none is lost."""
+    caught: list[warnings.WarningMessage] = []
+    try:
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always", ConvergenceWarning)
+            yield caught
+    finally:
+        for w in caught:
+            if not issubclass(w.category, ConvergenceWarning):
+                warnings.warn_explicit(w.message, w.category, w.filename, w.lineno, source=w.source)
 #: 3: effects saved by name and parameters, with the samples that restore their history
 #: (2, still read: effects by name only; 2 added the model's output X_HAT to the BacklashRLS state)
 STATE_FORMAT = 3
@@ -530,8 +547,7 @@ class RecursiveEstimator(ABC):
         self._fx.reset()  # the replay computes the terms again from the buffer's start
         start: Any
         try:
-            with warnings.catch_warnings(record=True) as caught:
-                warnings.simplefilter("always", ConvergenceWarning)
+            with _convergence_recorded() as caught:
                 start, n_iter = self._warm_fit(u[lo:hi] - u0, y[lo:hi] - y0, terms)
             self.warm_start_ = {
                 "method": "batch",
