@@ -3,11 +3,12 @@
 from __future__ import annotations
 
 import itertools
-import time
+import threading
 
 import can
 import numpy as np
 import pytest
+from can.interfaces.virtual import VirtualBus
 
 from online_backlash import VorosBacklash
 from online_backlash.codecs.dbc import RIG_DBC, DbcDecoder, FrameEncoder, resolve_signal
@@ -195,12 +196,38 @@ def play_live(frames, raw_dir, signals, raw_format, channel):
         for f in frames:
             tx.send(f)
         tx.shutdown()
-        deadline = time.monotonic() + 30
-        while source.counters.frames < len(frames) and time.monotonic() < deadline:
-            time.sleep(0.01)
-        source.stop()
+        source.stop()  # the frames the notifier has not read yet are still waiting on the bus: the stop takes them
         samples = list(source)
     return samples, source
+
+
+class HeldBus(VirtualBus):
+    """A virtual bus whose notifier thread never gets a frame (it waits as on a quiet bus): every frame sent
+    is still waiting when the source stops."""
+
+    def __init__(self, channel: str) -> None:
+        super().__init__(channel=channel)
+        self.quiet = threading.Event()  # never set
+
+    def _recv_internal(self, timeout):
+        if threading.current_thread() is threading.main_thread():
+            return super()._recv_internal(timeout)
+        self.quiet.wait(timeout)
+        return None, False
+
+
+def test_the_frames_still_waiting_on_the_bus_at_a_stop_are_logged_and_learned(tmp_path, rec):
+    frames = list(rig_can_frames(rec, DbcDecoder(RIG_DBC, *SPLIT), T0))
+    tx = can.Bus(interface="virtual", channel="held", preserve_timestamps=True)
+    with CanSource(HeldBus("held"), RIG_DBC, *SPLIT, raw_log_dir=tmp_path) as source:
+        for f in frames:
+            tx.send(f)
+        tx.shutdown()
+        source.request_stop()  # Ctrl-C right after the last frame
+        samples = list(source)
+    assert source.counters.frames == source.raw_log.frames == len(frames)
+    assert len(samples) == source.counters.samples == rec.time_s.size
+    assert [m.arbitration_id for m in can.LogReader(source.raw_log.files[0])] == [f.arbitration_id for f in frames]
 
 
 def learn(samples, ratio):

@@ -13,8 +13,8 @@ import signal
 import threading
 import time
 
-import can
 import pytest
+from live_run import run_live, send_frames
 
 from online_backlash.cli import main
 from online_backlash.cli._fleet import track_gearbox
@@ -295,20 +295,11 @@ def test_track_takes_the_raw_log_folder_listen_wrote(tmp_path, capsys):
     frames = list(rig_can_frames(rec, DbcDecoder(RIG_DBC, "MotorAngle.Count", "LoadAngle.Count"), T0))
     can_opts = ["--dbc", "rig", "--motor-signal", "MotorAngle.Count", "--load-signal", "LoadAngle.Count", "--ratio", "30"]
 
-    def send():
-        time.sleep(1.0)  # the listener's bus is open
-        with can.Bus(interface="virtual", channel="fleet-raw", preserve_timestamps=True) as tx:
-            for f in frames:
-                tx.send(f)
-
-    sender = threading.Thread(target=send)
-    sender.start()
     raw = tmp_path / "raw"
-    argv = ["listen", "can", "--interface", "virtual", "--channel", "fleet-raw", *can_opts, "--raw-log", str(raw), "--duration", "4", "--json"]
-    assert main(argv) == 0
-    sender.join()
+    argv = ["listen", "can", "--interface", "virtual", "--channel", "fleet-raw", *can_opts, "--raw-log", str(raw), "--json"]
+    assert run_live(argv, lambda _: send_frames("fleet-raw", frames)) == 0
     live = json.loads(capsys.readouterr().out)
-    assert live["samples"] > 1000 and any(raw.iterdir())
+    assert live["samples"] == rec.time_s.size and any(raw.iterdir())
     track = ["track", str(raw), *can_opts, "--gearbox", "g1", "--every", "2", "--json"]
     assert main([*track, "--db", str(tmp_path / "w.db")]) == 0
     (result,) = [json.loads(capsys.readouterr().out)]

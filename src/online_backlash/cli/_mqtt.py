@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import sys
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from typing import TYPE_CHECKING
@@ -10,7 +11,7 @@ from typing import TYPE_CHECKING
 from ..errors import InvalidParameterError
 
 if TYPE_CHECKING:
-    from ..publish import MqttPublisher, MqttTls
+    from ..publish import MqttPublisher, MqttTarget, MqttTls
     from ..rows import EstimateRow
 
 MQTT_HELP = (
@@ -54,10 +55,22 @@ def mqtt_publisher(
         return
     if not gearbox_id:
         raise InvalidParameterError("--mqtt publishes under the gearbox's id: give --gearbox ID")
-    from ..publish import MqttPublisher
+    from ..publish import MqttPublisher, MqttTarget
 
-    with MqttPublisher(url, gearbox_id, warn_arcmin, limit_arcmin, tls=tls) as publisher:
+    where = MqttTarget.parse(url)
+    with MqttPublisher(url, gearbox_id, warn_arcmin, limit_arcmin, tls=tls, on_connection=_connection_note(where)) as publisher:
         yield publisher
+
+
+def _connection_note(where: MqttTarget) -> Callable[[bool, str], None]:
+    """A line on stderr whenever the broker connects, refuses or goes away (over the status line, from paho's thread)."""
+
+    def note(connected: bool, reason: str) -> None:
+        what = "connected" if connected else f"connection {reason}; estimates are dropped and counted until it is back"
+        sys.stderr.write(f"\r\x1b[Kmqtt: {where.host}:{where.port}: {what}\n")
+        sys.stderr.flush()
+
+    return note
 
 
 def row_sink(publisher: MqttPublisher | None, then: Callable[[EstimateRow], None]) -> Callable[[EstimateRow], None]:

@@ -17,7 +17,7 @@ from typing import TYPE_CHECKING, Any
 from ..errors import InvalidParameterError
 from ..rows import describe_counts
 from ._common import add_can_decoding_options, add_log_options, add_ratio_option, positive_float, print_json
-from ._live import on_interrupt, open_can_source, open_serial_source
+from ._live import ctrl_c_ends_the_run, open_can_source, open_serial_source
 from ._mqtt import add_mqtt_option, mqtt_publisher, mqtt_summary_line, mqtt_tls
 from .estimate import log_options
 from .history import add_db_options
@@ -241,12 +241,8 @@ def _track_live(
         open_source = open_can_source
     else:
         source_args, label, open_source = args, f"serial {args.port}", open_serial_source
-    with open_source(source_args) as source:
-        undo = on_interrupt(source.request_stop)
-        try:
-            return tracker.track_source(source, label, progress=progress, on_row=on_row)
-        finally:
-            undo()
+    with open_source(source_args) as source, ctrl_c_ends_the_run(source.request_stop, label):
+        return tracker.track_source(source, label, progress=progress, on_row=on_row)
 
 
 def report(result: TrackResult, as_json: bool) -> None:
