@@ -37,6 +37,27 @@ def wait_until(condition: Callable[[], Any], what: str, limit_s: float = LIMIT_S
         time.sleep(0.01)
 
 
+def kill_mid_work(pid: int, condition: Callable[[], Any], what: str, limit_s: float = LIMIT_S) -> None:
+    """SIGKILL process ``pid`` in a state where ``condition()`` holds: the process is stopped (SIGSTOP)
+    while the condition is looked at, so it cannot move on between the look and the kill; if the
+    condition does not hold yet it goes on (SIGCONT) for 10 ms. Fails if it ends first."""
+    deadline = time.monotonic() + limit_s
+    while True:
+        os.kill(pid, signal.SIGSTOP)
+        try:
+            hit = condition()
+        except BaseException:
+            os.kill(pid, signal.SIGCONT)
+            raise
+        if hit:
+            os.kill(pid, signal.SIGKILL)
+            return
+        os.kill(pid, signal.SIGCONT)
+        if time.monotonic() > deadline:
+            raise AssertionError(f"never happened within {limit_s} s: {what}")
+        time.sleep(0.01)
+
+
 class StderrLines:
     """``sys.stderr`` while in use: everything still goes to the stream it replaced (``capsys`` sees it),
     and a thread can wait for a line (``\\n`` or the status line's ``\\r``) that matches a pattern."""

@@ -9,6 +9,7 @@ import can
 import numpy as np
 import pytest
 from can.interfaces.virtual import VirtualBus
+from live_run import LIMIT_S
 
 from online_backlash import VorosBacklash
 from online_backlash.codecs.dbc import RIG_DBC, DbcDecoder, FrameEncoder, resolve_signal
@@ -304,7 +305,7 @@ def test_ctrl_c_ends_a_quiet_bus_even_when_its_handler_outlives_the_wait():
     """A Ctrl-C handler that asks the source to stop and returns normally, run while the source waits
     for a frame and finishing after that wait's deadline: CPython's ``SimpleQueue.get(timeout=...)``
     then waits for ever unless something is put on the queue, which ``request_stop`` does. Run in a
-    child process so that the old behaviour shows as a timeout, not a hung suite."""
+    child process so that the old behaviour shows as a timeout (a hang guard), not a hung suite."""
     import subprocess
     import sys
     import textwrap
@@ -324,12 +325,9 @@ def test_ctrl_c_ends_a_quiet_bus_even_when_its_handler_outlives_the_wait():
 
         signal.signal(signal.SIGALRM, on_interrupt)
         signal.setitimer(signal.ITIMER_REAL, 0.2)
-        start = time.monotonic()
         assert list(source.iter_chunks()) == []
         source.close()
-        print(f"{time.monotonic() - start:.2f}")
         """
     )
-    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=30)
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=LIMIT_S)
     assert done.returncode == 0, done.stderr
-    assert float(done.stdout) < 5.0
