@@ -25,7 +25,6 @@ import copy
 import inspect
 import itertools
 import math
-import warnings
 from abc import ABC, abstractmethod
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
@@ -35,7 +34,7 @@ import numpy as np
 
 from ..bridging import UNKNOWN, GapPolicy, GapTally
 from ..effect_terms import EffectTerms
-from ..errors import ConvergenceWarning, InvalidParameterError, NotExcitedError, NotFittedError
+from ..errors import InvalidParameterError, NotExcitedError, NotFittedError
 from ._effect_stream import EffectStream, check_effects, effects_from_records
 from ._validation import check_int, check_magnitude, check_option, check_real
 
@@ -204,8 +203,10 @@ class RecursiveEstimator(ABC):
         """Check the estimator's own parameters (after :meth:`_validate_common`)."""
 
     @abstractmethod
-    def _warm_fit(self, uc: np.ndarray, yc: np.ndarray, terms: np.ndarray) -> tuple[Any, int]:
-        """The batch fit on the buffer (reference-origin coordinates): ``(start values, n_iter)``."""
+    def _warm_fit(self, uc: np.ndarray, yc: np.ndarray, terms: np.ndarray) -> tuple[Any, int, bool]:
+        """The batch fit on the buffer (reference-origin coordinates): ``(start values, n_iter, converged)``,
+        issuing no ConvergenceWarning (see :class:`~online_backlash.estimators.batch.VorosBacklash`'s
+        ``warn_unconverged``: the warnings settings are the process's, not this thread's)."""
 
     @abstractmethod
     def _cold_params(self, u: np.ndarray | None, y: np.ndarray | None) -> Any:
@@ -530,15 +531,8 @@ class RecursiveEstimator(ABC):
         self._fx.reset()  # the replay computes the terms again from the buffer's start
         start: Any
         try:
-            with warnings.catch_warnings(record=True) as caught:
-                warnings.simplefilter("always", ConvergenceWarning)
-                start, n_iter = self._warm_fit(u[lo:hi] - u0, y[lo:hi] - y0, terms)
-            self.warm_start_ = {
-                "method": "batch",
-                "samples": int(hi - lo),
-                "n_iter": n_iter,
-                "converged": not any(issubclass(w.category, ConvergenceWarning) for w in caught),
-            }
+            start, n_iter, converged = self._warm_fit(u[lo:hi] - u0, y[lo:hi] - y0, terms)
+            self.warm_start_ = {"method": "batch", "samples": int(hi - lo), "n_iter": n_iter, "converged": converged}
         except (NotExcitedError, InvalidParameterError) as exc:
             reason = _failure_reason(exc, len(cuts) - 2, hi - lo, u.size)
             if not fallback:
