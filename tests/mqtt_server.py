@@ -28,7 +28,9 @@ def mosquitto_bin() -> str:
     """The ``mosquitto`` executable (PATH, then /usr/sbin)."""
     found = shutil.which("mosquitto") or shutil.which("mosquitto", path="/usr/sbin:/usr/local/sbin")
     if found is None:
-        raise MosquittoUnavailable("the Mosquitto broker was not found (mosquitto): install Debian's 'mosquitto' package (scripts/test does)")
+        raise MosquittoUnavailable(
+            "the Mosquitto broker was not found (mosquitto): install Debian's 'mosquitto' package (scripts/test does)"
+        )
     return found
 
 
@@ -62,7 +64,9 @@ class MosquittoBroker:
 
     ``port`` is None until the first :meth:`start` finds a free one (another, if a process takes it first)."""
 
-    def __init__(self, folder: Path, tls: BrokerCertificates | None = None, users: dict[str, str] | None = None) -> None:
+    def __init__(
+        self, folder: Path, tls: BrokerCertificates | None = None, users: dict[str, str] | None = None
+    ) -> None:
         self.folder = folder
         self.port: int | None = None
         self.process: subprocess.Popen | None = None
@@ -88,7 +92,7 @@ class MosquittoBroker:
         return f"{'mqtts' if self.tls else 'mqtt'}://{login}127.0.0.1:{self.port}/{prefix}"
 
     def start(self) -> None:
-        """Start the broker and wait until it accepts connections: again on its port, or the first time on a free one."""
+        """Start the broker and wait until it listens: again on its port, or the first time on a free one."""
         try:
             if self.port is None:
                 on_a_free_port(self._start_on)

@@ -231,7 +231,7 @@ def test_track_live_can_then_the_raw_log_gives_the_same_history(capsys, tmp_path
     live_db, replay_db = tmp_path / "live.db", tmp_path / "replay.db"
     argv = ["track", "--listen", "can", "--interface", "virtual", "--channel", channel, *can_options,
             "--raw-log", tmp_path / "raw", "--ratio", 30, "--db", live_db, "--gearbox", "g1", "--every", 1]
-    code = run_live(argv, lambda _: send_frames(channel, frames))  # then Ctrl-C: the frames still waiting are learned too
+    code = run_live(argv, lambda _: send_frames(channel, frames))  # then Ctrl-C: the frames waiting are learned too
     out = capsys.readouterr().out
     assert code == 0 and out.startswith(f"g1: can virtual {channel}: {rec.time_s.size} samples, 4 estimates added")
     (raw,) = sorted((tmp_path / "raw").iterdir())

@@ -64,12 +64,15 @@ def test_listen_serial_on_a_pty_then_estimate_the_capture(tmp_path, capsys, rec,
     master, slave = os.openpty()
     tty.setraw(slave)  # no line discipline on the bytes, even before the CLI has opened the port
 
+    def captured() -> int:
+        return sum(p.stat().st_size for p in (tmp_path / "raw").iterdir())
+
     def write(_):
         for i in range(0, len(payload), 4096):
             os.write(master, payload[i : i + 4096])
         # a pty hands bytes on in the kernel's own time: Ctrl-C once the capture has them all (each read
         # is captured, then parsed and learned before the run looks for a Ctrl-C)
-        wait_until(lambda: sum(p.stat().st_size for p in (tmp_path / "raw").iterdir()) == len(payload), "every byte captured")
+        wait_until(lambda: captured() == len(payload), "every byte captured")
 
     argv = ["listen", "serial", "--port", os.ttyname(slave), "--baud", "115200", "--format", fmt, "--ratio", "30",
             "--raw-log", str(tmp_path / "raw"), "--json", *cpr]

@@ -177,7 +177,7 @@ def test_a_worker_killed_mid_log_loses_nothing(tmp_path, postgres_db):
         pids = client.run(os.getpid)
 
         def kill_when_mid_log():
-            # GB-0's first log has committed an estimate but is not complete: SIGKILL its worker, stopped while that is looked at
+            # GB-0's first log has committed an estimate, not all: SIGKILL its worker (stopped while looked at)
             def gb0_worker():
                 return next((address for address, keys in client.processing().items() if "track-GB-0" in keys), None)
 
@@ -296,7 +296,7 @@ def test_track_takes_the_raw_log_folder_listen_wrote(tmp_path, capsys):
     can_opts = ["--dbc", "rig", "--motor-signal", "MotorAngle.Count", "--load-signal", "LoadAngle.Count", "--ratio", "30"]
 
     raw = tmp_path / "raw"
-    argv = ["listen", "can", "--interface", "virtual", "--channel", "fleet-raw", *can_opts, "--raw-log", str(raw), "--json"]
+    argv = ["listen", "can", "--interface", "virtual", "--channel", "fleet-raw", *can_opts, "--raw-log", raw, "--json"]
     assert run_live(argv, lambda _: send_frames("fleet-raw", frames)) == 0
     live = json.loads(capsys.readouterr().out)
     assert live["samples"] == rec.time_s.size and any(raw.iterdir())

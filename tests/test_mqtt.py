@@ -57,7 +57,7 @@ def mqtt_broker(tmp_path):
 
 
 def test_a_missing_broker_is_named_and_leaves_no_file_open(tmp_path, monkeypatch):
-    """Without Debian's mosquitto the broker fixture fails naming the package, and opens no log it would leave unclosed."""
+    """Without Debian's mosquitto the broker fails naming the package, and opens no log it would leave unclosed."""
     monkeypatch.setattr(mqtt_server.shutil, "which", lambda *_, **__: None)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
@@ -113,13 +113,14 @@ def rig_frames(duration_s: float) -> list[can.Message]:
 
 
 def due_estimates(frames: list[can.Message], path, every_s: float) -> list[EstimateRow]:
-    """The estimates a run on ``frames`` makes: the frames written to a BLF by python-can and replayed (live equals replay)."""
+    """The estimates a run on ``frames`` makes: the frames in a BLF written by python-can, replayed (live = replay)."""
     with can.Logger(str(path)) as writer:
         for frame in frames:
             writer.on_message_received(frame)
     rows: list[EstimateRow] = []
     log = open_log(path, dbc=RIG_DBC, motor_signal="MotorAngle.Count", load_signal="LoadAngle.Count")
-    fit_recursive(log.iter_chunks(), 30.0, every_s=every_s, trace=rows.append, memory_reversals=10.0, sample_period_s=0.001)
+    listen_defaults = {"memory_reversals": 10.0, "sample_period_s": 0.001}
+    fit_recursive(log.iter_chunks(), 30.0, every_s=every_s, trace=rows.append, **listen_defaults)
     return rows
 
 
@@ -132,6 +133,7 @@ def test_listen_publishes_reconnects_after_a_broker_crash_and_counts_the_dropped
     due = due_estimates(frames, tmp_path / "frames.blf", 0.1)
     # the samples learned at the last estimate of the first part, and of the second
     last_of = [max(r.n_samples for r in due if r.time_s < frames[cut].timestamp) for cut in cuts]
+    first_part = [r.n_samples for r in due if r.n_samples <= last_of[0]]  # the estimates due before the crash
     channel, prefix = "mqtt-listen", "plant/hall-3"
     estimate_topic, state_topic = f"{prefix}/GB-7/estimate", f"{prefix}/GB-7/state"
     sub = Subscriber(mqtt_broker, prefix)
@@ -140,7 +142,7 @@ def test_listen_publishes_reconnects_after_a_broker_crash_and_counts_the_dropped
     def scenario(stderr):
         stderr.wait_for(CONNECTED)  # else the first estimates could be due before the publisher is connected
         send_frames(channel, thirds[0])
-        sub.wait(lambda: any(m["samples"] == last_of[0] for m in sub.on(estimate_topic)), "the first part's estimates arrived")
+        sub.wait(lambda: [m["samples"] for m in sub.on(estimate_topic)] == first_part, "the first part's estimates")
         seen["before"] = len(sub.on(estimate_topic))
         mqtt_broker.stop()  # the broker crashes mid-run
         stderr.wait_for(r"mqtt: 127\.0\.0\.1:\d+: connection lost")  # the publisher knows: from now on it drops
@@ -173,15 +175,18 @@ def test_listen_publishes_reconnects_after_a_broker_crash_and_counts_the_dropped
     replayed = json.loads(capsys.readouterr().out)
     assert replayed["backlash_deg"] == live["backlash_deg"] and replayed["samples"] == live["samples"]
     with trace.open() as f:
-        assert [float(r["time"]) for r in csv.DictReader(f)] == pytest.approx([r.time_s for r in due], abs=1e-6)  # the run's, replayed
+        replayed_times = [float(r["time"]) for r in csv.DictReader(f)]
+    assert replayed_times == pytest.approx([r.time_s for r in due], abs=1e-6)  # the estimates of the run, replayed
 
     # what was due while the broker was away was dropped and counted; publishing resumed after the restart
-    assert live["mqtt_dropped"] == sum(last_of[0] < r.n_samples <= last_of[1] for r in due) > 0 and live["mqtt_connections"] == 2
-    assert seen["restarted"] == seen["before"] == sum(r.n_samples <= last_of[0] for r in due)  # nothing was queued for later
+    away = [last_of[0] < r.n_samples <= last_of[1] for r in due]  # due while the broker was away
+    assert live["mqtt_dropped"] == sum(away) > 0 and live["mqtt_connections"] == 2
+    assert seen["restarted"] == seen["before"] == len(first_part)  # nothing was queued for later
     assert len(estimates) == live["mqtt_published"] and live["mqtt_published"] + live["mqtt_dropped"] == len(due)
     # what arrived is what was due, less the block of estimates due while the broker was away
-    assert [m["samples"] for m in estimates] == [r.n_samples for r in due if not last_of[0] < r.n_samples <= last_of[1]]
-    assert [m["time_unix_s"] for m in estimates] == pytest.approx([r.time_s for r in due if not last_of[0] < r.n_samples <= last_of[1]], abs=1e-6)
+    arrived = [r for r, dropped in zip(due, away) if not dropped]
+    assert [m["samples"] for m in estimates] == [r.n_samples for r in arrived]
+    assert [m["time_unix_s"] for m in estimates] == pytest.approx([r.time_s for r in arrived], abs=1e-6)
 
     # topics and keys; the last message is the summary's estimate; the play (18 arcmin) is over the limit
     assert all(set(m) == MESSAGE_KEYS and m["gearbox"] == "GB-7" for m in estimates)
@@ -221,7 +226,8 @@ def test_track_listen_publishes_with_the_stored_levels(mqtt_broker, tmp_path, ca
         code = run_live(argv, scenario)
         assert code == 0
         result = json.loads(capsys.readouterr().out)
-        sub.wait(lambda: len(sub.on("fleet/g1/estimate")) >= result["counters"]["mqtt_published"], "every estimate published arrived")
+        published = result["counters"]["mqtt_published"]
+        sub.wait(lambda: len(sub.on("fleet/g1/estimate")) >= published, "every estimate published arrived")
     finally:
         sub.close()
     estimates = sub.on("fleet/g1/estimate")
@@ -313,7 +319,8 @@ def test_status_is_online_while_publishing_offline_after_and_the_last_will_cover
             f"p = MqttPublisher({mqtt_broker.url('p')!r}, 'GB-2', connect_wait_s={LIMIT_S}).start()\n"
             "print(p.connected, flush=True); sys.stdin.read()\n"  # connected, until killed
         )
-        with subprocess.Popen([sys.executable, "-c", script], stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True) as child:
+        pipes = {"stdin": subprocess.PIPE, "stdout": subprocess.PIPE, "text": True}
+        with subprocess.Popen([sys.executable, "-c", script], **pipes) as child:
             try:
                 assert child.stdout is not None and child.stdout.readline().strip() == "True"
                 sub.wait(lambda: len(sub.on("p/GB-2/status")) == 1, "the second publisher's status online")
@@ -341,7 +348,9 @@ def test_tls_with_a_private_ca_and_a_login(tmp_path, monkeypatch):
         sub = Subscriber(broker, "plant", login=("rig", "s3cret"))
         try:
             monkeypatch.setenv(PASSWORD_ENV, "s3cret")
-            with MqttPublisher(broker.url("plant", "rig"), "GB-3", limit_arcmin=20.0, tls=MqttTls(str(certs.ca)), connect_wait_s=LIMIT_S) as pub:
+            tls = MqttTls(str(certs.ca))
+            url = broker.url("plant", "rig")
+            with MqttPublisher(url, "GB-3", limit_arcmin=20.0, tls=tls, connect_wait_s=LIMIT_S) as pub:
                 assert pub.connected
                 pub.publish(row(0.3, 0.001), T0)
                 sub.wait(lambda: sub.on("plant/GB-3/estimate"), "the estimate over TLS")

@@ -47,7 +47,7 @@ def load_test_command():
 
 def test_the_test_command_finds_the_missing_debian_packages(tmp_path):
     script = load_test_command()
-    assert script.missing_packages(tmp_path, make_venv=False) == ["postgresql", "mosquitto", "chromium", "chromium-driver"]
+    assert script.missing_packages(tmp_path, make_venv=False) == list(script.PACKAGES)
     for path in ("usr/lib/postgresql/15/bin/initdb", "usr/sbin/mosquitto", "usr/bin/chromedriver"):
         (tmp_path / path).parent.mkdir(parents=True, exist_ok=True)
         (tmp_path / path).touch()

@@ -206,7 +206,8 @@ def test_sigkill_mid_log_then_restart_gives_the_uninterrupted_history(tmp_path):
         try:
             with sqlite3.connect(f"file:{db}?mode=ro", uri=True, timeout=0) as conn:
                 estimates = conn.execute("SELECT count(*) FROM estimates WHERE run_id = 2").fetchone()[0]
-                return estimates >= 10 and conn.execute("SELECT status FROM runs WHERE id = 2").fetchone() == ("running",)
+                status = conn.execute("SELECT status FROM runs WHERE id = 2").fetchone()
+                return estimates >= 10 and status == ("running",)
         except sqlite3.OperationalError:  # tables not created yet
             return False
 

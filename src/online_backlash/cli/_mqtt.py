@@ -58,12 +58,13 @@ def mqtt_publisher(
     from ..publish import MqttPublisher, MqttTarget
 
     where = MqttTarget.parse(url)
-    with MqttPublisher(url, gearbox_id, warn_arcmin, limit_arcmin, tls=tls, on_connection=_connection_note(where)) as publisher:
+    note = _connection_note(where)
+    with MqttPublisher(url, gearbox_id, warn_arcmin, limit_arcmin, tls=tls, on_connection=note) as publisher:
         yield publisher
 
 
 def _connection_note(where: MqttTarget) -> Callable[[bool, str], None]:
-    """A line on stderr whenever the broker connects, refuses or goes away (over the status line, from paho's thread)."""
+    """A line on stderr whenever the broker connects, refuses or goes away (over the status line; paho's thread)."""
 
     def note(connected: bool, reason: str) -> None:
         what = "connected" if connected else f"connection {reason}; estimates are dropped and counted until it is back"

@@ -5,8 +5,8 @@ Every frame or byte received is written to ``--raw-log DIR`` before it is decode
 result later. Once Ctrl-C is handled, a line on stderr says so (``SOURCE: listening; Ctrl-C ends the
 run with its summary``); then a status line shows the estimate with its standard error, the samples it
 has learned, samples/s, corrupt frames and gaps. The summary comes when ``--duration`` is reached or on
-Ctrl-C, after everything read by then is learned (on CAN, also the frames still waiting on the bus) (with ``--json``: one JSON object on
-stdout, the keys of ``estimate --json`` plus the source's counters). With ``--mqtt
+Ctrl-C, after everything read by then is learned (on CAN, also the frames still waiting on the bus);
+with ``--json`` it is one JSON object on stdout, the keys of ``estimate --json`` and the source's counters. With ``--mqtt
 mqtt://HOST:PORT/PREFIX --gearbox ID`` every estimate is also published (:mod:`online_backlash.publish`).
 """
 
@@ -121,9 +121,9 @@ def run(args: argparse.Namespace) -> int:
         status = _StatusLine(source.counters)
         try:
             with ctrl_c_ends_the_run(source.request_stop, label):
-                report, _ = fit_recursive(
-                    source.iter_chunks(), args.ratio, every_s=every_s, trace=row_sink(publisher, status), source=label, **params
-                )
+                trace = row_sink(publisher, status)
+                chunks = source.iter_chunks()
+                report, _ = fit_recursive(chunks, args.ratio, every_s=every_s, trace=trace, source=label, **params)
         except LogFormatError as exc:
             if source.counters.samples:
                 raise
