@@ -26,7 +26,7 @@ from ._common import (
     positive_float,
     print_json,
 )
-from ._live import on_interrupt, open_can_source, open_serial_source
+from ._live import ctrl_c_ends_the_run, open_can_source, open_serial_source
 from ._mqtt import add_mqtt_option, history_figures, mqtt_publisher, mqtt_summary_line, mqtt_tls
 from .estimate import log_options
 from .history import add_db_options
@@ -340,12 +340,8 @@ def _track_live(
         open_source = open_can_source
     else:
         source_args, label, open_source = args, f"serial {args.port}", open_serial_source
-    with open_source(source_args) as source:
-        undo = on_interrupt(source.request_stop)
-        try:
-            return tracker.track_source(source, label, progress=progress, on_row=on_row)
-        finally:
-            undo()
+    with open_source(source_args) as source, ctrl_c_ends_the_run(source.request_stop, label):
+        return tracker.track_source(source, label, progress=progress, on_row=on_row)
 
 
 def report(result: TrackResult, as_json: bool) -> None:

@@ -248,7 +248,7 @@ class BacklashRLS(RecursiveEstimator):
             return self.switching
         return "measured" if self._fx.effects else "model"
 
-    def _warm_fit(self, uc: np.ndarray, yc: np.ndarray, terms: np.ndarray) -> tuple[BacklashParams, int]:
+    def _warm_fit(self, uc: np.ndarray, yc: np.ndarray, terms: np.ndarray) -> tuple[BacklashParams, int, bool]:
         """:class:`VorosBacklash` on the buffer (reference-origin coordinates; on a rig whose
         slope is not 1 it starts from the direction of motion, its ``start_``), then, with
         effects, its refinement again with the effect columns ``terms`` fitted jointly
@@ -260,10 +260,11 @@ class BacklashRLS(RecursiveEstimator):
         (56 %) high (``bench/closing_loop.py --tracker``, seed 0); the recursion, whose replay
         of the buffer had counted its information at the biased lines, did not correct it.
         """
-        batch = VorosBacklash(origin="zero").fit(uc, yc)
-        if terms.shape[1] == 0:
-            return batch.params_, int(batch.n_iter_)
-        return _refine_with_effects(uc, yc, terms, batch.params_), int(batch.n_iter_)
+        batch = VorosBacklash(origin="zero")
+        batch.warn_unconverged = False  # told by converged_ (warm_start_), as no warning the user could act on
+        batch.fit(uc, yc)
+        start = batch.params_ if terms.shape[1] == 0 else _refine_with_effects(uc, yc, terms, batch.params_)
+        return start, int(batch.n_iter_), bool(batch.converged_)
 
     def _cold_params(self, u: np.ndarray | None, y: np.ndarray | None) -> BacklashParams:
         if u is None or y is None or u.size < 2:

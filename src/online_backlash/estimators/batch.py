@@ -213,7 +213,16 @@ _RESOLUTION = float(np.sqrt(np.finfo(float).eps))  # relative change below which
 
 
 class _VorosBase:
-    """Shared settings, origin handling and the fitted backlash attributes."""
+    """Shared settings, origin handling and the fitted backlash attributes.
+
+    ``warn_unconverged`` (True) may be set False on an instance: an iteration stopped at ``max_iter``
+    is then told by ``converged_`` alone, without a ConvergenceWarning. The recursive estimators'
+    warm start does so; catching the warning instead (``warnings.catch_warnings``) would change the
+    process's warnings settings, which every thread shares, and swallow another thread's warnings.
+    """
+
+    #: Issue a ConvergenceWarning when the iteration stops at ``max_iter``.
+    warn_unconverged = True
 
     def __init__(self, max_iter: int, tol: float, refine: bool, origin: str) -> None:
         self.max_iter = max_iter
@@ -297,7 +306,7 @@ class _VorosBase:
                 break
         self.n_iter_ = len(history)
         self.converged_ = self.stop_reason_ != "max_iter"
-        if not self.converged_:
+        if not self.converged_ and self.warn_unconverged:
             warnings.warn(
                 f"{type(self).__name__}: no convergence within max_iter={self.max_iter} "
                 f"(tol={self.tol} standard errors); the last estimate is kept",
@@ -337,7 +346,8 @@ class VorosBacklash(_VorosBase):
     n_iter_ : int
         Iterations of the paper's algorithm.
     converged_ : bool
-        False when the iteration stopped at ``max_iter`` (a ConvergenceWarning was issued).
+        False when the iteration stopped at ``max_iter`` (a ConvergenceWarning was issued, unless
+        ``warn_unconverged`` was set False on the instance).
     stop_reason_ : {"tol", "cycle", "max_iter"}
         Why the iteration stopped.
     start_ : {"paper", "direction"}

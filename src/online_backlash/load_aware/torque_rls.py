@@ -171,7 +171,8 @@ class TorqueBacklashRLS(FlankPairFigures, RecursiveEstimator):
         if self.torque_sign not in (1.0, -1.0):
             raise InvalidParameterError(f"torque_sign must be 1 or -1, got {self.torque_sign!r}")
 
-    def _warm_fit(self, uc: np.ndarray, yc: np.ndarray, terms: np.ndarray) -> tuple[Any, int]:  # pragma: no cover - start is always cold
+    def _warm_fit(self, uc: np.ndarray, yc: np.ndarray, terms: np.ndarray) -> tuple[Any, int, bool]:  # pragma: no cover
+        # the start is always cold
         raise NotExcitedError("TorqueBacklashRLS needs no warm start: the torque gives the switching functions")
 
     def _cold_params(self, u: np.ndarray | None, y: np.ndarray | None) -> None:
