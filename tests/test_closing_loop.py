@@ -75,16 +75,22 @@ def test_nothing_named_on_the_estimators_own_simulator():
     assert d["effects"] == []
 
 
-def test_without_torque_a_viscous_twist_is_the_lag_b_over_k(compliant_rig):
-    """Without a torque column the twist under a viscous load, ``-(b / k) dy/dt`` on an engaged
-    flank, is exactly a lag of ``b / k``: the loop reports it as such (only a torque tells them apart)."""
+def test_without_torque_the_twist_under_the_motion_is_named_by_its_motion_proxy(compliant_rig):
+    """Without a torque column the twist under the torque the load's motion needs, ``-(J y'' + b y') / k``
+    on an engaged flank, is named ``compliance`` by its motion proxy: the viscous share comes back as
+    ``-b / k`` (on a flank a lag of ``b / k``, which the ``delay`` alone took before the acceleration was
+    read without the record's start and held through the dead band)."""
     t, m, y, _ = compliant_rig
     d = diagnose_arrays(t, m, y, 30.0).as_dict()
     first = d["effects"][0]
     b_over_k = 0.3 / (synthetic.COMPLIANT_NM_PER_ARCMIN * ARCMIN_PER_DEG * 180.0 / np.pi)  # s (viscous 0.3 N m s/rad)
-    assert first["name"] == "delay"
-    assert first["parameters"]["lag_s"] == pytest.approx(b_over_k, rel=0.15)
+    assert first["name"] == "compliance"
+    p = first["parameters"]
+    assert p["proxy"].startswith("load-side acceleration and velocity")
+    assert p["deflection_per_velocity_s"] == pytest.approx(-b_over_k, rel=0.15)
+    assert p["deflection_per_acceleration_s2"] < 0.0  # the inertia's share opposes the acceleration
     assert first["rms_after_deg"] < 0.3 * first["rms_before_deg"]
+    assert "delay" not in [e["name"] for e in d["effects"]]
 
 
 def test_folds_hold_out_whole_reversal_cycles():
@@ -147,16 +153,15 @@ def test_two_effects_that_explain_the_same_part_are_reported_as_rivals():
     q = np.full(u.size, np.nan)
     r = 0.03 * t / t[-1] + rng.normal(0, 0.002, u.size)
     data = DetectionData(u, t, q, r, 30.0, 1e-3, model_output_deg=u)
-    engaged = np.ones(u.size, dtype=bool)
     one, two = Drift(1, float(t[-1])), Drift(2, float(t[-1]))
     d1 = Detection(one, data.score(False, one.terms(u, t, q)), "")
     d2 = Detection(two, data.score(False, two.terms(u, t, q)), "")
-    assert _rivals(data, d1, [d1, d2], engaged, 0.05) == ("drift",)
+    assert _rivals(data, d1, [d1, d2], 0.05) == ("drift",)
     # a term that adds its own part is no rival
     other = DetectionData(u, t, q, r + 0.03 * np.sin(np.radians(3 * u)), 30.0, 1e-3, model_output_deg=u)
     te = TransmissionError((3,), (), 30.0)
     d3 = Detection(te, other.score(True, te.terms(u, t, q)), "")
-    assert _rivals(other, Detection(one, other.score(False, one.terms(u, t, q)), ""), [d3], engaged, 0.05) == ()
+    assert _rivals(other, Detection(one, other.score(False, one.terms(u, t, q)), ""), [d3], 0.05) == ()
 
 
 def _warm_up_run(duration_s: float = 120.0) -> tuple[np.ndarray, np.ndarray]:
