@@ -396,7 +396,7 @@ class Compliance(EffectBase):
             }
         out: dict[str, Any] = {
             "proxy": "load-side acceleration" + (" and velocity (inertial and viscous torque)" if self.proxy == "motion" else " (inertial torque)"),
-            "active_on": "engaged samples, by the model's switching functions (eq. 5-6)",
+            "active_on": "engaged samples, by the model's switching functions (eq. 5-6); held through the dead band (eq. 7)",
             "deflection_per_acceleration_s2": c[0],
             "differentiator_window_samples": self.window_samples,
         }
