@@ -316,9 +316,11 @@ class Compliance(EffectBase):
       loop fits it in the joint refit (:meth:`neighbours`, from :data:`WINDOW_GRID`). Over a record's
       first ``window_samples - 1`` samples the window holds what there is.
     * ``proxy="motion"``: the acceleration and the velocity (deg/s, the viscous share ``-b / k``,
-      coefficient in deg per deg/s), by the same filter. On an engaged flank a viscous twist is a lag,
-      which the ``delay`` describes as well, so :meth:`detect` adds the velocity only where it explains
-      a significant share beyond the acceleration.
+      coefficient in deg per deg/s), by the same filter, for a caller who knows the load is viscous.
+      :meth:`detect` does not offer it: on an engaged flank a viscous twist is a lag, which the
+      ``delay`` describes exactly, and on strokes at constant speed a speed-proportional column is
+      nearly a play (held through the dead band it took the delay's place on the rig's delay logs
+      and moved the play 8 % on the creep strokes of ``tests/test_creep_at_rest.py``).
 
     The motion proxies act on the input side of the backlash (``input_side``): the loop holds them
     through the dead band (eq. 7), so on an engaged flank the column is the acceleration and while no
@@ -409,15 +411,11 @@ class Compliance(EffectBase):
 
     @classmethod
     def detect(cls, data: DetectionData) -> Detection | None:
-        """The measured torque when the log has one, else the load side's acceleration, with its velocity
-        only where the velocity explains a significant share of the residual beyond the acceleration."""
+        """The measured torque when the log has one, else the load side's acceleration (the inertial torque)."""
         q = np.nan_to_num(data.torque_Nm, nan=0.0)
         if np.mean(np.isfinite(data.torque_Nm)) > 0.5 and q.size >= 3:
             return cls("torque", deadband_Nm=torque_deadband(q)).detection(data)
-        motion = cls("motion")
-        acc, vel = np.hsplit(motion.clone().terms(data.u_deg, data.time_s, data.torque_Nm), 2)
-        viscous = data.with_nuisance(data.hold(acc)).score(True, vel)
-        return motion.detection(data) if viscous.significant() else cls("acceleration").detection(data)
+        return cls("acceleration").detection(data)
 
     def detection(self, data: DetectionData) -> Detection:
         """This effect's columns scored on the residual (the motion proxies held through the model's dead band)."""
