@@ -9,11 +9,10 @@ case but compliance, where the gear is compliant and the transmitted torque is l
 ``synthetic.TWO_MASS_INJECTORS``) or by the estimator's own model (``--generator rig``:
 :func:`online_backlash.rig.simulate_rig` with 2 counts of load noise, ``synthetic.INJECTORS``),
 the effect is added, and
-:func:`online_backlash.diagnostics.loop.diagnose` is run. Two cases have no torque column whatever the
+:func:`online_backlash.diagnostics.loop.diagnose` is run. One case has no torque column whatever the
 generator (``NO_TORQUE``): ``inertial_twist``, a load that twists by ``-(J / k)`` times the analytic
 acceleration of a prescribed two-tone motion while a flank is engaged (``synthetic.inertial_twist``),
-and ``compliance_no_torque``, the compliant two-mass rig with its torque column left out; both must be
-named ``compliance``, by the load's motion. Prints a markdown table of how often
+which must be named ``compliance``, by the load's acceleration. Prints a markdown table of how often
 each figure of the issue holds:
 
 * **named first**: the first named effect is the one added (clean log: ``effects`` empty;
@@ -22,8 +21,7 @@ each figure of the issue holds:
 * **<= 1.1 clean**: ``rms_after_deg`` at most 1.1 times what the loop leaves on the clean log of
   the same seed (what a perfect term leaves),
 * **<= 1/2 before**: ``rms_after_deg <= 0.5 * rms_before_deg`` (not applicable to the clean log),
-* **play 2 %**: ``|backlash_after_deg - 0.5| <= 0.01`` (``compliance_no_torque``: within 2 % of 0.5 deg plus
-  the Coulomb friction's wind-up on either flank, ``COULOMB_WIND_UP_DEG``),
+* **play 2 %**: ``|backlash_after_deg - 0.5| <= 0.01``,
 * **dead band motion**: ``dead_band_motion`` named (on the two-mass rig the load really moves in
   the dead band and rings when a flank engages: physics of that rig, counted here and allowed on
   its clean log; on ``--generator rig`` logs nothing may be named on the clean log),
@@ -57,7 +55,6 @@ from online_backlash.diagnostics import synthetic
 from online_backlash.diagnostics.loop import diagnose_arrays
 from online_backlash.diagnostics.synthetic import INJECTORS, TWO_MASS_INJECTORS
 from online_backlash.rig import simulate_rig
-from online_backlash.two_mass_rig import ARCMIN_PER_DEG
 
 PLAY_DEG = 0.5
 #: the record's start, left out of the "past start" figure: the two-mass rig starts with the load moving
@@ -65,20 +62,11 @@ PLAY_DEG = 0.5
 START_S = 0.2
 
 
-def _two_mass_compliance_without_torque(seed: int, duration_s: float) -> synthetic.Record:
-    t, m, y, _ = synthetic.two_mass_compliance(seed, duration_s)
-    return t, m, y, np.full(t.size, np.nan)
-
-
-#: the compliant two-mass rig's lost motion without its torque column: the play plus the wind-up under the
-#: output's Coulomb friction on either flank, ``2 T_c / k`` (a constant per flank: kinematically, play)
-COULOMB_WIND_UP_DEG = 2.0 * synthetic.TWO_MASS_RIG["coulomb_nm"] / (synthetic.COMPLIANT_NM_PER_ARCMIN * ARCMIN_PER_DEG)
 #: cases without a torque column whose twist is named ``compliance`` by its motion proxy (issue 27, item 6),
-#: whatever the generator: the log ``(seed, duration_s) -> (time, motor, load, torque)``, the same
-#: simulator's log without the effect (the "<= 1.1 clean" reference), and the lost motion to find, deg
+#: whatever the generator: the log ``(seed, duration_s) -> (time, motor, load, torque)`` and the same
+#: simulator's log without the effect (the "<= 1.1 clean" reference)
 NO_TORQUE = {
-    "inertial_twist": (synthetic.inertial_twist, partial(synthetic.inertial_twist, inertia_over_stiffness_s2=0.0), PLAY_DEG),
-    "compliance_no_torque": (_two_mass_compliance_without_torque, synthetic.two_mass_clean, PLAY_DEG + COULOMB_WIND_UP_DEG),
+    "inertial_twist": (synthetic.inertial_twist, partial(synthetic.inertial_twist, inertia_over_stiffness_s2=0.0)),
 }
 
 
@@ -109,7 +97,6 @@ def run_case(name: str, seed: int, duration_s: float, generator: str = "two_mass
     else:
         named = bool(names) and names[0] == ("compliance" if name in NO_TORQUE else name)
     clean_rms = d["rms_after_deg"] if name == "clean" else clean_residual(seed, duration_s, generator, name)
-    play = NO_TORQUE[name][2] if name in NO_TORQUE else PLAY_DEG
     d.update(
         case=name,
         seed=seed,
@@ -117,7 +104,7 @@ def run_case(name: str, seed: int, duration_s: float, generator: str = "two_mass
         floor_ok=d["rms_after_deg"] <= 1.5 * d["noise_floor_deg"],
         clean_ok=d["rms_after_deg"] <= 1.1 * clean_rms,
         half_ok=None if name == "clean" else d["rms_after_deg"] <= 0.5 * d["rms_before_deg"],
-        play_ok=abs(d["backlash_after_deg"] - play) <= 0.02 * play,
+        play_ok=abs(d["backlash_after_deg"] - PLAY_DEG) <= 0.02 * PLAY_DEG,
         dead_band=bool(physics),
         found=names + [f"({u})" for u in unexplained],
     )
