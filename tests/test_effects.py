@@ -29,6 +29,7 @@ ALL = [
     VelocityFunction((-40.0, -10.0, 0.0, 10.0, 40.0)),
     DeadBandMotion(1.0, 0.3, 1.0, 0.3, torque=True),
     DeadBandMotion(1.0, 0.3, 1.0, 0.3, rest_time_constants_s=(0.008, 0.128)),
+    DeadBandMotion(1.0, 0.3, 1.0, 0.3, rest_time_constants_s=(0.008,), creep_step=True, creep_directions=(-1,)),
     DeadBandMotion(0.98, 0.2, 1.01, 0.4, exit_time_constants_s=(), entry_knots_s=(0.0, 0.002, 0.01)),
     FlankProfile(tuple(np.linspace(-30.0, 30.0, 13))),
 ]

@@ -15,7 +15,9 @@
    above :data:`.joint.MAX_PLAY_STD_SHARE` of the play), the play is held and the report says
    so. A term whose joint refit does not remove at least ``min_gain`` of the mean square
    residual is refused (the linear score can promise more than the refit delivers when the
-   play is held).
+   play is held), and so is one whose joint refit gives a term a figure no drive can have (the
+   dead band's creep back through the flank the load left, or beyond the other one:
+   :meth:`.dead_band.DeadBandMotion.is_physical`, within the noise floor).
    The two named effects that explain most are both refitted and the better refit is the
    candidate; if the other refits about as well and neither adds ``min_gain`` once the other is
    in, the two are reported together as *not separable* (and neither is claimed). A term with a
@@ -437,13 +439,14 @@ def diagnose(
     while len(steps) < max_terms and current.rms_deg > floor_ratio * noise.floor_deg:
         taken = {type(s.effect) for s in steps} | refused
         view = _ModelView.of(uc, current.params)  # the round's model: its detectors' and its confirmation's
-        data = _detection_data(u, t, q, uc, current, [s.effect for s in steps], float(ratio), period, screen, built, cache, view)
+        done = [s.effect for s in steps]
+        data = _detection_data(u, t, q, uc, current, done, float(ratio), period, screen, built, cache, view,
+                               noise=noise)
         named_all = [_kept_columns(d, built) for d in _significant([c.detect(data) for c in LIBRARY if c not in taken], bic_threshold, min_gain)]
         generic_all = _significant([c.detect(data) for c in GENERIC if c not in taken], bic_threshold, min_gain)
         generic = generic_all[0] if generic_all else None
         if not named_all and generic is None:
             break
-        done = [s.effect for s in steps]
 
         x_now = data.model_output_deg  # the current backlash output, simulated once for this round
         assert x_now is not None
@@ -489,16 +492,29 @@ def diagnose(
         named: Detection | None = None
         fit_named: JointFit | None = None
         refits: list[tuple[Detection, JointFit]] = []
+
+        def physical(found: Detection, fit: JointFit, done: list = done) -> bool:
+            """False (and the candidate refused) where its refit gives a term a figure no drive can have."""
+            if _physical([*done, found.effect], fit.coef, u, t, noise.floor_deg):
+                return True
+            refused.add(type(found.effect))
+            return False
+
         for candidate in named_all[:2]:
             if fit_named is not None and candidate.score.gain < RUNNER_UP_SHARE * named_all[0].score.gain:
                 break
-            refits.append(refit(candidate))
+            tried = refit(candidate)
+            if not physical(*tried):
+                continue
+            refits.append(tried)
             if fit_named is None or refits[-1][1].rms_deg < fit_named.rms_deg:
                 named, fit_named = refits[-1]
         # a named effect must do about as well as a flexible generic term in the joint refit
         fit_generic: JointFit | None = None
         if generic is not None:
             generic, fit_generic = refit(generic)
+            if not physical(generic, fit_generic):
+                generic = fit_generic = None
         kind: str
         chosen: Detection
         fit: JointFit
@@ -506,8 +522,8 @@ def diagnose(
             kind, chosen, fit = "effect", named, fit_named
         elif generic is not None and fit_generic is not None:
             kind, chosen, fit = "unexplained", generic, fit_generic
-        else:  # unreachable: one of the two was found above
-            break
+        else:  # every refit refused as unphysical: try the others
+            continue
         if fit.rms_deg**2 > (1.0 - min_gain) * current.rms_deg**2:
             refused.add(type(chosen.effect))  # the refit does not realise the gain: try the others
             continue
@@ -518,7 +534,8 @@ def diagnose(
             # the settings of the terms already in, retuned with the new one in (the compliance's torque average)
             terms, fit = tuned([*done, chosen.effect], fit, range(len(done)))
         else:  # chosen on the screen: configured, evidenced and fitted on every sample, as without the screen
-            whole = _detection_data(u, t, q, uc, current, done, float(ratio), period, folds, built, cache, view)
+            whole = _detection_data(u, t, q, uc, current, done, float(ratio), period, folds, built, cache, view,
+                                    noise=noise)
             confirmed = _confirmed(chosen, whole, built, bic_threshold, min_gain)
             if confirmed is None:
                 refused.add(type(chosen.effect))  # the whole record does not bear it out: try the others
@@ -551,6 +568,15 @@ def diagnose(
     after = start.coasting(before, current.residual_deg)  # until a flank first catches the load, the start's own path
     screened = len(screen.segments) if screen.screened else None
     return Diagnosis(base, current, steps, noise, before, after, u, y, t, float(ratio), q, start, screened, folds.n_cycles)
+
+
+def _physical(terms: Sequence[Any], coef: np.ndarray, u: np.ndarray, t: np.ndarray, tolerance_deg: float) -> bool:
+    """True unless the joint coefficients ``coef`` (the terms' side by side) give a term with ``is_physical``
+    (the dead band's creep) a figure no drive can have, beyond ``tolerance_deg`` (the noise floor); ``u`` and
+    ``t``: the record's referred motor angle (deg) and time (s)."""
+    ends = np.cumsum([0, *(e.n_terms for e in terms)])
+    checked = [(e, a, b) for e, a, b in zip(terms, ends[:-1], ends[1:]) if hasattr(e, "is_physical")]
+    return all(e.is_physical(coef[a:b], u, t, tolerance_deg) for e, a, b in checked)
 
 
 def _confirmed(chosen: Detection, data: DetectionData, built: TermColumns, bic_threshold: float, min_gain: float) -> Detection | None:
@@ -700,13 +726,15 @@ def _linearised_refit(terms: list[Any], i: int, fit: JointFit, uc: np.ndarray, f
 def _detection_data(
     u: np.ndarray, t: np.ndarray, q: np.ndarray, uc: np.ndarray, current: JointFit, done: list[Any], ratio: float, period: float, folds: Folds,
     built: TermColumns, cache: RecordCache | None = None, view: _ModelView | None = None, done_columns: Sequence[np.ndarray] | None = None,
+    noise: NoiseFloor | None = None,
 ) -> DetectionData:
     """What the detectors see given the current fit.
 
     The nuisance columns are the backlash's own directions (a constant, ``dx/dmL``,
     ``dx/dmR``, ``dx/d(play)``) and the terms already added (they may move too). ``view`` is
     :class:`_ModelView` of ``current.params`` and ``done_columns`` the held columns of ``done`` (in parts, side by side),
-    when already at hand (the same numbers; formed here otherwise).
+    when already at hand (the same numbers; formed here otherwise). ``noise``: the record's noise floor, for
+    the detectors' physical bounds (none: 0).
     """
     view = _ModelView.of(uc, current.params) if view is None else view
     parts = [view.others, view.g]
@@ -715,6 +743,7 @@ def _detection_data(
     return DetectionData.stacked(
         parts, current.residual_deg, u_deg=u, time_s=t, torque_Nm=q, ratio=ratio, sample_period_s=period, engaged_index=view.index,
         n_backlash=view.others.shape[1] + 1, folds=folds, model_output_deg=view.x, backlash_params=current.params, cache=cache,
+        noise_floor_deg=0.0 if noise is None else noise.floor_deg,
     )
 
 
