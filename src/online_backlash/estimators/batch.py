@@ -406,12 +406,13 @@ class VorosBacklash(_VorosBase):
         u_t, x_t, x_prev = uc[1:], xc[1:], xc[:-1]
 
         def step(theta: np.ndarray) -> _Step:
-            # eq. (12)-(14): switching functions from the s-th estimate and the measured x(t-1), least squares
-            return _equation_error_step(u_t, x_prev, x_t, BacklashParams.from_theta(theta))
+            # eq. (12)-(14): switching functions from the s-th estimate (a negative dead band taken at
+            # zero: BacklashParams.feasible) and the measured x(t-1), least squares
+            return _equation_error_step(u_t, x_prev, x_t, BacklashParams.from_theta(theta).feasible())
 
         def run(start: BacklashParams) -> list[BacklashParams]:
             # eq. (9) on every estimate: a zero slope or slopes of opposite sign raise here
-            return [BacklashParams.from_theta(t) for t in self._iterate(step, start.theta)[1]]
+            return [BacklashParams.from_theta(t).feasible() for t in self._iterate(step, start.theta)[1]]
 
         try:
             self.history_ = run(_start_params(uc, xc))
@@ -420,14 +421,21 @@ class VorosBacklash(_VorosBase):
             # the paper's start lines lie off the data (slope not +-1 over a long stroke):
             # start again from lines fitted to the direction of motion
             try:
-                self.history_ = run(_direction_guess(uc, xc))
-            except (NotExcitedError, InvalidParameterError) as exc:
+                guess = _direction_guess(uc, xc)
+            except NotExcitedError as exc:
                 raise NotExcitedError(
                     "the paper's iteration found no estimate that engages both flanks, from the "
                     f"paper's start or from the direction of motion ({exc}); the data do not "
                     "excite both sides of the dead band well enough (more reversals needed)"
                 ) from exc
-            self.start_ = "direction"
+            try:
+                self.history_ = run(guess)
+                self.start_ = "direction"
+            except (NotExcitedError, InvalidParameterError):
+                # input and output move together both ways, yet eq. (5)-(6) engage one flank only: a dead band
+                # below what the encoders resolve (issue 27); the lines of the two directions of motion are the estimate
+                self.history_, self.n_iter_, self.converged_ = [guess.feasible()], 0, True
+                self.start_ = self.stop_reason_ = "direction lines"
         self.equation_error_params_ = self.history_[-1]
         params = self.equation_error_params_
         if self.refine:
