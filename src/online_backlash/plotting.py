@@ -104,18 +104,26 @@ def plot_hysteresis(curve: Any, path: str | os.PathLike[str], title: str = "", n
 
 
 def plot_fit(
-    chunk: Any, ratio: float, path: str | os.PathLike[str], *, rated_torque_Nm: float | None = None, title: str = "", note: str = ""
+    chunk: Any,
+    ratio: float,
+    path: str | os.PathLike[str],
+    *,
+    rated_torque_Nm: float | None = None,
+    title: str = "",
+    note: str = "",
+    **choice: Any,
 ) -> None:
-    """Fit a whole log by the batch method and plot it: with a torque column the data-sheet hysteresis
-    curve (:func:`plot_hysteresis`), without one the backlash characteristic (:func:`plot_characteristic`).
+    """Fit a whole log by the batch method and plot it: where the torque path is taken the data-sheet
+    hysteresis curve (:func:`plot_hysteresis`), else the backlash characteristic (:func:`plot_characteristic`).
 
-    ``chunk`` is the whole log as a :class:`~online_backlash.stream.SampleChunk`; ``ratio`` motor:load.
+    ``chunk`` is the whole log as a :class:`~online_backlash.stream.SampleChunk`; ``ratio`` motor:load;
+    ``choice``: ``play_method`` and ``no_torque_why`` of :func:`~online_backlash.fitting.fit_batch`.
     """
     from .fitting import fit_batch  # the fit, only when a plot is asked for
     from .load_aware import TorqueBacklash
     from .load_aware.datasheet import datasheet_figures, hysteresis_curve
 
-    _, est = fit_batch(chunk, ratio, rated_torque_Nm=rated_torque_Nm)
+    _, est = fit_batch(chunk, ratio, rated_torque_Nm=rated_torque_Nm, **choice)
     u, y = chunk.referred(ratio)
     if isinstance(est, TorqueBacklash):
         figures = datasheet_figures(est, u, y, chunk.torque_Nm, rated_torque_Nm)

@@ -9,6 +9,13 @@ sensor's noise). This replaces the paper's unmeasurable switching functions ``f1
     f1(t) = 1  if tau(t) < -deadband      (left flank engaged,  -1)
     neither    otherwise                  (in the gap, or too close to zero to tell: 0)
 
+The torque that means "no flank touches" need not be zero (issue 27): a sensor reads a zero offset,
+and a friction torque between it and the flanks is read while the motor crosses the gap. Given the
+torques at which the left and the right flank engage (``T_L``, ``T_R``, from the dwells of the
+motion, :func:`~.observability.engagement_torques`), the rule reads ``tau > max(T_L, T_R) + deadband``
+(right) and ``tau < min(T_L, T_R) - deadband`` (left): between the two engagement torques the
+torque cannot tell the flanks apart.
+
 The dead band comes from the torque noise, estimated robustly from the torque's high-passed
 part (its second difference, whose median absolute value is insensitive to the steps at flank
 contacts): ``sigma = median(|d2 tau|) / (0.6745 * sqrt(6))`` for white noise, and
@@ -76,14 +83,17 @@ def _torque_and_deadband(torque_Nm: np.ndarray, deadband_Nm: float) -> np.ndarra
     return q
 
 
-def engaged_flank(torque_Nm: np.ndarray, deadband_Nm: float) -> np.ndarray:
+def engaged_flank(
+    torque_Nm: np.ndarray, deadband_Nm: float, engagement_Nm: tuple[float, float] = (0.0, 0.0)
+) -> np.ndarray:
     """The engaged flank at each sample: +1 right (torque > deadband), -1 left (torque < -deadband),
     0 neither (int8 array). The measured switching functions: ``f2 = (out == 1)``, ``f1 = (out == -1)``
-    (eq. 5-6)."""
+    (eq. 5-6). ``engagement_Nm``: the torques ``(T_L, T_R)`` at which the left and right flank engage
+    (module docstring); the dead band is then taken about them."""
     q = _torque_and_deadband(torque_Nm, deadband_Nm)
     out = np.zeros(q.size, dtype=np.int8)
-    out[q > deadband_Nm] = 1
-    out[q < -deadband_Nm] = -1
+    out[q > max(engagement_Nm) + deadband_Nm] = 1
+    out[q < min(engagement_Nm) - deadband_Nm] = -1
     return out
 
 
