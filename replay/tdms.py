@@ -25,17 +25,8 @@ import numpy as np
 from online_backlash.errors import LogFormatError
 from online_backlash.stream import SampleChunk, StreamCounters
 
-from .tabular import (
-    ROLES,
-    ChannelInfo,
-    MeasurementLog,
-    Resampler,
-    channel_scales,
-    missing_channel,
-    open_with,
-    reads_torque,
-    torque_like,
-)
+from . import tabular
+from .tabular import ROLES, ChannelInfo, MeasurementLog, Resampler, channel_scales, missing_channel, open_with
 
 
 def _open_tdms(path: str) -> tuple[Any, IO[bytes]]:
@@ -134,10 +125,10 @@ class TdmsLog(MeasurementLog):
             channels = _channels(self._tdms)
         except Exception as exc:
             raise LogFormatError(self.path, None, f"not a readable TDMS file ({type(exc).__name__}: {exc})") from exc
-        read = [r for r in ROLES if r != "torque" or reads_torque(self.mapped)]
+        read = [r for r in ROLES if r != "torque" or tabular.reads_torque(self.mapped)]
         found: dict[str, Any] = {r: self._locate(r, channels) if r in read else None for r in ROLES}
         used = None if found["torque"] is None else f"{found['torque'].group_name}/{found['torque'].name}"
-        self.unused_torque_columns = torque_like(channels, used)
+        self.unused_torque_columns = tabular.torque_like(channels, used)
         present = [r for r in ROLES if found[r] is not None]
         motor = found["motor"]
         n = len(motor)

@@ -291,7 +291,10 @@ NEVER_IMPORTS = {
     "load_aware": ("replay", "drivers", "codecs", "pipeline", "tracking", "history", "diagnostics", "fitting", "cli", "publish", "web"),
     "fleet": ("replay", "drivers", "codecs", "estimators", "pipeline", "tracking", "history", "diagnostics", "fitting", "cli", "publish", "web"),
     # the rule of what may be reported as a play (issue 27): the history store applies it too
-    "physical": ("rows", "stream", "replay", "drivers", "codecs", "estimators", "pipeline", "tracking", "history", "load_aware", "cli"),
+    "physical": (
+        "rows", "stream", "replay", "drivers", "codecs", "estimators", "pipeline", "tracking", "history",
+        "load_aware", "cli",
+    ),
 }
 
 

@@ -34,7 +34,7 @@ from .load_aware.choice import (
 )
 from .load_aware.engagement import torque_orientation
 from .load_aware.observability import engagement_torques
-from .load_aware.report import batch_keys, decision_keys, has_torque, recursive_keys
+from .load_aware.report import batch_keys, has_torque, recursive_keys
 from .pipeline import OrderedWorker, Pipeline, PipelineStep, check_every
 from .rows import ARCMIN_PER_DEG, REPORT_KEYS, TRACE_COLUMNS, EstimateRow, describe_counts, select, source_counts
 from .stream import SampleChunk
@@ -216,7 +216,7 @@ def fit_batch(
     taken = decision.method == "torque"
     chosen: VorosBacklash | TorqueBacklash = torque_est if taken else kin_est  # type: ignore[assignment]
     report = BacklashReport.from_estimator("batch", len(chunk), chosen, n_iter=chosen.n_iter_, **gaps)
-    keys = decision_keys(decision)
+    keys = decision.keys()
     if torque_est is not None:
         keys = {**batch_keys(torque_est, u, y, q, rated_torque_Nm, taken), **keys}  # type: ignore[arg-type]
     return report.add_load_keys(keys), chosen
@@ -358,7 +358,7 @@ def fit_recursive(
     main = est.estimator
     if main.warm_start_.get("method") == "cold" and not main.takes_torque:
         report.extra["warm_start"] = dict(main.warm_start_)
-    keys = decision_keys(decision)
+    keys = decision.keys()
     if est.torque is not None:
         keys = {**recursive_keys(est.torque, rated_torque_Nm, decision.method == "torque"), **keys}
     return report.add_load_keys(keys), est

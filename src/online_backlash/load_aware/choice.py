@@ -175,6 +175,20 @@ class PlayDecision:
     reason: str
     verdict: Verdict
 
+    def keys(self) -> dict[str, Any]:
+        """The keys of ``estimate --json`` (and the columns of a row) for the path and its play's verdict."""
+        v = self.verdict
+        return {
+            "backlash_deg": v.value,
+            "backlash_std_deg": v.std,
+            "play_observable": v.observable,
+            "reason": v.reason,
+            "backlash_lower_bound_deg": v.lower_bound,
+            "backlash_upper_bound_deg": v.upper_bound,
+            "play_method": self.method,
+            "play_method_reason": self.reason,
+        }
+
 
 def choose_play_method(
     requested: str,

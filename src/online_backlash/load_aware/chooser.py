@@ -220,13 +220,14 @@ class PlayChooser:
         est = self.chosen(decision)
         if est is None or not est.started or not math.isfinite(float(est.backlash_)):
             return None
-        verdict = decision.verdict
+        keys = decision.keys()
         torque = self.torque
         separable = decision.method == "torque"
         return {
+            **keys,
             "n_samples": int(self.estimator.n_samples_seen_),
-            "backlash_deg": math.nan if verdict.value is None else verdict.value,
-            "backlash_std_deg": math.nan if verdict.std is None else verdict.std,
+            "backlash_deg": math.nan if keys["backlash_deg"] is None else keys["backlash_deg"],
+            "backlash_std_deg": math.nan if keys["backlash_std_deg"] is None else keys["backlash_std_deg"],
             "c_left_deg": float(est.c_left_),
             "c_right_deg": float(est.c_right_),
             "m_left": float(est.m_left_),
@@ -236,12 +237,6 @@ class PlayChooser:
             "torque_reversals": None if torque is None else int(torque.n_reversals_),
             "stiffness_left_nm_per_arcmin": float(torque.stiffness_left_nm_per_arcmin_) if separable else None,
             "stiffness_right_nm_per_arcmin": float(torque.stiffness_right_nm_per_arcmin_) if separable else None,
-            "play_observable": verdict.observable,
-            "reason": verdict.reason,
-            "backlash_lower_bound_deg": verdict.lower_bound,
-            "backlash_upper_bound_deg": verdict.upper_bound,
-            "play_method": decision.method,
-            "play_method_reason": decision.reason,
         }
 
     # -- saved state ----------------------------------------------------------------------------------

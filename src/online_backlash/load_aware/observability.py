@@ -22,9 +22,9 @@ the motor travel of every dwell from the torques at its two ends.
 
 The first :data:`PREFIX_SAMPLES` samples give the noise bands and each encoder's *resolution* (its
 quantum and its noise, from the gaps between its values and its second differences; the same samples
-however the stream is cut into blocks, so nothing here depends on the cutting): :attr:`DwellTracker.quantisation_deg` and
-:attr:`DwellTracker.sample_resolution_deg`, what :func:`online_backlash.physical.play_verdict`
-compares a play and its standard error with.
+however the stream is cut into blocks, so nothing here depends on the cutting):
+:attr:`DwellTracker.quantisation_deg` and :attr:`DwellTracker.sample_resolution_deg`, what
+:func:`online_backlash.physical.play_verdict` compares a play and its standard error with.
 
 Streaming (one small state, arrays in, compiled), so it runs beside a recursive estimator; its
 state is plain JSON (:meth:`DwellTracker.state_dict`) for a checkpoint.

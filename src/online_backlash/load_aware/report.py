@@ -1,7 +1,7 @@
 """The load-aware keys of a fit's report: the play's path and verdict, torque reversals, the data-sheet figures.
 
-One place turns a decision (:class:`~.choice.PlayDecision`) and a fitted torque estimator (batch or
-recursive) into the keys ``estimate --json`` carries (:data:`online_backlash.rows.REPORT_KEYS`).
+One place turns a fitted torque estimator (batch or recursive) into the keys ``estimate --json`` carries
+beside the path's (:meth:`~.choice.PlayDecision.keys`) (:data:`online_backlash.rows.REPORT_KEYS`).
 Lost motion and stiffness follow the play's rule (:func:`online_backlash.physical.figure_verdict`):
 a figure below zero, or whose standard error (the delta method on the flank lines' covariance and
 residual variance: white noise only, so it flags only figures the data plainly do not hold) exceeds
@@ -19,13 +19,12 @@ import numpy as np
 from ..errors import InvalidParameterError
 from ..physical import figure_verdict
 from ..rows import ARCMIN_PER_DEG
-from .choice import PlayDecision
 from .datasheet import DatasheetFigures, datasheet_figures, line_figures
 from .flank_fit import TorqueBacklash
 from .segments import check_knots, segment_keys
 from .torque_rls import TorqueBacklashRLS
 
-__all__ = ["batch_keys", "decision_keys", "has_torque", "recursive_keys"]
+__all__ = ["batch_keys", "has_torque", "recursive_keys"]
 
 #: ``figures_reason`` where the torque path was not taken.
 NOT_TAKEN = "the torque path was not taken (play_method_reason): its stiffness and lost motion are not the gear's"
@@ -47,21 +46,6 @@ def has_torque(torque_Nm: np.ndarray) -> bool:
     raise InvalidParameterError(
         f"the torque column has non-finite values, first at sample {int(np.flatnonzero(~finite)[0])}"
     )
-
-
-def decision_keys(decision: PlayDecision) -> dict[str, Any]:
-    """The keys of the path taken and of its play's verdict (:func:`online_backlash.physical.play_verdict`)."""
-    verdict = decision.verdict
-    return {
-        "backlash_deg": verdict.value,
-        "backlash_std_deg": verdict.std,
-        "play_observable": verdict.observable,
-        "reason": verdict.reason,
-        "backlash_lower_bound_deg": verdict.lower_bound,
-        "backlash_upper_bound_deg": verdict.upper_bound,
-        "play_method": decision.method,
-        "play_method_reason": decision.reason,
-    }
 
 
 def _stiffness_std(k: float | None, s: float, var_s: float) -> float:
