@@ -51,7 +51,8 @@ def _pct(values: list[float]) -> str:
 def sensor(seeds: int) -> None:
     print("## (a) a torque sensor behind friction, with a zero offset (play err %, median / worst)\n")
     print(
-        "| sensor | zero-torque model, batch | batch | recursive | path taken (batch, recursive) | engagement torques N m |"
+        "| sensor | zero-torque model, batch | batch | recursive | path taken (batch, recursive) "
+        "| engagement torques N m |"
     )
     print("|---|---|---|---|---|---|")
     for name, extra in CASES:

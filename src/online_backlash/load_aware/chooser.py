@@ -73,6 +73,7 @@ class PlayChooser:
         self.companion = companion
         self.tracker = tracker if tracker is not None else DwellTracker()
         self.no_torque_why = no_torque_why
+        self._decided: dict[float | None, PlayDecision] = {}  # since the last sample learned, by kinematic std
 
     @classmethod
     def beside(
@@ -97,7 +98,12 @@ class PlayChooser:
     def decide(self, kinematic_std_deg: float | None = None) -> PlayDecision:
         """The path and its verdict now; ``kinematic_std_deg`` replaces the kinematic estimator's own
         standard error (``estimate`` widens it by the per-cycle scatter,
-        :class:`~online_backlash.estimators.uncertainty.RecursivePlayScatter`)."""
+        :class:`~online_backlash.estimators.uncertainty.RecursivePlayScatter`). Decided once between samples."""
+        if kinematic_std_deg not in self._decided:
+            self._decided[kinematic_std_deg] = self._decide(kinematic_std_deg)
+        return self._decided[kinematic_std_deg]
+
+    def _decide(self, kinematic_std_deg: float | None) -> PlayDecision:
         kin = self.kinematic
         kinematic = None
         if kin is not None:
@@ -124,7 +130,7 @@ class PlayChooser:
         return self.estimator if (method == "torque") == bool(self.estimator.takes_torque) else self.companion
 
     def __getattr__(self, name: str) -> Any:
-        """The wrapped estimator's other attributes (``theta_``, ``warm_start_``, ``state_dict`` ...), as
+        """The wrapped estimator's other attributes (``theta_``, ``warm_start_``, ``P_`` ...), as
         ``fit_recursive`` handed out the estimator itself before issue 27."""
         if name == "estimator":  # not set yet (a copy being built): no recursion
             raise AttributeError(name)
@@ -167,6 +173,7 @@ class PlayChooser:
         torques its dwells show), then the estimator and the companion. With ``snapshot_at``, the kinematic
         estimator's estimates there (what the per-cycle scatter of the kinematic play measures; the torque
         estimator states its own standard error)."""
+        self._decided.clear()
         self.tracker.update(u, y, after_gap, torque_Nm if self.takes_torque else None)
         if self.takes_torque and self.play_method != "kinematic":
             self.estimator._ensure_valid()  # a cold start: started now, so the engagement torques can be set
@@ -182,6 +189,7 @@ class PlayChooser:
 
     def mark_gap(self) -> None:
         """A new log: none of the three reads the next sample as motion from the last."""
+        self._decided.clear()
         self.estimator.mark_gap()
         if self.companion is not None:
             self.companion.mark_gap()
@@ -189,6 +197,7 @@ class PlayChooser:
 
     def force_start(self) -> None:
         """Start the estimator on what it buffered (NotExcitedError as it gives it); the companion if it can."""
+        self._decided.clear()
         self.estimator.force_start()
         if self.companion is not None:
             try:
