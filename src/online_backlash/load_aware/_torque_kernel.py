@@ -19,7 +19,7 @@ from typing import NamedTuple
 from numba import njit
 
 from ..estimators._layout import offsets
-from .engagement import _MEDIAN_ABS_D2
+from ..estimators.resolution import MEDIAN_ABS_D2
 
 
 class FlankFields(NamedTuple):
@@ -116,7 +116,7 @@ def torque_step(st, c, u, y, q):
     if c[KC.DEADBAND] >= 0.0:
         db = c[KC.DEADBAND]
     elif st[S.N_QMED] >= c[KC.NOISE_WARMUP]:
-        db = c[KC.N_SIGMA] * st[S.Q_MED] / _MEDIAN_ABS_D2
+        db = c[KC.N_SIGMA] * st[S.Q_MED] / MEDIAN_ABS_D2
     else:
         return  # the dead band is not known yet: no flank can be told
     eng_hi = max(st[S.ENG_LEFT], st[S.ENG_RIGHT])

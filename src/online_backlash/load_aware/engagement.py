@@ -31,13 +31,12 @@ import math
 import numpy as np
 
 from ..errors import InvalidParameterError
+from ..estimators.resolution import robust_noise_std
 
 __all__ = ["DEADBAND_SIGMAS", "count_torque_reversals", "engaged_flank", "torque_deadband", "torque_noise_std", "torque_orientation"]
 
 #: Dead band in noise standard deviations (a Gaussian sample exceeds 4 sigma once in 16 000).
 DEADBAND_SIGMAS = 4.0
-#: ``median(|N(0, 6 sigma^2)|) / sigma``: the second difference of white noise has variance ``6 sigma^2``.
-_MEDIAN_ABS_D2 = 0.6744897501960817 * math.sqrt(6.0)
 
 
 def _torque_array(torque_Nm: np.ndarray) -> np.ndarray:
@@ -50,7 +49,8 @@ def _torque_array(torque_Nm: np.ndarray) -> np.ndarray:
 
 
 def torque_noise_std(torque_Nm: np.ndarray) -> float:
-    """Robust standard deviation of the torque sensor's noise, N m.
+    """Robust standard deviation of the torque sensor's noise, N m
+    (:func:`~online_backlash.estimators.resolution.robust_noise_std`).
 
     The median absolute second difference, scaled for white Gaussian noise. A quantised, noise-free
     torque (median 0) gives half its smallest non-zero step (the quantisation); a constant torque 0.
@@ -58,13 +58,7 @@ def torque_noise_std(torque_Nm: np.ndarray) -> float:
     q = _torque_array(torque_Nm)
     if q.size < 3:
         raise InvalidParameterError(f"need at least 3 torque samples to estimate its noise, got {q.size}")
-    d2 = np.abs(np.diff(q, 2))
-    sigma = float(np.median(d2)) / _MEDIAN_ABS_D2
-    if sigma > 0.0:
-        return sigma
-    steps = np.abs(np.diff(q))
-    steps = steps[steps > 0]
-    return float(steps.min()) / 2.0 if steps.size else 0.0
+    return robust_noise_std(q)
 
 
 def torque_deadband(torque_Nm: np.ndarray, n_sigma: float = DEADBAND_SIGMAS) -> float:

@@ -40,8 +40,7 @@ from typing import Any, NamedTuple
 import numpy as np
 from numba import njit
 
-from ..errors import InvalidParameterError
-from .engagement import torque_noise_std
+from ..estimators.resolution import DWELL_FACTOR, quantum_and_noise, still_band
 
 __all__ = [
     "DWELL_FACTOR",
@@ -53,8 +52,6 @@ __all__ = [
     "still_band",
 ]
 
-#: A dwell counts as showing the gap when it exceeds this many output noise bands.
-DWELL_FACTOR = 4.0
 #: Dwells kept (the latest): enough for their medians, bounded over weeks of tracking.
 MAX_DWELLS = 200
 #: Samples at the start of a stream that give the noise bands and the encoders' resolution (10 s at 1 kHz): the
@@ -170,26 +167,6 @@ def _dwell_run(st, u, y, q, gap, h_u, h_y, threshold, events, ring):  # pragma: 
     st[12] = count
     st[13] = y_from
     return found
-
-
-def quantum_and_noise(x_deg: np.ndarray) -> tuple[float, float]:
-    """A sampled signal's quantum (the smallest gap between the values it takes: its encoder's step) and
-    the robust standard deviation of its noise (from its second differences,
-    :func:`~.engagement.torque_noise_std`), degrees."""
-    x = np.asarray(x_deg, dtype=float)
-    if x.size < 3:
-        raise InvalidParameterError(f"need at least 3 samples to tell noise from motion, got {x.size}")
-    steps = np.diff(np.unique(x))
-    quantum = float(steps.min()) if steps.size else 0.0
-    d2 = np.abs(np.diff(x, 2))
-    return quantum, float(np.median(d2)) / (0.6744897501960817 * math.sqrt(6.0)) if d2.size else 0.0
-
-
-def still_band(x_deg: np.ndarray) -> float:
-    """The band (deg) within which a signal counts as still: 4 robust noise standard deviations of
-    its second difference, at least 1.5 quantisation steps (its smallest non-zero step)."""
-    quantum, _ = quantum_and_noise(x_deg)
-    return max(4.0 * torque_noise_std(x_deg), 1.5 * quantum, 1e-9)
 
 
 def engagement_torques(

@@ -296,7 +296,7 @@ class TorqueBacklashRLS(FlankPairFigures, RecursiveEstimator):
         if st[o + F.N] == 0.0:
             return None
         theta = np.array([st[o + F.M], st[o + F.B], st[o + F.S]])
-        sigma = st[S.Q_MED] / K._MEDIAN_ABS_D2 if st[S.N_QMED] >= _NOISE_WARMUP else 0.0
+        sigma = st[S.Q_MED] / K.MEDIAN_ABS_D2 if st[S.N_QMED] >= _NOISE_WARMUP else 0.0
         if sigma > 0.0 and st[o + F.N] > 3.0:
             P = np.asarray(st[o + F.P : o + F.P + 9]).reshape(3, 3)
             try:
@@ -442,7 +442,7 @@ class TorqueBacklashRLS(FlankPairFigures, RecursiveEstimator):
         if self.deadband_Nm is not None:
             return float(self.deadband_Nm)
         st = self._st
-        return self.n_sigma * st[S.Q_MED] / K._MEDIAN_ABS_D2 if st[S.N_QMED] >= _NOISE_WARMUP else math.nan
+        return self.n_sigma * st[S.Q_MED] / K.MEDIAN_ABS_D2 if st[S.N_QMED] >= _NOISE_WARMUP else math.nan
 
     def predict_one(self, u: float, torque_Nm: float = 0.0) -> float:
         """The output (deg) of the flank the torque engages (NaN in the dead band or for a flank not yet seen)."""
