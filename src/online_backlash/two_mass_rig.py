@@ -35,6 +35,20 @@ first tested on):
   and ``T0 - Tf`` the other: the torques at which the right and the left flank engage. A model that
   takes zero torque as "no flank touches" reads the crossing as a loaded flank.
 
+* **A second gap in series** (``second_gap_deg``): a gear train of two stages (a gearhead's two
+  stages, or a stage and a cable drive). Part of the play sits between the motor and an intermediate
+  shaft (inertia ``intermediate_inertia_kgm2``, held by the Coulomb friction ``intermediate_friction_nm``
+  of its bearings), the rest between that shaft and the load, both meshes of stiffness ``k``::
+
+      tau_a = mesh(u - x, the first gap)      tau_b = mesh(x - y, the second gap)
+      J_x x'' = tau_a - tau_b - Tfx tanh(x' / w)        J y'' = tau_b - b y' - tau_c tanh(y' / w) - tau_ext
+
+  A load torque that pushes the load the way the motor goes (an overrunning load, ``external_torque_nm``
+  negative while rising) holds the second gap closed on its far side while the friction holds the
+  intermediate shaft: after a reversal the load then follows with only the first gap crossed, until the
+  load torque gives way and the load falls back across the second gap. The play of the train is the
+  full crossing, ``play_deg``; the sensor reads ``tau_a``.
+
 Units: seconds, degrees, N m, kg m^2, N m s/rad; stiffness in N m/arcmin at the API (the
 data-sheet unit).
 """
@@ -168,6 +182,44 @@ def _integrate(
     return y_out, tau_out
 
 
+@numba.njit(cache=True)
+def _mesh(delta, c_left, c_right, k, d, slip):  # pragma: no cover - compiled
+    """The torque a linear mesh of play ``c_left + c_right`` transmits at torsion ``delta`` (rad), its
+    damping on the slip rate ``slip``; teeth only push."""
+    if delta > c_right:
+        return max(0.0, k * (delta - c_right) + d * slip)
+    if delta < -c_left:
+        return min(0.0, k * (delta + c_left) + d * slip)
+    return 0.0
+
+
+@numba.njit(cache=True)
+def _integrate_two_gaps(
+    u, du, tau_ext, dt, k, d, gaps, inertia_x, friction_x, inertia, viscous, coulomb, coulomb_width,
+    coulomb_at_rad, coulomb_scale, y0, v0,
+):  # pragma: no cover - compiled
+    """Semi-implicit Euler of the train with two gaps in series (module docstring): load angle and the
+    torque of the first mesh (rad, N m) at each step's start. ``gaps``: the first and the second gap's
+    ``c_left``, ``c_right``, rad."""
+    n = u.size
+    y_out = np.empty(n)
+    tau_out = np.empty(n)
+    x, vx, y, v = y0, v0, y0, v0
+    for i in range(n):
+        tau_a = _mesh(u[i] - x, gaps[0], gaps[1], k, d, du[i] - vx)
+        tau_b = _mesh(x - y, gaps[2], gaps[3], k, d, vx - v)
+        y_out[i] = y
+        tau_out[i] = tau_a
+        friction = coulomb * np.interp(y, coulomb_at_rad, coulomb_scale)
+        ax = (tau_a - tau_b - friction_x * math.tanh(vx / coulomb_width)) / inertia_x
+        ay = (tau_b - viscous * v - friction * math.tanh(v / coulomb_width) - tau_ext[i]) / inertia
+        vx += ax * dt
+        x += vx * dt
+        v += ay * dt
+        y += v * dt
+    return y_out, tau_out
+
+
 def sine_motion(duration_s: float, rate_hz: float, amplitude_deg: float, frequency_hz: float) -> tuple[np.ndarray, np.ndarray]:
     """Time (s) and a load-side reference angle (deg) following ``A sin(2 pi f t)``."""
     n = round(duration_s * rate_hz)
@@ -225,13 +277,21 @@ def simulate_two_mass(
     motor_offset_deg: float = 1234.5,
     load_offset_deg: float = -321.0,
     seed: int | None = 0,
+    second_gap_deg: float = 0.0,
+    intermediate_inertia_kgm2: float = 0.0005,
+    intermediate_friction_nm: float = 0.3,
 ) -> TwoMassRecording:
     """Simulate the two-mass rig described in the module docstring.
 
     Parameters
     ----------
     play_deg : float
-        Total play ``c_left + c_right``, degrees (load side).
+        Total play ``c_left + c_right``, degrees (load side): of both gaps together with ``second_gap_deg``.
+    second_gap_deg : float
+        The part of ``play_deg`` between an intermediate shaft and the load (0: one gap, the two-mass rig;
+        module docstring); ``left_fraction`` splits each gap, the spring is linear.
+    intermediate_inertia_kgm2, intermediate_friction_nm : float
+        The intermediate shaft's inertia and the Coulomb friction of its bearings (a second gap only).
     stiffness_nm_per_arcmin : float
         Torsional stiffness of the engaged gear, N m/arcmin (ignored with ``stiffness_segments``).
     stiffness_segments : ((K1, K2, K3), (T1, T2)), optional
@@ -264,6 +324,12 @@ def simulate_two_mass(
     if not (math.isfinite(sensor_friction_nm) and sensor_friction_nm >= 0 and math.isfinite(sensor_offset_nm)):
         given = f"{sensor_friction_nm!r}, {sensor_offset_nm!r}"
         raise InvalidParameterError(f"need a finite sensor friction >= 0 and offset, got {given}")
+    if second_gap_deg and not (
+        0.0 < second_gap_deg <= play_deg and stiffness_segments is None and intermediate_inertia_kgm2 > 0
+    ):
+        raise InvalidParameterError(
+            "a second gap needs 0 < second_gap_deg <= play_deg, a linear spring and an intermediate inertia > 0"
+        )
     if motion == "sine":
         t, u_deg = sine_motion(duration_s, rate_hz, amplitude_deg, frequency_hz)
     elif motion == "rig":
@@ -277,7 +343,8 @@ def simulate_two_mass(
     if stiffness_segments is not None:
         stiffness_nm_per_arcmin = float(stiffness_segments[0][0])
     k = stiffness_nm_per_arcmin * to_rad  # N m/rad
-    natural_rad_s = math.sqrt(max([k, *ks.tolist()]) / load_inertia_kgm2)
+    lightest = min(load_inertia_kgm2, intermediate_inertia_kgm2) if second_gap_deg else load_inertia_kgm2
+    natural_rad_s = math.sqrt(max([k, *ks.tolist()]) / lightest)
     if natural_rad_s / (rate_hz * substeps) > 0.2:
         raise InvalidParameterError(
             f"the gear's natural frequency ({natural_rad_s / 2 / math.pi:.0f} Hz) needs more than {substeps} substeps at {rate_hz} Hz"
@@ -298,10 +365,20 @@ def simulate_two_mass(
         scale = np.asarray(coulomb_profile(at_deg), dtype=float)
         if scale.shape != at_deg.shape or not np.all(np.isfinite(scale)) or np.any(scale < 0):
             raise InvalidParameterError("coulomb_profile must return one finite multiple >= 0 per angle")
-    y_fine, tau_fine = _integrate(
-        u_fine, du_fine, tau_ext, 1.0 / (rate_hz * substeps), k, knots, knot_torques, ks, damping, c_left, c_right,
-        load_inertia_kgm2, viscous_nms_per_rad, coulomb_nm, 1e-3, np.radians(at_deg), scale, y0, du_fine[0],
-    )
+    if second_gap_deg:
+        first, second = np.radians(play_deg - second_gap_deg), np.radians(second_gap_deg)
+        sides = np.array([left_fraction, 1.0 - left_fraction])
+        gaps = np.concatenate((first * sides, second * sides))
+        y_fine, tau_fine = _integrate_two_gaps(
+            u_fine, du_fine, tau_ext, 1.0 / (rate_hz * substeps), k, damping, gaps, intermediate_inertia_kgm2,
+            intermediate_friction_nm, load_inertia_kgm2, viscous_nms_per_rad, coulomb_nm, 1e-3, np.radians(at_deg),
+            scale, u_fine[0], du_fine[0],
+        )  # fmt: skip
+    else:
+        y_fine, tau_fine = _integrate(
+            u_fine, du_fine, tau_ext, 1.0 / (rate_hz * substeps), k, knots, knot_torques, ks, damping, c_left, c_right,
+            load_inertia_kgm2, viscous_nms_per_rad, coulomb_nm, 1e-3, np.radians(at_deg), scale, y0, du_fine[0],
+        )
     pick = slice(0, None, substeps)  # the fine steps at the output instants
     y_deg, tau_true = np.degrees(y_fine[pick]), tau_fine[pick]
     rng = np.random.default_rng(None if seed is None else seed + 7)
