@@ -3,9 +3,9 @@
 The sweep (``shared/data/davinci_tool_gearhead_backlash/sweep/``, ODbL v1.0: MRDLab
 mis-tool-characterization, O'Neill, Stephens, Kowalewski, IEEE RA-L 3(4) 2018) is 50 runs of one
 gearhead on one day. The bench runs all 50; this test runs 23 of them to keep the suite's time (about
-10 s instead of 30): every reaction-torque setting at the slowest and the fastest frequency (0.1 and
-0.5 Hz: the frequency moves a setting's play by at most 0.03 deg, the setting by up to 0.4), and the
-100 % runs of the three other frequencies, the runs the acceptance hinges on.
+10 s instead of 25): every reaction-torque setting at the slowest and the fastest frequency (0.1 and
+0.5 Hz), and the 100 % runs of the three other frequencies, the runs where the load crosses the gap in
+two steps.
 """
 
 from __future__ import annotations
@@ -48,17 +48,13 @@ def test_every_run_reports_a_physical_play_or_why_not_and_the_std_covers_the_med
     }  # the torque fits none of these runs' dwells (docs/load-aware.md)
 
 
-def test_the_plays_at_10_to_90_percent_lie_within_15_percent_of_their_median(sweep):
-    _, results = sweep
-    plays = [r.play for r in results if "100pct" not in r.name and r.play is not None]
-    assert len(plays) == 18 and (max(plays) - min(plays)) / statistics.median(plays) <= 0.15
-
-
-@pytest.mark.xfail(
-    strict=True,
-    raises=AssertionError,
-    reason="the 100 % runs: the load crosses the gap in two steps, one flank line mixes them (docs/load-aware.md)",
-)
 def test_all_the_plays_lie_within_15_percent_of_their_median(sweep):
+    """At 100 % reaction torque the load crosses the gap in two steps; the flank lines are fitted where
+    the flanks are fully engaged (the partial crossings left out, estimators/full_engagement.py), so the
+    100 % runs read the play the others do: before, 1.52-1.79 deg against 1.76-1.91 at 10-90 %."""
     bench, results = sweep
     assert bench.acceptance(results)["spread"] <= bench.MAX_SPREAD
+    full = [r.play for r in results if "100pct" in r.name]
+    rest = [r.play for r in results if "100pct" not in r.name]
+    assert len(full) == 5 and all(p is not None for p in full)
+    assert max(abs(p - statistics.median(rest)) for p in full) <= 0.1 * statistics.median(rest)

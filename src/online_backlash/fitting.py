@@ -43,6 +43,11 @@ from .stream import SampleChunk
 PLAUSIBLE_SLOPE = (0.5, 2.0)
 #: Largest plausible play, degrees on the load side (worn gearboxes have tenths of a degree, not degrees).
 PLAUSIBLE_PLAY_DEG = 5.0
+#: The kinematic path's settings: encoder zeros are arbitrary (origin at the first sample), and the flank
+#: lines are fitted where the flanks are fully engaged
+#: (:class:`~online_backlash.estimators.full_engagement.FullEngagement`, issue 27: a partial crossing of the gap
+#: belongs to neither line); the recursive estimator takes the latter (its origin is the first sample already).
+KINEMATIC = {"origin": "first", "full_engagement": True}
 #: Blocks the bookkeeping of :func:`fit_recursive` (play scatter, dwells) may lag behind the estimator in
 #: its worker thread, with ``ahead`` > 0 (:class:`~online_backlash.pipeline.OrderedWorker`; 0: inline).
 BOOKKEEPING_AHEAD = 2
@@ -183,7 +188,8 @@ def fit_batch(
     :class:`~online_backlash.load_aware.TorqueBacklash` (flank lines with wind-up, the flanks told apart
     about the torques at which they engage as the dwells show them; the data-sheet figures, lost motion
     at 3 % of ``rated_torque_Nm`` N m if given); and (unless ``play_method="torque"``)
-    :class:`VorosBacklash` (eq. 8-14, then the output-error refinement) with the kinematic observability
+    :class:`VorosBacklash` (eq. 8-14, then the output-error refinement; its lines where the flanks are fully
+    engaged, :data:`KINEMATIC`) with the kinematic observability
     (:class:`~online_backlash.load_aware.DwellTracker`). ``auto`` picks the path the data support
     (:func:`~online_backlash.load_aware.choice.choose_play_method`); the report carries its estimator's
     lines, and its play as :func:`online_backlash.physical.play_verdict` lets it be reported. Returns the
@@ -203,7 +209,7 @@ def fit_batch(
     kin_est, kinematic = None, None
     if torque_est is None or play_method == "auto":
         try:  # encoder zeros are arbitrary: origin "first"
-            kin_est = VorosBacklash(**{"origin": "first", **_own_params(VorosBacklash, params)}).fit(u, y)
+            kin_est = VorosBacklash(**{**KINEMATIC, **_own_params(VorosBacklash, params)}).fit(u, y)
             kinematic = kinematic_path(kin_est.backlash_, kin_est.backlash_std_, tracker)
         except NotExcitedError as exc:
             if torque_est is None:
@@ -237,18 +243,20 @@ def recursive_estimator(
     column and the torque path is wanted (its sign from
     :func:`~online_backlash.load_aware.engagement.torque_orientation`, the settings it shares with ``params``;
     with ``play_method="auto"`` a :class:`BacklashRLS` learns beside it),
-    else around :class:`BacklashRLS` with ``params``."""
+    else around :class:`BacklashRLS` with ``params``; the :class:`BacklashRLS` fits its lines where the flanks
+    are fully engaged unless ``params`` say otherwise (:data:`KINEMATIC`)."""
     check_play_method(play_method)
     present = first is not None and has_torque(first.torque_Nm)
     _check_torque_asked(play_method, present)
+    kinematic = {"full_engagement": KINEMATIC["full_engagement"], **params}
     if present and play_method != "kinematic":
         assert first is not None
         sign = torque_orientation(*first.referred(ratio), first.torque_Nm)
         shared = _own_params(TorqueBacklashRLS, params)
         main: BacklashRLS | TorqueBacklashRLS = TorqueBacklashRLS(**{"torque_sign": sign, **shared})
     else:
-        main = BacklashRLS(**params)
-    return PlayChooser.beside(main, play_method, no_torque_why, **params)
+        main = BacklashRLS(**kinematic)
+    return PlayChooser.beside(main, play_method, no_torque_why, **kinematic)
 
 
 def _keep_books(
