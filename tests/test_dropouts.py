@@ -51,7 +51,9 @@ def _recursive(path, **kwargs):
 def test_without_bridging_a_4_row_dropout_every_5_s_spoils_the_warm_start(dropout_csv):
     report, est = _recursive(dropout_csv, gap_policy=GapPolicy(bridge_s=0.0))
     assert est.warm_start_["method"] == "cold"  # the failure of issue 11 item 8: 0.4506 deg
-    assert abs(report.backlash_deg - PLAY_DEG) > 0.02
+    # (with the full-engagement rule of issue 27 the lines' play, read where their information lies, is 0.229
+    # +- 0.136 deg after the cold start: withheld as not resolved, NaN)
+    assert not abs(report.backlash_deg - PLAY_DEG) <= 0.02
     reason = report.extra["warm_start"]["reason"]
     assert reason.startswith("8 gaps in the data cut the 40000 buffered samples into stretches of at most 4996")
     assert report.extra["gaps_bridged"] == 0
@@ -70,7 +72,8 @@ def test_a_4_row_dropout_every_5_s_is_bridged(dropout_csv, capsys):
     out = json.loads(capsys.readouterr().out)
     assert out["backlash_deg"] == pytest.approx(report.backlash_deg, abs=1e-12) and out["gaps"] == 12
     assert main(["estimate", str(dropout_csv), "--ratio", "30", "--json", "--bridge-s", "0"]) == 0
-    assert abs(json.loads(capsys.readouterr().out)["backlash_deg"] - PLAY_DEG) > 0.02
+    unbridged = json.loads(capsys.readouterr().out)["backlash_deg"]
+    assert unbridged is None or abs(unbridged - PLAY_DEG) > 0.02  # (null: not resolved, as above)
 
 
 def _restarts(est: BacklashRLS) -> list[bool]:
