@@ -11,9 +11,14 @@ N m): one straight wind-up line, then the three segments (``stiffness_torques_Nm
 
 (c) Plays of 0, 0.5 arcsec, 5 arcsec, 0.5 and 1 arcmin at 14-, 17- and 20-bit encoders (the kinematic
 rig, :mod:`online_backlash.rig`, 20 s, 2 counts of load-encoder noise): what batch, recursive and
-``track`` report.
+``track`` report, and what share of the samples the full-engagement rule leaves out.
 
-Run: ``python bench/play_rules.py`` (about 1 minute on 2 cores).
+(d) A train with two gaps in series (``second_gap_deg``: 0.25 + 0.15 deg, stiff meshes, 1 N m/arcmin) whose
+load a torque ``-T (1 - sin wt) / 2`` holds across the second gap over part of every rising stroke (issue 27 item 5,
+the measured gearhead's two-step crossing): the angles alone, batch, recursive and ``track``, against the
+paper's lines with every sample (``full_engagement=False``); the rig's angles have no noise, so one run each.
+
+Run: ``python bench/play_rules.py`` (about 10 s on 2 cores).
 """
 
 from __future__ import annotations
@@ -25,10 +30,13 @@ from pathlib import Path
 
 import numpy as np
 
+from online_backlash import VorosBacklash
+from online_backlash.estimators.full_engagement import NO_FLANK, FullEngagement
 from online_backlash.fitting import fit_batch, fit_recursive
 from online_backlash.history.store import HistoryStore
 from online_backlash.load_aware import TorqueBacklash
 from online_backlash.rig import simulate_rig
+from online_backlash.stream import SampleChunk
 from online_backlash.tracking import GearboxTracker
 from online_backlash.two_mass_rig import simulate_two_mass
 
@@ -90,26 +98,59 @@ def hardening() -> None:
         )
 
 
+def _tracked(chunk: SampleChunk, every_s: float) -> dict:
+    """The last estimate ``track`` stores for one log into a fresh store."""
+    with tempfile.TemporaryDirectory() as folder, HistoryStore(Path(folder) / "w.db", create=True) as store:
+        tracker = GearboxTracker(store, "g", 30.0, every_s=every_s)
+        tracker.track_chunks([chunk], "log", key="k" * 64, clock_offset=lambda first: 1.7e9 - first)
+        return vars(store.estimates("g")[-1])
+
+
+def _left_out(motor_deg: np.ndarray, load_deg: np.ndarray, ratio: float) -> str:
+    """The share of the samples the full-engagement rule puts on neither flank line."""
+    return f"{np.mean(FullEngagement().fit(motor_deg / ratio, load_deg) == NO_FLANK):.1%}"
+
+
 def zero_play() -> None:
     print("\n## (c) zero and sub-resolution play: play +- std, or 0 with the upper bound (arcmin)\n")
-    print("| encoders | true play arcmin | batch | recursive | track (last estimate) |")
-    print("|---|---|---|---|---|")
+    print("| encoders | true play arcmin | batch | recursive | track (last estimate) | left out |")
+    print("|---|---|---|---|---|---|")
     for bits in (14, 17, 20):
         for arcmin in (0.0, 0.5 / 60, 5 / 60, 0.5, 1.0):
             rec = simulate_rig(duration_s=20.0, play_deg=arcmin / 60, motor_bits=bits, load_bits=bits, seed=bits)
             chunk = rec.to_chunk()
             shown = [fit_batch(chunk, 30.0)[0].as_dict(), fit_recursive([chunk], 30.0)[0].as_dict()]
-            with tempfile.TemporaryDirectory() as folder, HistoryStore(Path(folder) / "w.db", create=True) as store:
-                tracker = GearboxTracker(store, "g", 30.0, every_s=5.0)
-                tracker.track_chunks([chunk], "log", key="k" * 64, clock_offset=lambda first: 1.7e9 - first)
-                shown.append(vars(store.estimates("g")[-1]))
+            shown.append(_tracked(chunk, 5.0))
             cells = [
                 f"0 (at most {60 * d['backlash_upper_bound_deg']:.3f})"
                 if d["backlash_deg"] == 0.0
                 else f"{60 * d['backlash_deg']:.3f} +- {60 * d['backlash_std_deg']:.3f}"
                 for d in shown
             ]
-            print(f"| {bits} bit | {arcmin:.4f} | {' | '.join(cells)} |")
+            left_out = _left_out(rec.motor_deg, rec.load_deg, 30.0)
+            print(f"| {bits} bit | {arcmin:.4f} | {' | '.join(cells)} | {left_out} |")
+
+
+def _angles_only(chunk: SampleChunk) -> SampleChunk:
+    return SampleChunk(chunk.time_s, chunk.motor_deg, chunk.load_deg, np.full(len(chunk), np.nan), chunk.after_gap)
+
+
+def two_gaps() -> None:
+    print("\n## (d) two gaps in series, the second held open over part of the rising stroke (play deg +- std)\n")
+    print("| T N m | sine Hz | paper's lines, every sample | batch | recursive | track | left out |")
+    print("|---|---|---|---|---|---|---|")
+    for overrun, hz in ((0.0, 0.5), (0.3, 0.5), (0.3, 0.2), (0.5, 0.5)):
+        rec = simulate_two_mass(
+            duration_s=20.0, play_deg=PLAY, second_gap_deg=0.15, stiffness_nm_per_arcmin=1.0, viscous_nms_per_rad=0.05,
+            frequency_hz=hz, external_torque_nm=lambda t, a=overrun, f=hz: -a * (1.0 - np.sin(2 * np.pi * f * t)) / 2,
+        )  # fmt: skip
+        paper = VorosBacklash(origin="first").fit(rec.motor_deg / rec.ratio, rec.load_deg)
+        chunk = _angles_only(rec.to_chunk())
+        found = [fit_batch(chunk, rec.ratio)[0].as_dict(), fit_recursive([chunk], rec.ratio)[0].as_dict()]
+        found.append(_tracked(chunk, 10.0))
+        cells = [f"{d['backlash_deg']:.4f} +- {d['backlash_std_deg']:.4f}" for d in found]
+        left_out = _left_out(rec.motor_deg, rec.load_deg, rec.ratio)
+        print(f"| {overrun} | {hz} | {paper.backlash_:.4f} | {' | '.join(cells)} | {left_out} |")
 
 
 def main() -> None:
@@ -117,6 +158,7 @@ def main() -> None:
     sensor(5)
     hardening()
     zero_play()
+    two_gaps()
     print(f"\n{time.perf_counter() - start:.0f} s")
 
 
