@@ -216,7 +216,7 @@ CASES = {
     "missing folder": Case((*E, "{d}/raw/", *R), 1, r"error: {d}/raw/: no such file or folder"),
     "unknown format": Case((*E, "{d}/good.xyz", *R), 1, r"error: {d}/good.xyz: unknown log format '\.xyz'"),
     "counts under a degrees header": Case(
-        (*E, str(DEMO), *R), EXIT_NO_PLAY, r"warning: .*demo_rig_30to1.csv.gz: fitted slope 8, not near \+-1 .*units.*--ratio 3.75"
+        (*E, str(DEMO), *R), EXIT_NO_PLAY, r"error: .*demo_rig_30to1.csv.gz: no play: not reported: fitted slope 8, not near \+-1 .*units.*--ratio 3.75"
     ),
     "radians under a degrees header": Case(
         (*E, "{d}/radians.csv", *R), 0, r"warning: {d}/radians.csv: the angles step by a grid of radians \(motor 'motor' by 2 pi/16384, "

@@ -101,12 +101,16 @@ class EstimateAt:
         Its play, degrees (load side).
     m_left, m_right : float
         Its flank slopes, eq. (1).
+    level_deg : float
+        The output level (the caller's frame, degrees) its play is read at, where that is not the frame's
+        origin (:class:`~.backlash_rls.BacklashRLS` with ``full_engagement``); 0 otherwise.
     """
 
     started: bool
     backlash_deg: float
     m_left: float
     m_right: float
+    level_deg: float = 0.0
 
 
 #: The estimate of an estimator that has not started (:class:`EstimateAt`).
@@ -657,7 +661,14 @@ class RecursiveEstimator(ABC):
         """The estimate as it is now (:class:`EstimateAt`): the play and slopes, degrees."""
         if not self._started:
             return NOT_STARTED
-        return EstimateAt(True, float(self.backlash_), float(self.m_left_), float(self.m_right_))
+        play, m_left, m_right = float(self.backlash_), float(self.m_left_), float(self.m_right_)
+        return EstimateAt(True, play, m_left, m_right, self._play_level_deg())
+
+    def _play_level_deg(self) -> float:
+        """The output level (the caller's frame, degrees) the play is read at for :class:`EstimateAt`: 0, where
+        the estimator reads it at the frame's origin or at the current output (which per-cycle plays read as
+        the origin's, the slopes being alike)."""
+        return 0.0
 
     @property
     def started(self) -> bool:
