@@ -289,6 +289,19 @@ def test_the_rule_for_a_play_lost_motion_and_stiffness():
     assert figure_verdict(0.02, None, "N m/arcmin", "stiffness").value == 0.02
 
 
+def test_a_fit_whose_slopes_say_wrong_units_has_no_play():
+    """Counts under a degrees header (the simulated rig's angles with the ratio off by 8): the flanks follow the
+    referred motor at slope 8, so the 22.8 deg that comes out is no play of the gearbox; batch and recursive say
+    why instead (the reason names units and ratio), and the same rig at its own ratio keeps its play."""
+    rig = simulate_rig(duration_s=40.0, ratio=3.75, play_deg=0.5, seed=4)
+    for fit in (fit_batch, fit_recursive):
+        off = fit([rig.to_chunk()] if fit is fit_recursive else rig.to_chunk(), 30.0)[0]
+        assert math.isnan(off.backlash_deg) and off.play_observable is False
+        assert off.no_play_reason().startswith("not reported: fitted slope 8") and "--ratio 3.75" in off.no_play_reason()
+        right = fit([rig.to_chunk()] if fit is fit_recursive else rig.to_chunk(), 3.75)[0]
+        assert right.backlash_deg == pytest.approx(0.5, abs=0.02) and right.no_play_reason() is None
+
+
 @pytest.mark.skipif(not DAVINCI.is_dir(), reason="the shared measured runs are not beside the checkout")
 def test_the_worst_measured_torque_play_is_not_reported(capsys):
     """Issue 27's table: run12 gave -0.37 +- 12.9 deg by the torque path. Forced down that path now, its
