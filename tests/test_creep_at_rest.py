@@ -19,7 +19,7 @@ import pytest
 from online_backlash.diagnostics import _search_round
 from online_backlash.diagnostics._scoring import DetectionData
 from online_backlash.diagnostics.dead_band import DeadBandMotion
-from online_backlash.diagnostics.generic import VelocityFunction
+from online_backlash.diagnostics.generic_terms import VelocityFunction
 from online_backlash.diagnostics.loop import Diagnosis, diagnose_arrays
 from online_backlash.errors import InvalidParameterError
 from online_backlash.model import BacklashParams

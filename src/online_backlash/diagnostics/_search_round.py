@@ -24,7 +24,7 @@ from ._scoring import Detection, DetectionData
 from ._term_columns import TermColumns
 from .diagnosis import AddedTerm
 from .effects import LIBRARY
-from .generic import GENERIC
+from .generic_terms import GENERIC
 from .joint import JointFit
 
 #: the runner-up named effect is refitted too when its linear gain is at least this share of the best one's
