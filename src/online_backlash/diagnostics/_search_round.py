@@ -73,7 +73,7 @@ class SearchRound:
         r = record
         view = FitView.of(r.uc, current.params)  # the round's model: its detectors' and its confirmation's
         done = [s.effect for s in steps]
-        data = detection_data(r.u_deg, r.time_s, r.torque_Nm, r.uc, current, done, float(r.ratio), r.period_s,
+        data = detection_data(r.u_deg, r.time_s, r.torque_Nm, r.uc, current, done, r.ratio, r.period_s,
                               r.screen, r.built, r.cache, view, noise=r.noise)
         named = significant([c.detect(data) for c in LIBRARY if c not in taken], rules)
         named = [without_columns(d, r.built) for d in named]
@@ -143,7 +143,7 @@ class SearchRound:
         if not r.screen.screened:
             terms, fit = refits.walked([*done, choice.detection.effect], choice.fit, range(len(done)))
             return terms, choice.detection, fit, refits.data
-        whole = detection_data(r.u_deg, r.time_s, r.torque_Nm, r.uc, refits.current, done, float(r.ratio), r.period_s,
+        whole = detection_data(r.u_deg, r.time_s, r.torque_Nm, r.uc, refits.current, done, r.ratio, r.period_s,
                                r.folds, r.built, r.cache, refits.view, noise=r.noise)
         confirmed = confirmed_on_every_sample(choice.detection, whole, r.built, self.rules)
         if confirmed is None:

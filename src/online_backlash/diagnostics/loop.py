@@ -151,7 +151,7 @@ def diagnose(
     after = r.start.coasting(r.residual_before_deg, current.residual_deg)  # until a flank first catches the load
     screened = len(r.screen.segments) if r.screen.screened else None
     return Diagnosis(
-        r.base, current, steps, r.noise, r.residual_before_deg, after, r.u_deg, r.load_deg, r.time_s, float(ratio),
+        r.base, current, steps, r.noise, r.residual_before_deg, after, r.u_deg, r.load_deg, r.time_s, r.ratio,
         r.torque_Nm, r.start, screened, r.folds.n_cycles,
     )
 
