@@ -13,8 +13,9 @@ import pytest
 from online_backlash.diagnostics import synthetic
 from online_backlash.diagnostics._folds import cycle_folds, reversal_cycles
 from online_backlash.diagnostics._scoring import Detection, DetectionData
+from online_backlash.diagnostics._search_round import inseparable_rivals
 from online_backlash.diagnostics.effects import Drift, TransmissionError
-from online_backlash.diagnostics.loop import _rivals, diagnose_arrays
+from online_backlash.diagnostics.loop import diagnose_arrays
 from online_backlash.rig import rig_motion, simulate_rig
 from online_backlash.two_mass_rig import ARCMIN_PER_DEG
 
@@ -151,12 +152,12 @@ def test_two_effects_that_explain_the_same_part_are_reported_as_rivals():
     one, two = Drift(1, float(t[-1])), Drift(2, float(t[-1]))
     d1 = Detection(one, data.score(False, one.terms(u, t, q)), "")
     d2 = Detection(two, data.score(False, two.terms(u, t, q)), "")
-    assert _rivals(data, d1, [d1, d2], 0.05) == ("drift",)
+    assert inseparable_rivals(data, d1, [d1, d2], 0.05) == ("drift",)
     # a term that adds its own part is no rival
     other = DetectionData(u, t, q, r + 0.03 * np.sin(np.radians(3 * u)), 30.0, 1e-3, model_output_deg=u)
     te = TransmissionError((3,), (), 30.0)
     d3 = Detection(te, other.score(True, te.terms(u, t, q)), "")
-    assert _rivals(other, Detection(one, other.score(False, one.terms(u, t, q)), ""), [d3], 0.05) == ()
+    assert inseparable_rivals(other, Detection(one, other.score(False, one.terms(u, t, q)), ""), [d3], 0.05) == ()
 
 
 def _warm_up_run(duration_s: float = 120.0) -> tuple[np.ndarray, np.ndarray]:

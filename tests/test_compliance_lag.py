@@ -16,14 +16,16 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from online_backlash.diagnostics import loop, synthetic
+from online_backlash.diagnostics import _refits, synthetic
+from online_backlash.diagnostics._fit_view import FitView, detection_data, held_mask, stacked_columns
 from online_backlash.diagnostics._folds import cycle_folds
 from online_backlash.diagnostics._normal_equations import Projector
+from online_backlash.diagnostics._refits import linearised_refit, walk_settings
 from online_backlash.diagnostics._term_columns import TermColumns
 from online_backlash.diagnostics.dead_band import DeadBandMotion
 from online_backlash.diagnostics.effects import Compliance, Drift
 from online_backlash.diagnostics.joint import fit_guarded
-from online_backlash.diagnostics.loop import _columns, _detection_data, _held, _linearised_refit, _ModelView, _tuned, diagnose_arrays
+from online_backlash.diagnostics.loop import diagnose_arrays
 from online_backlash.estimators.batch import VorosBacklash
 from online_backlash.load_aware.engagement import torque_deadband
 from online_backlash.two_mass_rig import ARCMIN_PER_DEG, simulate_two_mass
@@ -62,7 +64,7 @@ def test_the_walk_moves_to_the_setting_the_refit_prefers_and_keeps_the_others():
 
     drift = Drift(1)
     terms = [drift, Compliance("torque", smooth_samples=6)]
-    terms, fit = _tuned(terms, refit_with(terms), refit_with, range(2))
+    terms, fit = walk_settings(terms, refit_with(terms), refit_with, range(2))
     assert terms[0] is drift  # no setting: the same object
     assert terms[1].smooth_samples == 3 and fit.rms_deg == 1.0
     assert sorted(calls) == sorted(set(calls))  # no setting refitted twice
@@ -71,13 +73,13 @@ def test_the_walk_moves_to_the_setting_the_refit_prefers_and_keeps_the_others():
 
 def test_only_the_terms_asked_for_are_tuned():
     terms = [Compliance("torque", smooth_samples=6), Compliance("torque", smooth_samples=6)]
-    tuned, fit = _tuned(terms, SimpleNamespace(rms_deg=12.0), lambda ts: SimpleNamespace(rms_deg=float(sum(e.smooth_samples for e in ts))), [1])
+    tuned, fit = walk_settings(terms, SimpleNamespace(rms_deg=12.0), lambda ts: SimpleNamespace(rms_deg=float(sum(e.smooth_samples for e in ts))), [1])
     assert tuned[0] is terms[0] and tuned[1].smooth_samples == 1 and fit.rms_deg == 7.0
 
 
 def test_the_walk_stays_where_no_neighbour_is_better():
     effect = Compliance("torque", smooth_samples=5)
-    terms, fit = _tuned([effect], SimpleNamespace(rms_deg=1.0), lambda terms: SimpleNamespace(rms_deg=1.0 + abs(terms[0].smooth_samples - 5)), [0])
+    terms, fit = walk_settings([effect], SimpleNamespace(rms_deg=1.0), lambda terms: SimpleNamespace(rms_deg=1.0 + abs(terms[0].smooth_samples - 5)), [0])
     assert terms[0] is effect and fit.rms_deg == 1.0
 
 
@@ -108,11 +110,11 @@ def test_the_linearised_refit_orders_the_settings_as_the_joint_refits_do():
 
     def joint(w):
         terms = [Compliance("torque", deadband_Nm=deadband, smooth_samples=w)]
-        x = _ModelView.of(uc, base.params_).x
-        return terms, fit_guarded(uc, yc, _columns(terms, built, x), base.params_, _held(terms))
+        x = FitView.of(uc, base.params_).output_deg
+        return terms, fit_guarded(uc, yc, stacked_columns(terms, built, x), base.params_, held_mask(terms))
 
     terms, fit = joint(5)
-    walk = _linearised_refit(terms, 0, fit, uc, cycle_folds(u), built)
+    walk = linearised_refit(terms, 0, fit, uc, cycle_folds(u), built)
     assert walk(terms).rms_deg == pytest.approx(fit.rms_deg, rel=1e-3)
     widths = [1, 3, 5, 8, 16]
     linear = [walk([Compliance("torque", deadband_Nm=deadband, smooth_samples=w)]).rms_deg for w in widths]
@@ -131,18 +133,18 @@ def test_the_walk_reads_the_dead_bands_motion_on_its_support(monkeypatch):
     uc, yc = u - base.u_ref_, y - base.y_ref_
     p = base.params_
     built = TermColumns(u, t, q)
-    view = _ModelView.of(uc, p)
+    view = FitView.of(uc, p)
     dead_band = DeadBandMotion(p.m_left, p.c_left, p.m_right, p.c_right, (0.004, 0.032), (0.0, 0.004, 0.016), True, ())
     terms = [Compliance("torque", deadband_Nm=torque_deadband(np.nan_to_num(q)), smooth_samples=5), dead_band]
-    fit = fit_guarded(uc, yc, _columns(terms, built, view.x), p, _held(terms))
+    fit = fit_guarded(uc, yc, stacked_columns(terms, built, view.output_deg), p, held_mask(terms))
     formed = []
-    monkeypatch.setattr(loop, "Projector", lambda columns: formed.append(columns) or Projector(columns))
-    walk = _linearised_refit(terms, 0, fit, uc, cycle_folds(u), built)
+    monkeypatch.setattr(_refits, "Projector", lambda columns: formed.append(columns) or Projector(columns))
+    walk = linearised_refit(terms, 0, fit, uc, cycle_folds(u), built)
     assert formed[0].supports[-1] is not None and formed[0].supports[-1].rows.size < 0.25 * u.size
     other = Compliance("torque", deadband_Nm=terms[0].deadband_Nm, smooth_samples=8)
-    at = _ModelView.of(uc, fit.params)
+    at = FitView.of(uc, fit.params)
     restored = fit.residual_deg + built.get(terms[0])[:, 0] * fit.coef[0]
-    every = np.column_stack((at.others, at.g, built.get(dead_band), built.get(other)))
+    every = np.column_stack((at.other_directions, at.play_direction, built.get(dead_band), built.get(other)))
     left = restored - every @ np.linalg.lstsq(every, restored, rcond=None)[0]
     assert walk([other, dead_band]).rms_deg == pytest.approx(float(np.sqrt(np.mean(left**2))), rel=1e-9)
 
@@ -163,7 +165,7 @@ def test_a_retuned_term_reports_the_evidence_of_its_final_setting():
     before, done = step.scored_on
     u = rec.motor_deg / 30.0
     built = TermColumns(u, rec.time_s, rec.torque_Nm)
-    data = _detection_data(u, rec.time_s, rec.torque_Nm, u - d.base.u_ref_, before, list(done), 30.0, 0.001, cycle_folds(u), built)
+    data = detection_data(u, rec.time_s, rec.torque_Nm, u - d.base.u_ref_, before, list(done), 30.0, 0.001, cycle_folds(u), built)
     again = step.effect.detection(data).score
     assert evidence["delta_bic_eff"] == pytest.approx(again.delta_bic, rel=1e-9)
     assert evidence["heldout_gain"] == pytest.approx(again.heldout_gain, rel=1e-9)

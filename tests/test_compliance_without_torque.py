@@ -17,8 +17,9 @@ import pytest
 from online_backlash import BacklashRLS
 from online_backlash.diagnostics import synthetic
 from online_backlash.diagnostics._causal import START_SAMPLES, CausalWindow, savgol_derivative
+from online_backlash.diagnostics._fit_view import held_mask
 from online_backlash.diagnostics.effects import Compliance
-from online_backlash.diagnostics.loop import _held, diagnose_arrays
+from online_backlash.diagnostics.loop import diagnose_arrays
 
 #: the default twist of the simulator, s^2 (J / k)
 J_OVER_K = synthetic.INERTIA_OVER_STIFFNESS_S2
@@ -152,7 +153,7 @@ def test_a_tracker_with_the_motion_proxy_resumes_bit_for_bit(stop):
 def test_the_motion_proxies_act_on_the_input_side_the_torque_on_the_load():
     """A load at rest in the dead band stays where the flank left it, twist and all: the motion proxies are
     held through the dead band (eq. 7) as an input-side term; the measured torque is zero there by its sign."""
-    assert _held([Compliance("acceleration"), Compliance("motion"), Compliance("torque")]).tolist() == [True, True, True, False]
+    assert held_mask([Compliance("acceleration"), Compliance("motion"), Compliance("torque")]).tolist() == [True, True, True, False]
 
 
 # --- the loop ------------------------------------------------------------------------------------------

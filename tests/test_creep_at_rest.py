@@ -16,10 +16,10 @@ from functools import lru_cache
 import numpy as np
 import pytest
 
-from online_backlash.diagnostics import loop
+from online_backlash.diagnostics import _search_round
 from online_backlash.diagnostics._scoring import DetectionData
 from online_backlash.diagnostics.dead_band import DeadBandMotion
-from online_backlash.diagnostics.generic import VelocityFunction
+from online_backlash.diagnostics.generic_terms import VelocityFunction
 from online_backlash.diagnostics.loop import Diagnosis, diagnose_arrays
 from online_backlash.errors import InvalidParameterError
 from online_backlash.model import BacklashParams
@@ -112,7 +112,7 @@ def test_the_creep_reported_is_what_its_rests_reach():
 def test_a_refit_that_leaves_the_creep_unphysical_is_refused(monkeypatch):
     # the loop's guard, as the play guard holds the play: a candidate whose joint refit gives a term a figure no
     # drive can have is refused and the others are tried (here every refit with the velocity function is called so)
-    monkeypatch.setattr(loop, "_physical", lambda terms, *args: not any(isinstance(e, VelocityFunction) for e in terms))
+    monkeypatch.setattr(_search_round, "all_physical", lambda terms, *args: not any(isinstance(e, VelocityFunction) for e in terms))
     d = diagnose_arrays(*_record(0.02)).as_dict()
     assert _creep(d) is not None
     assert "velocity_function" not in [e["name"] for e in d["effects"] + d["unexplained"]]

@@ -3,7 +3,7 @@
 The term columns (:class:`TermColumns`), the columns held through the dead band (``hold_columns``'
 compiled pass), the first hold shared by the two fits of ``fit_guarded``: each is compared bit for
 bit with the direct computation it replaces; the final model's held-out gains, scored from one set
-of cross-products by ``_hold_out_final``, to rounding.
+of cross-products by ``_final_model.hold_out_each``, to rounding.
 """
 
 from __future__ import annotations
@@ -17,12 +17,13 @@ from threadpoolctl import threadpool_limits
 from online_backlash import VorosBacklash
 from online_backlash.diagnostics import synthetic
 from online_backlash.diagnostics._causal import motion_direction
+from online_backlash.diagnostics._fit_view import detection_data, held_mask, stacked_columns
 from online_backlash.diagnostics._folds import cycle_folds
 from online_backlash.diagnostics._term_columns import TermColumns
 from online_backlash.diagnostics.dead_band import DeadBandMotion
 from online_backlash.diagnostics.effects import Compliance, Drift
 from online_backlash.diagnostics.joint import engaged_index, fit_guarded, fit_joint, hold_columns, separable
-from online_backlash.diagnostics.loop import _columns, _detection_data, _held, diagnose_arrays
+from online_backlash.diagnostics.loop import diagnose_arrays
 from online_backlash.model import BacklashParams, simulate_backlash
 
 
@@ -87,7 +88,7 @@ def test_columns_stack_the_terms_in_order() -> None:
     u = np.cumsum(rng.normal(0, 0.01, n))
     q = rng.normal(0, 1, n)
     terms = [Drift(2, 3.0), Compliance("torque"), Compliance("acceleration")]
-    got = _columns(terms, TermColumns(u, t, q), np.zeros(n))
+    got = stacked_columns(terms, TermColumns(u, t, q), np.zeros(n))
     expected = np.column_stack([e.clone().terms(u, t, q) for e in terms])
     np.testing.assert_array_equal(got, expected)
 
@@ -128,7 +129,7 @@ def test_fit_guarded_with_held_columns_equals_its_two_fits() -> None:
 
 
 def test_final_heldout_gains_equal_those_formed_afresh(two_steps) -> None:
-    """``_hold_out_final`` scores every term from one set of cross-products of the final model
+    """``_final_model.hold_out_each`` scores every term from one set of cross-products of the final model
     (``DetectionData.scores_left_out``): the gains are those of a detection data formed from scratch
     for every term, to rounding (on one BLAS thread, as the loop's)."""
     with threadpool_limits(limits=1, user_api="blas"):
@@ -149,10 +150,10 @@ def _check_final_heldout_gains(d) -> None:
     start = 0
     for i, s in enumerate(d.steps):
         n = s.effect.n_terms
-        mine = hold_columns(_columns([s.effect], fresh, x), _held([s.effect]), index)
+        mine = hold_columns(stacked_columns([s.effect], fresh, x), held_mask([s.effect]), index)
         restored = final.residual_deg + mine @ final.coef[start : start + n]
         others = [*terms[:i], *terms[i + 1 :]]
-        data = _detection_data(u, t, q, uc, replace(final, residual_deg=restored), others, d.ratio, period, folds, TermColumns(u, t, q))
+        data = detection_data(u, t, q, uc, replace(final, residual_deg=restored), others, d.ratio, period, folds, TermColumns(u, t, q))
         assert s.heldout_gain_final == pytest.approx(data.score(False, mine).heldout_gain, rel=1e-9, abs=1e-12)
         assert np.isfinite(s.heldout_gain_final)
         start += n

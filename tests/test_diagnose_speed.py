@@ -15,7 +15,7 @@ from online_backlash.diagnostics._speed import cardinal_splines, held_spline_col
 from online_backlash.diagnostics._term_columns import TermColumns
 from online_backlash.diagnostics.dead_band import ENTRY_KNOTS, EXIT_TIME_CONSTANTS, DeadBandMotion, _at_period
 from online_backlash.diagnostics.effects import Drift
-from online_backlash.diagnostics.generic import VelocityFunction
+from online_backlash.diagnostics.generic_terms import VelocityFunction
 from online_backlash.diagnostics.joint import Support
 
 

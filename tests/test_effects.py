@@ -13,7 +13,7 @@ from online_backlash.diagnostics._scoring import DetectionData, score_columns
 from online_backlash.diagnostics.dead_band import DeadBandMotion
 from online_backlash.diagnostics.effects import LIBRARY, VOCABULARY, Compliance, Delay, Drift, TransmissionError
 from online_backlash.diagnostics.flank_profile import FlankProfile
-from online_backlash.diagnostics.generic import GENERIC, AngleHarmonicsPerFlank, VelocityFunction
+from online_backlash.diagnostics.generic_terms import GENERIC, AngleHarmonicsPerFlank, VelocityFunction
 from online_backlash.effect_terms import EffectTerms
 from online_backlash.errors import InvalidParameterError
 from online_backlash.model import BacklashParams, simulate_switching

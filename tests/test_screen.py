@@ -3,8 +3,8 @@
 ``Folds.screen`` keeps groups of ``n_folds`` consecutive reversal cycles spread over the record;
 the detectors' least squares, their held-out folds and the candidates' joint refits then run on
 those samples only, and the effect chosen is detected again, and the terms fitted, on every
-sample (``loop._confirmed``). What the screen computes must be the plain computation on its rows,
-and the loop's answer must be the one without the screen.
+sample (``_search_round.confirmed_on_every_sample``). What the screen computes must be the plain computation
+on its rows, and the loop's answer must be the one without the screen.
 """
 
 from __future__ import annotations

@@ -1,6 +1,6 @@
 """The base of the library's effects: parameters from ``__init__``, a causal window, ``clone`` and ``reset``.
 
-Every effect of :mod:`.effects`, :mod:`.generic` and :mod:`.dead_band` builds on :class:`EffectBase`
+Every effect of :mod:`.effects`, :mod:`.generic_terms` and :mod:`.dead_band` builds on :class:`EffectBase`
 (the :class:`~online_backlash.effect_terms.EffectTerms` protocol). Units: degrees, seconds, N m.
 """
 

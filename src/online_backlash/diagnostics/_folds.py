@@ -47,8 +47,8 @@ SCREEN_MIN_SAMPLES = 100_000
 SCREEN_FACTOR = 3
 #: a screen's scores read every this-many-th sample of its cycles. Its scores only choose the
 #: effect tried next: the one chosen is detected again, configured and evidenced on every sample
-#: (``loop._confirmed``). A first round's residual is smooth at the sampling rate (lag-1
-#: autocorrelation 0.990 on the 10-minute bench log, 0.990 at lag 2), so the screen's effective
+#: (``_search_round.confirmed_on_every_sample``). A first round's residual is smooth at the sampling rate
+#: (lag-1 autocorrelation 0.990 on the 10-minute bench log, 0.990 at lag 2), so the screen's effective
 #: sample size (``n (1 - rho) / (1 + rho)``, :mod:`._scoring`, ``rho`` then between samples
 #: ``stride`` apart) hardly changes; later residuals are nearer the noise (0.32 and 0.28 after the
 #: compliance there), where it about halves. On the 10- and 60-minute bench logs the loop chooses,

@@ -1,6 +1,6 @@
 """Smooth functions of the speed: knots over each direction's speeds and the cardinal cubic splines.
 
-Shared by the generic :class:`~.generic.VelocityFunction` and by the drift's test of what a
+Shared by the generic :class:`~.generic_terms.VelocityFunction` and by the drift's test of what a
 function of the speed could explain instead (:meth:`~.effects.Drift.detect`). Velocity in deg/s.
 """
 
@@ -105,7 +105,7 @@ def held_spline_columns(data: DetectionData, knots_deg_s: tuple[float, ...]) -> 
 
 def cardinal_columns(knots_deg_s: tuple[float, ...], velocity: np.ndarray, index: np.ndarray | None = None, rows: np.ndarray | None = None) -> np.ndarray:
     """:func:`cardinal_splines` at ``velocity`` (deg/s) without the column of the knot nearest 0 (the
-    columns of :class:`~.generic.VelocityFunction`), in one compiled pass (the piecewise cubics of
+    columns of :class:`~.generic_terms.VelocityFunction`), in one compiled pass (the piecewise cubics of
     :class:`scipy.interpolate.CubicSpline` in its power form, as it evaluates them: the same numbers,
     bit for bit, on the bench and measured logs); a sample's row at the velocity of sample
     ``index[t]`` (held through the dead band; None: its own), for the samples ``rows`` only (None: all)."""

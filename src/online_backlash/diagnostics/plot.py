@@ -7,7 +7,7 @@ import os
 import numpy as np
 
 from ._causal import sample_period_s
-from .loop import Diagnosis
+from .diagnosis import Diagnosis
 from .residuals import profile, time_spectrum
 
 

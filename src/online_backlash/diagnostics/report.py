@@ -1,4 +1,4 @@
-"""A Markdown report of a :class:`~online_backlash.diagnostics.loop.Diagnosis` (no printing here)."""
+"""A Markdown report of a :class:`~online_backlash.diagnostics.diagnosis.Diagnosis` (no printing here)."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ from typing import Any
 
 import numpy as np
 
-from .loop import Diagnosis
+from .diagnosis import Diagnosis
 from .residuals import Profile, profile
 
 
