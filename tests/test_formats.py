@@ -4,6 +4,7 @@ by content."""
 
 from __future__ import annotations
 
+import argparse
 import json
 import os
 from collections.abc import Iterator
@@ -11,7 +12,7 @@ from collections.abc import Iterator
 import numpy as np
 import pytest
 
-from online_backlash.cli import main
+from online_backlash.cli import build_parser, main
 from online_backlash.errors import InvalidParameterError
 from online_backlash.replay import registry
 from online_backlash.replay.formats import LogFormat
@@ -91,3 +92,22 @@ def test_a_shared_suffix_goes_by_content_and_a_recognising_format_comes_first(tm
     assert registry.format_of(tmp_path / "signals.blf") is signals
     assert registry.format_of(tmp_path / "bus.blf") is registry.CAN
     assert registry.LOG_READERS[".blf"] is not ToyLog  # a shared suffix's reader decides by content
+
+
+def _options_of(parser: argparse.ArgumentParser, path: str = "") -> Iterator[tuple[str, argparse.Action]]:
+    """Every option of ``parser`` and of its subcommands (``path``: the subcommands' names)."""
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            for name, sub in action.choices.items():
+                yield from _options_of(sub, f"{path} {name}".strip())
+        else:
+            yield from ((f"{path} {flag}", action) for flag in action.option_strings)
+
+
+def test_every_option_a_reader_takes_is_declared_with_one_type():
+    """--motor-cpr was int for listen can, float for listen serial, a positive float for the rest (issue 29)."""
+    declared: dict[str, set[object]] = {}
+    for where, action in _options_of(build_parser()):
+        declared.setdefault(where.split()[-1], set()).add(action.type)
+    for flag in ("--motor-cpr", "--load-cpr", "--columns", "--delimiter", "--encoding", "--dbc", "--max-skew", "--wrap-deg"):
+        assert len(declared[flag]) == 1, (flag, declared[flag])

@@ -94,10 +94,22 @@ def add_log_options(parser: argparse.ArgumentParser) -> None:
         choices=("deg", "rad", "rev", "arcmin", "counts"),
         help="unit of the motor and load columns or DBC signals (default: deg for CSV; a measurement file's channel units; the DBC signals' units)",
     )
-    group.add_argument("--motor-cpr", type=positive_float, help="motor encoder counts per motor revolution (with --units counts)")
-    group.add_argument("--load-cpr", type=positive_float, help="load encoder counts per load revolution (with --units counts)")
+    add_counts_options(group)
     group.add_argument("--skip-bad-rows", action="store_true", help="count and skip malformed rows instead of stopping")
     add_csv_dialect_options(group)
+
+
+def add_counts_options(group: argparse._ActionsContainer) -> None:
+    """``--motor-cpr N --load-cpr N``: encoder counts per revolution (:class:`~online_backlash.replay.options.Counts`),
+    declared once for every command that reads angles in counts (a CAN decoder takes whole counts)."""
+    group.add_argument(
+        "--motor-cpr", type=positive_float,
+        help="motor encoder counts per motor revolution (with --units counts; CAN: from the DBC or dictionary if not given)",
+    )
+    group.add_argument(
+        "--load-cpr", type=positive_float,
+        help="load encoder counts per load revolution (with --units counts; CAN: from the DBC or dictionary if not given)",
+    )
 
 
 def add_csv_dialect_options(group: argparse._ActionsContainer) -> None:
