@@ -1,12 +1,15 @@
 """Recorded logs replayed as the same sample stream as the live adapters.
 
-:func:`open_log` picks a reader by the file's suffix from :data:`LOG_READERS` (a ``.gz``
-suffix is looked through); a new format is one :class:`~online_backlash.stream.SampleSource`
-class plus one entry in :mod:`~online_backlash.replay.registry`.
+:func:`open_log` picks a format by the file's suffix (a ``.gz`` suffix is looked through), and by its
+content where formats share a suffix, from :data:`~online_backlash.replay.registry.FORMATS`; a new format
+is one module with its :class:`~online_backlash.replay.formats.LogFormat` plus one registry line.
 
 ::
 
-    registry.py       LOG_READERS, open_log, read_log_arrays, log_suffix
+    registry.py       FORMATS (the only table), register_format, format_of, open_log, read_log_arrays, log_suffix
+    formats.py        LogFormat and the formats: suffixes, content test, reader, inspect's describe, options
+    options.py        the readers' typed options (Columns, Units, Counts, Timing, CsvDialect, CanDecoding, ...)
+    summary.py        FileSummary, CanIdInfo: what inspect lists
     csv.py            CsvLog: CSV rows (pandas' C parser in blocks)
     canlog.py         CanLog: python-can's log formats decoded with a DBC (blocks, compiled pairing)
     canopenlog.py     CanopenLog: the same logs of CANopen drives, decoded with their EDS/DCF (SYNC groups)
@@ -20,6 +23,10 @@ class plus one entry in :mod:`~online_backlash.replay.registry`.
 from __future__ import annotations
 
 from .csv import CsvLog, read_csv_arrays
-from .registry import DIRECTORY_READERS, LOG_READERS, log_suffix, open_log, read_log_arrays
+from .formats import LogFormat
+from .registry import FORMATS, LOG_READERS, format_of, log_suffix, open_log, read_log_arrays, register_format
 
-__all__ = ["DIRECTORY_READERS", "LOG_READERS", "CsvLog", "log_suffix", "open_log", "read_csv_arrays", "read_log_arrays"]
+__all__ = [
+    "FORMATS", "LOG_READERS", "CsvLog", "LogFormat", "format_of", "log_suffix", "open_log", "read_csv_arrays",
+    "read_log_arrays", "register_format",
+]

@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import gzip
 import os
+from collections import Counter
 from collections.abc import Iterator
 from itertools import islice
 from pathlib import Path
@@ -39,6 +40,7 @@ from online_backlash.stream import SampleChunk, SampleSource, rechunk
 
 from .paths import file_suffix
 from .signatures import check_signature
+from .summary import CanIdInfo, FileSummary
 
 #: Suffixes python-can reads (``.csv`` is ours: see :mod:`online_backlash.replay.csv`).
 CAN_LOG_SUFFIXES = tuple(s for s in can.io.player.MESSAGE_READERS if s != ".csv")
@@ -252,3 +254,42 @@ def open_can_log(path: Path) -> can.io.generic.MessageReader:
     except BaseException:
         file.close()
         raise
+
+
+def describe(path: str, dbc: str | os.PathLike[str] | None = None) -> FileSummary:
+    """Frames per CAN ID of a python-can log, with the DBC's message names (a truncated BLF: up to the cut)."""
+    names = _dbc_names(dbc) if dbc is not None else {}
+    counts: Counter[tuple[int, bool]] = Counter()
+    first: dict[tuple[int, bool], float] = {}
+    last: dict[tuple[int, bool], float] = {}
+    index = 0
+    try:
+        with open_can_log(Path(path)) as reader:
+            for index, message in enumerate(reader):  # noqa: B007 (index names the failing frame)
+                if message.is_error_frame:
+                    continue
+                key = (message.arbitration_id, message.is_extended_id)
+                counts[key] += 1
+                first.setdefault(key, message.timestamp)
+                last[key] = message.timestamp
+        cut = blf_cut(Path(path), reader)
+    except LogFormatError:
+        raise
+    except Exception as exc:  # every python-can reader fails its own way on a damaged file
+        raise LogFormatError(path, index, f"cannot read the CAN log ({type(exc).__name__}: {exc})") from exc
+    ids = []
+    for (can_id, extended), n in sorted(counts.items()):
+        span = last[(can_id, extended)] - first[(can_id, extended)]
+        rate = float(f"{(n - 1) / span:.6g}") if n > 1 and span > 0 else None
+        ids.append(CanIdInfo(can_id, extended, n, rate, names.get((can_id, extended))))
+    return FileSummary(path, "can", can_ids=ids, frames=sum(counts.values()), truncated=cut)
+
+
+def _dbc_names(dbc: str | os.PathLike[str]) -> dict[tuple[int, bool], str]:
+    import cantools
+
+    try:
+        database = cantools.database.load_file(os.fspath(dbc))
+    except Exception as exc:  # cantools raises its own parse errors and OSErrors
+        raise LogFormatError(dbc, None, f"cannot load the DBC ({type(exc).__name__}: {exc})") from exc
+    return {(m.frame_id, m.is_extended_frame): m.name for m in getattr(database, "messages", [])}

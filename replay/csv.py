@@ -41,7 +41,7 @@ import operator
 import os
 import re
 import zlib
-from collections.abc import Iterable, Iterator
+from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import dataclass
 from itertools import islice, repeat
 from typing import IO, Any
@@ -52,8 +52,9 @@ from online_backlash.codecs.gaps import GapDetector
 from online_backlash.errors import InvalidParameterError, LogFormatError
 from online_backlash.stream import SampleChunk, StreamCounters, read_all, rechunk
 
+from .summary import FileSummary
 from .tabular import REQUIRED as _REQUIRED
-from .tabular import TabularSource, angle_scale, reads_torque, role_names, torque_like
+from .tabular import ChannelInfo, TabularSource, angle_scale, reads_torque, role_names, torque_like
 
 #: Suffixes of delimited text logs (each also as ``.gz``).
 CSV_SUFFIXES = (".csv", ".txt", ".tsv")
@@ -466,3 +467,65 @@ def _read_block(text: str, usecols: list[int], dialect: CsvDialect) -> np.ndarra
 def read_csv_arrays(path: str | os.PathLike[str], **options: Any) -> SampleChunk:
     """Read a whole CSV log into one :class:`SampleChunk` (for batch fits of logs that fit in memory)."""
     return read_all(CsvLog(path, **options), path, "no data rows")
+
+
+#: Rows of a CSV whose cells decide each column's type (``inspect``).
+SAMPLE_ROWS = 10000
+
+
+def describe_columns(
+    path: str, delimiter: str | None = None, decimal: str | None = None, comment: str | None = None,
+    encoding: str | None = None,
+) -> list[ChannelInfo]:
+    """The header's columns, each with its type in the first :data:`SAMPLE_ROWS` rows and the file's data row count,
+    the file read as the CSV reader reads it (encoding, dialect and comment lines sniffed or given); a row with
+    another number of fields than the header raises LogFormatError naming its line."""
+    with open_text(path, encoding) as f:
+        dialect = file_dialect(f, path, delimiter, decimal, comment)
+        consumed = dialect.preamble  # lines before the one being read: the header, then the rows the reader has read
+        reader = csv.reader(uncommented(f, comment), delimiter=dialect.delimiter)  # reads on from the header's end
+        head: list[list[str]] = []
+        rows = 0
+        try:
+            header = header_names(f.readline(), dialect)
+            if not any(header):
+                raise LogFormatError(path, consumed + 1, "empty file: expected a header row naming the columns")
+            consumed += 1
+            for fields in reader:
+                if not fields or not any(cell.strip() for cell in fields):
+                    continue
+                if len(fields) != len(header):
+                    reason = f"expected {len(header)} columns, got {len(fields)}"
+                    raise LogFormatError(path, consumed + reader.line_num, reason)
+                rows += 1
+                if len(head) < SAMPLE_ROWS:
+                    head.append(fields)
+        except UNREADABLE as exc:
+            raise unreadable(path, consumed + reader.line_num + 1, exc) from exc
+        except csv.Error as exc:
+            raise LogFormatError(path, consumed + reader.line_num, f"not a CSV row ({exc})") from exc
+    columns = list(zip(*head)) if head else [()] * len(header)
+    return [ChannelInfo(name, _column_type(cells, dialect.decimal), rows) for name, cells in zip(header, columns)]
+
+
+def _column_type(cells: Sequence[str], decimal: str) -> str:
+    """``int64``, ``float64`` (numbers with the file's ``decimal`` mark; an empty cell among integers too) or
+    ``string``, as pandas would infer the column (``string`` for a header without rows)."""
+    filled = [cell.strip() for cell in cells if cell.strip()]
+    if not cells:
+        return "string"
+    try:
+        [int(cell) for cell in filled]
+        return "int64" if len(filled) == len(cells) else "float64"
+    except ValueError:
+        pass
+    try:
+        [float(cell.replace(decimal, ".")) for cell in filled]
+        return "float64"
+    except ValueError:
+        return "string"
+
+
+def describe(path: str, **dialect: str | None) -> FileSummary:
+    """The CSV's columns (``inspect``): :func:`describe_columns` with the ``dialect`` given (else sniffed)."""
+    return FileSummary(path, "csv", describe_columns(path, **dialect))

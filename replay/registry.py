@@ -1,8 +1,10 @@
-"""Which reader opens which recorded log: :data:`LOG_READERS` by suffix, and :func:`open_log`.
+"""Which format reads which recorded log: :data:`FORMATS`, the only table of them, and :func:`open_log`.
 
-A new format is one :class:`~online_backlash.stream.SampleSource` class plus one entry in
-:data:`LOG_READERS`. Readers of heavy formats are imported on use (cantools loads only for CAN
-logs). The readers import nothing from here or from the package ``__init__``.
+Each format is one :class:`~online_backlash.replay.formats.LogFormat` (its suffixes, how it recognises its
+files where a suffix is shared, its reader, what ``inspect`` prints, its typed options). A new format is one
+module with its ``LogFormat`` plus one line :func:`register_format` (or one entry in :data:`FORMATS`).
+Readers of heavy formats are imported on use (cantools loads only for CAN logs). The readers import nothing
+from here or from the package ``__init__``.
 """
 
 from __future__ import annotations
@@ -14,52 +16,64 @@ from typing import Any
 from online_backlash.errors import LogFormatError
 from online_backlash.stream import SampleChunk, SampleSource, read_all
 
-from .csv import CSV_SUFFIXES, CsvLog
-from .measurement import MEASUREMENT_READERS, MF4, open_mdf_or_can
+from .formats import ARROW, CAN, CSV, HDF5, MAT, MDF, MF4, PARQUET, SERIAL, TDMS, LogFormat
 from .paths import file_suffix
 
-#: suffix -> reader; each reader takes ``(path, **options)`` and returns a SampleSource.
-LOG_READERS: dict[str, Callable[..., SampleSource]] = {suffix: CsvLog for suffix in CSV_SUFFIXES}
+#: Every format, in the order a shared suffix is tried: a format that ``recognises`` its files by content comes
+#: before the one that takes the rest (an ``.mf4`` of signals is MDF, any other a CAN log).
+FORMATS: list[LogFormat] = [CSV, MDF, TDMS, PARQUET, ARROW, MAT, HDF5, CAN, SERIAL]
+
+#: python-can's log suffixes but ``.csv`` (ours) and ``.mf4`` (by content); a test holds it equal to python-can's table.
+CAN_LOG_SUFFIXES = tuple(s for s in CAN.suffixes if s != MF4)
 
 
-def _can_log(path: str | os.PathLike[str], **options: Any) -> SampleSource:
-    """A CAN log in a python-can format, decoded with a DBC (:class:`~online_backlash.replay.canlog.CanLog`)
-    or, given ``eds``, with a CANopen drive's object dictionary (:class:`~online_backlash.replay.canopenlog.CanopenLog`)."""
-    if options.get("eds") is not None:
-        from .canopenlog import CanopenLog  # imported on use: canopen loads only for CANopen logs
-
-        return CanopenLog(path, **options)
-    from .canlog import CanLog  # imported on use: cantools loads only for CAN logs
-
-    return CanLog(path, **options)
+def register_format(log_format: LogFormat) -> None:
+    """Add a format to :data:`FORMATS` (before the formats without a content test that share a suffix with it)."""
+    takers = [i for i, f in enumerate(FORMATS) if f.recognises is None and set(f.suffixes) & set(log_format.suffixes)]
+    FORMATS.insert(takers[0] if takers else len(FORMATS), log_format)
+    LOG_READERS.clear()
+    LOG_READERS.update(_readers())
 
 
-def _serial_capture(path: str | os.PathLike[str], **options: Any) -> SampleSource:
-    """A raw serial capture (:class:`~online_backlash.replay.serialcapture.SerialCapture`)."""
-    from .serialcapture import SerialCapture
-
-    return SerialCapture(path, **options)
+def formats_for(suffix: str) -> tuple[LogFormat, ...]:
+    """The formats that read files with ``suffix``, in the order they are tried."""
+    return tuple(f for f in FORMATS if suffix in f.suffixes)
 
 
-#: Every format python-can's LogReader reads (``can.io.player.MESSAGE_READERS``) but ``.csv``, which is ours,
-#: and ``.mf4`` (by content, below); named here so python-can (and the asammdf and pandas it loads,
-#: 55 MB) is imported only when a CAN log is read. A test holds it equal to python-can's table.
-CAN_LOG_SUFFIXES = (".asc", ".blf", ".db", ".log", ".trc")
-LOG_READERS.update({suffix: _can_log for suffix in CAN_LOG_SUFFIXES})
-LOG_READERS[".serial"] = _serial_capture
+def suffixes(formats: list[LogFormat] | None = None) -> list[str]:
+    """Every suffix of ``formats`` (default: all), sorted."""
+    return sorted({s for f in (FORMATS if formats is None else formats) for s in f.suffixes})
 
 
-def _mf4(path: str | os.PathLike[str], **options: Any) -> SampleSource:
-    """An ``.mf4``: CAN bus logging (a CAN log) or measured signals (an MDF measurement file), by content."""
-    return open_mdf_or_can(path, _can_log, **options)
+def find_format(path: str | os.PathLike[str]) -> LogFormat | None:
+    """The format of the log at ``path`` by its suffix (and content where a suffix is shared); None if unknown."""
+    candidates = formats_for(log_suffix(path))
+    return next((f for f in candidates if f.recognises is None or f.recognises(path)), None)
 
 
-LOG_READERS.update(MEASUREMENT_READERS)
-LOG_READERS[MF4] = _mf4
+def format_of(path: str | os.PathLike[str]) -> LogFormat:
+    """:func:`find_format`, or LogFormatError naming the file (no such file, or an unknown suffix)."""
+    found = find_format(path)
+    if found is None:
+        suffix = log_suffix(path)
+        if not suffix and not os.path.exists(path):  # e.g. a folder name misspelt: say so, not "unknown format ''"
+            raise LogFormatError(path, None, "no such file or folder")
+        raise LogFormatError(path, None, f"unknown log format {suffix!r}; known: {suffixes()}")
+    return found
 
 
-#: Readers that also take a directory of their files (read in name order, e.g. a ``--raw-log`` directory).
-DIRECTORY_READERS: tuple[Callable[..., SampleSource], ...] = (_can_log, _serial_capture, _mf4)
+def _open_by_content(path: str | os.PathLike[str], **options: Any) -> SampleSource:
+    """The reader of a suffix several formats share (:func:`open_log`)."""
+    return open_log(path, **options)
+
+
+def _readers() -> dict[str, Callable[..., SampleSource]]:
+    """suffix -> reader, derived from :data:`FORMATS` (a shared suffix opens by content)."""
+    return {s: f.open if len(formats_for(s)) == 1 else _open_by_content for f in FORMATS for s in f.suffixes}
+
+
+#: suffix -> reader, a view of :data:`FORMATS` (each reader takes ``(path, **options)`` and returns a SampleSource).
+LOG_READERS: dict[str, Callable[..., SampleSource]] = _readers()
 
 
 def log_suffix(path: str | os.PathLike[str]) -> str:
@@ -77,13 +91,13 @@ def _directory_suffix(directory: str | os.PathLike[str]) -> str:
     names = sorted(e.name for e in os.scandir(directory) if not e.name.startswith("."))
     if not names:
         raise LogFormatError(directory, None, "empty directory: no log files")
-    suffixes = {log_suffix(os.path.join(directory, n)) for n in names}
-    readers = {LOG_READERS.get(s) for s in suffixes}
-    if len(readers) != 1 or None in readers:
-        raise LogFormatError(directory, None, f"a log directory must hold files of one format, found suffixes {sorted(suffixes)} in {names[:5]}...")
-    if readers.pop() not in DIRECTORY_READERS:
-        raise LogFormatError(directory, None, f"a directory of {sorted(suffixes)} logs is not supported; give one file")
-    return min(suffixes)
+    found = {log_suffix(os.path.join(directory, n)) for n in names}
+    readers = {formats_for(s) for s in found}
+    if len(readers) != 1 or () in readers:
+        raise LogFormatError(directory, None, f"a log directory must hold files of one format, found suffixes {sorted(found)} in {names[:5]}...")
+    if not any(f.directories for f in readers.pop()):
+        raise LogFormatError(directory, None, f"a directory of {sorted(found)} logs is not supported; give one file")
+    return min(found)
 
 
 def open_log(path: str | os.PathLike[str], **options: Any) -> SampleSource:
@@ -92,14 +106,7 @@ def open_log(path: str | os.PathLike[str], **options: Any) -> SampleSource:
     ``path`` may also be a directory of CAN logs or of serial captures (all one format, as
     written by ``listen --raw-log DIR``): they are read in name order as one stream.
     """
-    suffix = log_suffix(path)
-    try:
-        reader = LOG_READERS[suffix]
-    except KeyError:
-        if not suffix and not os.path.exists(path):  # e.g. a folder name misspelt: say so, not "unknown format ''"
-            raise LogFormatError(path, None, "no such file or folder") from None
-        raise LogFormatError(path, None, f"unknown log format {suffix!r}; known: {sorted(LOG_READERS)}") from None
-    return reader(path, **options)
+    return format_of(path).open(path, **options)
 
 
 def read_log_arrays(path: str | os.PathLike[str], **options: Any) -> SampleChunk:

@@ -13,7 +13,7 @@ from measurement_cases import FUZZ, assert_same_estimate_as_csv, check_damaged_f
 from online_backlash.errors import InvalidParameterError, LogFormatError
 from online_backlash.replay import open_log
 from online_backlash.replay.mdf import MdfLog
-from online_backlash.replay.measurement import is_measurement_log
+from online_backlash.replay.registry import format_of
 
 MAP = {"motor": "Motor", "load": "Load"}
 MAP_T = {**MAP, "torque": "Torque"}
@@ -166,7 +166,7 @@ def test_a_bus_logging_mf4_is_still_a_can_log(tmp_path, small):
     with can.Logger(str(path)) as writer:
         for i in range(10):
             writer.on_message_received(can.Message(arbitration_id=0x100, data=bytes(8), timestamp=i * 0.01))
-    assert not is_measurement_log(path) and is_measurement_log(small)
+    assert format_of(path).kind == "can" and format_of(small).kind == "mdf"
     from online_backlash.codecs.dbc import RIG_DBC
     from online_backlash.replay.canlog import CanLog
 

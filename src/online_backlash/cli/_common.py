@@ -8,10 +8,13 @@ import math
 import os
 import sys
 import warnings
-from collections.abc import Callable
-from typing import Any
+from collections.abc import Callable, Iterable
+from typing import TYPE_CHECKING, Any
 
 from ..errors import BacklashError, BacklashWarning, InvalidParameterError, NotExcitedError
+
+if TYPE_CHECKING:
+    from ..replay.options import CanDecoding, ReaderOption
 
 #: The formats a log may be in, as ``estimate``, ``diagnose`` and ``track`` read them (the help of their LOG argument).
 LOG_FORMATS = (
@@ -91,10 +94,22 @@ def add_log_options(parser: argparse.ArgumentParser) -> None:
         choices=("deg", "rad", "rev", "arcmin", "counts"),
         help="unit of the motor and load columns or DBC signals (default: deg for CSV; a measurement file's channel units; the DBC signals' units)",
     )
-    group.add_argument("--motor-cpr", type=positive_float, help="motor encoder counts per motor revolution (with --units counts)")
-    group.add_argument("--load-cpr", type=positive_float, help="load encoder counts per load revolution (with --units counts)")
+    add_counts_options(group)
     group.add_argument("--skip-bad-rows", action="store_true", help="count and skip malformed rows instead of stopping")
     add_csv_dialect_options(group)
+
+
+def add_counts_options(group: argparse._ActionsContainer) -> None:
+    """``--motor-cpr N --load-cpr N``: encoder counts per revolution (:class:`~online_backlash.replay.options.Counts`),
+    declared once for every command that reads angles in counts (a CAN decoder takes whole counts)."""
+    group.add_argument(
+        "--motor-cpr", type=positive_float,
+        help="motor encoder counts per motor revolution (with --units counts; CAN: from the DBC or dictionary if not given)",
+    )
+    group.add_argument(
+        "--load-cpr", type=positive_float,
+        help="load encoder counts per load revolution (with --units counts; CAN: from the DBC or dictionary if not given)",
+    )
 
 
 def add_csv_dialect_options(group: argparse._ActionsContainer) -> None:
@@ -283,34 +298,48 @@ def add_canopen_options(parser: argparse.ArgumentParser) -> None:
 
 def can_decoding_options(args: argparse.Namespace) -> dict[str, Any]:
     """Keyword arguments of the CAN sources (``CanSource``, ``CanLog``) from :func:`add_can_decoding_options`."""
+    return can_decoding(args).kwargs()
+
+
+def can_decoding(args: argparse.Namespace) -> CanDecoding:
+    """How CAN frames become angles, from :func:`add_can_decoding_options` (and :func:`add_canopen_options`)."""
     from ..codecs.dbc import RIG_DBC
+    from ..replay.options import CanDecoding, Canopen
 
     def optional(name: str) -> str | None:
         return None if name.lower() == "none" else name
 
-    skew = {} if args.max_skew is None else {"max_skew_s": args.max_skew}
     if getattr(args, "eds", None) is not None:
-        return canopen_options(args) | skew
-    return skew | {
-        "dbc": RIG_DBC if args.dbc == "rig" else args.dbc,
-        "motor_signal": args.motor_signal,
-        "load_signal": args.load_signal,
-        "counter_signal": optional(args.counter_signal),
-        "checksum_signal": optional(args.checksum_signal),
-        "units": getattr(args, "units", None),
-        "wrap_deg": args.wrap_deg,
+        if args.node is None:
+            raise InvalidParameterError(f"--eds {args.eds}: give --node N, the node-ID of the motor drive")
+        if getattr(args, "dbc", None) is not None:
+            raise InvalidParameterError("--dbc and --eds both given: a CAN log is decoded with one of them")
+        where = Canopen(args.eds, args.node, args.load_node, args.load_eds, args.load_subindex)
+        return CanDecoding(max_skew_s=args.max_skew, canopen=where)
+    return CanDecoding(
+        RIG_DBC if args.dbc == "rig" else args.dbc, args.motor_signal, args.load_signal, optional(args.counter_signal),
+        optional(args.checksum_signal), getattr(args, "units", None), args.wrap_deg, args.max_skew,
+    )
+
+
+def reader_options(args: argparse.Namespace, types: Iterable[type[ReaderOption]]) -> list[ReaderOption]:
+    """The reader options of ``types`` (those a log's format takes, :class:`~online_backlash.replay.formats.LogFormat`)
+    from the log-format arguments; each option is built only when asked for (a CSV's map is parsed for a CSV)."""
+    from ..replay import options as o
+
+    builders: dict[type[ReaderOption], Callable[[], ReaderOption]] = {
+        o.Columns: lambda: o.Columns(parse_column_map(args.columns)),
+        o.Units: lambda: o.Units(args.units),
+        o.Counts: lambda: o.Counts(args.motor_cpr, args.load_cpr),
+        o.WholeCounts: lambda: o.WholeCounts(args.motor_cpr, args.load_cpr),
+        o.BadRows: lambda: o.BadRows(args.skip_bad_rows),
+        o.Pace: lambda: o.Pace(getattr(args, "realtime", False)),
+        o.Timing: lambda: o.Timing(getattr(args, "period", None)),
+        o.CsvDialect: lambda: o.CsvDialect(**csv_dialect_options(args)),
+        o.SerialFraming: lambda: o.SerialFraming(args.serial_format),
+        o.CanDecoding: lambda: can_decoding(args),
     }
-
-
-def canopen_options(args: argparse.Namespace) -> dict[str, Any]:
-    """Keyword arguments of the CANopen sources (``CanopenSource``, ``CanopenLog``) from :func:`add_canopen_options`."""
-    from ..errors import InvalidParameterError
-
-    if args.node is None:
-        raise InvalidParameterError(f"--eds {args.eds}: give --node N, the node-ID of the motor drive")
-    if getattr(args, "dbc", None) is not None:
-        raise InvalidParameterError("--dbc and --eds both given: a CAN log is decoded with one of them")
-    return {"eds": args.eds, "node": args.node, "load_node": args.load_node, "load_eds": args.load_eds, "load_subindex": args.load_subindex}
+    return [builders[t]() for t in types]
 
 
 def _integer_in(low: int, high: int) -> Callable[[str], int]:

@@ -22,6 +22,7 @@ def open_can_source(args: argparse.Namespace) -> LiveSource:
     """A :class:`~online_backlash.drivers.can.CanSource` (``--dbc``) or :class:`~online_backlash.drivers.canopen.CanopenSource`
     (``--eds``) from the options of ``listen can``."""
     from ..drivers.can import CanSource, open_bus
+    from ..replay.options import WholeCounts
 
     options = can_decoding_options(args)
     source: type[CanSource] = CanSource
@@ -31,23 +32,25 @@ def open_can_source(args: argparse.Namespace) -> LiveSource:
         source = CanopenSource
     elif not (args.dbc and args.motor_signal and args.load_signal):
         raise InvalidParameterError("listen can decodes frames with --dbc FILE --motor-signal S --load-signal S, or with --eds FILE --node N (CANopen)")
-    return source(open_bus(args.interface, args.channel, args.bitrate), **options, raw_format=args.raw_format, **_live_options(args))
+    counts = WholeCounts(args.motor_cpr, args.load_cpr).kwargs()  # a DBC's or dictionary's counts are whole
+    bus = open_bus(args.interface, args.channel, args.bitrate)
+    return source(bus, **options, raw_format=args.raw_format, **counts, **_live_options(args))
 
 
 def open_serial_source(args: argparse.Namespace) -> LiveSource:
     """A :class:`~online_backlash.drivers.serial.SerialSource` from the options of ``listen serial``."""
     from ..drivers.serial import SerialSource
+    from ..replay.options import Counts
 
-    return SerialSource(args.port, args.baud, args.serial_format, **_live_options(args))
+    counts = Counts(args.motor_cpr, args.load_cpr).kwargs()
+    return SerialSource(args.port, args.baud, args.serial_format, **counts, **_live_options(args))
 
 
 def _live_options(args: argparse.Namespace) -> dict[str, Any]:
-    """The options every live source takes: counts per revolution, raw capture, period, duration, timeout."""
+    """The options every live source takes: raw capture, period, duration, timeout."""
     if os.path.exists(args.raw_log) and not os.path.isdir(args.raw_log):
         raise InvalidParameterError(f"--raw-log {args.raw_log}: is a file; the raw captures go into a folder")
     return {
-        "motor_cpr": args.motor_cpr,
-        "load_cpr": args.load_cpr,
         "raw_log_dir": args.raw_log,
         "period_s": args.period,
         "duration_s": args.duration,

@@ -21,15 +21,13 @@ from ._common import (
     add_log_options,
     add_play_method_option,
     add_ratio_option,
-    can_decoding_options,
     check_plot_path,
-    csv_dialect_options,
     files_written,
     nonnegative_float,
-    parse_column_map,
     play_exit_code,
     positive_float,
     print_report,
+    reader_options,
     warn_if_implausible,
 )
 
@@ -106,34 +104,14 @@ def _segment_torques(text: str) -> tuple[float, float]:
 
 
 def log_options(args: argparse.Namespace) -> dict:
-    """Reader options from the log-format arguments (by the log's suffix)."""
-    from ..replay import log_suffix  # the readers (python-can, asammdf) load only when a log is read, not for --help
-    from ..replay.csv import CSV_SUFFIXES
-    from ..replay.measurement import is_measurement_log
+    """Reader options from the log-format arguments: those the log's format takes (``replay.FORMATS``); none for a
+    log of no known format (opening it says so)."""
+    from ..replay.registry import find_format  # the readers (python-can, asammdf) load only when a log is read
 
-    suffix = log_suffix(args.log)
-    period = getattr(args, "period", None)
-    timing = {} if period is None else {"period_s": period}  # measurement files take their time base from the file
-    if suffix == ".serial":
-        return {
-            "serial_format": args.serial_format, "motor_cpr": args.motor_cpr, "load_cpr": args.load_cpr,
-            "skip_bad": args.skip_bad_rows, "realtime": getattr(args, "realtime", False), **timing,
-        }
-    # a CAN log (or an unknown suffix, which open_log reports)
-    if suffix not in CSV_SUFFIXES and not is_measurement_log(args.log):
-        counts = {k: None if v is None else int(v) for k, v in (("motor_cpr", args.motor_cpr), ("load_cpr", args.load_cpr))}
-        return {
-            **can_decoding_options(args), **counts, "skip_bad": args.skip_bad_rows, "realtime": getattr(args, "realtime", False), **timing,
-        }
-    return {
-        "columns": parse_column_map(args.columns),
-        "units": args.units,
-        "motor_cpr": args.motor_cpr,
-        "load_cpr": args.load_cpr,
-        "skip_bad": args.skip_bad_rows,
-        **(timing if suffix in CSV_SUFFIXES else {}),
-        **(csv_dialect_options(args) if suffix in CSV_SUFFIXES else {}),
-    }
+    log_format = find_format(args.log)
+    if log_format is None:
+        return {}
+    return log_format.reader_kwargs(reader_options(args, log_format.options))
 
 
 def read_counted(args: argparse.Namespace) -> tuple[SampleChunk, SampleSource]:

@@ -20,7 +20,14 @@ from typing import Any
 from ..errors import LogFormatError, SourceError
 from ..fitting import describe, fit_recursive
 from ..rows import EstimateRow, arcmin
-from ._common import add_can_decoding_options, add_ratio_option, play_exit_code, positive_float, print_json
+from ._common import (
+    add_can_decoding_options,
+    add_counts_options,
+    add_ratio_option,
+    play_exit_code,
+    positive_float,
+    print_json,
+)
 from ._live import ctrl_c_ends_the_run, open_can_source, open_serial_source
 from ._mqtt import add_listen_mqtt_options, mqtt_publisher, mqtt_summary_line, mqtt_tls, row_sink
 
@@ -44,8 +51,7 @@ def add_subparser(subparsers: argparse._SubParsersAction) -> None:
     can_parser.add_argument("--channel", required=True, help="channel of the interface, e.g. can0")
     can_parser.add_argument("--bitrate", type=int, help="bit rate, bit/s (where the interface sets it)")
     add_can_decoding_options(can_parser, required=False)  # --dbc with its signals, or --eds --node: checked on opening
-    can_parser.add_argument("--motor-cpr", type=int, help="motor counts per revolution; from the DBC if not given")
-    can_parser.add_argument("--load-cpr", type=int, help="load counts per revolution; from the DBC if not given")
+    add_counts_options(can_parser)
     can_parser.add_argument("--units", help="unit of the motor and load DBC signals (deg, rad, rev, counts...), replacing the DBC's")
     can_parser.add_argument("--raw-format", choices=("blf", "asc", "log"), default="blf", help="format of the raw CAN log")
     _add_common(can_parser)
@@ -60,8 +66,7 @@ def add_subparser(subparsers: argparse._SubParsersAction) -> None:
     serial_parser.add_argument("--port", required=True, help="pyserial URL: /dev/ttyUSB0, COM3, socket://host:port, loop://")
     serial_parser.add_argument("--baud", type=int, default=115200, help="baud rate")
     serial_parser.add_argument("--format", dest="serial_format", choices=("ascii", "binary"), required=True, help="frame format")
-    serial_parser.add_argument("--motor-cpr", type=float, help="motor counts per revolution (binary format)")
-    serial_parser.add_argument("--load-cpr", type=float, help="load counts per revolution (binary format)")
+    add_counts_options(serial_parser)
     _add_common(serial_parser)
     serial_parser.set_defaults(func=run, open_source=open_serial_source)
 

@@ -340,12 +340,10 @@ def _track_live(
     """Open the live source as ``listen`` does and track it until it ends (duration, Ctrl-C, timeout);
     ``on_row(row, time_unix_s)`` gets each estimate stored (``--mqtt`` publishes it)."""
     if args.listen == "can":
-        cprs = {k: None if getattr(args, k) is None else int(getattr(args, k)) for k in ("motor_cpr", "load_cpr")}
-        source_args, label = argparse.Namespace(**{**vars(args), **cprs}), f"can {args.interface} {args.channel}"
-        open_source = open_can_source
+        label, open_source = f"can {args.interface} {args.channel}", open_can_source
     else:
-        source_args, label, open_source = args, f"serial {args.port}", open_serial_source
-    with open_source(source_args) as source, ctrl_c_ends_the_run(source.request_stop, label):
+        label, open_source = f"serial {args.port}", open_serial_source
+    with open_source(args) as source, ctrl_c_ends_the_run(source.request_stop, label):
         return tracker.track_source(source, label, progress=progress, on_row=on_row)
 
 
