@@ -25,6 +25,8 @@ MIN_STEPS = 20
 WHOLE = 0.01
 #: Fewest counts per revolution taken as an encoder's (coarser grids are too easily whole by chance).
 MIN_COUNTS = 8
+#: Most grid steps one sample step may span (a 32-bit encoder's revolution); a wider range of steps is no grid.
+MAX_MULTIPLE = 2.0**32
 #: What ends a column name that states its unit: ``motor [rad]``, ``load (deg)``, ``motor_counts``, ``load_rad``.
 _NAMED_UNIT = re.compile(r"(?:[\[(]\s*([^\[\]()]+?)\s*[\])]|_([A-Za-z°]+))\s*$")
 
@@ -44,7 +46,7 @@ def radian_counts(angles: np.ndarray) -> int | None:
     values = np.asarray(angles, dtype=float)
     steps = np.abs(np.diff(values[np.isfinite(values)]))
     steps = steps[steps > 0]
-    if steps.size < MIN_STEPS:
+    if steps.size < MIN_STEPS or steps.min() * MAX_MULTIPLE < steps.max():  # (a damaged value: 1e-311 steps)
         return None
     multiples = steps / steps.min()
     whole = np.round(multiples)
