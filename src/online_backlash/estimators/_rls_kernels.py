@@ -309,6 +309,13 @@ def _identity(f):
 
 
 _JIT = njit(cache=True, nogil=True, inline="always", error_model="numpy")
+#: The loops over the samples: without numba's reference counting (``_nrt=False``). They allocate nothing and
+#: return nothing, but each step inlined into them binds the arrays it is given (``st``, ``c``, scratch) anew per
+#: sample, and numba counts those references with atomic increments and decrements that its pruning pass leaves
+#: in place when the step branches (numba issues 2345 and 2350, where its developers give this flag as the cure):
+#: eight per sample cost the cascade and BacklashRLS half their time. The arithmetic is the same, bit for bit.
+_LOOP = njit(cache=True, nogil=True, error_model="numpy", _nrt=False)
+
 
 (
     begin_sample,
@@ -334,7 +341,7 @@ def _run_span(st, c, u, y, after_gap, lo, hi):  # pragma: no cover - compiled
         _backlash_step_nb(st, c, u[i], y[i])
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@_LOOP
 def backlash_run(st, c, u, y, after_gap, marks, out):  # pragma: no cover - compiled
     """``learn_many``'s loop: :func:`backlash_step` over arrays, honouring gaps, recording the estimate
     after the first ``marks[k]`` samples (ascending, 1..n; none: :data:`NO_MARKS`) in ``out[k]``: the
@@ -596,7 +603,7 @@ cascade_step = _make_cascade_step(_identity)
 _cascade_step_nb = _make_cascade_step(_JIT)
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@_LOOP
 def cascade_run(st, c, u, y, after_gap, phi, pphi):  # pragma: no cover - compiled
     """``learn_many``'s loop for the cascade."""
     for i in range(u.shape[0]):
