@@ -166,7 +166,8 @@ def test_two_dask_workers_give_the_rows_of_serial_tracking(tmp_path, capsys):
 def test_a_worker_killed_mid_log_loses_nothing(tmp_path, postgres_db):
     from dask.distributed import Client, LocalCluster
 
-    manifest = write_simulated_fleet(tmp_path, gearboxes=2, logs=2, duration_s=60.0, every_s=2.0)
+    # logs long enough (300 estimates each) that one is still being tracked after its first transactions
+    manifest = write_simulated_fleet(tmp_path, gearboxes=2, logs=2, duration_s=600.0, every_s=2.0)
     serial = tmp_path / "serial.db"
     parse_only = load_manifest(manifest, str(serial), lambda argv: argv, {"ratio", "every", "limit_arcmin"})
     run_fleet(parse_only, track_gearbox, workers=0)
