@@ -67,18 +67,30 @@ def write_inputs(folder: Path, samples: int) -> dict[str, Path]:
         for batch in table.to_batches(max_chunksize=1_000_000):
             writer.write_batch(batch)
     mdf = MDF(version="4.10")
-    mdf.append([Signal(rec.motor_deg, rec.time_s, name="Motor", unit="deg"), Signal(rec.load_deg, rec.time_s, name="Load", unit="deg")])
+    mdf.append(
+        [
+            Signal(rec.motor_deg, rec.time_s, name="Motor", unit="deg"),
+            Signal(rec.load_deg, rec.time_s, name="Load", unit="deg"),
+        ]
+    )
     mdf.save(paths["mf4"], overwrite=True)
     mdf.close()
     rec.write_csv(paths["csv"])
     for minutes in (2, 10):
-        simulate_two_mass(duration_s=60.0 * minutes, motion="rig", coulomb_nm=0.05, seed=0).write_csv(paths[f"two_mass_{minutes}min"])
+        simulate_two_mass(duration_s=60.0 * minutes, motion="rig", coulomb_nm=0.05, seed=0).write_csv(
+            paths[f"two_mass_{minutes}min"]
+        )
     return paths
 
 
 def cli(out: Path, name: str, argv: list[str]) -> None:
     """``online-backlash ARGV``; its stdout (and exit code, if not 0) to ``out/name``."""
-    command = [sys.executable, "-c", "import sys; from online_backlash.cli import main; sys.exit(main(sys.argv[1:]))", *argv]
+    command = [
+        sys.executable,
+        "-c",
+        "import sys; from online_backlash.cli import main; sys.exit(main(sys.argv[1:]))",
+        *argv,
+    ]
     done = subprocess.run(command, capture_output=True, text=True)
     text = done.stdout + ("" if done.returncode == 0 else f"\nexit {done.returncode}\n{done.stderr}")
     (out / name).write_text(text)
@@ -105,7 +117,9 @@ def dump_store(db: Path, target: Path) -> None:
             checkpoint.pop("run_id", None)
         gearboxes[row["id"]] = {"ratio": row["ratio"], "limit_arcmin": row["limit_arcmin"], "checkpoint": checkpoint}
     con.close()
-    target.write_text(json.dumps({"estimates": estimates, "runs": runs, "gearboxes": gearboxes}, indent=1, sort_keys=True))
+    target.write_text(
+        json.dumps({"estimates": estimates, "runs": runs, "gearboxes": gearboxes}, indent=1, sort_keys=True)
+    )
 
 
 def track(out: Path, work: Path, name: str, argv: list[str], keep_stdout: bool = True) -> None:
@@ -133,22 +147,42 @@ def main() -> None:
         trace = work / f"{run.stem}.trace.csv"
         cli(out, f"{run.stem}.trace.stdout", ["estimate", str(run), *DAVINCI, "--json", "--trace", str(trace)])
         (out / f"{run.stem}.trace.csv").write_bytes(trace.read_bytes())
-        track(out, work, f"{run.stem}.track", [str(run), *DAVINCI, "--gearbox", run.stem, "--start", "2026-01-05T08:00:00", "--every", "10"])
+        track(
+            out,
+            work,
+            f"{run.stem}.track",
+            [str(run), *DAVINCI, "--gearbox", run.stem, "--start", "2026-01-05T08:00:00", "--every", "10"],
+        )
     for kind, path in paths.items():
         options = TWO_MASS if kind.startswith("two_mass") else RIG + (MDF_COLUMNS if kind == "mf4" else [])
         cli(out, f"{kind}.estimate.json", ["estimate", str(path), *options, "--json"])
         if kind in ("parquet", "mf4"):
             trace = work / f"{kind}.trace.csv"
-            cli(out, f"{kind}.trace.stdout", ["estimate", str(path), *options, "--json", "--trace", str(trace), "--every", "10"])
+            cli(
+                out,
+                f"{kind}.trace.stdout",
+                ["estimate", str(path), *options, "--json", "--trace", str(trace), "--every", "10"],
+            )
             (out / f"{kind}.trace.csv").write_bytes(trace.read_bytes())
-            track(out, work, f"{kind}.track", [str(path), *options, "--gearbox", kind, "--start", "2026-01-05T08:00:00", "--every", "60"])
+            track(
+                out,
+                work,
+                f"{kind}.track",
+                [str(path), *options, "--gearbox", kind, "--start", "2026-01-05T08:00:00", "--every", "60"],
+            )
     sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "src"))
     from online_backlash.fleet.simulated import write_simulated_fleet
 
     manifest = write_simulated_fleet(args.dir / "fleet", 4, 3, 120.0, every_s=10.0)
     for workers in ("0", "2"):
         # (a cluster's run ids follow the order the gearboxes start in: its printed results are not kept)
-        track(out, work, f"fleet-workers{workers}", ["--manifest", str(manifest), "--workers", workers, "--json"], workers == "0")
+        track(
+            out,
+            work,
+            f"fleet-workers{workers}",
+            ["--manifest", str(manifest), "--workers", workers, "--json"],
+            workers == "0",
+        )
     print(f"{len(list(out.iterdir()))} outputs in {out} ({time.perf_counter() - started:.0f} s)")
 
 
