@@ -9,7 +9,10 @@ case but compliance, where the gear is compliant and the transmitted torque is l
 ``synthetic.TWO_MASS_INJECTORS``) or by the estimator's own model (``--generator rig``:
 :func:`online_backlash.rig.simulate_rig` with 2 counts of load noise, ``synthetic.INJECTORS``),
 the effect is added, and
-:func:`online_backlash.diagnostics.loop.diagnose` is run. Prints a markdown table of how often
+:func:`online_backlash.diagnostics.loop.diagnose` is run. One case has no torque column whatever the
+generator (``NO_TORQUE``): ``inertial_twist``, a load that twists by ``-(J / k)`` times the analytic
+acceleration of a prescribed two-tone motion while a flank is engaged (``synthetic.inertial_twist``),
+which must be named ``compliance``, by the load's acceleration. Prints a markdown table of how often
 each figure of the issue holds:
 
 * **named first**: the first named effect is the one added (clean log: ``effects`` empty;
@@ -43,6 +46,7 @@ import argparse
 import os
 import platform
 import time
+from functools import partial
 
 import numpy as np
 
@@ -58,8 +62,19 @@ PLAY_DEG = 0.5
 START_S = 0.2
 
 
+#: cases without a torque column whose twist is named ``compliance`` by its motion proxy (issue 27, item 6),
+#: whatever the generator: the log ``(seed, duration_s) -> (time, motor, load, torque)`` and the same
+#: simulator's log without the effect (the "<= 1.1 clean" reference)
+NO_TORQUE = {
+    "inertial_twist": (synthetic.inertial_twist, partial(synthetic.inertial_twist, inertia_over_stiffness_s2=0.0)),
+}
+
+
 def run_case(name: str, seed: int, duration_s: float, generator: str = "two_mass") -> dict:
-    if generator == "two_mass":
+    if name in NO_TORQUE:
+        t, m, y, q = NO_TORQUE[name][0](seed, duration_s)
+        ratio = 30.0
+    elif generator == "two_mass":
         t, m, y, q = TWO_MASS_INJECTORS[name](seed, duration_s)
         ratio = 30.0
     else:
@@ -80,8 +95,8 @@ def run_case(name: str, seed: int, duration_s: float, generator: str = "two_mass
     elif name == "outside_library":
         named = bool(names or unexplained) and d["rms_after_deg"] <= 0.7 * d["rms_before_deg"]
     else:
-        named = bool(names) and names[0] == name
-    clean_rms = d["rms_after_deg"] if name == "clean" else clean_residual(seed, duration_s, generator)
+        named = bool(names) and names[0] == ("compliance" if name in NO_TORQUE else name)
+    clean_rms = d["rms_after_deg"] if name == "clean" else clean_residual(seed, duration_s, generator, name)
     d.update(
         case=name,
         seed=seed,
@@ -99,11 +114,16 @@ def run_case(name: str, seed: int, duration_s: float, generator: str = "two_mass
 _CLEAN: dict[tuple[int, float, str], float] = {}
 
 
-def clean_residual(seed: int, duration_s: float, generator: str) -> float:
-    """The residual RMS the loop leaves on the clean log of the same seed (what a perfect term leaves), deg."""
-    key = (seed, duration_s, generator)
+def clean_residual(seed: int, duration_s: float, generator: str, name: str = "clean") -> float:
+    """The residual RMS the loop leaves on the clean log of the same seed and simulator (what a perfect term
+    leaves), deg."""
+    key = (seed, duration_s, name if name in NO_TORQUE else generator)
     if key not in _CLEAN:
-        _CLEAN[key] = run_case("clean", seed, duration_s, generator)["rms_after_deg"]
+        if name in NO_TORQUE:
+            t, m, y, q = NO_TORQUE[name][1](seed, duration_s)
+            _CLEAN[key] = diagnose_arrays(t, m, y, 30.0, torque_Nm=q).rms_after_deg
+        else:
+            _CLEAN[key] = run_case("clean", seed, duration_s, generator)["rms_after_deg"]
     return _CLEAN[key]
 
 
@@ -145,7 +165,8 @@ def main() -> None:
     parser.add_argument("--seeds", type=int, default=10)
     parser.add_argument("--seed-list", default=None, help="comma-separated seeds to run instead of 0..SEEDS-1 (e.g. 0 or 0,4)")
     parser.add_argument("--duration-s", type=float, default=180.0)
-    parser.add_argument("--cases", default=",".join(INJECTORS), help="comma-separated subset of " + ",".join(INJECTORS))
+    cases = ",".join([*INJECTORS, *NO_TORQUE])
+    parser.add_argument("--cases", default=cases, help="comma-separated subset of " + cases)
     parser.add_argument("--verbose", action="store_true", help="print one line per log")
     parser.add_argument(
         "--generator", choices=("two_mass", "rig"), default="two_mass",

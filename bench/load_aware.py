@@ -12,8 +12,10 @@ observability of ``DwellTracker``).
 
 (b) The three shared measured runs (da Vinci tool gearhead, ODbL v1.0: MRDLab
 mis-tool-characterization, J. J. O'Neill, T. K. Stephens, T. M. Kowalewski, IEEE RA-L 3(4)
-3027-3034, 2018): torque reversals, observability, play, lost motion, stiffness and hysteresis
-loss, batch and recursive, and the kinematic play; ``--plot DIR`` writes the hysteresis curves.
+3027-3034, 2018), batch and recursive: the path the data choose and its play (issue 27), and the
+torque path asked for by name (``play_method="torque"``): its torque reversals, its play or why it is
+not reported, lost motion, stiffness and hysteresis loss; ``--plot DIR`` writes the torque path's
+hysteresis curves.
 
 Run: ``python bench/load_aware.py`` (about 1 minute on 2 cores); ``--seeds``, ``--duration-s``.
 """
@@ -90,7 +92,7 @@ def sweep(seeds: int, duration_s: float) -> None:
                 _err(v, STIFFNESS) for r in (batch, rls) for v in (r.stiffness_left_nm_per_arcmin, r.stiffness_right_nm_per_arcmin)
             ]
             rows["kin_b"].append(kin_b_est.backlash_)  # what the kinematic fit says, observable or not
-            rows["kin_r"].append(kin_r_est.backlash_)
+            rows["kin_r"].append(kin_r_est.estimator.backlash_)  # the estimator itself, before the verdict
             rows["kin_obs"].append(kin_b.play_observable)
         kin = [f"{np.nanmedian(np.asarray(rows[k], dtype=float)):.3f}" for k in ("kin_b", "kin_r")]
         print(
@@ -108,26 +110,32 @@ def _value(d: dict, key: str, scale: float = 1.0, digits: int = 3) -> str:
 def measured(plot_dir: Path | None) -> None:
     print("\n## (b) measured da Vinci gearhead runs (ODbL v1.0; ratio -1 on output-referred motor counts, slope fitted)\n")
     print(
-        "| run | method | torque reversals | observable | play deg | lost motion arcmin (at N m) | stiffness N m/arcmin (left, right) "
-        "| hysteresis loss arcmin | kinematic play deg | kinematic observable |"
+        "| run | method | path taken | play deg | torque path: reversals | its play deg (or why not) "
+        "| lost motion arcmin (at N m) | stiffness N m/arcmin (left, right) | hysteresis loss arcmin |"
     )
-    print("|---|---|---|---|---|---|---|---|---|---|")
+    print("|---|---|---|---|---|---|---|---|---|")
     for path in sorted(DAVINCI.glob("*.csv")):
         with open_log(path, **DAVINCI_OPTIONS) as log:
             chunk = read_all(log, path)
-        kin, _ = fit_batch(_without_torque(chunk), -1.0)
         for method in ("batch", "recursive"):
-            report = fit_batch(chunk, -1.0)[0] if method == "batch" else fit_recursive([chunk], -1.0, memory_reversals=None)[0]
-            d = report.as_dict()
+            auto, torque = (
+                (fit_batch(chunk, -1.0, play_method=m)[0] for m in ("auto", "torque"))
+                if method == "batch"
+                else (fit_recursive([chunk], -1.0, memory_reversals=None, play_method=m)[0] for m in ("auto", "torque"))
+            )
+            a, d = auto.as_dict(), torque.as_dict()
+            why_not = d["reason"].split(":")[0] if d["reason"] else ""
             print(
-                f"| {path.stem} | {method} | {d['torque_reversals']} | {d['play_observable']} | {_value(d, 'backlash_deg')} "
+                f"| {path.stem} | {method} | {a['play_method']} | {_value(a, 'backlash_deg')} "
+                f"| {d['torque_reversals']} "
+                f"| {_value(d, 'backlash_deg')} {why_not} "
                 f"| {_value(d, 'lost_motion_arcmin', digits=1)} ({_value(d, 'lost_motion_torque_Nm', digits=3)}) "
                 f"| {_value(d, 'stiffness_left_nm_per_arcmin', digits=4)}, {_value(d, 'stiffness_right_nm_per_arcmin', digits=4)} "
-                f"| {_value(d, 'hysteresis_loss_arcmin', digits=1)} | {_value(kin.as_dict(), 'backlash_deg')} | {kin.play_observable} |"
+                f"| {_value(d, 'hysteresis_loss_arcmin', digits=1)} |"
             )
         if plot_dir is not None:
             out = plot_dir / f"hysteresis_{path.stem}.png"
-            plot_fit(chunk, -1.0, out, title=path.stem, note=ATTRIBUTION)
+            plot_fit(chunk, -1.0, out, title=path.stem, note=ATTRIBUTION, play_method="torque")
             print(f"\nplot: {out}\n")
 
 

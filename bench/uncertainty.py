@@ -37,6 +37,7 @@ import math
 import time
 from collections.abc import Callable, Iterable
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -59,16 +60,28 @@ def without_torque(chunk: SampleChunk) -> SampleChunk:
     return SampleChunk(chunk.time_s, chunk.motor_deg, chunk.load_deg, np.full(len(chunk), np.nan), chunk.after_gap)
 
 
+def _path(chunk: SampleChunk) -> str:
+    """The torque path for a chunk with torque (the torque-aware estimator, whatever the dwells say), else kinematic."""
+    return "kinematic" if np.isnan(chunk.torque_Nm).all() else "torque"
+
+
 def batch(chunk: SampleChunk, ratio: float) -> Result:
-    report, est = fit_batch(chunk, ratio)
-    old = getattr(est, "backlash_white_std_", report.extra["backlash_std_deg"])  # the torque fit states only its own
-    return report.backlash_deg, old, report.extra["backlash_std_deg"]
+    report, est = fit_batch(chunk, ratio, play_method=_path(chunk))
+    return _estimated(report, est)
 
 
 def recursive(chunk: SampleChunk, ratio: float) -> Result:
-    report, est = fit_recursive([chunk], ratio, **RECURSIVE)
-    old = getattr(est, "backlash_white_std_", est.backlash_std_)  # the torque estimator's noise-only std
-    return report.backlash_deg, float(old), report.extra["backlash_std_deg"]
+    report, chooser = fit_recursive([chunk], ratio, play_method=_path(chunk), **RECURSIVE)
+    return _estimated(report, chooser.estimator)  # the estimator itself (the chooser's std holds the quantisation too)
+
+
+def _estimated(report: Any, est: Any) -> Result:
+    """The play and the new std as estimated (where the verdict does not report them, issue 27: the estimator's
+    own), and the old std (the torque estimator's noise-only std, the recursive kinematic one's own)."""
+    old = getattr(est, "backlash_white_std_", est.backlash_std_)
+    reported = math.isfinite(report.backlash_deg)
+    play = report.backlash_deg if reported else float(est.backlash_)
+    return play, float(old), report.extra["backlash_std_deg"] if reported else float(est.backlash_std_)
 
 
 def within(results: list[Result], which: int) -> tuple[float, float]:

@@ -7,6 +7,9 @@ r"""Live CAN: a python-can Bus, a Notifier, the raw writer first, then the decod
                       -> CanSource.iter_chunks: the rows that arrived since the last receive,
                          as the arrays of one SampleChunk (no Sample objects)
 
+On a stop (Ctrl-C, ``duration_s``) the notifier ends, and the frames still waiting on the bus go
+through the same two before the raw log is closed: a run's summary has every frame that had arrived.
+
 The notifier thread receives and decodes frame by frame; the consumer takes blocks of samples in
 its own thread. Live, a frame comes at a time, for which the per-frame path costs about 16 us and
 the block path of replay (:class:`online_backlash.replay.canlog.CanLog`) about 300 us a call
@@ -73,6 +76,24 @@ class _RowListener(can.Listener):
 
     def on_error(self, exc: Exception) -> None:
         self.out.put(exc)
+
+
+class _InOrder(can.Listener):
+    """The notifier's one listener: each frame to the raw writer first (if any), then to the decoder. Stopping
+    the notifier leaves them open (this listener's ``stop`` does nothing), so that :meth:`CanSource.stop`
+    can put the frames still waiting on the bus through the same two before it closes the raw log."""
+
+    def __init__(self, raw_log: RawCanLog | None, rows: _RowListener) -> None:
+        self.raw_log = raw_log
+        self.rows = rows
+
+    def on_message_received(self, msg: can.Message) -> None:
+        if self.raw_log is not None:
+            self.raw_log.on_message_received(msg)
+        self.rows.on_message_received(msg)
+
+    def on_error(self, exc: Exception) -> None:
+        self.rows.on_error(exc)
 
 
 class CanSource(LiveSource):
@@ -156,9 +177,8 @@ class CanSource(LiveSource):
         self.timeout_s = timeout_s
         self.raw_log = RawCanLog(raw_log_dir, raw_format) if raw_log_dir is not None else None
         self._queue: queue.SimpleQueue = queue.SimpleQueue()
-        listeners: list[can.Listener] = [self.raw_log] if self.raw_log is not None else []
-        listeners.append(_RowListener(pipeline, self._queue))
-        self._notifier = can.Notifier(bus, listeners, timeout=_POLL_S)
+        self._receiver = _InOrder(self.raw_log, _RowListener(pipeline, self._queue))
+        self._notifier = can.Notifier(bus, [self._receiver], timeout=_POLL_S)
         self._stop_requested = False
         self._stopped = False
         self._closed = False
@@ -201,14 +221,27 @@ class CanSource(LiveSource):
         return rows
 
     def stop(self) -> None:
-        """Stop receiving: stop the notifier, close the raw log, count frames left unpaired."""
+        """Stop receiving: stop the notifier, take the frames still waiting on the bus, close the raw log,
+        count frames left unpaired."""
         if self._stopped:
             return
         self._stopped = True
         self._notifier.stop()
+        self._take_waiting()
         if self.raw_log is not None:
             self.raw_log.stop()
         self._rows.flush()
+
+    def _take_waiting(self) -> None:
+        """The frames that had arrived when the stop came but were not read yet (a Ctrl-C right after the
+        last frames, ``duration_s`` on a busy bus): logged and decoded like the others, so the run's
+        summary has them. Decoding (about 16 us a frame) outpaces any CAN bus, so this ends; a bus that
+        fails here is reported as the notifier reports it."""
+        try:
+            while (msg := self.bus.recv(0)) is not None:
+                self._receiver.on_message_received(msg)
+        except Exception as exc:  # as can.Notifier: any failure of the bus goes to the consumer
+            self._receiver.on_error(exc)
 
     def close(self) -> None:
         """:meth:`stop`, then shut the bus down (if owned); the counters then reconcile."""

@@ -53,7 +53,7 @@ from online_backlash.errors import InvalidParameterError, LogFormatError
 from online_backlash.stream import SampleChunk, StreamCounters, read_all, rechunk
 
 from .tabular import REQUIRED as _REQUIRED
-from .tabular import TabularSource, angle_scale, role_names
+from .tabular import TabularSource, angle_scale, reads_torque, role_names, torque_like
 
 #: Suffixes of delimited text logs (each also as ``.gz``).
 CSV_SUFFIXES = (".csv", ".txt", ".tsv")
@@ -336,6 +336,7 @@ class CsvLog(TabularSource):
         self._delimiter = delimiter or ","
         self.columns = role_names(columns)
         self.units = units
+        self.mapped = frozenset(columns or {})
         self.motor_scale = angle_scale(units, motor_cpr, "motor")
         self.load_scale = angle_scale(units, load_cpr, "load")
         self.skip_bad = skip_bad
@@ -362,7 +363,8 @@ class CsvLog(TabularSource):
             reason = f"header has no column {missing} (columns: {names}); map them with columns=/--columns"
             raise LogFormatError(self.path, line_no, reason)
         self._warn_of_named_units(self.units)
-        has_torque = self.columns["torque"] in names
+        has_torque = reads_torque(self.mapped) and self.columns["torque"] in names
+        self.unused_torque_columns = torque_like(names, self.columns["torque"] if has_torque else None)
         roles = _REQUIRED + (("torque",) if has_torque else ())
         self._n_columns = len(names)
         return [names.index(self.columns[r]) for r in roles], has_torque

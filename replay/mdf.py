@@ -37,6 +37,7 @@ import numpy as np
 from online_backlash.errors import LogFormatError
 from online_backlash.stream import UNIX_TIME_MIN, SampleChunk, StreamCounters
 
+from . import tabular
 from .tabular import ChannelInfo, MeasurementLog, Resampler, channel_scales, missing_channel, open_with
 
 #: One fragment of a channel: time (s), values, unit string.
@@ -179,7 +180,10 @@ class MdfLog(MeasurementLog):
 
     def _read(self) -> Iterator[SampleChunk]:
         self.counters = StreamCounters()
-        where = {r: self._locate(r) for r in ("motor", "load", "torque")}
+        where = {r: self._locate(r) for r in ("motor", "load")}
+        where["torque"] = self._locate("torque") if tabular.reads_torque(self.mapped) else None
+        used = self.columns["torque"] if where["torque"] is not None else None
+        self.unused_torque_columns = tabular.torque_like(self._mdf.channels_db, used)
         if "time" in self.mapped:
             where["time"] = self._locate("time")
         present = [r for r in ("time", "motor", "load", "torque") if where.get(r) is not None]

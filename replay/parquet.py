@@ -28,7 +28,7 @@ from online_backlash.errors import LogFormatError
 from online_backlash.stream import UNIX_TIME_MIN, SampleChunk, StreamCounters
 
 from .signatures import check_signature, library_failure
-from .tabular import ROLES, ChannelInfo, MeasurementLog, channel_scales, missing_channel
+from .tabular import ROLES, ChannelInfo, MeasurementLog, channel_scales, missing_channel, reads_torque, torque_like
 
 #: Suffixes read as Arrow IPC files rather than Parquet.
 ARROW_SUFFIXES = (".arrow", ".feather", ".ipc")
@@ -200,6 +200,8 @@ class ParquetLog(MeasurementLog):
         names = table.schema.names
         roles = []
         for role in ROLES:
+            if role == "torque" and not reads_torque(self.mapped):
+                continue
             if self.columns[role] in names:
                 roles.append(role)
             elif role != "torque" or role in self.mapped:
@@ -208,6 +210,7 @@ class ParquetLog(MeasurementLog):
         units = {r: _unit(fields[r]) for r in roles}
         scales = channel_scales(self.path, self.columns, units, self.units, self.motor_cpr, self.load_cpr)
         has_torque = "torque" in roles
+        self.unused_torque_columns = torque_like(names, self.columns["torque"] if has_torque else None)
         last_time = -np.inf
         for row, arrays in self._arrays(table, roles):
             if scales[0] != 1.0:

@@ -18,6 +18,7 @@ from __future__ import annotations
 import difflib
 import math
 import os
+import re
 import warnings
 from abc import abstractmethod
 from collections.abc import Callable, Iterable, Iterator
@@ -37,6 +38,8 @@ from .unit_hints import radian_counts, unit_mismatch
 
 ROLES = ("time", "motor", "load", "torque")
 REQUIRED = ("time", "motor", "load")
+#: Column or channel names that look like a torque (a note says so where one is present but not read).
+TORQUE_LIKE = re.compile(r"torque|drehmoment|moment|(^|[^a-z])tq([^a-z]|$)|[_ \[(]n ?[.*·]? ?m\b", re.IGNORECASE)
 
 #: Largest angle magnitude accepted, degrees: float64 spaces numbers beyond it more than 0.1 deg apart,
 #: so no play can be resolved (and squares of such values overflow in a fit).
@@ -147,6 +150,18 @@ def open_with(
         raise library_failure(path, kind, exc) from exc
 
 
+def reads_torque(mapped: frozenset[str]) -> bool:
+    """Whether a log reads a torque column: where no column map is given (the default names, ``torque``
+    among them), or where the map names the torque role. A map of the other roles alone leaves every
+    column out that it does not name, a column that happens to be called ``torque`` too (issue 27)."""
+    return not mapped or "torque" in mapped
+
+
+def torque_like(names: Iterable[str], used: str | None) -> tuple[str, ...]:
+    """The names among ``names`` that look like a torque (:data:`TORQUE_LIKE`), but ``used``."""
+    return tuple(n for n in names if n != used and TORQUE_LIKE.search(n))
+
+
 def role_names(columns: dict[str, str] | None) -> dict[str, str]:
     """Role -> column/channel name, unmapped roles named after themselves; unknown roles raise."""
     unknown = set(columns or {}) - set(ROLES)
@@ -238,10 +253,13 @@ class TabularSource(SampleSource):
 
     path: str
     columns: dict[str, str]
+    mapped: frozenset[str]
     skip_bad: bool
     nominal_period_s: float | None
     #: Nominal sample period, seconds, for gap detection (None: learnt from the first steps).
     period_s: float | None = None
+    #: Torque-like columns or channels the file holds but that are not read (:func:`torque_like`), once it is read.
+    unused_torque_columns: tuple[str, ...] = ()
 
     def _bad(self, line: int, reason: str) -> None:
         if not self.skip_bad:

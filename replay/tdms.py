@@ -33,6 +33,7 @@ import numpy as np
 from online_backlash.errors import LogFormatError
 from online_backlash.stream import UNIX_TIME_MIN, SampleChunk, StreamCounters
 
+from . import tabular
 from .tabular import ROLES, ChannelInfo, MeasurementLog, Resampler, channel_scales, missing_channel, open_with
 
 #: What npTDMS logs when the file ends inside a segment (its only sign of a file cut short).
@@ -170,7 +171,10 @@ class TdmsLog(MeasurementLog):
                 raise LogFormatError(self.path, None, f"{_cut_short(channels)}; --skip-bad-rows reads up to the cut")
             self.counters.frames += 1  # the cut: one corrupt frame, as a CAN log's
             self.counters.corrupt += 1
-        found = {r: self._locate(r, channels) for r in ROLES}
+        read = [r for r in ROLES if r != "torque" or tabular.reads_torque(self.mapped)]
+        found: dict[str, Any] = {r: self._locate(r, channels) if r in read else None for r in ROLES}
+        used = None if found["torque"] is None else f"{found['torque'].group_name}/{found['torque'].name}"
+        self.unused_torque_columns = tabular.torque_like(channels, used)
         present = [r for r in ROLES if found[r] is not None]
         motor = found["motor"]
         n = len(motor)

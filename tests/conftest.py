@@ -1,10 +1,10 @@
 """Shared fixtures: a private PostgreSQL server for the history-store tests.
 
-``postgres_server_url`` uses the server at ``ONLINE_BACKLASH_TEST_PG_URL`` (``.ci/run`` starts
-one and sets it); without it, it starts a throwaway server itself (``pg_server.py``: Debian's
-binaries, a temporary folder, a free localhost port, trust authentication) and stops it at the
-end of the session. Missing binaries make the
-PostgreSQL tests fail (not skip). ``store_db`` gives each test a fresh store location, once
+``postgres_server_url`` uses the server at ``ONLINE_BACKLASH_TEST_PG_URL`` if set; without it, it
+starts a throwaway server itself (``pg_server.py``: Debian's binaries, a temporary folder, a free
+localhost port, trust authentication) and stops it at the end of the session. Missing binaries make
+the PostgreSQL tests fail (not skip): ``scripts/test`` installs them. ``store_db`` gives each test a
+fresh store location, once
 as an SQLite file and once as a new database on the PostgreSQL server.
 """
 

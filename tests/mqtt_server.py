@@ -1,8 +1,8 @@
 """A private, throwaway Mosquitto broker on localhost, from Debian's ``mosquitto`` package.
 
-Used by ``conftest.py`` (fixture ``mqtt_broker``): each test that needs one gets its own broker
+Used by ``test_mqtt.py`` (fixture ``mqtt_broker``): each test that needs one gets its own broker
 on a free port, which it may stop and start again on the same port (to test reconnection).
-``.ci/run`` installs the package. Standard library only::
+``scripts/test`` installs the package. Standard library only::
 
     python tests/mqtt_server.py DIR     # runs a broker in the foreground; prints its URL
 """
@@ -11,12 +11,13 @@ from __future__ import annotations
 
 import getpass
 import shutil
-import socket
 import subprocess
 import sys
 import time
 from dataclasses import dataclass
 from pathlib import Path
+
+from free_port import PortTaken, on_a_free_port
 
 
 class MosquittoUnavailable(RuntimeError):
@@ -27,20 +28,10 @@ def mosquitto_bin() -> str:
     """The ``mosquitto`` executable (PATH, then /usr/sbin)."""
     found = shutil.which("mosquitto") or shutil.which("mosquitto", path="/usr/sbin:/usr/local/sbin")
     if found is None:
-        raise MosquittoUnavailable("the Mosquitto broker was not found (mosquitto): install Debian's 'mosquitto' package (.ci/run does)")
+        raise MosquittoUnavailable(
+            "the Mosquitto broker was not found (mosquitto): install Debian's 'mosquitto' package (scripts/test does)"
+        )
     return found
-
-
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
-def _accepts(port: int) -> bool:
-    with socket.socket() as s:
-        s.settimeout(0.2)
-        return s.connect_ex(("127.0.0.1", port)) == 0
 
 
 @dataclass(frozen=True)
@@ -69,45 +60,69 @@ class BrokerCertificates:
 
 
 class MosquittoBroker:
-    """One broker process on ``127.0.0.1:port`` (anonymous, no persistence), restartable on the same port."""
+    """One broker process on ``127.0.0.1:port`` (anonymous, no persistence), restartable on the same port.
 
-    def __init__(self, folder: Path, port: int | None = None, tls: BrokerCertificates | None = None, users: dict[str, str] | None = None) -> None:
+    ``port`` is None until the first :meth:`start` finds a free one (another, if a process takes it first)."""
+
+    def __init__(
+        self, folder: Path, tls: BrokerCertificates | None = None, users: dict[str, str] | None = None
+    ) -> None:
         self.folder = folder
-        self.port = port or _free_port()
+        self.port: int | None = None
         self.process: subprocess.Popen | None = None
         self.tls = tls
         folder.mkdir(parents=True, exist_ok=True)
         # run as whoever runs the tests (as root, mosquitto would switch to the user 'mosquitto' and lose the test's files)
-        lines = [f"listener {self.port} 127.0.0.1", "persistence false", "log_dest stderr", f"user {getpass.getuser()}"]
+        self._settings = ["persistence false", "log_dest stderr", f"user {getpass.getuser()}"]
         if tls is not None:  # TLS on this listener: the server certificate signed by the test CA
-            lines += [f"cafile {tls.ca}", f"certfile {tls.server_cert}", f"keyfile {tls.server_key}"]
+            self._settings += [f"cafile {tls.ca}", f"certfile {tls.server_cert}", f"keyfile {tls.server_key}"]
         if users:  # logins only, from a password file written by mosquitto_passwd
             passwords = folder / "passwords"
             for i, (user, password) in enumerate(users.items()):
                 create = ["-c"] if i == 0 else []
                 subprocess.run([shutil.which("mosquitto_passwd") or "mosquitto_passwd", *create, "-b", str(passwords), user, password], check=True)
-            lines += ["allow_anonymous false", f"password_file {passwords}"]
+            self._settings += ["allow_anonymous false", f"password_file {passwords}"]
         else:
-            lines.append("allow_anonymous true")
+            self._settings.append("allow_anonymous true")
         self.config = folder / "mosquitto.conf"
-        self.config.write_text("\n".join(lines) + "\n")
+        self.log = folder / "broker.log"
 
     def url(self, prefix: str, user: str | None = None) -> str:
         login = f"{user}@" if user else ""
         return f"{'mqtts' if self.tls else 'mqtt'}://{login}127.0.0.1:{self.port}/{prefix}"
 
-    def start(self, timeout_s: float = 10.0) -> None:
-        """Start the broker and wait until it accepts connections."""
-        log = open(self.folder / "broker.log", "ab")
-        self.process = subprocess.Popen([mosquitto_bin(), "-c", str(self.config)], stdout=log, stderr=log)
-        log.close()
+    def start(self) -> None:
+        """Start the broker and wait until it listens: again on its port, or the first time on a free one."""
+        try:
+            if self.port is None:
+                on_a_free_port(self._start_on)
+            else:
+                self._start_on(self.port)
+        except PortTaken as exc:
+            raise MosquittoUnavailable(str(exc)) from exc
+
+    def _start_on(self, port: int, timeout_s: float = 60.0) -> None:
+        binary = mosquitto_bin()
+        logged_before = self.log.stat().st_size if self.log.exists() else 0
+        self.config.write_text("\n".join([f"listener {port} 127.0.0.1", *self._settings]) + "\n")
+        with open(self.log, "ab") as log:  # the broker writes it; this process closes its copy at once
+            self.process = subprocess.Popen([binary, "-c", str(self.config)], stdout=log, stderr=log)
+        # ready when it says so ("mosquitto version X running", after it has bound its port): a connection
+        # accepted on the port could be another process's
         deadline = time.monotonic() + timeout_s
-        while not _accepts(self.port):
+        while " running\n" not in self._logged(logged_before):
             if self.process.poll() is not None or time.monotonic() > deadline:
                 self.stop()
-                text = (self.folder / "broker.log").read_text(errors="replace")
-                raise MosquittoUnavailable(f"mosquitto did not start on port {self.port}: {text[-2000:]}")
-            time.sleep(0.05)
+                text = self._logged(logged_before)
+                if "Address already in use" in text:
+                    raise PortTaken(f"port {port} was taken before mosquitto could listen on it")
+                raise MosquittoUnavailable(f"mosquitto did not start on port {port}: {text[-2000:]}")
+            time.sleep(0.01)
+        self.port = port
+
+    def _logged(self, offset: int) -> str:
+        """What the broker has logged since ``offset`` (bytes into its log)."""
+        return self.log.read_bytes()[offset:].decode(errors="replace")
 
     def stop(self) -> None:
         """Kill the broker (SIGKILL: as a crash, clients see the connection drop) and wait for it."""

@@ -1,8 +1,7 @@
 """A private, throwaway PostgreSQL server on localhost, from Debian's server binaries.
 
-Used by ``.ci/run`` (which starts one for the whole suite and exports its URL as
-``ONLINE_BACKLASH_TEST_PG_URL``) and by ``conftest.py`` (which starts its own when that variable
-is not set, so the README's test command works the same way). Standard library only::
+Used by ``conftest.py``, which starts one for the test session unless ``ONLINE_BACKLASH_TEST_PG_URL``
+names a server; by hand, to keep one for many sessions (export the URL it prints). Standard library only::
 
     python tests/pg_server.py start DIR     # prints the server URL; DIR holds data and log
     python tests/pg_server.py stop DIR
@@ -13,10 +12,11 @@ from __future__ import annotations
 import glob
 import os
 import pwd
-import socket
 import subprocess
 import sys
 from pathlib import Path
+
+from free_port import PortTaken, on_a_free_port
 
 
 class PostgresUnavailable(RuntimeError):
@@ -29,7 +29,7 @@ def postgres_bin() -> Path:
     if not found:
         raise PostgresUnavailable(
             "PostgreSQL server binaries not found (/usr/lib/postgresql/*/bin/initdb): install Debian's "
-            "'postgresql' package (.ci/run does) or set ONLINE_BACKLASH_TEST_PG_URL to a server URL"
+            "'postgresql' package (scripts/test does) or set ONLINE_BACKLASH_TEST_PG_URL to a server URL"
         )
     return Path(found[-1]).parent
 
@@ -43,28 +43,34 @@ def _as_postgres(folder: Path) -> list[str]:
     return ["runuser", "-u", "postgres", "--"]
 
 
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
 def start(folder: Path) -> str:
-    """Create a cluster in ``folder`` (trust auth, localhost only) and start it; returns its URL."""
+    """Create a cluster in ``folder`` (trust auth, localhost only) and start it on a free port; returns its URL."""
     bindir = postgres_bin()
     folder.mkdir(parents=True, exist_ok=True)
     as_postgres = _as_postgres(folder)
-    data, log, port = folder / "data", folder / "server.log", _free_port()
+    data, log = folder / "data", folder / "server.log"
 
     def run(*cmd: str) -> None:
         done = subprocess.run([*as_postgres, *cmd], capture_output=True, text=True)
         if done.returncode != 0:
             raise PostgresUnavailable(f"{' '.join(cmd)} failed: {done.stderr or done.stdout}")
 
-    options = f"-c listen_addresses=127.0.0.1 -c port={port} -c unix_socket_directories={folder} -c fsync=off"
+    def start_on(port: int) -> str:
+        logged_before = log.stat().st_size if log.exists() else 0
+        options = f"-c listen_addresses=127.0.0.1 -c port={port} -c unix_socket_directories={folder} -c fsync=off"
+        try:
+            run(str(bindir / "pg_ctl"), "-D", str(data), "-l", str(log), "-w", "-t", "60", "-o", options, "start")
+        except PostgresUnavailable:
+            if "Address already in use" in log.read_bytes()[logged_before:].decode(errors="replace"):
+                raise PortTaken(f"port {port} was taken before PostgreSQL could listen on it") from None
+            raise
+        return f"postgresql://postgres@127.0.0.1:{port}/postgres"
+
     run(str(bindir / "initdb"), "-D", str(data), "-A", "trust", "-U", "postgres", "-E", "UTF8", "--no-sync")
-    run(str(bindir / "pg_ctl"), "-D", str(data), "-l", str(log), "-w", "-t", "60", "-o", options, "start")
-    return f"postgresql://postgres@127.0.0.1:{port}/postgres"
+    try:
+        return on_a_free_port(start_on)
+    except PortTaken as exc:
+        raise PostgresUnavailable(str(exc)) from exc
 
 
 def stop(folder: Path) -> None:

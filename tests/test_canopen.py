@@ -6,20 +6,16 @@ the load encoder on a second node or on 0x60E4."""
 from __future__ import annotations
 
 import json
-import os
-import signal
-import threading
-import time
 from pathlib import Path
 
 import can
 import canopen
 import numpy as np
 import pytest
-from can.interfaces.virtual import channels
 from canopen.objectdictionary import ODArray, ODRecord, ODVariable, datatypes
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
+from live_run import run_live
 
 from online_backlash.cli import main
 from online_backlash.codecs.canopen import CanopenLayout, SyncPipeline, canopen_pipeline
@@ -310,33 +306,20 @@ def test_listen_can_live_on_a_virtual_bus_replays_to_the_same_estimate(tmp_path,
     channel = f"co-live-{trigger}"
     eds = drives["both"] if trigger == "sync" else event_drives["both"]
 
-    def send():
-        deadline = time.monotonic() + 30
-        while len(channels.get(channel, [])) < 1 and time.monotonic() < deadline:  # the listener's bus is open
-            time.sleep(0.01)
+    def send(_):
         rig = Rig(channel, {3: eds})
         try:
             if trigger == "sync":
                 rig.play(rec, one_node_values(rec))
             else:
                 rig.play_events(rec, one_node_values(rec), {3: 5e-5})
-            while not all(q.empty() for q in channels.get(channel, [])) and time.monotonic() < deadline:
-                time.sleep(0.01)
-            time.sleep(0.3)
         finally:
-            rig.close()
+            rig.close()  # then Ctrl-C: the frames still waiting on the bus are learned too
 
-        os.kill(os.getpid(), signal.SIGINT)  # Ctrl-C: listen ends with its summary
-
-    sender = threading.Thread(target=send)
-    sender.start()
     raw = tmp_path / "raw"
     argv = ["listen", "can", "--interface", "virtual", "--channel", channel, "--eds", str(eds), "--node", "3",
-            "--load-cpr", str(2**LOAD_BITS), "--ratio", "30", "--raw-log", str(raw), "--duration", "120", "--json"]
-    try:
-        assert main(argv) == 0
-    finally:
-        sender.join()
+            "--load-cpr", str(2**LOAD_BITS), "--ratio", "30", "--raw-log", str(raw), "--json"]
+    assert run_live(argv, send) == 0
     live = json.loads(capsys.readouterr().out)
     per_sample = 2 if trigger == "sync" else 1  # SYNC + PDO, or the event-driven PDO alone
     assert live["samples"] == rec.time_s.size and live["frames"] == per_sample * rec.time_s.size and live["unpaired"] == 0
@@ -447,7 +430,9 @@ def test_track_listen_can_opens_the_canopen_source(tmp_path, capsys, drives):
             "--raw-log", str(tmp_path / "raw"), "--timeout", "0.3", "--quiet"]
     assert main(argv) != 0
     err = capsys.readouterr().err
-    assert err.startswith("error: nothing received for 0.3 s on CAN") and "Traceback" not in err, err
+    listening, error = err.splitlines()
+    assert listening == "can virtual co-silent: listening; Ctrl-C ends the run with its summary"
+    assert error.startswith("error: nothing received for 0.3 s on CAN") and "Traceback" not in err, err
     assert main([*argv[:11], *argv[13:]]) != 0  # no --load-cpr for 0x60E4: the error names the object and the file
     assert f"{drives['both']}: the load angle is 0x60E4.1" in capsys.readouterr().err
 

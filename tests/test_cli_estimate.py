@@ -85,9 +85,9 @@ def test_streaming_fit_reads_chunks_and_passes_gaps(log30, tmp_path):
     assert small.as_dict() == large.as_dict()  # the chunk size changes nothing
     whole = read_csv_arrays(path)
     assert np.flatnonzero(whole.after_gap).tolist() == [20000]
-    direct = BacklashRLS()
+    direct = BacklashRLS(full_engagement=True)  # the kinematic path's estimator (fitting.KINEMATIC)
     direct.learn_many(whole.motor_deg / 30.0, whole.load_deg, after_gap=whole.after_gap)
-    assert est.state_dict()["state"] == direct.state_dict()["state"]
+    assert est.estimator.state_dict()["state"] == direct.state_dict()["state"]
     assert est.n_samples_seen_ == small.samples == keep.size
 
 

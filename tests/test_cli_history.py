@@ -6,17 +6,12 @@ import csv
 import datetime as dt
 import io
 import json
-import os
 import re
-import signal
 import sqlite3
-import threading
-import time
 
-import can
 import numpy as np
 import pytest
-from can.interfaces.virtual import channels
+from live_run import run_live, send_frames
 
 from online_backlash.cli import main
 from online_backlash.codecs.dbc import RIG_DBC, DbcDecoder
@@ -53,12 +48,6 @@ def history_db(tmp_path):
             gearbox, run = store.commit(gearbox, run, 1800_000, {"format": 1}, [row])
             store.commit(gearbox, run, 1800_000, {"format": 1}, counters=dict(frames=1, samples=1, corrupt=0, skipped=0, gaps=0))
     return db
-
-
-def wait_for(condition, limit_s=30.0):
-    deadline = time.monotonic() + limit_s
-    while not condition() and time.monotonic() < deadline:
-        time.sleep(0.01)
 
 
 def run_cli(capsys, *argv):
@@ -241,26 +230,12 @@ def test_track_live_can_then_the_raw_log_gives_the_same_history(capsys, tmp_path
     rec = simulate_rig(duration_s=14.0, play_deg=0.3, seed=12)
     frames = list(rig_can_frames(rec, DbcDecoder(RIG_DBC, "MotorAngle.Count", "LoadAngle.Count"), T0))
     channel = "track-live"
-
-    def send():
-        wait_for(lambda: len(channels.get(channel, [])) >= 1)  # the tracker's bus is open
-        tx = can.Bus(interface="virtual", channel=channel, preserve_timestamps=True)
-        for frame in frames:
-            tx.send(frame)
-        wait_for(lambda: all(q.empty() for q in channels.get(channel, [])))
-        tx.shutdown()
-        time.sleep(0.5)
-        os.kill(os.getpid(), signal.SIGINT)  # Ctrl-C ends the live run gracefully
-
-    sender = threading.Thread(target=send)
-    sender.start()
     can_options = ["--dbc", "rig", "--motor-signal", "MotorAngle.Count", "--load-signal", "LoadAngle.Count"]
     live_db, replay_db = tmp_path / "live.db", tmp_path / "replay.db"
-    try:
-        code, out, _ = run_cli(capsys, "track", "--listen", "can", "--interface", "virtual", "--channel", channel, *can_options,
-                               "--raw-log", tmp_path / "raw", "--ratio", 30, "--db", live_db, "--gearbox", "g1", "--every", 1)
-    finally:
-        sender.join()
+    argv = ["track", "--listen", "can", "--interface", "virtual", "--channel", channel, *can_options,
+            "--raw-log", tmp_path / "raw", "--ratio", 30, "--db", live_db, "--gearbox", "g1", "--every", 1]
+    code = run_live(argv, lambda _: send_frames(channel, frames))  # then Ctrl-C: the frames waiting are learned too
+    out = capsys.readouterr().out
     assert code == 0 and out.startswith(f"g1: can virtual {channel}: {rec.time_s.size} samples, 4 estimates added")
     (raw,) = sorted((tmp_path / "raw").iterdir())
     code, out, _ = run_cli(capsys, "track", raw, *can_options, "--ratio", 30, "--db", replay_db, "--gearbox", "g1", "--every", 1)

@@ -3,21 +3,19 @@ Ctrl-C (SIGINT) or ``--duration``; the JSON summary; the raw log replays to the 
 
 from __future__ import annotations
 
-import fcntl
+import io
 import json
 import os
 import signal
-import struct
-import termios
+import sys
 import threading
-import time
 import tty
 
-import can
 import pytest
-from can.interfaces.virtual import channels
+from live_run import LIMIT_S, run_live, send_frames, wait_until
 
 from online_backlash.cli import main
+from online_backlash.cli._live import CTRL_C_READY, ctrl_c_ends_the_run
 from online_backlash.codecs.dbc import RIG_DBC, DbcDecoder
 from online_backlash.rig import simulate_rig
 from online_backlash.rig_logs import rig_can_frames, rig_serial_records
@@ -34,45 +32,13 @@ def rec():
     return simulate_rig(duration_s=4.0, rate_hz=1000.0, reversal_s=(0.4, 0.8), seed=11)
 
 
-def wait_for(condition, limit_s=30.0):
-    deadline = time.monotonic() + limit_s
-    while not condition() and time.monotonic() < deadline:
-        time.sleep(0.01)
-
-
-def interrupt_when(condition):
-    """From a thread: wait for ``condition``, then press Ctrl-C (SIGINT to this process)."""
-
-    def run():
-        wait_for(condition)
-        time.sleep(0.2)
-        os.kill(os.getpid(), signal.SIGINT)
-
-    thread = threading.Thread(target=run)
-    thread.start()
-    return thread
-
-
 def test_listen_can_until_ctrl_c_then_estimate_the_raw_log(tmp_path, capsys, rec):
     frames = list(rig_can_frames(rec, DbcDecoder(RIG_DBC, "MotorAngle.Count", "LoadAngle.Count"), 1.7e9, skew_s=1e-4))
     frames[777].data[0] ^= 0x40  # one corrupt frame
-
-    def send():
-        wait_for(lambda: len(channels.get("cli-can", [])) >= 1)  # the listener's bus is open
-        tx = can.Bus(interface="virtual", channel="cli-can", preserve_timestamps=True)
-        for f in frames:
-            tx.send(f)
-        wait_for(lambda: all(q.empty() for q in channels.get("cli-can", [])))
-        tx.shutdown()
-
-    sender = threading.Thread(target=send)
-    sender.start()
-    stopper = interrupt_when(lambda: not sender.is_alive())
     argv = ["listen", "can", "--interface", "virtual", "--channel", "cli-can", "--dbc", "rig", "--motor-signal", "MotorAngle.Count",
             "--load-signal", "LoadAngle.Count", "--ratio", "30", "--raw-log", str(tmp_path / "raw"), "--json"]
-    assert main(argv) == 0
-    sender.join()
-    stopper.join()
+    # Ctrl-C right after the last frame is sent: the frames still waiting on the bus are learned too
+    assert run_live(argv, lambda _: send_frames("cli-can", frames)) == 0
     out = capsys.readouterr()
     live = json.loads(out.out)
     assert ESTIMATE_KEYS | COUNTERS | {"unpaired", "pair_skew_max_s"} <= set(live)
@@ -80,17 +46,14 @@ def test_listen_can_until_ctrl_c_then_estimate_the_raw_log(tmp_path, capsys, rec
     assert live["samples"] == rec.time_s.size - 1 and live["method"] == "recursive"
     assert live["backlash_deg"] == pytest.approx(0.5, abs=0.05)
     assert live["pair_skew_max_s"] == pytest.approx(1e-4, abs=1e-6)
-    assert "backlash" in out.err and "samples/s" in out.err  # the status line
+    assert "can cli-can: listening; Ctrl-C ends the run with its summary\n" in out.err
+    assert f"{live['samples']} samples," in out.err and "samples/s" in out.err  # the status line
 
     assert len(list((tmp_path / "raw").iterdir())) == 1
     assert main(["estimate", str(tmp_path / "raw"), "--dbc", "rig", "--motor-signal", "MotorAngle.Count", "--load-signal", "LoadAngle.Count",
                  "--ratio", "30", "--json"]) == 0
     replayed = json.loads(capsys.readouterr().out)
     assert {k: replayed[k] for k in ESTIMATE_KEYS} == {k: live[k] for k in ESTIMATE_KEYS}
-
-
-def pending_input(fd):
-    return struct.unpack("i", fcntl.ioctl(fd, termios.FIONREAD, b"\0\0\0\0"))[0]
 
 
 @pytest.mark.parametrize("fmt", ["ascii", "binary"])
@@ -100,25 +63,22 @@ def test_listen_serial_on_a_pty_then_estimate_the_capture(tmp_path, capsys, rec,
     payload = payload[:5000] + b"\x00noise\n" + payload[5000:]
     master, slave = os.openpty()
     tty.setraw(slave)  # no line discipline on the bytes, even before the CLI has opened the port
-    written = threading.Event()
 
-    def write():
-        # the capture file appears once the CLI has opened the port (which flushes its input)
-        wait_for(lambda: (tmp_path / "raw").is_dir() and any((tmp_path / "raw").iterdir()))
+    def captured() -> int:
+        return sum(p.stat().st_size for p in (tmp_path / "raw").iterdir())
+
+    def write(_):
         for i in range(0, len(payload), 4096):
             os.write(master, payload[i : i + 4096])
-        written.set()
+        # a pty hands bytes on in the kernel's own time: Ctrl-C once the capture has them all (each read
+        # is captured, then parsed and learned before the run looks for a Ctrl-C)
+        wait_until(lambda: captured() == len(payload), "every byte captured")
 
-    writer = threading.Thread(target=write)
-    writer.start()
-    stopper = interrupt_when(lambda: written.is_set() and pending_input(slave) == 0)
     argv = ["listen", "serial", "--port", os.ttyname(slave), "--baud", "115200", "--format", fmt, "--ratio", "30",
             "--raw-log", str(tmp_path / "raw"), "--json", *cpr]
     try:
-        assert main(argv) == 0
+        assert run_live(argv, write) == 0
     finally:
-        writer.join()
-        stopper.join()
         os.close(master)
         os.close(slave)
     live = json.loads(capsys.readouterr().out)
@@ -142,3 +102,19 @@ def test_listen_can_bad_interface_is_a_clear_error(tmp_path, capsys):
             "--load-signal", "RigAngles.Load", "--ratio", "30", "--raw-log", str(tmp_path)]
     assert main(argv) == 1
     assert "error: cannot open CAN interface 'nonexistent'" in capsys.readouterr().err
+
+
+def test_the_listening_line_comes_once_ctrl_c_is_handled(monkeypatch):
+    """A Ctrl-C the moment the line is written ends the run (the handler is already in place), never the process."""
+    stopped = threading.Event()
+
+    class CtrlCOnTheLine(io.StringIO):
+        def write(self, text: str) -> int:
+            if CTRL_C_READY in text:
+                os.kill(os.getpid(), signal.SIGINT)
+            return super().write(text)
+
+    monkeypatch.setattr(sys, "stderr", CtrlCOnTheLine())
+    with ctrl_c_ends_the_run(stopped.set, "can x"):
+        assert stopped.wait(LIMIT_S)
+    assert sys.stderr.getvalue() == f"can x: listening; {CTRL_C_READY}\n"

@@ -77,7 +77,8 @@ def test_nothing_named_on_the_estimators_own_simulator():
 
 def test_without_torque_a_viscous_twist_is_the_lag_b_over_k(compliant_rig):
     """Without a torque column the twist under a viscous load, ``-(b / k) dy/dt`` on an engaged
-    flank, is exactly a lag of ``b / k``: the loop reports it as such (only a torque tells them apart)."""
+    flank, is exactly a lag of ``b / k``: the loop reports it as such (only a torque tells them apart;
+    the compliance's motion proxy is the inertial torque, the load's acceleration, alone)."""
     t, m, y, _ = compliant_rig
     d = diagnose_arrays(t, m, y, 30.0).as_dict()
     first = d["effects"][0]
@@ -147,16 +148,15 @@ def test_two_effects_that_explain_the_same_part_are_reported_as_rivals():
     q = np.full(u.size, np.nan)
     r = 0.03 * t / t[-1] + rng.normal(0, 0.002, u.size)
     data = DetectionData(u, t, q, r, 30.0, 1e-3, model_output_deg=u)
-    engaged = np.ones(u.size, dtype=bool)
     one, two = Drift(1, float(t[-1])), Drift(2, float(t[-1]))
     d1 = Detection(one, data.score(False, one.terms(u, t, q)), "")
     d2 = Detection(two, data.score(False, two.terms(u, t, q)), "")
-    assert _rivals(data, d1, [d1, d2], engaged, 0.05) == ("drift",)
+    assert _rivals(data, d1, [d1, d2], 0.05) == ("drift",)
     # a term that adds its own part is no rival
     other = DetectionData(u, t, q, r + 0.03 * np.sin(np.radians(3 * u)), 30.0, 1e-3, model_output_deg=u)
     te = TransmissionError((3,), (), 30.0)
     d3 = Detection(te, other.score(True, te.terms(u, t, q)), "")
-    assert _rivals(other, Detection(one, other.score(False, one.terms(u, t, q)), ""), [d3], engaged, 0.05) == ()
+    assert _rivals(other, Detection(one, other.score(False, one.terms(u, t, q)), ""), [d3], 0.05) == ()
 
 
 def _warm_up_run(duration_s: float = 120.0) -> tuple[np.ndarray, np.ndarray]:

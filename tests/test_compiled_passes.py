@@ -16,7 +16,6 @@ from online_backlash.diagnostics._normal_equations import Projector, left_sum_of
 from online_backlash.diagnostics._scoring import effective_samples
 from online_backlash.diagnostics.joint import (
     BACKLASH_DIRECTIONS,
-    ColumnParts,
     _sensitivity_gram,
     _spans,
     _switched,
@@ -88,18 +87,6 @@ def test_projector_from_cross_products_equals_the_projector_on_the_array():
     proj = Projector(c)
     assert np.array_equal(proj.left_of(a.T @ a, c.T @ a), proj.left_gram(a))
     assert np.array_equal(proj.coef_of(c.T @ a[:, 0]), proj.coef(a[:, 0]))
-
-
-def test_gated_parts_multiply_as_their_block():
-    rng = np.random.default_rng(8)
-    n = 4000
-    a, b = rng.normal(size=(n, 2)), rng.normal(size=(n, 3))
-    gate = rng.random(n) > 0.4
-    parts = ColumnParts(((a, None), (b, gate)))
-    block = parts.dense()
-    coef = rng.normal(size=5)
-    np.testing.assert_allclose(parts.dot(coef), block @ coef, rtol=1e-13, atol=1e-13)
-    assert np.all(parts.dot(np.r_[0.0, 0.0, coef[2:]])[~gate] == 0.0)  # the gated part is zero off its gate
 
 
 def test_play_guard_figures_equal_those_of_the_full_length_directions():

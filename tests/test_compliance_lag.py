@@ -37,9 +37,13 @@ def test_the_torque_average_has_the_grid_neighbours(w, near):
     assert all(e.proxy == "torque" and e.deadband_Nm == 0.02 for e in found)
 
 
-def test_the_motion_proxies_have_no_setting_to_tune():
-    assert Compliance("motion").neighbours() == []
-    assert Compliance("acceleration").neighbours() == []
+@pytest.mark.parametrize(("proxy", "w", "near"), [("acceleration", 61, [41, 81]), ("motion", 11, [15]), ("acceleration", 161, [121]), ("motion", 50, [41, 61])])
+def test_the_motion_proxies_walk_their_differentiator_window(proxy, w, near):
+    """Without a torque column the setting the joint refit walks is the Savitzky-Golay window (the trade
+    between the encoder's steps and the motion's curvature), from ``Compliance.WINDOW_GRID``."""
+    found = Compliance(proxy, window_samples=w).neighbours()
+    assert [e.window_samples for e in found] == near
+    assert all(e.proxy == proxy for e in found)
 
 
 def test_the_torque_average_and_its_lag_are_reported():
@@ -100,13 +104,12 @@ def test_the_linearised_refit_orders_the_settings_as_the_joint_refits_do():
     base = VorosBacklash(refine=True, origin="first").fit(u, y)
     uc, yc = u - base.u_ref_, y - base.y_ref_
     built = TermColumns(u, t, q)
-    engaged = _ModelView.of(uc, base.params_).engaged
     deadband = torque_deadband(np.nan_to_num(q))
 
     def joint(w):
         terms = [Compliance("torque", deadband_Nm=deadband, smooth_samples=w)]
         x = _ModelView.of(uc, base.params_).x
-        return terms, fit_guarded(uc, yc, _columns(terms, built, engaged, x), base.params_, _held(terms))
+        return terms, fit_guarded(uc, yc, _columns(terms, built, x), base.params_, _held(terms))
 
     terms, fit = joint(5)
     walk = _linearised_refit(terms, 0, fit, uc, cycle_folds(u), built)
@@ -131,7 +134,7 @@ def test_the_walk_reads_the_dead_bands_motion_on_its_support(monkeypatch):
     view = _ModelView.of(uc, p)
     dead_band = DeadBandMotion(p.m_left, p.c_left, p.m_right, p.c_right, (0.004, 0.032), (0.0, 0.004, 0.016), True, ())
     terms = [Compliance("torque", deadband_Nm=torque_deadband(np.nan_to_num(q)), smooth_samples=5), dead_band]
-    fit = fit_guarded(uc, yc, _columns(terms, built, view.engaged, view.x), p, _held(terms))
+    fit = fit_guarded(uc, yc, _columns(terms, built, view.x), p, _held(terms))
     formed = []
     monkeypatch.setattr(loop, "Projector", lambda columns: formed.append(columns) or Projector(columns))
     walk = _linearised_refit(terms, 0, fit, uc, cycle_folds(u), built)
@@ -160,7 +163,7 @@ def test_a_retuned_term_reports_the_evidence_of_its_final_setting():
     before, done = step.scored_on
     u = rec.motor_deg / 30.0
     built = TermColumns(u, rec.time_s, rec.torque_Nm)
-    data, _ = _detection_data(u, rec.time_s, rec.torque_Nm, u - d.base.u_ref_, before, list(done), 30.0, 0.001, cycle_folds(u), built)
+    data = _detection_data(u, rec.time_s, rec.torque_Nm, u - d.base.u_ref_, before, list(done), 30.0, 0.001, cycle_folds(u), built)
     again = step.effect.detection(data).score
     assert evidence["delta_bic_eff"] == pytest.approx(again.delta_bic, rel=1e-9)
     assert evidence["heldout_gain"] == pytest.approx(again.heldout_gain, rel=1e-9)

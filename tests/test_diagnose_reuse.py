@@ -80,17 +80,15 @@ def test_the_dead_band_motions_columns_are_fitted_on_their_support(two_steps) ->
     assert built.support(Drift(2, 4.0)) is None
 
 
-def test_columns_gate_engaged_only_terms_and_stack_in_order() -> None:
+def test_columns_stack_the_terms_in_order() -> None:
     rng = np.random.default_rng(4)
     n = 3000
     t = np.arange(n) * 1e-3
     u = np.cumsum(rng.normal(0, 0.01, n))
     q = rng.normal(0, 1, n)
-    engaged = rng.random(n) < 0.6
-    terms = [Drift(2, 3.0), Compliance("torque")]
-    got = _columns(terms, TermColumns(u, t, q), engaged, np.zeros(n))
-    comp = Compliance("torque").terms(u, t, q)
-    expected = np.column_stack([Drift(2, 3.0).terms(u, t, q), comp * engaged[:, None] if terms[1].engaged_only else comp])
+    terms = [Drift(2, 3.0), Compliance("torque"), Compliance("acceleration")]
+    got = _columns(terms, TermColumns(u, t, q), np.zeros(n))
+    expected = np.column_stack([e.clone().terms(u, t, q) for e in terms])
     np.testing.assert_array_equal(got, expected)
 
 
@@ -151,10 +149,10 @@ def _check_final_heldout_gains(d) -> None:
     start = 0
     for i, s in enumerate(d.steps):
         n = s.effect.n_terms
-        mine = hold_columns(_columns([s.effect], fresh, index == np.arange(index.size), x), _held([s.effect]), index)
+        mine = hold_columns(_columns([s.effect], fresh, x), _held([s.effect]), index)
         restored = final.residual_deg + mine @ final.coef[start : start + n]
         others = [*terms[:i], *terms[i + 1 :]]
-        data, _ = _detection_data(u, t, q, uc, replace(final, residual_deg=restored), others, d.ratio, period, folds, TermColumns(u, t, q))
+        data = _detection_data(u, t, q, uc, replace(final, residual_deg=restored), others, d.ratio, period, folds, TermColumns(u, t, q))
         assert s.heldout_gain_final == pytest.approx(data.score(False, mine).heldout_gain, rel=1e-9, abs=1e-12)
         assert np.isfinite(s.heldout_gain_final)
         start += n

@@ -19,6 +19,7 @@ import pytest
 
 from online_backlash.bridging import BRIDGE_S, JUMP_DEG, GapPolicy
 from online_backlash.cli import main
+from online_backlash.cli._common import EXIT_NO_PLAY
 from online_backlash.codecs.dbc import RIG_DBC, DbcDecoder
 from online_backlash.codecs.gaps import GapDetector
 from online_backlash.errors import InvalidParameterError
@@ -51,7 +52,9 @@ def _recursive(path, **kwargs):
 def test_without_bridging_a_4_row_dropout_every_5_s_spoils_the_warm_start(dropout_csv):
     report, est = _recursive(dropout_csv, gap_policy=GapPolicy(bridge_s=0.0))
     assert est.warm_start_["method"] == "cold"  # the failure of issue 11 item 8: 0.4506 deg
-    assert abs(report.backlash_deg - PLAY_DEG) > 0.02
+    # (with the full-engagement rule of issue 27 the lines' play, read where their information lies, is 0.229
+    # +- 0.136 deg after the cold start: withheld as not resolved, NaN)
+    assert not abs(report.backlash_deg - PLAY_DEG) <= 0.02
     reason = report.extra["warm_start"]["reason"]
     assert reason.startswith("8 gaps in the data cut the 40000 buffered samples into stretches of at most 4996")
     assert report.extra["gaps_bridged"] == 0
@@ -69,8 +72,10 @@ def test_a_4_row_dropout_every_5_s_is_bridged(dropout_csv, capsys):
     assert main(["estimate", str(dropout_csv), "--ratio", "30", "--json"]) == 0
     out = json.loads(capsys.readouterr().out)
     assert out["backlash_deg"] == pytest.approx(report.backlash_deg, abs=1e-12) and out["gaps"] == 12
-    assert main(["estimate", str(dropout_csv), "--ratio", "30", "--json", "--bridge-s", "0"]) == 0
-    assert abs(json.loads(capsys.readouterr().out)["backlash_deg"] - PLAY_DEG) > 0.02
+    code = main(["estimate", str(dropout_csv), "--ratio", "30", "--json", "--bridge-s", "0"])
+    unbridged = json.loads(capsys.readouterr().out)["backlash_deg"]
+    assert code == (0 if unbridged is not None else EXIT_NO_PLAY)  # a report without a play exits 3
+    assert unbridged is None or abs(unbridged - PLAY_DEG) > 0.02  # (null: not resolved, as above)
 
 
 def _restarts(est: BacklashRLS) -> list[bool]:

@@ -23,11 +23,13 @@ ALL = [
     Delay(3, 1e-3),
     Compliance("torque"),
     Compliance("acceleration", 7),
+    Compliance("motion", 21),
     Drift(2, 40.0),
     AngleHarmonicsPerFlank((1, 3)),
     VelocityFunction((-40.0, -10.0, 0.0, 10.0, 40.0)),
     DeadBandMotion(1.0, 0.3, 1.0, 0.3, torque=True),
     DeadBandMotion(1.0, 0.3, 1.0, 0.3, rest_time_constants_s=(0.008, 0.128)),
+    DeadBandMotion(1.0, 0.3, 1.0, 0.3, rest_time_constants_s=(0.008,), creep_step=True, creep_directions=(-1,)),
     DeadBandMotion(0.98, 0.2, 1.01, 0.4, exit_time_constants_s=(), entry_knots_s=(0.0, 0.002, 0.01)),
     FlankProfile(tuple(np.linspace(-30.0, 30.0, 13))),
 ]
@@ -160,10 +162,16 @@ def test_compliance_is_active_only_where_the_torque_engages_a_flank():
 def test_compliance_without_torque_names_its_proxy_and_units():
     u, t, rng = _rig_motion()
     det = Compliance.detect(_data(rng.normal(0, 0.004, u.size), u, t, np.full(u.size, np.nan)))
-    p = det.effect.describe(np.array([1e-5, 2e-3]))
-    assert det.effect.proxy == "motion"
-    assert p["proxy"].startswith("load-side acceleration and velocity")
-    assert p["deflection_per_acceleration_s2"] == 1e-5 and p["deflection_per_velocity_s"] == 2e-3
+    assert det.effect.proxy == "acceleration"  # the velocity only where it adds beyond the acceleration
+    p = det.effect.describe(np.array([-1e-4]))
+    assert p["proxy"].startswith("load-side acceleration (inertial")
+    assert p["deflection_per_acceleration_s2"] == -1e-4 and p["inertia_over_stiffness_s2"] == 1e-4
+    assert p["natural_frequency_hz"] == pytest.approx(1.0 / (2.0 * np.pi * 0.01))
+    assert p["differentiator_window_samples"] == det.effect.window_samples
+    both = Compliance("motion").describe(np.array([1e-5, 2e-3]))
+    assert both["proxy"].startswith("load-side acceleration and velocity")
+    assert both["deflection_per_acceleration_s2"] == 1e-5 and both["deflection_per_velocity_s"] == 2e-3
+    assert "natural_frequency_hz" not in both  # a twist along the acceleration is no inertia's
 
 
 def test_drift_degree_and_size():

@@ -10,14 +10,13 @@ import json
 import os
 import platform
 import shutil
-import signal
 import subprocess
 import sys
 import threading
 import time
 
-import can
 import pytest
+from live_run import kill_mid_work, run_live, send_frames, wait_until
 
 from online_backlash.cli import main
 from online_backlash.cli._fleet import track_gearbox
@@ -249,19 +248,20 @@ def test_a_worker_killed_mid_log_loses_nothing(tmp_path, postgres_db):
         pids = client.run(os.getpid)
 
         def kill_when_mid_log():
-            # GB-0's first log has committed an estimate but is not complete: SIGKILL its worker
-            deadline = time.monotonic() + 240
+            # GB-0's first log has committed an estimate, not all: SIGKILL its worker (stopped while looked at)
+            def gb0_worker():
+                return next((address for address, keys in client.processing().items() if "track-GB-0" in keys), None)
+
+            wait_until(gb0_worker, "a worker took GB-0")
             with HistoryStore(postgres_db) as store:
-                while time.monotonic() < deadline:
+
+                def mid_log() -> bool:
                     runs = store.runs("GB-0") if "GB-0" in store.gearbox_ids() else []
                     mid = [r for r in runs if r.status == "running" and r.samples_done > 0]
-                    if mid:
-                        for address, keys in client.processing().items():
-                            if "track-GB-0" in keys:
-                                os.kill(pids[address], signal.SIGKILL)
-                                killed.append((mid[0].source, mid[0].samples_done))
-                                return
-                    time.sleep(0.05)
+                    killed[:] = [(mid[0].source, mid[0].samples_done)] if mid else []
+                    return bool(mid)
+
+                kill_mid_work(pids[gb0_worker()], mid_log, "GB-0's first log mid-way")
 
         killer = threading.Thread(target=kill_when_mid_log)
         killer.start()
@@ -368,20 +368,11 @@ def test_track_takes_the_raw_log_folder_listen_wrote(tmp_path, capsys):
     frames = list(rig_can_frames(rec, DbcDecoder(RIG_DBC, "MotorAngle.Count", "LoadAngle.Count"), T0))
     can_opts = ["--dbc", "rig", "--motor-signal", "MotorAngle.Count", "--load-signal", "LoadAngle.Count", "--ratio", "30"]
 
-    def send():
-        time.sleep(1.0)  # the listener's bus is open
-        with can.Bus(interface="virtual", channel="fleet-raw", preserve_timestamps=True) as tx:
-            for f in frames:
-                tx.send(f)
-
-    sender = threading.Thread(target=send)
-    sender.start()
     raw = tmp_path / "raw"
-    argv = ["listen", "can", "--interface", "virtual", "--channel", "fleet-raw", *can_opts, "--raw-log", str(raw), "--duration", "4", "--json"]
-    assert main(argv) == 0
-    sender.join()
+    argv = ["listen", "can", "--interface", "virtual", "--channel", "fleet-raw", *can_opts, "--raw-log", raw, "--json"]
+    assert run_live(argv, lambda _: send_frames("fleet-raw", frames)) == 0
     live = json.loads(capsys.readouterr().out)
-    assert live["samples"] > 1000 and any(raw.iterdir())
+    assert live["samples"] == rec.time_s.size and any(raw.iterdir())
     track = ["track", str(raw), *can_opts, "--gearbox", "g1", "--every", "2", "--json"]
     assert main([*track, "--db", str(tmp_path / "w.db")]) == 0
     (result,) = [json.loads(capsys.readouterr().out)]

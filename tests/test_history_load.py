@@ -153,8 +153,9 @@ V2_COLUMNS = (
 )
 
 
-def make_v2(db) -> None:
-    """A schema-2 store holding two estimates (the current code makes the other tables, which v3 did not change)."""
+def make_v2(db, plays: tuple[tuple[float, float], ...] = ((0.30, 0.002), (0.31, 0.002))) -> None:
+    """A schema-2 store holding estimates with these (play, std) (the current code makes the other tables,
+    which v3 and v4 did not change)."""
     with HistoryStore(db, create=True) as store:
         store.begin_run("gb", 30.0, "old.csv", "o" * 64, T0)
     engine = create_engine(resolve_url(db))
@@ -171,8 +172,9 @@ def make_v2(db) -> None:
     with engine.begin() as conn:
         conn.execute(text("DROP TABLE estimates"))
         v2.create(conn)
-        for i in range(2):
-            old = {k: v for k, v in row(i, 0.3 + 0.01 * i).items() if k in {name for name, _, _ in V2_COLUMNS}}
+        for i, (play, std) in enumerate(plays):
+            v2_names = {name for name, _, _ in V2_COLUMNS}
+            old = {k: v for k, v in row(i, play, backlash_std_deg=std).items() if k in v2_names}
             conn.execute(v2.insert().values(gearbox_id="gb", run_id=1, **old))
         conn.execute(text("UPDATE meta SET value = '2' WHERE key = 'schema_version'"))
     engine.dispose()
@@ -185,12 +187,27 @@ def test_a_schema_2_store_is_migrated_keeping_its_estimates(store_db):
         old = store.estimates("gb")
         assert [e.backlash_deg for e in old] == pytest.approx([0.30, 0.31])
         assert all(e.play_observable and e.torque_rms_nm is None and e.stiffness_nm_per_arcmin is None for e in old)
+        assert all(e.play_method is None and e.reason is None and e.backlash_upper_bound_deg is None for e in old)
         gearbox, run = store.begin_run("gb", 30.0, "new.csv", "n" * 64, T0 + 3 * 86400.0)
         store.commit(gearbox, run, 1, {"format": 1}, [row(5, None, observable=False, torque_rms_nm=0.9)])
         new = store.estimates("gb")[-1]
     assert new.backlash_deg is None and not new.play_observable and new.torque_rms_nm == 0.9
     with HistoryStore(store_db) as store:  # opened again: nothing left to migrate
         assert len(store.estimates("gb")) == 3
+
+
+def test_the_move_to_schema_5_takes_the_plays_that_are_not_physical_out_of_the_trend(store_db):
+    """Issue 27: a play below zero, or whose standard error exceeds half its value, was never a play;
+    the migration applies that rule (online_backlash.physical) to the plays stored before."""
+    make_v2(store_db, plays=((0.30, 0.002), (-0.05, 0.01), (0.10, 0.08)))
+    with HistoryStore(store_db) as store:
+        good, negative, loose = store.estimates("gb")
+    assert good.backlash_deg == pytest.approx(0.30) and good.play_observable and good.reason is None
+    assert negative.backlash_deg is None and not negative.play_observable
+    assert negative.reason.startswith("a negative play (-0.05") and negative.reason.endswith("(stored before schema 5)")
+    assert loose.backlash_deg is None and not loose.play_observable
+    assert loose.reason.startswith("not resolved: 0.1 +- 0.08")
+    assert loose.backlash_upper_bound_deg == pytest.approx(0.26)
 
 
 def test_load_condition_window():

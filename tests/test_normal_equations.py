@@ -145,14 +145,13 @@ def test_joint_fit_equals_the_full_length_search():
 
 def test_columns_in_parts_give_the_cross_products_of_their_block():
     """``ColumnParts.gram`` / ``t_dot`` / ``held_at`` (least squares without a block of all the parts)
-    against the same on the block itself; one ungated part gives the block's numbers bit for bit."""
+    against the same on the block itself; one part gives the block's numbers bit for bit."""
     from online_backlash.diagnostics.joint import ColumnParts, hold_columns
 
     rng = np.random.default_rng(7)
     n = 5000
     a, b, c = rng.normal(size=(n, 2)), rng.normal(size=(n, 3)), rng.normal(size=(n, 1))
-    gate = rng.random(n) > 0.3
-    parts = ColumnParts(((a, None), (b, gate), (c, None)))
+    parts = ColumnParts((a, b, c))
     block = parts.dense()
     v = rng.normal(size=(n, 4))
     np.testing.assert_allclose(parts.gram(), block.T @ block, rtol=1e-12, atol=1e-9)
@@ -162,5 +161,5 @@ def test_columns_in_parts_give_the_cross_products_of_their_block():
     held = np.array([False, False, True, True, True, False])
     index = np.maximum.accumulate(np.where(rng.random(n) > 0.5, np.arange(n), 0))
     np.testing.assert_array_equal(parts.held_at(held, index).dense(), hold_columns(block, held, index))
-    one = ColumnParts(((b, None),))
+    one = ColumnParts((b,))
     assert np.array_equal(one.gram(), b.T @ b) and np.array_equal(one.t_dot(v), b.T @ v)

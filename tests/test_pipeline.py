@@ -135,7 +135,7 @@ def test_every_output_is_a_selection_of_the_declared_fields():
     assert tuple(f.name for f in dataclasses.fields(Estimate)) == ESTIMATE_FIELDS
     for name in STORE_COLUMNS:
         column = estimates_table.c[name]
-        field = next(f for f in FIELDS.values() if f.name == name and f.kind is not str)
+        field = FIELDS.get(name) or next(f for f in FIELDS.values() if f.name == name and f.kind is not str)
         assert column.nullable == field.nullable
 
 
@@ -145,12 +145,15 @@ def test_the_contracts_keep_their_names_and_order():
         "backlash_deg", "backlash_arcmin", "c_left_deg", "c_right_deg", "m_left", "m_right", "samples", "residual_rms_deg", "method",
         "play_observable", "torque_reversals", "backlash_lower_bound_deg", "stiffness_nm_per_arcmin", "stiffness_left_nm_per_arcmin",
         "stiffness_right_nm_per_arcmin", "lost_motion_arcmin", "hysteresis_loss_arcmin",
+        # issue 27: the path of the play and the verdict on it
+        "backlash_upper_bound_deg", "reason", "play_method", "play_method_reason",
     )  # fmt: skip
     assert HISTORY_CSV_COLUMNS == (
         "time", "time_unix_s", "operating_hours", "load_revolutions", "reversals", "backlash_deg", "backlash_std_deg",
         "backlash_arcmin", "backlash_std_arcmin", "c_left_deg", "c_right_deg", "m_left", "m_right", "residual_rms_deg",
         "n_samples", "run_id", "sample_index", "play_observable", "torque_mean_nm", "torque_rms_nm", "torque_reversals",
         "stiffness_nm_per_arcmin", "machine_hours",
+        "play_method", "play_method_reason", "reason", "backlash_lower_bound_deg", "backlash_upper_bound_deg",
     )  # fmt: skip
 
 
@@ -291,6 +294,11 @@ NEVER_IMPORTS = {
     ),
     "load_aware": ("replay", "drivers", "codecs", "pipeline", "tracking", "history", "diagnostics", "fitting", "cli", "publish", "web"),
     "fleet": ("replay", "drivers", "codecs", "estimators", "pipeline", "tracking", "history", "diagnostics", "fitting", "cli", "publish", "web"),
+    # the rule of what may be reported as a play (issue 27): the history store applies it too
+    "physical": (
+        "rows", "stream", "replay", "drivers", "codecs", "estimators", "pipeline", "tracking", "history",
+        "load_aware", "cli",
+    ),
 }
 
 

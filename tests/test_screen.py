@@ -267,10 +267,9 @@ def test_the_report_says_the_search_ran_on_a_screen():
 def test_column_parts_are_the_block_whole_at_rows_and_times_coefficients():
     rng = np.random.default_rng(7)
     n = 500
-    gate = rng.random(n) < 0.6
     a, b = rng.normal(size=(n, 2)), rng.normal(size=(n, 3))
-    parts = ColumnParts(((a, None), (b, gate)))
-    block = np.column_stack((a, b * gate[:, None]))
+    parts = ColumnParts((a, b))
+    block = np.column_stack((a, b))
     assert parts.shape == (n, 5)
     np.testing.assert_array_equal(parts.dense(), block)
     rows = np.sort(rng.choice(n, 120, replace=False))
@@ -280,8 +279,7 @@ def test_column_parts_are_the_block_whole_at_rows_and_times_coefficients():
     np.testing.assert_allclose(parts.dot(np.r_[0.0, 0.0, coef[2:]]), block[:, 2:] @ coef[2:], rtol=1e-12, atol=1e-12)
 
 
-@pytest.mark.parametrize("gated", [False, True])
-def test_a_part_zero_on_most_samples_gives_the_products_of_its_whole_columns(gated: bool):
+def test_a_part_zero_on_most_samples_gives_the_products_of_its_whole_columns():
     """``joint.Support``: a part's cross-products, its products with a vector and with coefficients, read
     its support's rows only; they are the whole block's (to rounding), held or not."""
     rng = np.random.default_rng(11)
@@ -290,11 +288,10 @@ def test_a_part_zero_on_most_samples_gives_the_products_of_its_whole_columns(gat
     sparse = np.zeros((n, 3))
     at = np.sort(rng.choice(n, 150, replace=False))
     sparse[at] = rng.normal(size=(150, 3))
-    gate = rng.random(n) < 0.7 if gated else None
     support = Support.of(sparse)
     assert support is not None and np.array_equal(support.rows, at) and Support.of(dense) is None
-    plain = ColumnParts(((dense, None), (sparse, gate)))
-    kept = ColumnParts(((dense, None), (sparse, gate)), (None, support))
+    plain = ColumnParts((dense, sparse))
+    kept = ColumnParts((dense, sparse), (None, support))
     block = plain.dense()
     np.testing.assert_allclose(kept.gram(), block.T @ block, rtol=1e-12, atol=1e-9)
     a = rng.normal(size=(n, 4))

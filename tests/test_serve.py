@@ -87,7 +87,8 @@ def server(fleet_db):
 def browser(tmp_path):
     """Debian's chromium, headless, through selenium and chromedriver. Missing: a failure, not a skip."""
     if not (CHROMIUM.exists() and CHROMEDRIVER.exists()):
-        pytest.fail("chromium and chromedriver are needed: apt-get install chromium chromium-driver (.ci/run does)")
+        pytest.fail("chromium and chromedriver are needed: apt-get install chromium chromium-driver "
+                    "(scripts/test does)")
     from selenium import webdriver
     from selenium.webdriver.chrome.service import Service
 

@@ -18,8 +18,7 @@ import threading
 import can
 import numpy as np
 import pytest
-from can.interfaces.virtual import channels
-from test_cli_listen import interrupt_when, wait_for
+from live_run import run_live, send_frames
 from test_dbc_units import dbc, frame
 
 from online_backlash.cli import main
@@ -241,34 +240,6 @@ def test_the_per_frame_and_block_paths_give_the_counter_time(rig_frames):
     assert np.array_equal(unpaced.feed_frames(messages[:200]).time_s, T0 + bursts[:100])
 
 
-def listen_to(messages: list[can.Message], argv: list[str]) -> int:
-    """Run ``listen can`` (``argv``, on the virtual channel it names) while a thread sends ``messages``; Ctrl-C when all are read.
-
-    Once (in CI, under load) the run waited for ever after the Ctrl-C: the handler asked the source to
-    stop after the wait for a frame had passed its deadline, and CPython's ``SimpleQueue.get(timeout=...)``
-    then waits for ever (``CanSource.request_stop`` now wakes it; ``tests/test_can.py`` holds that).
-    ``--duration 60`` stays as a bound."""
-    channel = argv[argv.index("--channel") + 1]
-    argv = [*argv, "--duration", "60"] if "--duration" not in argv else argv
-
-    def send():
-        wait_for(lambda: len(channels.get(channel, [])) >= 1)  # the listener's bus is open
-        tx = can.Bus(interface="virtual", channel=channel, preserve_timestamps=True)
-        for msg in messages:
-            tx.send(msg)
-        wait_for(lambda: all(q.empty() for q in channels.get(channel, [])))
-        tx.shutdown()
-
-    sender = threading.Thread(target=send)
-    sender.start()
-    stopper = interrupt_when(lambda: not sender.is_alive())
-    try:
-        return main(argv)
-    finally:
-        sender.join()
-        stopper.join()
-
-
 def trace_rows(tmp_path, capsys, log, *extra):
     trace = tmp_path / f"{log.stem}-{len(extra)}.csv"
     assert main(["estimate", str(log), "--ratio", "30", "--json", "--every", "1", "--trace", str(trace), *RIG_SIGNALS, *extra]) == 0
@@ -294,7 +265,7 @@ def test_listen_can_with_bursts_and_period_replays_to_the_same_estimate(tmp_path
     messages = stamped(frames, burst_times(rec.time_s.size, np.random.default_rng(5)))
     argv = ["listen", "can", "--interface", "virtual", "--channel", "burst-can", *RIG_SIGNALS, "--ratio", "30", "--period", "0.001",
             "--every", "0.5", "--raw-log", str(tmp_path / "raw"), "--json"]
-    assert listen_to(messages, argv) == 0
+    assert run_live(argv, lambda _: send_frames("burst-can", messages)) == 0
     live = json.loads(capsys.readouterr().out)
     assert live["samples"] == 4000 and live["gaps"] == 0
     assert main(["estimate", str(tmp_path / "raw"), *RIG_SIGNALS, "--ratio", "30", "--period", "0.001", "--json"]) == 0
@@ -348,7 +319,7 @@ def test_listen_can_units_overrides_the_dbc_unit_and_wrap_deg_per_signal(tmp_pat
             "--ratio", "30", "--json", "--wrap-deg", "motor=none,load=360", "--raw-log", str(tmp_path / "raw")]
     assert main([*base, "--duration", "0.1"]) != 0  # a unit it cannot read, named
     assert "mil" in capsys.readouterr().err
-    assert listen_to(messages, [*base, "--units", "deg"]) == 0
+    assert run_live([*base, "--units", "deg"], lambda _: send_frames("units-can", messages)) == 0
     live = json.loads(capsys.readouterr().out)
     assert live["samples"] == rec.time_s.size and live["backlash_deg"] == pytest.approx(0.5, abs=0.05)
 

@@ -188,7 +188,7 @@ def test_ordered_worker_raises_at_the_next_call_or_join_and_drops_calls_when_the
     seen: list[int] = []
     with pytest.raises(KeyError):
         with OrderedWorker(4) as worker:
-            worker.call(time.sleep, 0.3)  # busy while the caller fails
+            worker.call(worker.stopped.wait)  # busy until the caller has failed
             for i in range(3):
                 worker.call(seen.append, i)
             raise KeyError("caller failed")

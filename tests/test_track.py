@@ -8,10 +8,10 @@ import signal
 import sqlite3
 import subprocess
 import sys
-import time
 
 import numpy as np
 import pytest
+from live_run import kill_mid_work
 
 from online_backlash.errors import HistoryError, LogFormatError
 from online_backlash.history.report import wear_report
@@ -228,19 +228,22 @@ def test_sigkill_mid_log_then_restart_gives_the_uninterrupted_history(tmp_path):
 
     # cwd: run the installed package, not the source tree (drivers/ and replay/ are mapped at install)
     proc = subprocess.Popen([*command, *argv, "--db", str(db)], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, cwd=tmp_path)
-    deadline = time.monotonic() + 120
-    estimates_in_second_log = 0
-    while estimates_in_second_log < 10 and proc.poll() is None and time.monotonic() < deadline:
-        time.sleep(0.02)
-        if db.exists():
-            try:
-                with sqlite3.connect(f"file:{db}?mode=ro", uri=True) as conn:
-                    estimates_in_second_log = conn.execute("SELECT count(*) FROM estimates WHERE run_id = 2").fetchone()[0]
-            except sqlite3.OperationalError:  # tables not created yet
-                pass
-    proc.send_signal(signal.SIGKILL)
-    _, stderr = proc.communicate()
-    assert proc.returncode == -signal.SIGKILL, f"track ended before it could be killed mid-log: {stderr.decode()}"
+
+    def inside_the_second_log() -> bool:
+        assert proc.poll() is None, f"track ended before it could be killed mid-log: {proc.communicate()[1].decode()}"
+        if not db.exists():
+            return False
+        try:
+            with sqlite3.connect(f"file:{db}?mode=ro", uri=True, timeout=0) as conn:
+                estimates = conn.execute("SELECT count(*) FROM estimates WHERE run_id = 2").fetchone()[0]
+                status = conn.execute("SELECT status FROM runs WHERE id = 2").fetchone()
+                return estimates >= 10 and status == ("running",)
+        except sqlite3.OperationalError:  # tables not created yet
+            return False
+
+    kill_mid_work(proc.pid, inside_the_second_log, "10 estimates of the second log stored, the log not complete")
+    proc.communicate()
+    assert proc.returncode == -signal.SIGKILL
     killed = snapshot(db)
     assert [r[4] for r in killed["runs"]] == ["complete", "running"]  # killed inside the second log
     assert 0 < len(killed["estimates"]) < len(snapshot(reference)["estimates"])

@@ -189,8 +189,8 @@ def test_torque_aware_repeat_runs_lie_within_two_std_more_often_than_with_the_no
     the runs fold it into the play, half do not: 0.40 against 0.44-0.45 deg) covers the run pairs."""
     runs = [simulate_two_mass(duration_s=30.0, motion="rig", seed=s) for s in range(8)]
     for fit in (lambda r: fit_batch(r.to_chunk(), r.ratio), lambda r: fit_recursive([r.to_chunk()], r.ratio, memory_reversals=10.0)):
-        fitted = [fit(r) for r in runs]
-        assert all(getattr(est, "takes_torque", True) and est.play_observable_ for _, est in fitted)  # the torque path
+        fitted = [(rep, getattr(est, "estimator", est)) for rep, est in (fit(r) for r in runs)]  # the torque estimator
+        assert all(rep.play_method == "torque" and est.play_observable_ for rep, est in fitted)  # it fits the dwells
         new = [(rep.backlash_deg, rep.extra["backlash_std_deg"]) for rep, _ in fitted]
         old = [(rep.backlash_deg, est.backlash_white_std_) for rep, est in fitted]
         assert all(std >= est.backlash_white_std_ for (_, std), (_, est) in zip(new, fitted))  # floored at the noise-only std

@@ -66,6 +66,15 @@ class BacklashParams:
             [self.m_left, self.m_left * self.c_left, self.m_right, self.m_right * self.c_right]
         )
 
+    def feasible(self) -> BacklashParams:
+        """These parameters where the dead band is >= 0, else the nearest with a zero dead band (both
+        widths moved by half the overlap): with a negative dead band the flanks of eq. (1) cross and
+        the model is not defined, so a gearbox without play is estimated at the boundary, play 0."""
+        if self.play >= 0:
+            return self
+        half = -0.5 * self.play
+        return BacklashParams(self.m_left, self.c_left + half, self.m_right, self.c_right + half)
+
     @classmethod
     def from_theta(cls, theta: np.ndarray) -> BacklashParams:
         """Eq. (9): ``mL = m1, cL = c1/m1, mR = m2, cR = c2/m2``."""

@@ -328,19 +328,24 @@ class OrderedWorker:
     once on the caller's thread (no thread at all). As a context manager: leaving the block
     normally joins the worker (raising its exception); leaving it by an exception stops the worker
     (the calls still queued are dropped) and waits for it.
+
+    Attributes
+    ----------
+    stopped : threading.Event
+        Set when the caller failed (the calls still queued are dropped); a call may wait for it.
     """
 
     def __init__(self, depth: int, name: str = "online-backlash-bookkeeping") -> None:
         self._calls: queue.Queue[Any] = queue.Queue(maxsize=max(depth, 1))
         self._error: BaseException | None = None
-        self._stop = False
+        self.stopped = threading.Event()
         self._thread = threading.Thread(target=self._work, name=name, daemon=True) if depth > 0 else None
         if self._thread is not None:
             self._thread.start()
 
     def _work(self) -> None:
         while (item := self._calls.get()) is not _END:
-            if self._error is None and not self._stop:
+            if self._error is None and not self.stopped.is_set():
                 fn, args, kwargs = item
                 try:
                     fn(*args, **kwargs)
@@ -377,7 +382,7 @@ class OrderedWorker:
         if exc_type is None:
             self.join()
         else:  # the caller failed: drop the queued calls, keep the caller's exception
-            self._stop = True
+            self.stopped.set()
             self._end()
 
 

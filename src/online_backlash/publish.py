@@ -207,6 +207,10 @@ class MqttPublisher:
     figures : callable, optional
         ``figures()`` -> a dict added to the state message (the wear figures of the gearbox's
         history), called whenever the state changes.
+    on_connection : callable, optional
+        Called from paho's network thread as ``on_connection(True, "")`` on every connection and
+        ``on_connection(False, reason)`` when the broker refuses one or a connection is lost (not at
+        :meth:`close`): ``listen`` says so on stderr, and a test knows from it when estimates start to be dropped.
 
     Use as a context manager (or :meth:`start` / :meth:`close`); :meth:`publish` is called with
     every row. :meth:`counts` gives ``mqtt_published``, ``mqtt_dropped`` and ``mqtt_connections``.
@@ -221,6 +225,7 @@ class MqttPublisher:
         connect_wait_s: float = 2.0,
         tls: MqttTls | None = None,
         figures: Callable[[], dict[str, Any]] | None = None,
+        on_connection: Callable[[bool, str], None] | None = None,
     ) -> None:
         import paho.mqtt.client as mqtt  # loads only when publishing
 
@@ -236,6 +241,8 @@ class MqttPublisher:
         self.connections = 0
         self._lock = threading.Lock()
         self._connected = threading.Event()
+        self._closing = False
+        self._on_connection = on_connection
         self._state: dict[str, Any] | None = None  # the newest state message
         self._figures_of = figures
         self._figures: dict[str, Any] = {}  # the wear figures as of the last change of state
@@ -281,6 +288,7 @@ class MqttPublisher:
 
     def close(self) -> None:
         """Say ``offline`` (retained; waited for up to ``connect_wait_s``), disconnect cleanly, stop the network thread."""
+        self._closing = True
         if self._connected.is_set():
             message = status_message(self.gearbox_id, "offline", "stopped")
             info = self._client.publish(self._status_topic, json.dumps(message), qos=1, retain=True)
@@ -355,15 +363,24 @@ class MqttPublisher:
     # -- paho callbacks (network thread) --------------------------------------------------
     def _on_connect(self, client: Any, userdata: Any, flags: Any, reason_code: Any, properties: Any) -> None:
         if reason_code.is_failure:
+            self._tell(False, f"refused: {reason_code}")
             return
         with self._lock:
             self.connections += 1
         self._connected.set()
         self._send(self._status_topic, status_message(self.gearbox_id, "online", "publishing"), qos=1, retain=True)
         self._send_state()  # retained again: a restarted broker may have lost it
+        self._tell(True, "")
 
     def _on_disconnect(self, client: Any, userdata: Any, flags: Any, reason_code: Any, properties: Any) -> None:
+        was_connected = self._connected.is_set()
         self._connected.clear()
+        if was_connected and not self._closing:
+            self._tell(False, f"lost: {reason_code}")
+
+    def _tell(self, connected: bool, reason: str) -> None:
+        if self._on_connection is not None:
+            self._on_connection(connected, reason)
 
 
 def unix_time_of(time_s: float, offset_s: float | None) -> tuple[float, float]:

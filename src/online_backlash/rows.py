@@ -86,7 +86,25 @@ FIELDS: dict[str, RowField] = {
         _field("torque_reversals", int, "", "changes of the engaged flank (transmitted torque through its dead band); null without torque", nullable=True),
         _field(
             "backlash_lower_bound_deg", float, "deg",
-            "where the play is not observable: a play it is at least (motor travel with the load still), else null", nullable=True,
+            "where the play is not resolved: a play it is at least (motor travel with the load still), else null",
+            nullable=True,
+        ),
+        _field(
+            "backlash_upper_bound_deg", float, "deg",
+            "where the play is not resolved: a play it is at most (the estimate plus two standard errors), else null",
+            nullable=True,
+        ),
+        _field(
+            "reason", str, "", "why backlash_deg is null (not observable, not physical), or that it is a measured zero",
+            nullable=True,
+        ),
+        _field(
+            "play_method", str, "", "the play's path: 'torque' (the torque's flank) or 'kinematic' (the motion alone)",
+            nullable=True,
+        ),
+        _field(
+            "play_method_reason", str, "", "why that path was taken (the data decide: the torque tested on the dwells)",
+            nullable=True,
         ),
         _field("stiffness_nm_per_arcmin", float, "N m/arcmin", "torsional stiffness, mean of both directions (with torque)", nullable=True),
         _field("stiffness_left_nm_per_arcmin", float, "N m/arcmin", "torsional stiffness of the left flank (negative torque)", nullable=True),
@@ -133,6 +151,8 @@ REPORT_KEYS = _view(
     "backlash_deg", "backlash_arcmin", "c_left_deg", "c_right_deg", "m_left", "m_right", "samples", "residual_rms_deg", "method",
     "play_observable", "torque_reversals", "backlash_lower_bound_deg", "stiffness_nm_per_arcmin", "stiffness_left_nm_per_arcmin",
     "stiffness_right_nm_per_arcmin", "lost_motion_arcmin", "hysteresis_loss_arcmin",
+    # issue 27: the path of the play and the verdict on it
+    "backlash_upper_bound_deg", "reason", "play_method", "play_method_reason",
 )
 #: Columns of the estimate-over-time trace (``estimate --trace``), in this order.
 TRACE_COLUMNS = _view("time_s", "backlash_deg", "backlash_std_deg", "c_left_deg", "c_right_deg", "m_left", "m_right")
@@ -142,8 +162,10 @@ STORE_KEYS = (
     "residual_rms_deg", "n_samples", "operating_hours", "load_revolutions", "reversals",
     # schema 3: the load condition of each estimate (the wear trend uses only observable ones)
     "play_observable", "torque_mean_nm", "torque_rms_nm", "torque_reversals", "stiffness_nm_per_arcmin",
-    # the machine's hour meter (issue 28)
+    # schema 4: the machine's hour meter (issue 28)
     "machine_hours",
+    # schema 5: the path the play was taken from and why, and what is reported where it is not resolved (issue 27)
+    "play_method", "play_method_reason", "reason", "backlash_lower_bound_deg", "backlash_upper_bound_deg",
 )
 STORE_COLUMNS = _view(*STORE_KEYS)
 #: Columns of ``history --csv``, in this order.
@@ -152,6 +174,7 @@ HISTORY_CSV_COLUMNS = _view(
     "backlash_arcmin", "backlash_std_arcmin", "c_left_deg", "c_right_deg", "m_left", "m_right", "residual_rms_deg",
     "n_samples", "run_id", "sample_index", "play_observable", "torque_mean_nm", "torque_rms_nm", "torque_reversals",
     "stiffness_nm_per_arcmin", "machine_hours",
+    "play_method", "play_method_reason", "reason", "backlash_lower_bound_deg", "backlash_upper_bound_deg",
 )
 
 
@@ -211,7 +234,8 @@ class EstimateRow:
     """The recursive estimator's estimate at one instant (see :data:`FIELDS` for each column).
 
     ``time_s`` is the time of the last sample learned (the source's clock, seconds); angles in
-    degrees on the load side.
+    degrees on the load side. ``backlash_deg`` is NaN where the play is not reported (``reason``
+    says why; :func:`online_backlash.physical.play_verdict`).
     """
 
     time_s: float
@@ -227,6 +251,12 @@ class EstimateRow:
     torque_reversals: int | None = None
     stiffness_left_nm_per_arcmin: float | None = None
     stiffness_right_nm_per_arcmin: float | None = None
+    play_observable: bool = True
+    reason: str | None = None
+    backlash_lower_bound_deg: float | None = None
+    backlash_upper_bound_deg: float | None = None
+    play_method: str | None = None
+    play_method_reason: str | None = None
 
     @classmethod
     def from_estimator(cls, est: Any, time_s: float) -> EstimateRow | None:
@@ -234,10 +264,15 @@ class EstimateRow:
 
         ``est`` has the fitted attributes of :class:`~online_backlash.estimators.BacklashRLS`
         (``started``, ``backlash_``, ``backlash_std_``, ``c_left_``, ``c_right_``, ``m_left_``,
-        ``m_right_``, ``residual_rms_``, ``n_samples_seen_``, ``n_reversals_``).
+        ``m_right_``, ``residual_rms_``, ``n_samples_seen_``, ``n_reversals_``); an estimator that decides its
+        path and verdict itself (:class:`~online_backlash.load_aware.PlayChooser`) gives every column
+        (``row_fields()``, None while it has no estimate).
         """
         if not est.started:
             return None
+        if hasattr(est, "row_fields"):
+            fields = est.row_fields()
+            return None if fields is None else cls(time_s=float(time_s), **fields)
         backlash = float(est.backlash_)
         if not math.isfinite(backlash):
             return None
@@ -270,9 +305,13 @@ class EstimateRow:
             "m_right": self.m_right,
             "residual_rms_deg": self.residual_rms_deg,
             "n_reversals": self.n_reversals,
-            "play_observable": True,  # a row is emitted only while the estimator has a play
+            "play_observable": self.play_observable,
             "torque_reversals": self.torque_reversals,
-            "backlash_lower_bound_deg": None,
+            "backlash_lower_bound_deg": self.backlash_lower_bound_deg,
+            "backlash_upper_bound_deg": self.backlash_upper_bound_deg,
+            "reason": self.reason,
+            "play_method": self.play_method,
+            "play_method_reason": self.play_method_reason,
             "stiffness_nm_per_arcmin": _mean_or_none(self.stiffness_left_nm_per_arcmin, self.stiffness_right_nm_per_arcmin),
             "stiffness_left_nm_per_arcmin": self.stiffness_left_nm_per_arcmin,
             "stiffness_right_nm_per_arcmin": self.stiffness_right_nm_per_arcmin,

@@ -82,7 +82,8 @@ from .history.series import WearSeries
 from .history.store import Gearbox, HistoryStore, Run
 from .history.usage import UsageCounter
 from .hour_meter import METER_TOLERANCE_H, HourMeter, MachineUsage
-from .load_aware import TorqueBacklashRLS
+from .load_aware import PlayChooser, TorqueBacklashRLS
+from .load_aware.choice import NO_TORQUE, check_play_method
 from .pipeline import DataClock, Pipeline, check_every, tail
 from .replay import open_log
 from .rows import STORE_COLUMNS, EstimateRow, select, source_counts
@@ -298,6 +299,11 @@ class GearboxTracker:
         parameters given that differ from them raise HistoryError.
     usage_params : dict, optional
         Parameters of a new gearbox's :class:`UsageCounter`.
+    play_method : {"auto", "torque", "kinematic"}, optional
+        The path of a new gearbox's play (:mod:`online_backlash.load_aware.choice`; None: ``auto``); a
+        known gearbox keeps its own, and one given that differs raises HistoryError.
+    no_torque_why : str
+        Why a log has no torque path, where it has none (stored with each estimate's path).
     """
 
     def __init__(
@@ -309,6 +315,8 @@ class GearboxTracker:
         limit_arcmin: float | None = None,
         estimator_params: dict | None = None,
         usage_params: dict | None = None,
+        play_method: str | None = None,
+        no_torque_why: str = NO_TORQUE,
     ) -> None:
         self.store = store
         self.gearbox_id = gearbox_id
@@ -317,6 +325,8 @@ class GearboxTracker:
         self.limit_arcmin = limit_arcmin
         self.estimator_params = estimator_params
         self.usage_params = usage_params
+        self.play_method = None if play_method is None else check_play_method(play_method)
+        self.no_torque_why = no_torque_why
 
     # -- public ----------------------------------------------------------------------------
     def track_log(
@@ -481,8 +491,16 @@ class GearboxTracker:
         return legacy if legacy in keys else key
 
     def _check_estimator_params(self, gearbox: Gearbox | None) -> None:
-        """A known gearbox keeps its estimator: refuse parameters that differ from its own."""
-        if gearbox is None or gearbox.checkpoint is None or not self.estimator_params:
+        """A known gearbox keeps its estimator and the path of its play: refuse parameters that differ from its own."""
+        if gearbox is None or gearbox.checkpoint is None:
+            return
+        saved_method = (gearbox.checkpoint.get("play") or {}).get("play_method", "auto")
+        if self.play_method is not None and self.play_method != saved_method:
+            raise HistoryError(
+                f"gearbox {gearbox.id!r} is tracked with play_method={saved_method!r}; "
+                f"play_method={self.play_method!r} would change its estimator (use another gearbox id to start afresh)"
+            )
+        if not self.estimator_params:
             return
         saved = gearbox.checkpoint["estimator"]["params"]
         for name, value in self.estimator_params.items():
@@ -518,7 +536,10 @@ class GearboxTracker:
         time of the last sample (None if every sample was skipped) and the estimates still waiting for
         the run's last transaction. An error (but the store's own) commits the estimates made before it.
         """
-        state = TrackerState.load(gearbox.checkpoint, self.ratio, self.every_s, self.estimator_params, self.usage_params, first)
+        state = TrackerState.load(
+            gearbox.checkpoint, self.ratio, self.every_s, self.estimator_params, self.usage_params, first,
+            self.play_method or "auto", self.no_torque_why,
+        )  # fmt: skip
         state.meter = meter
         if run.samples_done == 0 or (gearbox.checkpoint or {}).get("run_id") != run.id:
             state.mark_gap()  # the log does not continue the samples the state saw last
@@ -700,7 +721,8 @@ class TrackerState:
     Attributes
     ----------
     pipeline : Pipeline
-        The gearbox's estimator (:class:`BacklashRLS`) and data clock
+        The gearbox's estimator (a :class:`~online_backlash.load_aware.PlayChooser` around
+        :class:`BacklashRLS` or :class:`TorqueBacklashRLS`: the path of the play chosen by the data) and data clock
         (:class:`~online_backlash.pipeline.DataClock`: seconds of data seen, steps across gaps
         and between logs excluded, and when the next estimate is due).
     usage : UsageCounter
@@ -735,23 +757,29 @@ class TrackerState:
         estimator_params: dict | None = None,
         usage_params: dict | None = None,
         first: SampleChunk | None = None,
+        play_method: str = "auto",
+        no_torque_why: str = NO_TORQUE,
     ) -> TrackerState:
         """The state saved in a gearbox's checkpoint, or a new one (with these parameters) if None.
 
         A new gearbox whose first chunk ``first`` has a torque column gets the torque-aware
-        estimator (:func:`~online_backlash.fitting.recursive_estimator`); a saved one keeps its class.
+        estimator (:func:`~online_backlash.fitting.recursive_estimator`, with ``play_method``); a saved
+        one keeps its class and its path (a checkpoint written before issue 27 gets a new
+        :class:`~online_backlash.load_aware.PlayChooser` with ``play_method``).
 
         A saved estimator's effects are rebuilt by :meth:`BacklashRLS.from_state` from their
         names and parameters (:data:`online_backlash.effect_terms.EFFECTS`), stream history
         included, so a resumed run continues them exactly.
         """
         if checkpoint is None:
-            fresh = recursive_estimator(first, ratio, **(estimator_params or {}))
+            fresh = recursive_estimator(first, ratio, play_method, no_torque_why, **(estimator_params or {}))
             return cls(Pipeline(fresh, ratio, every_s), UsageCounter(**(usage_params or {})))
         if checkpoint.get("format") != CHECKPOINT_FORMAT:
             raise HistoryError(f"checkpoint format {checkpoint.get('format')!r} is not {CHECKPOINT_FORMAT}; upgrade online-backlash")
         saved = checkpoint["estimator"]
-        estimator = (TorqueBacklashRLS if saved.get("estimator") == TorqueBacklashRLS.__name__ else BacklashRLS).from_state(saved)
+        kind = TorqueBacklashRLS if saved.get("estimator") == TorqueBacklashRLS.__name__ else BacklashRLS
+        main = kind.from_state(saved)
+        estimator = PlayChooser.from_state(main, checkpoint.get("play"), play_method)
         clock = DataClock.from_state(every_s, checkpoint)
         usage = UsageCounter.from_state(checkpoint["usage"])
         condition = LoadCondition.from_state(checkpoint.get("condition"))
@@ -762,7 +790,8 @@ class TrackerState:
         return {
             "format": CHECKPOINT_FORMAT,
             "run_id": run_id,
-            "estimator": self.pipeline.estimator.state_dict(),
+            "estimator": self.pipeline.estimator.estimator.state_dict(),
+            "play": self.pipeline.estimator.state_dict(),
             "usage": self.usage.state_dict(),
             "condition": self.condition.state_dict(),
             "machine": self.machine,
@@ -792,8 +821,11 @@ class TrackerState:
             "machine_hours": machine,
         }
         est = self.pipeline.estimator
-        if getattr(est, "takes_torque", False):  # the play is seen only where the torque reversed since the last estimate
-            values["play_observable"] = bool(values["play_observable"]) and self.condition.reversed_since_last(est.n_reversals_)
+        reversed_since_last = est.takes_torque and self.condition.reversed_since_last(est.estimator.n_reversals_)
+        if row.play_method == "torque" and values["play_observable"] and not reversed_since_last:
+            # the torque path sees the play only where the torque reversed since the last estimate
+            values["play_observable"] = False
+            values["reason"] = "not observable since the last estimate: the torque did not reverse (the play last seen)"
         return select(STORE_COLUMNS, values)
 
 

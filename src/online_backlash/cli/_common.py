@@ -198,6 +198,18 @@ def check_plot_path(path: str | None) -> None:
         raise InvalidParameterError(f"{path}: cannot draw a plot as .{suffix}; use one of {', '.join('.' + f for f in sorted(formats))}")
 
 
+def add_play_method_option(parser: argparse.ArgumentParser, default: str | None = "auto", new: str = "") -> None:
+    """``--play-method auto|torque|kinematic``: the path of the play (issue 27; ``auto``: the data decide)."""
+    parser.add_argument(
+        "--play-method",
+        choices=("auto", "torque", "kinematic"),
+        default=default,
+        help=f"path of {new}play: auto (the torque path where it fits the motion's dwells, else the kinematic "
+        "play), torque (the torque's flank, a mapped torque column needed), kinematic (the motion alone, the "
+        "torque left out)" + ("; default: auto" if default is None else ""),
+    )
+
+
 def add_ratio_option(parser: argparse.ArgumentParser, required: bool = True) -> None:
     """``--ratio R``: motor:load gear ratio; negative for a stage that reverses direction."""
     parser.add_argument(

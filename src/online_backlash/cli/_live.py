@@ -5,8 +5,10 @@ from __future__ import annotations
 import argparse
 import os
 import signal
+import sys
 import threading
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from typing import TYPE_CHECKING, Any
 
 from ..errors import InvalidParameterError
@@ -53,13 +55,22 @@ def _live_options(args: argparse.Namespace) -> dict[str, Any]:
     }
 
 
-def on_interrupt(stop: Callable[[], None]) -> Callable[[], None]:
-    """Make Ctrl-C end the run gracefully (with a summary); returns the undo."""
+#: The end of the line :func:`ctrl_c_ends_the_run` writes on stderr once Ctrl-C is handled.
+CTRL_C_READY = "Ctrl-C ends the run with its summary"
+
+
+@contextmanager
+def ctrl_c_ends_the_run(stop: Callable[[], None], label: str) -> Iterator[None]:
+    """Within the block, Ctrl-C calls ``stop`` (the run ends gracefully, with its summary); the handler
+    is installed before the line ``LABEL: listening; Ctrl-C ends the run with its summary`` goes to
+    stderr, so whoever waits for that line (a user, a test) may press Ctrl-C from then on. Off the main
+    thread Python cannot handle signals: no handler, no line."""
     if threading.current_thread() is not threading.main_thread():
-        return lambda: None
+        yield
+        return
     previous = signal.signal(signal.SIGINT, lambda *_: stop())
-
-    def undo() -> None:
+    try:
+        print(f"{label}: listening; {CTRL_C_READY}", file=sys.stderr, flush=True)
+        yield
+    finally:
         signal.signal(signal.SIGINT, previous)
-
-    return undo

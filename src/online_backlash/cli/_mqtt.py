@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import sys
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from typing import TYPE_CHECKING, Any
@@ -11,7 +12,7 @@ from ..errors import InvalidParameterError
 
 if TYPE_CHECKING:
     from ..history.store import HistoryStore
-    from ..publish import MqttPublisher, MqttTls
+    from ..publish import MqttPublisher, MqttTarget, MqttTls
     from ..rows import EstimateRow
 
 MQTT_HELP = (
@@ -61,9 +62,13 @@ def mqtt_publisher(
         return
     if not gearbox_id:
         raise InvalidParameterError("--mqtt publishes under the gearbox's id: give --gearbox ID")
-    from ..publish import MqttPublisher
+    from ..publish import MqttPublisher, MqttTarget
 
-    with MqttPublisher(url, gearbox_id, warn_arcmin, limit_arcmin, tls=tls, figures=figures) as publisher:
+    where = MqttTarget.parse(url)
+    note = _connection_note(where)
+    with MqttPublisher(
+        url, gearbox_id, warn_arcmin, limit_arcmin, tls=tls, figures=figures, on_connection=note
+    ) as publisher:
         yield publisher
 
 
@@ -88,6 +93,17 @@ def history_figures(store: HistoryStore, gearbox_id: str) -> Callable[[], dict[s
         }
 
     return figures
+
+
+def _connection_note(where: MqttTarget) -> Callable[[bool, str], None]:
+    """A line on stderr whenever the broker connects, refuses or goes away (over the status line; paho's thread)."""
+
+    def note(connected: bool, reason: str) -> None:
+        what = "connected" if connected else f"connection {reason}; estimates are dropped and counted until it is back"
+        sys.stderr.write(f"\r\x1b[Kmqtt: {where.host}:{where.port}: {what}\n")
+        sys.stderr.flush()
+
+    return note
 
 
 def row_sink(publisher: MqttPublisher | None, then: Callable[[EstimateRow], None]) -> Callable[[EstimateRow], None]:

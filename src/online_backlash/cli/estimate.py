@@ -19,6 +19,7 @@ from ._common import (
     LOG_FORMATS,
     add_can_decoding_options,
     add_log_options,
+    add_play_method_option,
     add_ratio_option,
     can_decoding_options,
     check_plot_path,
@@ -49,9 +50,15 @@ def add_subparser(subparsers: argparse._SubParsersAction) -> None:
     add_ratio_option(parser)
     parser.add_argument("--method", choices=("recursive", "batch"), default="recursive", help="estimator")
     parser.add_argument("--json", action="store_true", help="print one JSON object")
+    add_play_method_option(parser)
     parser.add_argument(
         "--rated-torque", metavar="NM", type=positive_float,
         help="rated torque of the gearbox, N m: with a torque column, lost motion is taken at +-3 %% of it (else at the torque dead band)",
+    )
+    parser.add_argument(
+        "--stiffness-torques", metavar="T1,T2", type=_segment_torques,
+        help="with a torque column and --method batch: the data sheet's segment torques, N m: the torsional stiffness "
+        "in three segments (K1 up to T1, K2 up to T2, K3 above; the segments the torque covers are fitted)",
     )
     parser.add_argument(
         "--plot", metavar="FILE.png",
@@ -86,6 +93,16 @@ def add_subparser(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("--serial-format", choices=("ascii", "binary"), help="frame format of a serial capture (.serial)")
     parser.add_argument("--realtime", action="store_true", help="replay a CAN log or serial capture at its recorded pace")
     parser.set_defaults(func=run)
+
+
+def _segment_torques(text: str) -> tuple[float, float]:
+    """argparse type of ``--stiffness-torques T1,T2`` (N m, 0 < T1 < T2)."""
+    from ..load_aware.segments import check_knots
+
+    try:
+        return check_knots(text.split(","))
+    except InvalidParameterError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from exc
 
 
 def log_options(args: argparse.Namespace) -> dict:
@@ -127,22 +144,45 @@ def read_counted(args: argparse.Namespace) -> tuple[SampleChunk, SampleSource]:
     return read_all(source, args.log), source
 
 
+def no_torque_reason(log: str | None, args: argparse.Namespace) -> str:
+    """Why a log has no torque path: no torque column, or torque-like columns the column map leaves out
+    (their names; read from the log's first block, only for logs of columns or channels)."""
+    from ..load_aware.choice import NO_TORQUE
+    from ..replay import open_log
+
+    if log is None or log_options(argparse.Namespace(**{**vars(args), "log": log})).get("columns") is None:
+        return NO_TORQUE
+    with open_log(log, **log_options(argparse.Namespace(**{**vars(args), "log": log}))) as source:
+        next(iter(source.iter_chunks()), None)
+        unused = getattr(source, "unused_torque_columns", ())
+    if not unused:
+        return NO_TORQUE
+    return f"no torque column mapped ({', '.join(unused)} present but not used: map one with --columns torque=NAME)"
+
+
 def run(args: argparse.Namespace) -> int:
     from ..replay import open_log
 
     keep_freed_memory()  # a one-shot process: its large arrays reuse the memory freed by the last ones
     check_plot_path(args.plot)
     fitted = None
+    choice = {"play_method": args.play_method, "no_torque_why": no_torque_reason(args.log, args)}
     if args.method == "batch":
         if args.trace:
             raise InvalidParameterError("--trace needs --method recursive")
         chunk, source = read_counted(args)
-        fitted = fit_batch(chunk, args.ratio, rated_torque_Nm=args.rated_torque)
+        fitted = fit_batch(
+            chunk, args.ratio, rated_torque_Nm=args.rated_torque, stiffness_torques_Nm=args.stiffness_torques, **choice
+        )
         report = fitted[0]
     else:
+        if args.stiffness_torques is not None:
+            raise InvalidParameterError(
+                "--stiffness-torques needs --method batch: the three segments are fitted on the whole curve"
+            )
         params = {
             "memory_reversals": args.memory_reversals, "memory_s": args.memory_s, "sample_period_s": args.sample_period,
-            "gap_policy": GapPolicy(args.bridge_s, args.jump_deg), "rated_torque_Nm": args.rated_torque,
+            "gap_policy": GapPolicy(args.bridge_s, args.jump_deg), "rated_torque_Nm": args.rated_torque, **choice,
         }
         with open_log(args.log, **log_options(args)) as source:
             if args.trace:
@@ -150,17 +190,21 @@ def run(args: argparse.Namespace) -> int:
             else:
                 report, _ = fit_recursive(source.iter_chunks(), args.ratio, source=args.log, ahead=READ_AHEAD, **params)
     report.add_counters(source.counters.as_dict())
+    report.extra["unused_torque_columns"] = list(getattr(source, "unused_torque_columns", ()))
     if args.plot:
         from ..plotting import plot_fit  # matplotlib: only for a plot
 
         whole = chunk if args.method == "batch" else read_counted(args)[0]
         title = os.path.basename(args.log)
-        drawn = plot_fit(whole, args.ratio, args.plot, rated_torque_Nm=args.rated_torque, title=title, fitted=fitted)
+        drawn = plot_fit(
+            whole, args.ratio, args.plot, rated_torque_Nm=args.rated_torque, title=title, fitted=fitted, **choice
+        )
         if fitted is None:  # the data-sheet figures of the curve drawn, not a second set from the recursive fit
             report.take_datasheet(drawn)
     print_report(report.as_dict() if args.json else describe(report, args.log), files_written(args))
-    warn_if_implausible(report.plausibility(args.ratio), args.log)
-    return play_exit_code(report.backlash_deg, args.log, report.no_play_reason())
+    note, why_none = report.plausibility(args.ratio), report.no_play_reason()
+    warn_if_implausible(None if note is not None and why_none is not None and note in why_none else note, args.log)
+    return play_exit_code(report.backlash_deg, args.log, why_none)
 
 
 def write_trace(

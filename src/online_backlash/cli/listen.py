@@ -2,9 +2,11 @@
 
 Every frame or byte received is written to ``--raw-log DIR`` before it is decoded, so
 ``online-backlash estimate DIR`` (the whole directory, or one of its files) gives the same
-result later. A status line on stderr shows the estimate with its standard error, samples/s,
-corrupt frames and gaps; the summary comes when ``--duration`` is reached or on Ctrl-C (with ``--json``: one JSON object on
-stdout, the keys of ``estimate --json`` plus the source's counters). With ``--mqtt
+result later. Once Ctrl-C is handled, a line on stderr says so (``SOURCE: listening; Ctrl-C ends the
+run with its summary``); then a status line shows the estimate with its standard error, the samples it
+has learned, samples/s, corrupt frames and gaps. The summary comes when ``--duration`` is reached or on
+Ctrl-C, after everything read by then is learned (on CAN, also the frames still waiting on the bus);
+with ``--json`` it is one JSON object on stdout, the keys of ``estimate --json`` and the source's counters. With ``--mqtt
 mqtt://HOST:PORT/PREFIX --gearbox ID`` every estimate is also published (:mod:`online_backlash.publish`).
 """
 
@@ -19,7 +21,7 @@ from ..errors import LogFormatError, SourceError
 from ..fitting import describe, fit_recursive
 from ..rows import EstimateRow, arcmin
 from ._common import add_can_decoding_options, add_ratio_option, play_exit_code, positive_float, print_json
-from ._live import on_interrupt, open_can_source, open_serial_source
+from ._live import ctrl_c_ends_the_run, open_can_source, open_serial_source
 from ._mqtt import add_listen_mqtt_options, mqtt_publisher, mqtt_summary_line, mqtt_tls, row_sink
 
 
@@ -100,7 +102,7 @@ class _StatusLine:
         self._last, self._last_samples = now, c.samples
         text = (
             f"{now - self.start:7.1f} s  backlash {arcmin(row.backlash_deg):8.3f}"
-            f" ± {arcmin(row.backlash_std_deg):.3f} arcmin  {rate:7.0f} samples/s"
+            f" ± {arcmin(row.backlash_std_deg):.3f} arcmin  {row.n_samples} samples, {rate:7.0f} samples/s"
             f"  corrupt {c.corrupt}  gaps {c.gaps}"
         )
         sys.stderr.write("\r" + text + "\x1b[K")
@@ -119,17 +121,16 @@ def run(args: argparse.Namespace) -> int:
     every_s = args.status_every if args.every is None else args.every
     with mqtt_publisher(args.mqtt, args.gearbox, args.warn_arcmin, args.limit_arcmin, mqtt_tls(args)) as publisher, args.open_source(args) as source:
         status = _StatusLine(source.counters)
-        undo = on_interrupt(source.request_stop)
         try:
-            report, _ = fit_recursive(
-                source.iter_chunks(), args.ratio, every_s=every_s, trace=row_sink(publisher, status), source=label, **params
-            )
+            with ctrl_c_ends_the_run(source.request_stop, label):
+                trace = row_sink(publisher, status)
+                chunks = source.iter_chunks()
+                report, _ = fit_recursive(chunks, args.ratio, every_s=every_s, trace=trace, source=label, **params)
         except LogFormatError as exc:
             if source.counters.samples:
                 raise
             raise SourceError(f"{label}: no samples received ({_counts(source.counters.as_dict())})") from exc
         finally:
-            undo()
             status.end()
     summary = report.as_dict()
     summary.update(source.counters.as_dict())

@@ -22,13 +22,14 @@ from ._common import (
     LOG_FORMATS,
     add_can_decoding_options,
     add_log_options,
+    add_play_method_option,
     add_ratio_option,
     positive_float,
     print_json,
 )
-from ._live import on_interrupt, open_can_source, open_serial_source
+from ._live import ctrl_c_ends_the_run, open_can_source, open_serial_source
 from ._mqtt import add_mqtt_option, history_figures, mqtt_publisher, mqtt_summary_line, mqtt_tls
-from .estimate import log_options
+from .estimate import log_options, no_torque_reason
 from .history import add_db_options
 
 if TYPE_CHECKING:
@@ -133,6 +134,7 @@ def add_subparser(subparsers: argparse._SubParsersAction) -> None:
         "more noise); default: BacklashRLS's",
     )
     parser.add_argument("--sample-period", type=float, metavar="S", help="sampling period of a new gearbox's logs, seconds; default: BacklashRLS's (0.001)")
+    add_play_method_option(parser, default=None, new="a new gearbox's ")
     parser.add_argument(
         "--diagnose",
         action="store_true",
@@ -237,7 +239,10 @@ def gearbox_tracker(store: HistoryStore, args: argparse.Namespace, logs: list[st
         params.update(_diagnosed_effects(store, args, logs[0]))
     if args.warn_arcmin is not None or args.limit_arcmin is not None:
         store.set_alarm_levels(args.gearbox, args.ratio, warn_arcmin=args.warn_arcmin, limit_arcmin=args.limit_arcmin)
-    return GearboxTracker(store, args.gearbox, args.ratio, every_s=args.every, limit_arcmin=args.limit_arcmin, estimator_params=params)
+    return GearboxTracker(
+        store, args.gearbox, args.ratio, every_s=args.every, limit_arcmin=args.limit_arcmin, estimator_params=params,
+        play_method=args.play_method, no_torque_why=no_torque_reason(logs[0] if logs else None, args),
+    )  # fmt: skip
 
 
 def _log_options(args: argparse.Namespace, path: str) -> dict[str, Any]:
@@ -340,12 +345,8 @@ def _track_live(
         open_source = open_can_source
     else:
         source_args, label, open_source = args, f"serial {args.port}", open_serial_source
-    with open_source(source_args) as source:
-        undo = on_interrupt(source.request_stop)
-        try:
-            return tracker.track_source(source, label, progress=progress, on_row=on_row)
-        finally:
-            undo()
+    with open_source(source_args) as source, ctrl_c_ends_the_run(source.request_stop, label):
+        return tracker.track_source(source, label, progress=progress, on_row=on_row)
 
 
 def report(result: TrackResult, as_json: bool) -> None:

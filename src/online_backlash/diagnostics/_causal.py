@@ -3,11 +3,15 @@
 An effect whose columns at sample ``t`` need the ``w`` samples before it keeps those samples
 between calls of ``terms``. Before the first sample the record is taken to be at rest at its
 first value (the first sample repeated), so one call on a whole record and many calls on its
-pieces give the same rows (the :class:`~online_backlash.effect_terms.EffectTerms` contract).
+pieces give the same rows (the :class:`~online_backlash.effect_terms.EffectTerms` contract); the
+window says where the record starts among those rows (:attr:`CausalWindow.record_start`), for a
+derivative that must not read the rest before it (:func:`savgol_derivative`).
 Units: degrees, seconds, newton metres.
 """
 
 from __future__ import annotations
+
+from functools import lru_cache
 
 import numpy as np
 
@@ -24,6 +28,10 @@ class CausalWindow:
     def reset(self) -> None:
         """Forget the past (start of a record or after a gap)."""
         self._past: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
+        self._seen = 0  # samples seen since the reset, up to ``history + 1``
+        #: where the record's first sample is in the arrays :meth:`extend` last returned (the rows before
+        #: it are the rest before the record: its first sample repeated); None: before their first row
+        self.record_start: int | None = self.history
 
     def extend(
         self, u_deg: np.ndarray, time_s: np.ndarray, torque_Nm: np.ndarray
@@ -40,6 +48,7 @@ class CausalWindow:
         if u.size == 0:
             return u, t, q, 0
         past = self._past
+        self.record_start = self.history - self._seen if self._seen <= self.history else None
         if past is None:  # at rest at the first sample before the record starts
             past = (np.full(self.history, u[0]), np.full(self.history, t[0]), np.full(self.history, q[0]))
         return (np.concatenate((past[0], u)), np.concatenate((past[1], t)), np.concatenate((past[2], q)), self.history)
@@ -49,6 +58,7 @@ class CausalWindow:
         if u.size:
             h = self.history
             self._past = (u[u.size - h :].copy(), t[t.size - h :].copy(), q[q.size - h :].copy())
+            self._seen = min(self._seen + u.size - h, h + 1)
 
 
 def _difference_from_rest(a: np.ndarray, lag: int) -> np.ndarray:
@@ -91,12 +101,56 @@ def velocity_deg_s(u: np.ndarray, t: np.ndarray, window: int) -> np.ndarray:
     return np.divide(du, dt, out=np.zeros_like(du), where=dt > 0)
 
 
-def acceleration_deg_s2(u: np.ndarray, t: np.ndarray, window: int) -> np.ndarray:
-    """Causal acceleration from two velocities ``window`` samples apart, deg/s^2."""
-    v = velocity_deg_s(u, t, window)
-    dv = lagged_difference(v, window)
-    dt = lagged_difference(t, window)
-    return np.divide(dv, dt, out=np.zeros_like(dv), where=dt > 0)
+#: polynomial order of :func:`savgol_derivative`: a quadratic's second derivative is one number over the
+#: window, that of its middle (a lag of half the window); a quartic's varies along it, so its value at the
+#: newest sample has no lag wherever the motion is a quartic over the window
+SAVGOL_ORDER = 4
+#: at a record's start, before a full window: a quadratic through at least this many samples
+START_SAMPLES = 6
+
+
+@lru_cache(maxsize=1024)
+def _savgol_weights(window: int, order: int, deriv: int) -> np.ndarray:
+    """The Savitzky-Golay weights of the ``deriv``-th derivative at the newest of ``window`` samples, per sample period^deriv."""
+    from scipy.signal import savgol_coeffs  # 0.3 s to import scipy.signal: paid by a record without a torque column only
+
+    return savgol_coeffs(window, order, deriv=deriv, pos=window - 1, use="dot")
+
+
+def savgol_derivative(u: np.ndarray, t: np.ndarray, window: int, deriv: int, start: int | None = 0) -> np.ndarray:
+    """Causal Savitzky-Golay derivative of ``u`` (deg): deg/s (``deriv=1``) or deg/s^2 (``deriv=2``).
+
+    At every sample, the ``deriv``-th derivative, at that sample, of the least-squares polynomial of
+    order :data:`SAVGOL_ORDER` through it and the ``window - 1`` samples before it (A. Savitzky,
+    M. J. E. Golay, *Anal. Chem.* 36 (1964) 1627-1639; the weights are
+    ``scipy.signal.savgol_coeffs(..., pos=window - 1)``, the fit evaluated at the window's newest
+    sample, not its middle: causal). The sample period is the window's mean, ``(t[i] - t[i-w+1]) / (w - 1)``.
+
+    ``start`` is where the record's first sample is in ``u`` (None: before ``u[0]``). Before it there is
+    nothing (0): a record is not at rest before its first sample as far as its acceleration goes. Over
+    the record's first ``window - 1`` samples the window holds what there is: a quadratic through the
+    samples since the start (at least :data:`START_SAMPLES`; a quartic's value at the end of a short
+    window is mostly the encoder's steps). Rows whose window reaches before ``u[0]`` when the record
+    started earlier (the past a streaming caller keeps) and rows over which no time passes are 0.
+    """
+    out = np.zeros_like(u)
+    if u.size >= window:
+        k = _savgol_weights(window, SAVGOL_ORDER, deriv)
+        # the weights sum to zero up to rounding: the difference from the newest sample makes the result
+        # independent of the angle's zero (a shaft that has turned 1e5 deg)
+        d = np.correlate(u, k, mode="valid") - u[window - 1 :] * k.sum()
+        step = (t[window - 1 :] - t[: t.size - window + 1]) / (window - 1)
+        np.divide(d, step**deriv, out=out[window - 1 :], where=step > 0)
+    first = 0 if start is None else start
+    out[: first + window - 1] = 0.0
+    if start is not None:
+        for i in range(start + START_SAMPLES - 1, min(start + window - 1, u.size)):
+            n = i - start + 1
+            step = (t[i] - t[start]) / (n - 1)
+            if step > 0:
+                w = u[start : i + 1]
+                out[i] = (w - w[-1]) @ _savgol_weights(n, 2, deriv) / step**deriv
+    return out
 
 
 def motion_direction(u: np.ndarray, window: int, deadzone_deg: float, start: float) -> np.ndarray:

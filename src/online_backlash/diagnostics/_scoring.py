@@ -337,6 +337,9 @@ class DetectionData:
     #: the current backlash fit, eq. (1), in the frame of ``u_deg`` minus its first sample (for
     #: effects that run the model's switching functions themselves)
     backlash_params: BacklashParams | None = None
+    #: the load reading's noise floor, deg (:func:`.residuals.noise_floor`; 0 when not known): what a
+    #: detector may allow a fitted figure beyond a physical bound before it calls it unphysical
+    noise_floor_deg: float = 0.0
     #: the cross-products of the nuisance columns and the residual (formed in __post_init__ unless
     #: given for exactly these nuisance columns, residual and folds, as :meth:`with_nuisance` does)
     grams: _Grams | None = field(default=None, repr=False, compare=False)

@@ -23,15 +23,27 @@ the loop's joint fit (eq. 8 and 14 with appended columns) and its held-out scori
 * **after a flank engages** (zero elsewhere): the entry velocity ``v_e`` of ``u`` at the first
   engaged sample times hat functions of the time since engagement (the impact's response,
   scaled by the speed of the impact), up to the last knot;
-* **while the model's output rests** (optional, ``rest_time_constants_s``): where eq. (7) holds
-  the output, ``x(t) = x(t-1)`` (the motor at rest on a flank, or the dead band), the load goes
-  on creeping in the direction ``d`` the output last moved, released by what the drive train
-  stored while it pushed (the reaction torque, the shaft's twist): ``[d > 0] (1 - exp(-r /
+* **while the model's output rests** (optional, ``rest_time_constants_s``, ``creep_step``): where
+  eq. (7) holds the output, ``x(t) = x(t-1)`` (the motor at rest on a flank, or the dead band), the
+  load goes on creeping in the direction ``d`` the output last moved, released by what the drive
+  train stored while it pushed (the reaction torque, the shaft's twist): ``[d > 0] (1 - exp(-r /
   tau_j))`` and ``[d < 0] (1 - exp(-r / tau_j))``, ``r`` the time since ``x`` last moved, one
-  column per direction and time constant (a stroke's top and bottom are loaded differently). The
-  coast above scales with the speed the output last moved at, which a motor that ramps down
-  before it rests makes small; this creep does not need the speed. Coefficients in deg (the
-  creep's share reached with each time constant).
+  column per direction and time constant (a stroke's top and bottom are loaded differently), and
+  with ``creep_step`` ``[d > 0]`` and ``[d < 0]`` themselves: the lead the load already has when
+  the output stops (a motor that slows down faster than the load's friction can brake it leaves the
+  load before it stops; ``tests/test_creep_at_rest.py``). ``creep_directions`` keeps the columns of
+  one direction only. The coast above scales with the speed the output last moved at, which a
+  motor that ramps down before it rests makes small; this creep does not need the speed.
+  Coefficients in deg (the creep's share reached with each time constant, at once for the step).
+
+What :meth:`DeadBandMotion.detect` offers is what the record can tell apart and what a load at rest
+can do (``docs/closing-the-loop.md``, "The creep's asymptote"): the creep's time constants the
+record's rests outlast (a longer one is a ramp over every rest, whose asymptote, the reported total,
+would be an extrapolation traded against the others), the coast and the creep together only where
+neither is a copy of the other (after a stop at the same crawl speed every time, the coast's columns
+are the creep's scaled), and the creep of a direction only where it is physical: over the rests and
+at its asymptote, in the direction the load last moved and inside the dead band (within the noise
+floor).
 
 Engaged or not is decided by the model's own switching functions, eq. (5)-(6), run on ``u``
 with the backlash parameters the effect is given (the loop's current fit, in its frame: ``u``
@@ -45,7 +57,7 @@ Units: degrees (load side), seconds, newton metres.
 from __future__ import annotations
 
 import math
-from dataclasses import replace
+from dataclasses import dataclass, field, replace
 from itertools import pairwise
 from typing import Any
 
@@ -54,9 +66,10 @@ from numba import njit
 
 from ..errors import InvalidParameterError
 from ..model import BacklashParams, simulate_switching
-from ._causal import CausalWindow, velocity_deg_s
+from ._causal import CausalWindow, sample_period_s, velocity_deg_s
 from ._effect_base import EffectBase
-from ._scoring import BIC_THRESHOLD, Detection, DetectionData, best_detection
+from ._normal_equations import left_sum_of_squares
+from ._scoring import BIC_THRESHOLD, MIN_OWN_SHARE, Detection, DetectionData, Score, best_detection
 
 #: time constants of the coast after the flank leaves the load, in sample periods (a factor of 8
 #: apart: closer ones are nearly collinear over a dead band of a few hundred samples)
@@ -68,6 +81,8 @@ VARIANTS = (
     ("coast", "entry"), ("coast",), ("entry",),
     ("coast", "entry", "creep at rest"), ("coast", "creep at rest"), ("entry", "creep at rest"), ("creep at rest",),
 )
+#: the JSON names of the directions the output last moved
+DIRECTION_NAMES = {1: "moving_up", -1: "moving_down"}
 #: knots of the entry transient's hat functions, in sample periods (the last one ends it): an
 #: octave apart, from the impact of a stiff gear (a few samples) to a closed loop's settling
 ENTRY_KNOTS = (0, 2, 4, 8, 16, 32, 64, 128)
@@ -94,11 +109,15 @@ class DeadBandMotion(EffectBase):
     torque : bool
         Add the measured torque at exit (held) and its change since exit, in the dead band.
     rest_time_constants_s : tuple of float
-        Time constants of the creep while the output rests, s (empty: no creep columns).
+        Time constants of the creep while the output rests, s (empty and no ``creep_step``: no creep columns).
     window_samples : int
         Span of the causal velocity of ``u``, samples.
     smooth_samples : int
         Causal moving average of the torque, samples.
+    creep_step : bool
+        Add to the creep a step per direction: the lead the load has when the output stops.
+    creep_directions : tuple of int
+        The directions the output last moved (+1 up, -1 down) whose creep has columns.
     """
 
     name = "dead_band_motion"
@@ -119,6 +138,8 @@ class DeadBandMotion(EffectBase):
         rest_time_constants_s: tuple[float, ...] = (),
         window_samples: int = 5,
         smooth_samples: int = 5,
+        creep_step: bool = False,
+        creep_directions: tuple[int, ...] = (1, -1),
     ) -> None:
         self.m_left, self.c_left_deg, self.m_right, self.c_right_deg = float(m_left), float(c_left_deg), float(m_right), float(c_right_deg)
         self._params = BacklashParams(self.m_left, self.c_left_deg, self.m_right, self.c_right_deg)
@@ -132,6 +153,11 @@ class DeadBandMotion(EffectBase):
         if self.entry_knots_s and (self.entry_knots_s[0] != 0.0 or np.any(np.diff(self.entry_knots_s) <= 0)):
             raise InvalidParameterError(f"entry_knots_s must start at 0 and increase, got {entry_knots_s!r}")
         self.torque = bool(torque)
+        self.creep_step = bool(creep_step)
+        self.creep_directions = tuple(int(d) for d in creep_directions)
+        directions = self.creep_directions
+        if not directions or len(set(directions)) != len(directions) or set(directions) - {1, -1}:
+            raise InvalidParameterError(f"creep_directions must be 1, -1 or both, got {creep_directions!r}")
         if int(window_samples) < 1 or int(smooth_samples) < 1:
             raise InvalidParameterError(f"window_samples and smooth_samples must be >= 1, got {window_samples!r}, {smooth_samples!r}")
         self.window_samples = int(window_samples)
@@ -156,13 +182,26 @@ class DeadBandMotion(EffectBase):
         return max(len(self.entry_knots_s) - 1, 0)
 
     @property
+    def creep_shapes(self) -> tuple[float, ...]:
+        """The creep's time constants, s, the step's (0) first: one column per direction each."""
+        return (0.0,) * self.creep_step + self.rest_time_constants_s
+
+    @property
     def n_rest(self) -> int:
         """Columns of the creep while the output rests."""
-        return 2 * len(self.rest_time_constants_s)
+        return len(self.creep_shapes) * len(self.creep_directions) if self.creep_shapes else 0
 
     @property
     def n_terms(self) -> int:
         return len(self.exit_time_constants_s) + 2 * self.torque + self.n_entry + self.n_rest
+
+    def creep_by_direction(self, rest_coef: np.ndarray) -> dict[int, np.ndarray]:
+        """The creep's coefficients (deg, the last :attr:`n_rest` of the effect's) per direction the
+        output last moved (+1, -1), in the order of :attr:`creep_shapes`; zeros for a direction without
+        columns."""
+        nd, none = len(self.creep_directions), np.zeros(len(self.creep_shapes))
+        directions = self.creep_directions
+        return {d: rest_coef[directions.index(d) :: nd] if d in directions else none for d in (1, -1)}
 
     def engaged(self, u_deg: np.ndarray) -> np.ndarray:
         """Where a flank is engaged by the switching functions, eq. (5)-(6), continuing the stream (advances it)."""
@@ -229,7 +268,8 @@ class DeadBandMotion(EffectBase):
         _columns_pass(
             e, dx, np.ascontiguousarray(t, dtype=float), np.ascontiguousarray(v, dtype=float), np.ascontiguousarray(qs, dtype=float), state,
             np.asarray(self.exit_time_constants_s, dtype=float), self.torque, np.asarray(self.entry_knots_s, dtype=float), self.n_entry,
-            np.asarray(self.rest_time_constants_s, dtype=float), rows, cols, nonzero,
+            np.asarray(self.creep_shapes, dtype=float), np.asarray(self.creep_directions, dtype=np.int64), rows, cols,
+            nonzero,
         )
         self._entry = (float(state[1]), float(state[2]))
         self._moved = (float(state[3]), float(state[4]), float(state[5]), float(state[6]))
@@ -254,23 +294,76 @@ class DeadBandMotion(EffectBase):
             out["torque_change_in_dead_band_deg_per_Nm"] = c[k + 1]
             k += 2
         entry, rest = c[k : k + self.n_entry], c[k + self.n_entry :]
-        if self.rest_time_constants_s:
+        if self.n_rest:
             out["model"] += "; while the model's output rests: the load creeps on in the direction it last moved"
             out["active_on"] += "; the creep wherever eq. (7) holds the model's output"
+            per = self.creep_by_direction(np.asarray(rest))
             out["creep_at_rest"] = [
-                {"time_constant_s": tau, "moving_up_deg": up, "moving_down_deg": down}
-                for tau, up, down in zip(self.rest_time_constants_s, rest[0::2], rest[1::2])
+                {"time_constant_s": tau, "moving_up_deg": float(up), "moving_down_deg": float(down)}
+                for tau, up, down in zip(self.creep_shapes, per[1], per[-1])
             ]
-            out["creep_at_rest_total_deg"] = {"moving_up": float(sum(rest[0::2])), "moving_down": float(sum(rest[1::2]))}
+            out["creep_at_rest_total_deg"] = {"moving_up": float(per[1].sum()), "moving_down": float(per[-1].sum())}
+            out["creep_directions"] = [DIRECTION_NAMES[d] for d in self.creep_directions]
         out["entry_transient"] = {"knots_s": list(self.entry_knots_s), "deg_per_deg_s": [*entry, 0.0] if entry else []}
         out["entry_peak_deg_per_deg_s"] = max(entry, key=abs) if entry else 0.0
         return out
+
+    def typical_rest_s(self, u_deg: np.ndarray, time_s: np.ndarray) -> float:
+        """How long the output's rests last, s: the rest the median resting sample is in, from where the
+        output last moved to its last sample at rest (eq. 7 holding it: the dead band, a motor at rest on a
+        flank; a fresh stream over a whole record); 0 without a rest. Weighed by their samples, the short
+        pauses of a slow motor between two encoder counts count for little."""
+        _, dx = self.clone()._switch(np.asarray(u_deg, dtype=float))  # type: ignore[attr-defined]
+        t = np.asarray(time_s, dtype=float)
+        moved = np.flatnonzero(dx != 0.0)
+        if moved.size == 0:
+            return 0.0
+        ends = np.r_[moved[1:] - 1, t.size - 1]  # the last sample of the rest after each move
+        samples = ends - moved
+        lengths = (t[ends] - t[moved])[samples > 0]
+        return float(np.median(np.repeat(lengths, samples[samples > 0]))) if lengths.size else 0.0
+
+    def creep_is_physical(self, rest_coef: np.ndarray, horizon_s: float, period_s: float, tolerance_deg: float) -> bool:
+        """True when the creep of every direction with columns, ``rest_coef`` (deg, the effect's last
+        :attr:`n_rest`), stays in the direction the output last moved and inside the dead band, up to
+        ``tolerance_deg``: at every sample of a rest up to ``horizon_s`` and at its asymptote (the
+        reported total). A load at rest in the gap neither moves back through the flank it left nor
+        beyond the other one."""
+        shapes = np.asarray(self.creep_shapes)
+        r = period_s * np.arange(1, max(round(horizon_s / period_s), 1) + 1)
+        reached = np.where(shapes == 0.0, 1.0, -np.expm1(-r[:, None] / np.where(shapes == 0.0, 1.0, shapes)))
+        gap = self.c_left_deg + self.c_right_deg
+        for d, coef in self.creep_by_direction(np.asarray(rest_coef, dtype=float)).items():
+            if d not in self.creep_directions:
+                continue
+            ahead = d * np.r_[reached @ coef, coef.sum()]
+            if ahead.min() < -tolerance_deg or ahead.max() > gap + tolerance_deg:
+                return False
+        return True
+
+    def is_physical(self, coef: np.ndarray, u_deg: np.ndarray, time_s: np.ndarray, tolerance_deg: float) -> bool:
+        """:meth:`creep_is_physical` of the creep's part of the effect's coefficients ``coef`` on the record
+        ``u_deg``, ``time_s`` (its rests, :meth:`typical_rest_s`); True without a creep."""
+        if not self.n_rest:
+            return True
+        period = sample_period_s(time_s)
+        horizon = self.typical_rest_s(u_deg, time_s)
+        return self.creep_is_physical(np.asarray(coef)[self.n_terms - self.n_rest :], horizon, period, tolerance_deg)
 
     @classmethod
     def detect(cls, data: DetectionData) -> Detection | None:
         """The coast in the dead band, the entry transient and the creep while the output rests, in
         every combination, whichever scores best; a combination with the creep only if it beats the
-        best one without it by :data:`BIC_THRESHOLD` (the creep must hold on its own).
+        best one without it by :data:`BIC_THRESHOLD` (the creep must hold on its own), and the creep's
+        step only if it beats the same creep without it by that margin.
+
+        What is offered is what the record can tell apart and what a load at rest can do: the creep's
+        time constants up to :meth:`typical_rest_s`; the coast and the creep together only where each of
+        the coast's columns keeps :data:`~._scoring.MIN_OWN_SHARE` of its variance beyond the creep's and
+        each of the creep's beyond the coast's, over the rows where the dead band acts (after stops at one
+        crawl speed the coast's columns, that speed times shapes of the creep's clock, are the creep's
+        scaled); and a creep only where it is physical (:meth:`creep_is_physical`, within the noise floor
+        ``data.noise_floor_deg``): where it is not, with the creep of each direction alone.
 
         Needs the current backlash fit (``data.backlash_params``); without it nothing is tried.
         """
@@ -279,52 +372,145 @@ class DeadBandMotion(EffectBase):
             return None
         dt = data.sample_period_s
         torque = bool(np.mean(np.isfinite(data.torque_Nm)) > 0.5)
-        taus, knots, rests = _at_period(EXIT_TIME_CONSTANTS, dt), _at_period(ENTRY_KNOTS, dt), _at_period(REST_TIME_CONSTANTS, dt)
-        found = []
-        every_one = cls(p.m_left, p.c_left, p.m_right, p.c_right, taus, knots, torque, rests)
+        horizon = cls(p.m_left, p.c_left, p.m_right, p.c_right).typical_rest_s(data.u_deg, data.time_s)
+        taus, knots = _at_period(EXIT_TIME_CONSTANTS, dt), _at_period(ENTRY_KNOTS, dt)
+        rests = tuple(tau for tau in _at_period(REST_TIME_CONSTANTS, dt) if tau <= horizon)
+        every_one = cls(p.m_left, p.c_left, p.m_right, p.c_right, taus, knots, torque, rests, creep_step=True)
         # the coast (and torque) columns come first, then the entry's, the creep's last: each a slice
         every, nonzero = every_one.columns_and_support_at(data.u_deg, data.time_s, data.torque_Nm, data.scored_rows)  # the rows the scores use
         split = every_one.n_terms - every_one.n_entry - every_one.n_rest
         ends = np.cumsum([0, split, every_one.n_entry, every_one.n_rest])
-        parts = dict(zip(("coast", "entry", "creep at rest"), (range(int(a), int(b)) for a, b in pairwise(ends))))
-        # one set of cross-products, over the rows where the load coasts, enters or creeps only
-        scores = data.score_subsets(every, [[j for n in names for j in parts[n]] for names in VARIANTS], support=nonzero)
-        for names, s in zip(VARIANTS, scores):
-            exit_taus = taus if "coast" in names else ()
-            effect = cls(
-                p.m_left, p.c_left, p.m_right, p.c_right, exit_taus, knots if "entry" in names else (), torque and bool(exit_taus),
-                rests if "creep at rest" in names else (),
-            )
-            what = " and ".join(names)
-            found.append(Detection(effect, s, f"residual at the reversals follows the load's {what} (dead band {p.play:.4g} deg)"))
-        plain = best_detection([d for d, n in zip(found, VARIANTS) if "creep at rest" not in n and d.score.significant()])
-        creep = best_detection([d for d, n in zip(found, VARIANTS) if "creep at rest" in n and d.score.significant()])
-        # the creep is claimed only where it beats the parts without it by the criterion's own margin
-        best: Detection | None
-        if creep is not None and (plain is None or creep.score.delta_bic - plain.score.delta_bic < BIC_THRESHOLD):
-            best = creep
-        else:
-            best = plain or best_detection(found)
+        parts = dict(zip(("coast", "entry", "creep at rest"), (list(range(int(a), int(b))) for a, b in pairwise(ends))))
+        # the creep's columns without and with its step (per shape, the step's first: up, then down)
+        creep_cols = {step: parts["creep at rest"][0 if step else 2 :] for step in (False, True) if step or rests}
+        gram = _gram_with_constant(every[nonzero])
+        menu: list[_Option] = []
+        for names in VARIANTS:
+            others = [j for n in names if n != "creep at rest" for j in parts[n]]
+            if "creep at rest" not in names:
+                menu.append(_Option(names, False, (), others))
+            for step, cols in creep_cols.items() if "creep at rest" in names else ():
+                if "coast" not in names or _apart(gram, parts["coast"][: len(taus)], cols):
+                    menu.append(_Option(names, step, (1, -1), others, cols))
+
+        def offered(options: list[_Option]) -> list[tuple[_Option, Detection]]:
+            # one set of cross-products, over the rows where the load coasts, enters or creeps only
+            scores = data.score_subsets(every, [o.columns for o in options], support=nonzero)
+            return [(o, cls._detection(p, o, taus, knots, torque, rests, s)) for o, s in zip(options, scores)]
+
+        def physical(detection: Detection) -> bool:
+            effect: DeadBandMotion = detection.effect  # type: ignore[assignment]
+            coef = detection.score.coef[effect.n_terms - effect.n_rest :]
+            return detection.score.significant() and effect.creep_is_physical(coef, horizon, dt, data.noise_floor_deg)
+
+        found = offered(menu)
+        plain = best_detection([d for o, d in found if not o.directions and d.score.significant()])
+        creeps = [(o, d) for o, d in found if o.directions and physical(d)]
+        # where the creep of both directions is significant but not physical, the creep of each direction alone
+        unphysical = [o for o, both in found if o.directions and both.score.significant() and not physical(both)]
+        alone = [o.alone(d) for o in unphysical for d in (1, -1)]
+        alone_found = [(o, d) for o, d in offered(alone) if physical(d)] if alone else []
+        creeps += alone_found
+        found += alone_found
+        # the creep's step only where it beats the creep without it, and the creep only where it beats the parts
+        # without it, by the criterion's own margin
+        without_step, with_step = (best_detection([d for o, d in creeps if o.step == s]) for s in (False, True))
+        creep = _beaten(without_step, with_step)
+        best = _beaten(plain, creep) or best_detection([d for o, d in found if not o.directions])
         if best is None or data.scored_rows is not None:
             return best
         # every sample's columns were formed: the chosen parts' are a slice of them (the same numbers as its terms)
-        chosen = [j for n in VARIANTS[found.index(best)] for j in parts[n]]
+        chosen = next(o.columns for o, d in found if d is best)
         if len(chosen) == every.shape[1]:
             return replace(best, columns=every, nonzero_rows=nonzero)
         mine = np.ascontiguousarray(every[:, chosen])
         return replace(best, columns=mine, nonzero_rows=nonzero[np.any(mine[nonzero] != 0.0, axis=1)])
 
+    @classmethod
+    def _detection(
+        cls, p: Any, option: _Option, taus: tuple[float, ...], knots: tuple[float, ...], torque: bool,
+        rests: tuple[float, ...], score: Score,
+    ) -> Detection:
+        """The effect of ``option`` (its parts, the creep's step and directions) on the backlash fit ``p``, and
+        its evidence."""
+        names, creep = option.names, bool(option.directions)
+        exit_taus = taus if "coast" in names else ()
+        effect = cls(
+            p.m_left, p.c_left, p.m_right, p.c_right, exit_taus, knots if "entry" in names else (),
+            torque and bool(exit_taus), rests if creep else (), creep_step=option.step,
+            creep_directions=option.directions or (1, -1),
+        )
+        notes = ["from the lead at the stop"] * option.step
+        if len(option.directions) == 1:
+            notes.append(DIRECTION_NAMES[option.directions[0]].replace("_", " ") + " only")
+        what = " and ".join(names) + (f" ({', '.join(notes)})" if notes else "")
+        evidence = f"residual at the reversals follows the load's {what} (dead band {p.play:.4g} deg)"
+        return Detection(effect, score, evidence)
+
+
+@dataclass(frozen=True)
+class _Option:
+    """A combination :meth:`DeadBandMotion.detect` scores: its parts, whether the creep has its step,
+    the directions of the creep (empty: no creep), and its columns among the detector's: those of the
+    other parts and the creep's (per shape, up then down, of the directions it has)."""
+
+    names: tuple[str, ...]
+    step: bool
+    directions: tuple[int, ...]
+    others: list[int]
+    creep: list[int] = field(default_factory=list)
+
+    @property
+    def columns(self) -> list[int]:
+        return self.others + self.creep
+
+    def alone(self, direction: int) -> _Option:
+        """The same combination with the creep of ``direction`` only (of a creep of both directions)."""
+        return replace(self, directions=(direction,), creep=self.creep[0 if direction > 0 else 1 :: 2])
+
+
+def _beaten(first: Detection | None, second: Detection | None) -> Detection | None:
+    """``second`` where it beats ``first`` by :data:`BIC_THRESHOLD` in the criterion (or there is no
+    ``first``), else ``first``."""
+    if second is not None and (first is None or second.score.delta_bic - first.score.delta_bic < BIC_THRESHOLD):
+        return second
+    return first
+
+
+def _gram_with_constant(rows: np.ndarray) -> np.ndarray:
+    """The Gram matrix of ``[1, rows]`` (a constant column first)."""
+    gram = np.empty((rows.shape[1] + 1, rows.shape[1] + 1))
+    gram[0, 0], gram[0, 1:] = rows.shape[0], rows.sum(axis=0)
+    gram[1:, 0], gram[1:, 1:] = gram[0, 1:], rows.T @ rows
+    return gram
+
+
+def _apart(gram: np.ndarray, a: list[int], b: list[int]) -> bool:
+    """True when every one of the columns ``a`` keeps :data:`~._scoring.MIN_OWN_SHARE` of its variance
+    beyond a constant and the columns ``b``, and every one of ``b`` beyond ``a`` (either empty: True);
+    ``gram``: :func:`_gram_with_constant` of the columns (positions counted without the constant)."""
+    for mine, others in ((a, b), (b, a)) if a and b else ():
+        for j in mine:
+            beyond = [0, *(k + 1 for k in others), j + 1]
+            spread = left_sum_of_squares(gram[np.ix_([0, j + 1], [0, j + 1])])
+            if left_sum_of_squares(gram[np.ix_(beyond, beyond)]) < MIN_OWN_SHARE * spread:
+                return False
+    return True
+
 
 @njit(cache=True, nogil=True)
-def _columns_pass(e, dx, t, v, qs, state, exit_taus, torque, knots, n_entry, rest_taus, rows, out, nonzero):  # pragma: no cover - compiled
+def _columns_pass(  # pragma: no cover - compiled
+    e, dx, t, v, qs, state, exit_taus, torque, knots, n_entry, rest_taus, directions, rows, out, nonzero
+):
     """:meth:`DeadBandMotion.terms`' columns in one pass over the samples, continuing ``state``
     (updated in place, see there), written for the samples ``rows`` (increasing) only, ``out[r]`` for
     ``rows[r]`` (``out`` zero on entry), and ``nonzero[r]`` set where ``out[r]`` holds a value other
     than zero. Where the output rests (``dx == 0``: the dead band, or a flank while the motor stands
     still) since it last moved at ``t_m`` with the velocity ``v_m`` and torque ``q_m``, in the direction
     ``d``: ``v_m`` times ``1 - exp(-(t - t_m) / tau)`` per ``exit_taus``, then (``torque``) ``q_m`` and
-    the torque's change since; ``1 - exp(-(t - t_m) / tau)`` per ``rest_taus`` in the column of the
-    direction ``d``. After the last entry (a flank engaged, ``e``) at ``t_e``, ``v_e`` times the hat
+    the torque's change since; ``1 - exp(-(t - t_m) / tau)`` per ``rest_taus`` (1 for a ``tau`` of 0: the
+    step) in the column of the direction ``d`` among ``directions`` (none if it is not among them).
+    After the last entry (a flank engaged, ``e``) at ``t_e``, ``v_e`` times the hat
     functions of ``knots`` at ``t - t_e`` (as ``numpy.interp`` evaluates them), while ``t - t_e`` is
     below the last knot."""
     e_prev, t_e, v_e = state[0] > 0.5, state[1], state[2]
@@ -361,12 +547,12 @@ def _columns_pass(e, dx, t, v, qs, state, exit_taus, torque, knots, n_entry, res
                     out[r, k + j] = v_e * ((hi - lo) / (knots[i + 1] - knots[i]) * (since - knots[i]) + lo)
         k += n_entry
         if resting:
-            for j in range(rest_taus.size):
-                shape = -math.expm1(-(t[s] - t_m) / rest_taus[j])
-                if d_m > 0:
-                    out[r, k + 2 * j] = shape
-                elif d_m < 0:
-                    out[r, k + 2 * j + 1] = shape
+            nd = directions.size
+            for i in range(nd):
+                if d_m == directions[i]:
+                    for j in range(rest_taus.size):
+                        tau = rest_taus[j]
+                        out[r, k + nd * j + i] = 1.0 if tau == 0.0 else -math.expm1(-(t[s] - t_m) / tau)
         if resting or entering:  # the only rows written
             for j in range(out.shape[1]):
                 if out[r, j] != 0.0:

@@ -42,7 +42,7 @@ import numpy as np
 
 from ..errors import InvalidParameterError
 from ..load_aware.engagement import either_flank_engaged, torque_deadband
-from ._causal import acceleration_deg_s2, lagged_difference, velocity_deg_s
+from ._causal import SAVGOL_ORDER, lagged_difference, savgol_derivative
 from ._effect_base import EffectBase
 from ._harmonics import harmonic_columns, held_harmonic
 from ._scoring import Detection, DetectionData, Score, best_detection
@@ -301,20 +301,40 @@ class Compliance(EffectBase):
       (``tau = k theta + d theta'``, a lag of ``d / k``). How long a mean trades the sensor's
       noise against that lag is the rig's, so the loop fits it in the joint refit
       (:meth:`neighbours`, from :data:`SMOOTHING_GRID`), as it fits the delay's lag.
-    * ``proxy="motion"`` (no torque measured): the torque the output needs, from the motion of the
-      load side: its acceleration (deg/s^2, the inertia's share) and velocity (deg/s, the viscous
-      share), over ``window_samples``; coefficients in deg per deg/s^2 and deg per deg/s.
-    * ``proxy="acceleration"``: the acceleration alone.
+    * ``proxy="acceleration"`` (no torque measured): the torque the output needs to follow an
+      engaged flank, from its motion: the inertial torque ``J y''``, so the twist is
+      ``-(J / k) y''`` and the coefficient, in deg per deg/s^2, is ``-J / k`` (s^2). On an engaged
+      flank the load follows ``u`` (eq. 1, slope about 1; the twist's own acceleration is a share
+      ``(J / k) omega^2`` of it), so ``y''`` is read from ``u``, the motor angle referred to the load
+      side: the finer encoder through the ratio, and not the load reading that holds the twist being
+      explained. Quantised angles differenced twice are steps of ``q / T^2``; a causal Savitzky-Golay
+      filter over ``window_samples`` (:func:`._causal.savgol_derivative`) fits a quartic through the
+      window, which averages the steps out and, evaluated at the newest sample, follows the motion
+      without lag (the model's own prediction ``x`` is no smoother: on a flank it is ``u`` shifted, and
+      it stands still in the dead band, so its second derivative has a step at every engagement). How
+      long a window trades the encoder's steps against the motion's curvature is the record's, so the
+      loop fits it in the joint refit (:meth:`neighbours`, from :data:`WINDOW_GRID`). Over a record's
+      first ``window_samples - 1`` samples the window holds what there is.
+    * ``proxy="motion"``: the acceleration and the velocity (deg/s, the viscous share ``-b / k``,
+      coefficient in deg per deg/s), by the same filter, for a caller who knows the load is viscous.
+      :meth:`detect` does not offer it: on an engaged flank a viscous twist is a lag, which the
+      ``delay`` describes exactly, and on strokes at constant speed a speed-proportional column is
+      nearly a play (held through the dead band it took the delay's place on the rig's delay logs
+      and moved the play 8 % on the creep strokes of ``tests/test_creep_at_rest.py``).
 
-    The motion proxies carry no engagement of their own: the loop zeroes them where the
-    model's switching functions (eq. 5-6) have no flank engaged (``engaged_only``).
+    The motion proxies act on the input side of the backlash (``input_side``): the loop holds them
+    through the dead band (eq. 7), so on an engaged flank the column is the acceleration and while no
+    flank is engaged it keeps its value from the last engaged sample: a load at rest stays where the
+    flank left it, twist and all (it does not jump back when the torque is gone). They add to the load
+    angle ``-(J / k) u''`` as ``y = B(u - (J / k) u'')`` does to first order, ``B`` eq. (1)-(3).
     Missing torque samples (NaN) contribute 0.
 
     Parameters
     ----------
-    proxy : {"torque", "motion", "acceleration"}
+    proxy : {"torque", "acceleration", "motion"}
     window_samples : int
-        Difference span of the velocity and acceleration estimates, samples.
+        Window of the Savitzky-Golay differentiator of the motion proxies, samples (at least
+        ``SAVGOL_ORDER + 2``, 6).
     deadband_Nm : float
         Torque within this of zero engages no flank (``proxy="torque"``), N m.
     smooth_samples : int
@@ -322,28 +342,29 @@ class Compliance(EffectBase):
     """
 
     name = "compliance"
-    input_side = False  # the twist is read on the load side
     #: the torque's averaging windows the joint refit may choose from, samples
     SMOOTHING_GRID: tuple[int, ...] = (1, 2, 3, 4, 5, 6, 8, 11, 16)
+    #: the motion proxies' differentiator windows the joint refit may choose from, samples
+    WINDOW_GRID: tuple[int, ...] = (11, 15, 21, 31, 41, 61, 81, 121, 161)
 
-    def __init__(self, proxy: str = "torque", window_samples: int = 10, deadband_Nm: float = 0.0, smooth_samples: int = 5) -> None:
+    def __init__(self, proxy: str = "torque", window_samples: int = 61, deadband_Nm: float = 0.0, smooth_samples: int = 5) -> None:
         if proxy not in ("torque", "motion", "acceleration"):
             raise InvalidParameterError(f"proxy must be 'torque', 'motion' or 'acceleration', got {proxy!r}")
         if not deadband_Nm >= 0:
             raise InvalidParameterError(f"deadband_Nm must be >= 0, got {deadband_Nm!r}")
+        if int(window_samples) < SAVGOL_ORDER + 2:
+            raise InvalidParameterError(f"window_samples must be >= {SAVGOL_ORDER + 2}, got {window_samples!r}")
         self.proxy = proxy
+        # the measured torque is read on the load side (zero in the dead band by its sign); the motion
+        # proxies act on the input side: held through the dead band, where the load rests as the flank left it
+        self.input_side = proxy != "torque"
         self.window_samples = int(window_samples)
         self.deadband_Nm = float(deadband_Nm)
         if int(smooth_samples) < 1:
             raise InvalidParameterError(f"smooth_samples must be >= 1, got {smooth_samples!r}")
         self.smooth_samples = int(smooth_samples)
-        self.history = max(2 * self.window_samples, self.smooth_samples)
+        self.history = max(self.window_samples - 1, self.smooth_samples)
         super().__init__()
-
-    @property
-    def engaged_only(self) -> bool:
-        """True when the loop must zero the columns where the model has no flank engaged."""
-        return self.proxy != "torque"
 
     @property
     def n_terms(self) -> int:
@@ -355,10 +376,11 @@ class Compliance(EffectBase):
             w = self.smooth_samples
             mean = np.convolve(q, np.ones(w) / w)[: q.size] if w > 1 else q  # the first w-1 rows are in the window's past
             return mean * either_flank_engaged(q, self.deadband_Nm)
-        acc = acceleration_deg_s2(u, t, self.window_samples)
+        start = self._window.record_start  # the rows before it are the rest before the record: no motion there
+        acc = savgol_derivative(u, t, self.window_samples, 2, start)
         if self.proxy == "acceleration":
             return acc
-        return np.column_stack((acc, velocity_deg_s(u, t, self.window_samples)))
+        return np.column_stack((acc, savgol_derivative(u, t, self.window_samples, 1, start)))
 
     def describe(self, coef: np.ndarray) -> dict[str, Any]:
         c = [float(v) for v in coef]
@@ -376,42 +398,48 @@ class Compliance(EffectBase):
             }
         out: dict[str, Any] = {
             "proxy": "load-side acceleration" + (" and velocity (inertial and viscous torque)" if self.proxy == "motion" else " (inertial torque)"),
-            "active_on": "engaged samples, by the model's switching functions (eq. 5-6)",
+            "active_on": "engaged samples, by the model's switching functions (eq. 5-6); held through the dead band (eq. 7)",
             "deflection_per_acceleration_s2": c[0],
+            "differentiator_window_samples": self.window_samples,
         }
+        if c[0] < 0:  # the twist opposes the acceleration, as an inertia's does: J / k and the shaft's natural frequency
+            out["inertia_over_stiffness_s2"] = -c[0]
+            out["natural_frequency_hz"] = float(1.0 / (2.0 * np.pi * np.sqrt(-c[0])))
         if self.proxy == "motion":
             out["deflection_per_velocity_s"] = c[1]
         return out
 
     @classmethod
     def detect(cls, data: DetectionData) -> Detection | None:
-        """The measured torque when the log has one, else the load side's motion (gated by the model's engagement)."""
+        """The measured torque when the log has one, else the load side's acceleration (the inertial torque)."""
         q = np.nan_to_num(data.torque_Nm, nan=0.0)
         if np.mean(np.isfinite(data.torque_Nm)) > 0.5 and q.size >= 3:
             return cls("torque", deadband_Nm=torque_deadband(q)).detection(data)
-        return cls("motion").detection(data)
+        return cls("acceleration").detection(data)
 
     def detection(self, data: DetectionData) -> Detection:
-        """This effect's columns scored on the residual (gated by the model's engagement for the motion proxies)."""
+        """This effect's columns scored on the residual (the motion proxies held through the model's dead band)."""
         if self.proxy == "torque":
             what = "the measured torque on engaged samples"
+        elif self.proxy == "acceleration":
+            what = "the load side's acceleration on engaged samples"
         else:
             what = "the load side's acceleration and velocity on engaged samples"
-        cols = self.clone().terms(data.u_deg, data.time_s, data.torque_Nm)
-        if self.engaged_only:
-            cols = cols * data.engaged[:, None]
-        s = data.score(self.input_side, cols)
+        s = data.score(self.input_side, self.clone().terms(data.u_deg, data.time_s, data.torque_Nm))
         return Detection(self, s, f"residual is proportional to {what} (correlation {np.sqrt(max(s.gain, 0.0)):.2f})")
 
     def neighbours(self) -> list[Compliance]:
-        """The same term with the next shorter and the next longer torque average of :data:`SMOOTHING_GRID`
-        (``proxy="torque"`` only; the motion proxies have no setting to tune): what the joint refit tries."""
-        if self.proxy != "torque":
-            return []
-        grid = sorted({*self.SMOOTHING_GRID, self.smooth_samples})
-        i = grid.index(self.smooth_samples)
-        near = grid[max(i - 1, 0) : i] + grid[i + 1 : i + 2]
-        return [type(self)(self.proxy, self.window_samples, self.deadband_Nm, w) for w in near]
+        """The same term with the next shorter and the next longer setting that the joint refit tries: the
+        torque's average (:data:`SMOOTHING_GRID`) or the motion proxies' differentiator window
+        (:data:`WINDOW_GRID`)."""
+        torque = self.proxy == "torque"
+        setting, grid = (self.smooth_samples, self.SMOOTHING_GRID) if torque else (self.window_samples, self.WINDOW_GRID)
+        options = sorted({*grid, setting})
+        i = options.index(setting)
+        near = options[max(i - 1, 0) : i] + options[i + 1 : i + 2]
+        if torque:
+            return [type(self)(self.proxy, self.window_samples, self.deadband_Nm, w) for w in near]
+        return [type(self)(self.proxy, w, self.deadband_Nm, self.smooth_samples) for w in near]
 
 
 class Drift(EffectBase):

@@ -29,7 +29,6 @@ separable: its size sets the coefficient, which then fixes its switching part.)
 from __future__ import annotations
 
 from dataclasses import dataclass
-from functools import cached_property
 
 import numpy as np
 from numba import njit
@@ -248,7 +247,7 @@ def fit_joint(
     start parameters, refreshed once after the first search.
     """
     held = np.zeros(columns.shape[1], dtype=bool) if held is None else np.asarray(held, dtype=bool)
-    parts = ColumnParts(((np.asarray(columns, dtype=float), None),))
+    parts = ColumnParts((np.asarray(columns, dtype=float),))
     return _fit_held(uc, yc, parts, held, start, hold_play, parts.held_at(held, engaged_index(uc, start)))
 
 
@@ -281,74 +280,51 @@ class Support:
 
 @dataclass(frozen=True)
 class ColumnParts:
-    """Full-length columns side by side, kept as parts: ``(columns, gate)`` with ``columns`` ``(n, k_i)``
-    and ``gate`` None or a boolean mask of the samples (the part is zero where it is False). The
+    """Full-length columns side by side, kept as parts: one ``(n, k_i)`` array per part. The
     block is formed only where needed: whole (:meth:`dense`), at some rows (:meth:`at`), as its
     product with coefficients (:meth:`dot`), or as the cross-products least squares need
     (:meth:`gram`, :meth:`t_dot`: :class:`._normal_equations.Columns`, no block of all the parts).
-    ``supports``: for every part its :class:`Support` (of the columns before the gate) or None; the
-    products of a part with one read its support's rows only (empty: None for every part)."""
+    ``supports``: for every part its :class:`Support` or None; the products of a part with one read
+    its support's rows only (empty: None for every part)."""
 
-    parts: tuple[tuple[np.ndarray, np.ndarray | None], ...]
+    parts: tuple[np.ndarray, ...]
     supports: tuple[Support | None, ...] = ()
 
     def _support(self, i: int) -> Support | None:
         return self.supports[i] if self.supports else None
 
-    @cached_property
-    def _gated(self) -> tuple[np.ndarray | None, ...]:
-        """Every part's columns with its gate applied, formed once (the products of a fit read them at
-        every step: an ``n x k`` product with the gate each time cost more than the product itself);
-        None for a part read on its support."""
-        return tuple(None if self._support(i) is not None else c if gate is None else c * gate[:, None] for i, (c, gate) in enumerate(self.parts))
-
     def _at_rows(self, i: int, rows: np.ndarray) -> np.ndarray:
-        """Part ``i``'s columns (gated) at ``rows``."""
-        c, gate = self.parts[i]
+        """Part ``i``'s columns at ``rows``."""
         mine = self._support(i)
-        out = mine.values if mine is not None and mine.rows is rows else np.take(c, rows, axis=0)
-        return out if gate is None else out * gate[rows, None]
+        return mine.values if mine is not None and mine.rows is rows else np.take(self.parts[i], rows, axis=0)
 
     @property
     def shape(self) -> tuple[int, int]:
-        n = self.parts[0][0].shape[0] if self.parts else 0
-        return n, sum(c.shape[1] for c, _ in self.parts)
+        n = self.parts[0].shape[0] if self.parts else 0
+        return n, sum(c.shape[1] for c in self.parts)
 
     def dense(self) -> np.ndarray:
         """The whole block (a new array)."""
-        out = np.empty(self.shape)
-        j = 0
-        for c, gate in self.parts:
-            k = c.shape[1]
-            if gate is None:
-                out[:, j : j + k] = c
-            else:
-                np.multiply(c, gate[:, None], out=out[:, j : j + k])
-            j += k
-        return out
+        return np.column_stack(self.parts) if self.parts else np.empty(self.shape)
 
     def block(self) -> np.ndarray:
-        """The whole block: the one part itself when there is a single part and no gate (not a copy:
-        read it only), else :meth:`dense`."""
-        if len(self.parts) == 1 and self.parts[0][1] is None:
-            return self.parts[0][0]
-        return self.dense()
+        """The whole block: the one part itself when there is a single part (not a copy: read it only),
+        else :meth:`dense`."""
+        return self.parts[0] if len(self.parts) == 1 else self.dense()
 
     def at(self, rows: np.ndarray) -> np.ndarray:
         """The block's ``rows``."""
         out = np.empty((rows.size, self.shape[1]))
         j = 0
-        for c, gate in self.parts:
+        for c in self.parts:
             k = c.shape[1]
-            out[:, j : j + k] = np.take(c, rows, axis=0) if gate is None else np.take(c, rows, axis=0) * gate[rows, None]
+            out[:, j : j + k] = np.take(c, rows, axis=0)
             j += k
         return out
 
     def gram(self) -> np.ndarray:
-        """``B^T B`` of the block ``B``, part by part (a gated part's gated copy formed once; a pair
-        with a support over the rows of the smaller one)."""
-        blocks = self._gated
-        ends = np.cumsum([0, *(c.shape[1] for c, _ in self.parts)])
+        """``B^T B`` of the block ``B``, part by part (a pair with a support over the rows of the smaller one)."""
+        ends = np.cumsum([0, *(c.shape[1] for c in self.parts)])
         out = np.empty((ends[-1], ends[-1]))
         for i in range(len(self.parts)):
             for j in range(i, len(self.parts)):
@@ -357,7 +333,7 @@ class ColumnParts:
                     rows = min(sparse, key=lambda m: m.rows.size).rows
                     product = self._at_rows(i, rows).T @ self._at_rows(j, rows)
                 else:
-                    product = blocks[i].T @ blocks[j]  # type: ignore[union-attr]
+                    product = self.parts[i].T @ self.parts[j]
                 out[ends[i] : ends[i + 1], ends[j] : ends[j + 1]] = product
                 out[ends[j] : ends[j + 1], ends[i] : ends[i + 1]] = product.T
         return out
@@ -366,28 +342,25 @@ class ColumnParts:
         """``B^T a`` of the block ``B`` for ``a`` with a row per sample, part by part (a part with a
         support over its rows)."""
         out = []
-        for i, gated in enumerate(self._gated):
-            if gated is None:
-                rows = self.supports[i].rows  # type: ignore[union-attr]
-                out.append(self._at_rows(i, rows).T @ np.take(a, rows, axis=0))
-            else:
-                out.append(gated.T @ a)
+        for i, c in enumerate(self.parts):
+            mine = self._support(i)
+            out.append(c.T @ a if mine is None else mine.values.T @ np.take(a, mine.rows, axis=0))
         return np.concatenate(out)
 
     def held_at(self, held: np.ndarray, index: np.ndarray) -> ColumnParts:
         """The parts with the ``held`` columns (boolean per column) taken at ``index``
-        (:func:`hold_columns`, after the gate); the others as they are."""
+        (:func:`hold_columns`); the others as they are."""
         if not np.any(held):
             return self
         out, supports, j = [], [], 0
-        for i, (c, gate) in enumerate(self.parts):
+        for i, c in enumerate(self.parts):
             mine = held[j : j + c.shape[1]]
             j += c.shape[1]
             if not np.any(mine):
-                out.append((c, gate))
+                out.append(c)
                 supports.append(self._support(i))
                 continue
-            out.append((hold_columns(c if gate is None else c * gate[:, None], mine, index), None))
+            out.append(hold_columns(c, mine, index))
             supports.append(None)  # held through the dead band: nonzero elsewhere too
         return ColumnParts(tuple(out), tuple(supports))
 
@@ -395,14 +368,14 @@ class ColumnParts:
         """The block times ``coef``, an ``n``-vector (a part with a support written at its rows only)."""
         out = np.zeros(self.shape[0])
         j = 0
-        for i, gated in enumerate(self._gated):
-            k = self.parts[i][0].shape[1]
+        for i, c in enumerate(self.parts):
+            k = c.shape[1]
             if np.any(coef[j : j + k]):
-                if gated is None:
-                    rows = self.supports[i].rows  # type: ignore[union-attr]
-                    out[rows] += self._at_rows(i, rows) @ coef[j : j + k]
+                mine = self._support(i)
+                if mine is None:
+                    out += c @ coef[j : j + k]
                 else:
-                    out += gated @ coef[j : j + k]
+                    out[mine.rows] += mine.values @ coef[j : j + k]
             j += k
         return out
 
@@ -587,7 +560,7 @@ def fit_guarded(
     :func:`_switched` of ``start`` when at hand (the candidates of a round all start from its fit).
     """
     held = np.zeros(columns.shape[1], dtype=bool) if held is None else np.asarray(held, dtype=bool)
-    parts = columns if isinstance(columns, ColumnParts) else ColumnParts(((np.asarray(columns, dtype=float), None),))
+    parts = columns if isinstance(columns, ColumnParts) else ColumnParts((np.asarray(columns, dtype=float),))
     first = None
     if rows is None:
         first = parts.held_at(held, engaged_index(uc, start) if planned is None else planned[1]) if np.any(held) else parts

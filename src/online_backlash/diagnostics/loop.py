@@ -15,7 +15,9 @@
    above :data:`.joint.MAX_PLAY_STD_SHARE` of the play), the play is held and the report says
    so. A term whose joint refit does not remove at least ``min_gain`` of the mean square
    residual is refused (the linear score can promise more than the refit delivers when the
-   play is held).
+   play is held), and so is one whose joint refit gives a term a figure no drive can have (the
+   dead band's creep back through the flank the load left, or beyond the other one:
+   :meth:`.dead_band.DeadBandMotion.is_physical`, within the noise floor).
    The two named effects that explain most are both refitted and the better refit is the
    candidate; if the other refits about as well and neither adds ``min_gain`` once the other is
    in, the two are reported together as *not separable* (and neither is claimed). A term with a
@@ -53,7 +55,7 @@ from ..estimators import VorosBacklash
 from ..estimators._validation import check_int, check_real
 from ..model import simulate_backlash
 from ..stream import SampleChunk
-from ._causal import sample_period_s
+from ._causal import sample_period_s, savgol_derivative
 from ._folds import SCREEN_CYCLES, Folds, cycle_folds
 from ._initial_state import InitialState, estimate_initial_state
 from ._normal_equations import Projector, left_sum_of_squares
@@ -254,7 +256,7 @@ class Diagnosis:
         if name == "compliance":
             if getattr(step.effect, "proxy", "") == "torque" and self.torque_Nm is not None:
                 return "torque", "N m", np.nan_to_num(self.torque_Nm, nan=0.0)
-            return "acceleration", "deg/s^2", np.gradient(np.gradient(self.u_deg, period), period)
+            return "acceleration", "deg/s^2", savgol_derivative(self.u_deg, self.time_s, step.effect.window_samples, 2)
         if name == "drift":
             return "time", "s", self.time_s
         if name == "dead_band_motion":
@@ -281,31 +283,23 @@ class Diagnosis:
         }
 
 
-def _column_parts(terms: Sequence[Any], built: TermColumns, engaged: np.ndarray, x: np.ndarray) -> ColumnParts:
+def _column_parts(terms: Sequence[Any], built: TermColumns, x: np.ndarray) -> ColumnParts:
     """The terms' columns, as parts (:class:`.joint.ColumnParts`, :func:`_parts`), with their support when
     they are zero on most samples (:class:`.joint.Support`, the dead band's motion), for the joint fits."""
-    return ColumnParts(_parts(terms, built, engaged, x), tuple(None if hasattr(e, "output_columns") else built.support(e) for e in terms))
+    return ColumnParts(_parts(terms, built, x), tuple(None if hasattr(e, "output_columns") else built.support(e) for e in terms))
 
 
-def _parts(terms: Sequence[Any], built: TermColumns, engaged: np.ndarray, x: np.ndarray) -> tuple[tuple[np.ndarray, np.ndarray | None], ...]:
-    """The terms' columns and gates, a ``(columns, gate)`` per term. Those of effects that act only on
-    engaged samples are zeroed where ``engaged`` (the model's switching functions, eq. 5-6) is False;
-    an effect defined on the model's output (``output_columns``, the delay) is built on ``x``, the
-    current backlash output; the others come from ``built`` (once per record)."""
+def _parts(terms: Sequence[Any], built: TermColumns, x: np.ndarray) -> tuple[np.ndarray, ...]:
+    """The terms' columns, an ``(n, n_terms)`` array per term: an effect defined on the model's output
+    (``output_columns``, the delay) is built on ``x``, the current backlash output; the others come
+    from ``built`` (once per record)."""
     n = built.u_deg.size
-    return tuple(
-        (
-            np.reshape(e.output_columns(x) if hasattr(e, "output_columns") else built.get(e), (n, e.n_terms)),
-            engaged if getattr(e, "engaged_only", False) else None,
-        )
-        for e in terms
-    )
+    return tuple(np.reshape(e.output_columns(x) if hasattr(e, "output_columns") else built.get(e), (n, e.n_terms)) for e in terms)
 
 
-def _columns(terms: Sequence[Any], built: TermColumns, engaged: np.ndarray, x: np.ndarray) -> np.ndarray:
-    """The terms' columns (:func:`_parts` side by side; a term's own read-only columns when it is
-    the only one and not gated)."""
-    return ColumnParts(_parts(terms, built, engaged, x)).block()
+def _columns(terms: Sequence[Any], built: TermColumns, x: np.ndarray) -> np.ndarray:
+    """The terms' columns (:func:`_parts` side by side; a term's own read-only columns when it is the only one)."""
+    return ColumnParts(_parts(terms, built, x)).block()
 
 
 def _held(terms: Sequence[Any]) -> np.ndarray:
@@ -316,23 +310,18 @@ def _held(terms: Sequence[Any]) -> np.ndarray:
 
 
 def _own_support(effect: Any, built: TermColumns) -> Support | None:
-    """The :class:`.joint.Support` of a term whose columns are read as they are built (neither gated by
-    the engaged samples, nor held through the dead band, nor built on the model's output; what
-    :func:`_held_parts` hands out for it is its own columns), when they are zero on most samples."""
-    plain = not (hasattr(effect, "output_columns") or getattr(effect, "engaged_only", False) or _held([effect]).any())
+    """The :class:`.joint.Support` of a term whose columns are read as they are built (neither held
+    through the dead band nor built on the model's output; what :func:`_held_parts` hands out for it is
+    its own columns), when they are zero on most samples."""
+    plain = not (hasattr(effect, "output_columns") or _held([effect]).any())
     return built.support(effect) if plain else None
 
 
 def _held_parts(terms: Sequence[Any], built: TermColumns, view: _ModelView) -> list[np.ndarray]:
-    """Each term's columns as the model of ``view`` sees them (:func:`_parts`, gated by its
-    engaged samples, and the input-side ones held through its dead band, :func:`.joint.hold_columns`):
-    one array per term, a term's own read-only columns where neither applies (no block of all of them
-    is formed)."""
-    out = []
-    for part, term in zip(_parts(terms, built, view.engaged, view.x), terms):
-        one = ColumnParts((part,)).block()
-        out.append(hold_columns(one, _held([term]), view.index))
-    return out
+    """Each term's columns as the model of ``view`` sees them (:func:`_parts`, the input-side ones held
+    through its dead band, :func:`.joint.hold_columns`): one array per term, a term's own read-only
+    columns where that does not apply (no block of all of them is formed)."""
+    return [hold_columns(part, _held([term]), view.index) for part, term in zip(_parts(terms, built, view.x), terms)]
 
 
 def _significant(found: list[Detection | None], bic_threshold: float, min_gain: float) -> list[Detection]:
@@ -341,26 +330,26 @@ def _significant(found: list[Detection | None], bic_threshold: float, min_gain: 
     return sorted(ok, key=lambda d: -d.score.gain)
 
 
-def _prepared(data: DetectionData, effect: Any, built: TermColumns, engaged: np.ndarray) -> np.ndarray:
-    """An effect's columns as the scoring sees them: held through the dead band or gated by engagement."""
+def _prepared(data: DetectionData, effect: Any, built: TermColumns) -> np.ndarray:
+    """An effect's columns as the scoring sees them: the input-side ones held through the dead band."""
     assert data.model_output_deg is not None
-    x = _columns([effect], built, engaged, data.model_output_deg)
+    x = _columns([effect], built, data.model_output_deg)
     return data.hold(x) if _held([effect]).any() else x
 
 
 def _rivals(
-    data: DetectionData, chosen: Detection, others: list[Detection], engaged: np.ndarray, min_gain: float, built: TermColumns | None = None
+    data: DetectionData, chosen: Detection, others: list[Detection], min_gain: float, built: TermColumns | None = None
 ) -> tuple[str, ...]:
     """Named effects that explain the same part of the residual as the chosen one: neither
     removes ``min_gain`` of the residual's mean square once the other is in. ``built``: the loop's
     term columns of this record (else built here)."""
     built = TermColumns(data.u_deg, data.time_s, data.torque_Nm) if built is None else built
-    xa = _prepared(data, chosen.effect, built, engaged)
+    xa = _prepared(data, chosen.effect, built)
     names = []
     for d in others:
         if d is chosen:
             continue
-        xb = _prepared(data, d.effect, built, engaged)
+        xb = _prepared(data, d.effect, built)
         if data.with_nuisance(xb).score(False, xa).gain < min_gain and data.with_nuisance(xa).score(False, xb).gain < min_gain:
             names.append(str(getattr(d.effect, "name", "")))
     return tuple(names)
@@ -450,32 +439,33 @@ def diagnose(
     while len(steps) < max_terms and current.rms_deg > floor_ratio * noise.floor_deg:
         taken = {type(s.effect) for s in steps} | refused
         view = _ModelView.of(uc, current.params)  # the round's model: its detectors' and its confirmation's
-        data, engaged = _detection_data(u, t, q, uc, current, [s.effect for s in steps], float(ratio), period, screen, built, cache, view)
+        done = [s.effect for s in steps]
+        data = _detection_data(u, t, q, uc, current, done, float(ratio), period, screen, built, cache, view,
+                               noise=noise)
         named_all = [_kept_columns(d, built) for d in _significant([c.detect(data) for c in LIBRARY if c not in taken], bic_threshold, min_gain)]
         generic_all = _significant([c.detect(data) for c in GENERIC if c not in taken], bic_threshold, min_gain)
         generic = generic_all[0] if generic_all else None
         if not named_all and generic is None:
             break
-        done = [s.effect for s in steps]
 
         x_now = data.model_output_deg  # the current backlash output, simulated once for this round
         assert x_now is not None
 
         def refit_with(
-            terms: list[Any], current: JointFit = current, engaged: np.ndarray = engaged, x_now: np.ndarray = x_now, rows: np.ndarray | None = rows,
+            terms: list[Any], current: JointFit = current, x_now: np.ndarray = x_now, rows: np.ndarray | None = rows,
             view: _ModelView = view, start: JointFit | None = None,
         ) -> JointFit:
             """The joint refit of ``terms`` over ``rows``, from the round's fit, or from ``start`` (a fit of
             nearly these terms: the search then needs fewer steps, and ends at the same least squares to its
             tolerance: within 2e-9 of every figure on the bench logs)."""
-            columns = _column_parts(terms, built, engaged, x_now)
+            columns = _column_parts(terms, built, x_now)
             if start is None:
                 fit = fit_guarded(uc, yc, columns, current.params, _held(terms), rows, view.switched)
             else:
                 fit = fit_guarded(uc, yc, columns, start.params, _held(terms), rows)
             if any(hasattr(e, "output_columns") for e in terms):  # built on the model's output: once more on the refitted one
                 x = simulate_backlash(uc, fit.params, 0.0)
-                fit = fit_guarded(uc, yc, _column_parts(terms, built, engaged, x), fit.params, _held(terms), rows)
+                fit = fit_guarded(uc, yc, _column_parts(terms, built, x), fit.params, _held(terms), rows)
             return fit
 
         def tuned(terms: list[Any], fit: JointFit, which: Iterable[int], rows: np.ndarray | None = rows) -> tuple[list[Any], JointFit]:
@@ -502,16 +492,29 @@ def diagnose(
         named: Detection | None = None
         fit_named: JointFit | None = None
         refits: list[tuple[Detection, JointFit]] = []
+
+        def physical(found: Detection, fit: JointFit, done: list = done) -> bool:
+            """False (and the candidate refused) where its refit gives a term a figure no drive can have."""
+            if _physical([*done, found.effect], fit.coef, u, t, noise.floor_deg):
+                return True
+            refused.add(type(found.effect))
+            return False
+
         for candidate in named_all[:2]:
             if fit_named is not None and candidate.score.gain < RUNNER_UP_SHARE * named_all[0].score.gain:
                 break
-            refits.append(refit(candidate))
+            tried = refit(candidate)
+            if not physical(*tried):
+                continue
+            refits.append(tried)
             if fit_named is None or refits[-1][1].rms_deg < fit_named.rms_deg:
                 named, fit_named = refits[-1]
         # a named effect must do about as well as a flexible generic term in the joint refit
         fit_generic: JointFit | None = None
         if generic is not None:
             generic, fit_generic = refit(generic)
+            if not physical(generic, fit_generic):
+                generic = fit_generic = None
         kind: str
         chosen: Detection
         fit: JointFit
@@ -519,19 +522,20 @@ def diagnose(
             kind, chosen, fit = "effect", named, fit_named
         elif generic is not None and fit_generic is not None:
             kind, chosen, fit = "unexplained", generic, fit_generic
-        else:  # unreachable: one of the two was found above
-            break
+        else:  # every refit refused as unphysical: try the others
+            continue
         if fit.rms_deg**2 > (1.0 - min_gain) * current.rms_deg**2:
             refused.add(type(chosen.effect))  # the refit does not realise the gain: try the others
             continue
         # rivals: refitted about as well as the chosen one, and explaining the same part of the residual
         close = [d for d, f in refits if d is not chosen and f.rms_deg**2 <= label_ratio * fit.rms_deg**2]
-        rivals = (*chosen.rivals, *_rivals(data, chosen, close, engaged, min_gain, built)) if kind == "effect" else ()
+        rivals = (*chosen.rivals, *_rivals(data, chosen, close, min_gain, built)) if kind == "effect" else ()
         if rows is None:
             # the settings of the terms already in, retuned with the new one in (the compliance's torque average)
             terms, fit = tuned([*done, chosen.effect], fit, range(len(done)))
         else:  # chosen on the screen: configured, evidenced and fitted on every sample, as without the screen
-            whole, _ = _detection_data(u, t, q, uc, current, done, float(ratio), period, folds, built, cache, view)
+            whole = _detection_data(u, t, q, uc, current, done, float(ratio), period, folds, built, cache, view,
+                                    noise=noise)
             confirmed = _confirmed(chosen, whole, built, bic_threshold, min_gain)
             if confirmed is None:
                 refused.add(type(chosen.effect))  # the whole record does not bear it out: try the others
@@ -564,6 +568,15 @@ def diagnose(
     after = start.coasting(before, current.residual_deg)  # until a flank first catches the load, the start's own path
     screened = len(screen.segments) if screen.screened else None
     return Diagnosis(base, current, steps, noise, before, after, u, y, t, float(ratio), q, start, screened, folds.n_cycles)
+
+
+def _physical(terms: Sequence[Any], coef: np.ndarray, u: np.ndarray, t: np.ndarray, tolerance_deg: float) -> bool:
+    """True unless the joint coefficients ``coef`` (the terms' side by side) give a term with ``is_physical``
+    (the dead band's creep) a figure no drive can have, beyond ``tolerance_deg`` (the noise floor); ``u`` and
+    ``t``: the record's referred motor angle (deg) and time (s)."""
+    ends = np.cumsum([0, *(e.n_terms for e in terms)])
+    checked = [(e, a, b) for e, a, b in zip(terms, ends[:-1], ends[1:]) if hasattr(e, "is_physical")]
+    return all(e.is_physical(coef[a:b], u, t, tolerance_deg) for e, a, b in checked)
 
 
 def _confirmed(chosen: Detection, data: DetectionData, built: TermColumns, bic_threshold: float, min_gain: float) -> Detection | None:
@@ -631,10 +644,6 @@ class _ModelView:
         """For every sample, the last sample with a flank engaged (:func:`.joint.engaged_index`)."""
         return self.switched[1]
 
-    @property
-    def engaged(self) -> np.ndarray:
-        return self.index == np.arange(self.index.size)
-
 
 class _Fitted(Protocol):
     """A fit's residual RMS (deg): a :class:`.joint.JointFit`, or :class:`_Linearised`."""
@@ -690,10 +699,10 @@ def _linearised_refit(terms: list[Any], i: int, fit: JointFit, uc: np.ndarray, f
     restored = fit.residual_deg + parts[i] @ fit.coef[start : start + terms[i].n_terms]
     others = [(e, part) for j, (e, part) in enumerate(zip(terms, parts)) if j != i]
     rows = folds.row_index if folds.screened else None
-    nuisance: list[tuple[np.ndarray, np.ndarray | None]] = [(view.others, None), (view.g[:, None], None)]
+    nuisance: list[np.ndarray] = [view.others, view.g[:, None]]
     supports: list[Support | None] = [None, None]
     for e, part in others:
-        nuisance.append((part, None))
+        nuisance.append(part)
         supports.append(_own_support(e, built) if rows is None else None)
     if rows is not None:
         projector = Projector(ColumnParts(tuple(nuisance)).at(rows))
@@ -717,24 +726,25 @@ def _linearised_refit(terms: list[Any], i: int, fit: JointFit, uc: np.ndarray, f
 def _detection_data(
     u: np.ndarray, t: np.ndarray, q: np.ndarray, uc: np.ndarray, current: JointFit, done: list[Any], ratio: float, period: float, folds: Folds,
     built: TermColumns, cache: RecordCache | None = None, view: _ModelView | None = None, done_columns: Sequence[np.ndarray] | None = None,
-) -> tuple[DetectionData, np.ndarray]:
-    """What the detectors see given the current fit, and the model's engaged samples (eq. 5-6).
+    noise: NoiseFloor | None = None,
+) -> DetectionData:
+    """What the detectors see given the current fit.
 
     The nuisance columns are the backlash's own directions (a constant, ``dx/dmL``,
     ``dx/dmR``, ``dx/d(play)``) and the terms already added (they may move too). ``view`` is
     :class:`_ModelView` of ``current.params`` and ``done_columns`` the held columns of ``done`` (in parts, side by side),
-    when already at hand (the same numbers; formed here otherwise).
+    when already at hand (the same numbers; formed here otherwise). ``noise``: the record's noise floor, for
+    the detectors' physical bounds (none: 0).
     """
     view = _ModelView.of(uc, current.params) if view is None else view
-    engaged = view.engaged
     parts = [view.others, view.g]
     if done:
         parts.extend(_held_parts(done, built, view) if done_columns is None else done_columns)
-    data = DetectionData.stacked(
+    return DetectionData.stacked(
         parts, current.residual_deg, u_deg=u, time_s=t, torque_Nm=q, ratio=ratio, sample_period_s=period, engaged_index=view.index,
         n_backlash=view.others.shape[1] + 1, folds=folds, model_output_deg=view.x, backlash_params=current.params, cache=cache,
+        noise_floor_deg=0.0 if noise is None else noise.floor_deg,
     )
-    return data, engaged
 
 
 def _hold_out_final(
@@ -757,7 +767,7 @@ def _hold_out_final(
     parts = _held_parts(terms, built, view)
     supports = [_own_support(e, built) for e in terms]
     dense = [part for part, support in zip(parts, supports) if support is None]
-    data, _ = _detection_data(u, t, q, uc, final, terms, ratio, period, folds, built, view=view, done_columns=dense)
+    data = _detection_data(u, t, q, uc, final, terms, ratio, period, folds, built, view=view, done_columns=dense)
     assert data.nuisance is not None
     sparse = [(part, support) for part, support in zip(parts, supports) if support is not None]
     rows = extra = None

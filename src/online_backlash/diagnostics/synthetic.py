@@ -14,6 +14,7 @@ assume (see the section below).
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
@@ -178,3 +179,96 @@ TWO_MASS_INJECTORS = {
     "drift": two_mass_drift,
     "outside_library": two_mass_speed_dependent_lag,
 }
+
+
+# --- an inertial twist without a torque column -----------------------------------------------
+#
+# The load follows a flank through a soft shaft: the torque it needs to accelerate, ``J y''``, twists the
+# shaft by ``J y'' / k``. The motion is prescribed in closed form, and the twist is computed from its
+# analytic acceleration (not from the quantised angles the tool reads, so a tool cannot succeed by
+# differentiating them the way the simulator did).
+
+#: the inertial-twist log's default ``J / k``, s^2: a natural frequency of 15.9 Hz (a 0.002 kg m^2 load on
+#: 0.0035 N m/arcmin), twists of up to 0.1 deg on the two-tone motion
+INERTIA_OVER_STIFFNESS_S2 = 1e-4
+
+
+def _raised_cosine_ramps(t: np.ndarray, starts_s: np.ndarray, speed_steps: np.ndarray, ramp_s: float) -> tuple[np.ndarray, np.ndarray]:
+    """Angle (deg) and acceleration (deg/s^2) of a speed that changes by ``speed_steps`` (deg/s), each
+    over ``ramp_s`` seconds from ``starts_s``, with the raised-cosine acceleration
+    ``(dv / T) (1 - cos(2 pi s / T))``, from rest at angle 0: in closed form (the speed's ramp
+    ``S(x) = x - sin(2 pi x) / (2 pi)`` and its integral ``x^2 / 2 + (cos(2 pi x) - 1) / (4 pi^2)``)."""
+    angle, acc = np.zeros_like(t), np.zeros_like(t)
+    for t0, dv in zip(starts_s, speed_steps):
+        x = (t - t0) / ramp_s
+        on = (x > 0) & (x < 1)
+        acc[on] += dv / ramp_s * (1.0 - np.cos(2.0 * np.pi * x[on]))
+        angle[on] += dv * ramp_s * (x[on] ** 2 / 2.0 + (np.cos(2.0 * np.pi * x[on]) - 1.0) / (4.0 * np.pi**2))
+        after = x >= 1
+        angle[after] += dv * ramp_s * (x[after] - 0.5)
+    return angle, acc
+
+
+def point_to_point_motion(
+    duration_s: float, rate_hz: float = 1000.0, seed: int = 0, ramp_s: float = 0.15, speed_deg_s: tuple[float, float] = (20.0, 60.0),
+    distance_deg: tuple[float, float] = (5.0, 60.0), dwell_s: tuple[float, float] = (0.05, 0.5),
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Time (s), load-side angle (deg) and its acceleration (deg/s^2) of point-to-point moves: each of a
+    random length and direction, at a random top speed, reached and left with raised-cosine acceleration
+    over ``ramp_s``, then a random dwell at rest (a servo axis indexing)."""
+    rng = np.random.default_rng(seed)
+    t = np.arange(round(duration_s * rate_hz)) / rate_hz
+    starts, steps = [], []
+    now = 0.0
+    while now < duration_s:
+        v = rng.uniform(*speed_deg_s) * rng.choice((-1.0, 1.0))
+        cruise = max(rng.uniform(*distance_deg) / abs(v) - ramp_s, 0.0)  # a move of |v| (ramp + cruise) deg
+        starts += [now, now + ramp_s + cruise]
+        steps += [v, -v]
+        now += 2.0 * ramp_s + cruise + rng.uniform(*dwell_s)
+    angle, acc = _raised_cosine_ramps(t, np.array(starts), np.array(steps), ramp_s)
+    return t, angle, acc
+
+
+def two_tone_motion(
+    duration_s: float, rate_hz: float = 1000.0, seed: int = 0, amplitudes_deg: tuple[float, float] = (30.0, 10.0),
+    frequencies_hz: tuple[float, float] = (0.5, 1.3),
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Time (s), load-side angle (deg) and its acceleration (deg/s^2) of two sines with phases drawn from
+    ``seed``. (One sine's acceleration is its angle times ``-omega^2``: on a flank its twist is a slope
+    change, which eq. (1) takes as ``m``; two tones set the twist apart from the angle.)"""
+    phases = np.random.default_rng(seed).uniform(0.0, 2.0 * np.pi, 2)
+    t = np.arange(round(duration_s * rate_hz)) / rate_hz
+    angle, acc = np.zeros_like(t), np.zeros_like(t)
+    for a, f, p in zip(amplitudes_deg, frequencies_hz, phases):
+        w = 2.0 * np.pi * f
+        angle += a * np.sin(w * t + p)
+        acc -= a * w**2 * np.sin(w * t + p)
+    return t, angle, acc
+
+
+#: the prescribed motions of :func:`inertial_twist`: ``(duration_s, seed=...) -> (time_s, angle_deg, acceleration_deg_s2)``
+MOTIONS: dict[str, Callable[..., tuple[np.ndarray, np.ndarray, np.ndarray]]] = {"two_tone": two_tone_motion, "point_to_point": point_to_point_motion}
+
+
+def inertial_twist(
+    seed: int = 0, duration_s: float = 120.0, inertia_over_stiffness_s2: float = INERTIA_OVER_STIFFNESS_S2, motion: str = "two_tone",
+    play_deg: float = 0.5, ratio: float = 30.0, motor_bits: int = 14, load_bits: int = 17,
+) -> Record:
+    """A log without a torque column whose load twists by ``-(J / k) a`` while a flank is engaged.
+
+    ``a`` is the analytic acceleration of the prescribed motion ``u`` (load side, deg/s^2; :data:`MOTIONS`),
+    ``J / k`` is ``inertia_over_stiffness_s2``. Quasi-static: the load follows the twisted input
+    ``w = u - (J / k) a`` through the backlash (eq. 1-3, slopes 1, ``play_deg`` split evenly), so on an
+    engaged flank it lags the flank by the twist and in the dead band it rests where the flank released
+    it, twist and all (a load does not jump). A flank only pushes: while the load decelerates, a Coulomb
+    friction ``T_c >= J |a|`` on the output keeps it on the flank, and its wind-up ``T_c / k`` is a
+    constant on each flank, part of the lost motion ``play_deg``. Encoders: ``motor_bits`` on the motor
+    (``u * ratio``), ``load_bits`` on the load, quantised once; arbitrary zeros as in :func:`.rig.simulate_rig`.
+    Returns ``(time_s, motor_deg, load_deg, torque_Nm)``, the torque all NaN.
+    """
+    t, u, acc = MOTIONS[motion](duration_s, seed=seed)
+    twisted = u - inertia_over_stiffness_s2 * acc
+    half = np.full(u.size, play_deg / 2.0)
+    y = simulate_backlash_varying(twisted, 1.0, half, 1.0, half)
+    return t, quantise(u * ratio + 1234.5, motor_bits), quantise(y - 321.0, load_bits), np.full(t.size, np.nan)

@@ -21,14 +21,12 @@ torque in N m.
 
 from __future__ import annotations
 
-import contextlib
 import copy
 import inspect
 import itertools
 import math
-import warnings
 from abc import ABC, abstractmethod
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any, Generic, TypeVar
 
@@ -36,7 +34,7 @@ import numpy as np
 
 from ..bridging import UNKNOWN, GapPolicy, GapTally
 from ..effect_terms import EffectTerms
-from ..errors import ConvergenceWarning, InvalidParameterError, NotExcitedError, NotFittedError
+from ..errors import InvalidParameterError, NotExcitedError, NotFittedError
 from ._effect_stream import EffectStream, check_effects, effects_from_records
 from ._validation import check_int, check_magnitude, check_option, check_real
 
@@ -45,20 +43,6 @@ _ORIGINS = ("first", "zero")
 _WARM_ATTEMPTS = 4  # batch attempts (at 1x..4x warm_start_samples) before a cold start
 
 
-@contextlib.contextmanager
-def _convergence_recorded() -> Iterator[list[warnings.WarningMessage]]:
-    """The ConvergenceWarnings issued inside, recorded instead of shown. ``catch_warnings`` takes every
-    thread's warnings meanwhile (a log reader's, read ahead in its thread): the others are issued again
-    on leaving, so none is lost."""
-    caught: list[warnings.WarningMessage] = []
-    try:
-        with warnings.catch_warnings(record=True) as caught:
-            warnings.simplefilter("always", ConvergenceWarning)
-            yield caught
-    finally:
-        for w in caught:
-            if not issubclass(w.category, ConvergenceWarning):
-                warnings.warn_explicit(w.message, w.category, w.filename, w.lineno, source=w.source)
 #: 3: effects saved by name and parameters, with the samples that restore their history
 #: (2, still read: effects by name only; 2 added the model's output X_HAT to the BacklashRLS state)
 STATE_FORMAT = 3
@@ -117,12 +101,16 @@ class EstimateAt:
         Its play, degrees (load side).
     m_left, m_right : float
         Its flank slopes, eq. (1).
+    level_deg : float
+        The output level (the caller's frame, degrees) its play is read at, where that is not the frame's
+        origin (:class:`~.backlash_rls.BacklashRLS` with ``full_engagement``); 0 otherwise.
     """
 
     started: bool
     backlash_deg: float
     m_left: float
     m_right: float
+    level_deg: float = 0.0
 
 
 #: The estimate of an estimator that has not started (:class:`EstimateAt`).
@@ -221,8 +209,10 @@ class RecursiveEstimator(ABC):
         """Check the estimator's own parameters (after :meth:`_validate_common`)."""
 
     @abstractmethod
-    def _warm_fit(self, uc: np.ndarray, yc: np.ndarray, terms: np.ndarray) -> tuple[Any, int]:
-        """The batch fit on the buffer (reference-origin coordinates): ``(start values, n_iter)``."""
+    def _warm_fit(self, uc: np.ndarray, yc: np.ndarray, terms: np.ndarray) -> tuple[Any, int, bool]:
+        """The batch fit on the buffer (reference-origin coordinates): ``(start values, n_iter, converged)``,
+        issuing no ConvergenceWarning (see :class:`~online_backlash.estimators.batch.VorosBacklash`'s
+        ``warn_unconverged``: the warnings settings are the process's, not this thread's)."""
 
     @abstractmethod
     def _cold_params(self, u: np.ndarray | None, y: np.ndarray | None) -> Any:
@@ -547,14 +537,8 @@ class RecursiveEstimator(ABC):
         self._fx.reset()  # the replay computes the terms again from the buffer's start
         start: Any
         try:
-            with _convergence_recorded() as caught:
-                start, n_iter = self._warm_fit(u[lo:hi] - u0, y[lo:hi] - y0, terms)
-            self.warm_start_ = {
-                "method": "batch",
-                "samples": int(hi - lo),
-                "n_iter": n_iter,
-                "converged": not any(issubclass(w.category, ConvergenceWarning) for w in caught),
-            }
+            start, n_iter, converged = self._warm_fit(u[lo:hi] - u0, y[lo:hi] - y0, terms)
+            self.warm_start_ = {"method": "batch", "samples": int(hi - lo), "n_iter": n_iter, "converged": converged}
         except (NotExcitedError, InvalidParameterError) as exc:
             reason = _failure_reason(exc, len(cuts) - 2, hi - lo, u.size)
             if not fallback:
@@ -677,7 +661,14 @@ class RecursiveEstimator(ABC):
         """The estimate as it is now (:class:`EstimateAt`): the play and slopes, degrees."""
         if not self._started:
             return NOT_STARTED
-        return EstimateAt(True, float(self.backlash_), float(self.m_left_), float(self.m_right_))
+        play, m_left, m_right = float(self.backlash_), float(self.m_left_), float(self.m_right_)
+        return EstimateAt(True, play, m_left, m_right, self._play_level_deg())
+
+    def _play_level_deg(self) -> float:
+        """The output level (the caller's frame, degrees) the play is read at for :class:`EstimateAt`: 0, where
+        the estimator reads it at the frame's origin or at the current output (which per-cycle plays read as
+        the origin's, the slopes being alike)."""
+        return 0.0
 
     @property
     def started(self) -> bool:

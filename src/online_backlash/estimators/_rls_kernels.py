@@ -46,6 +46,7 @@ import numpy as np
 from numba import njit
 
 from ._layout import offsets
+from .full_engagement import FOLLOWING, NO_FLANK
 
 
 # ---- BacklashRLS state layout: field sizes, in order ----------------------------------------
@@ -107,6 +108,8 @@ class BacklashConsts(NamedTuple):
     ORIGIN_FIRST: int = 1  # 1: the first sample is the reference origin
     FREEZE: int = 1  # 1: lines held (the information is gathered only)
     SWITCH_MODEL: int = 1  # 1: eq. (12)-(13) on the model's output X_HAT, 0: on the measured one
+    HOLD_BAND: int = 1  # a load seen following that far from the model's held output is not held by a flank
+    ENGAGED_LEVEL: int = 1  # 1: the play is read where the flanks' information lies, 0: at the current output level
 
 
 KC, N_CONSTS = offsets(BacklashConsts())
@@ -179,6 +182,18 @@ def _make_backlash_steps(jit):
         return u_right - u_left
 
     @jit
+    def play_level(st, c, level):
+        """The output level the play is read at: ``level`` (the current output), or with ``ENGAGED_LEVEL``
+        midway between the two flanks' information centroids (each line is best placed where its data lie,
+        ``b + m R12 / R22`` at ``u_ref + R12 / R22``: where the flanks were fully engaged, whatever the output
+        is doing now)."""
+        if c[KC.ENGAGED_LEVEL] == 0.0:
+            return level
+        left = st[S.LEFT + F.B] + st[S.LEFT + F.M] * st[S.LEFT + F.R12] / st[S.LEFT + F.R22]
+        right = st[S.RIGHT + F.B] + st[S.RIGHT + F.M] * st[S.RIGHT + F.R12] / st[S.RIGHT + F.R22]
+        return 0.5 * (left + right)
+
+    @jit
     def reversal(st, c, side, level):
         """Count a change of the driving flank; track the wear rate; return the per-reversal forgetting."""
         last = st[S.LAST_SIDE]
@@ -188,7 +203,7 @@ def _make_backlash_steps(jit):
         st[S.N_REV] += 1.0
         # rate of change of the play: an EWMA of the play with time constant H (seconds of
         # motion) lags a ramp of slope r by r H, so r = (width - ewma) / H
-        w = flank_width(st, level)
+        w = flank_width(st, play_level(st, c, level))
         t = st[S.T_MOTION]
         horizon = c[KC.WEAR_HORIZON]
         if st[S.W_EWMA_SET] == 0.0:
@@ -220,6 +235,20 @@ def _make_backlash_steps(jit):
                 return int(st[S.HOLD_SIDE]), 1.0, False
             return 0, 1.0, False
         return side, reversal(st, c, side, level), True
+
+    @jit
+    def left_the_hold(st, c, seen, engaged, x):
+        """The model holds the load in the dead band (``engaged`` False) where the motion shows it following
+        the motor (``seen`` ``FOLLOWING``) at ``x``, farther than ``HOLD_BAND`` from the held output: no flank
+        holds it there, and the sample updates no line."""
+        return seen == FOLLOWING and not engaged and abs(x - st[S.X_HAT]) > c[KC.HOLD_BAND]
+
+    @jit
+    def pass_by(st, yc):
+        """A sample on no flank (a partial crossing of the gap): no flank holds the load where the model's
+        output last was; it restarts at the measured output, on no flank (as after a gap)."""
+        st[S.X_HAT] = yc
+        st[S.HOLD_SIDE] = 0.0
 
     @jit
     def forget_counts(st, o, lam):
@@ -286,13 +315,21 @@ def _make_backlash_steps(jit):
         close_update(st, o)
 
     @jit
-    def step(st, c, u, y):
-        """Learn one sample ``(u, y)`` (input and output in the caller's frame)."""
+    def step(st, c, u, y, seen):
+        """Learn one sample ``(u, y)`` (input and output in the caller's frame). ``seen``: what the motion
+        shows of it (:class:`~.full_engagement.FullEngagement`): ``NO_FLANK`` (a partial crossing of the gap)
+        updates no line and leaves the model's output where the load is (:func:`pass_by`); ``FOLLOWING``
+        (the load moves with the motor) updates no line where the model holds
+        the load in the dead band and the load has left the held output by more than ``HOLD_BAND`` (no flank
+        holds it there); ``RESTING`` leaves the model to judge."""
         uc, yc, du, y_prev = begin_sample(st, c, u, y)
+        if seen == NO_FLANK:
+            pass_by(st, yc)
+            return
         if du == 0.0:
             return
         side, lam, engaged = select_flank(st, c, uc, du, y_prev, yc)
-        if side == 0:
+        if side == 0 or left_the_hold(st, c, seen, engaged, yc):
             return
         if lam != 1.0:
             forget_side(st, S.LEFT, lam, c[KC.FLOOR_M], c[KC.FLOOR_B])
@@ -301,7 +338,10 @@ def _make_backlash_steps(jit):
             recenter(st, side, uc)
         update_side(st, c, side, yc)
 
-    return begin_sample, select_flank, flank_width, forget_counts, recenter, track_noise, close_update, step
+    return (
+        begin_sample, select_flank, left_the_hold, pass_by, flank_width, play_level, forget_counts, recenter,
+        track_noise, close_update, step,
+    )  # fmt: skip
 
 
 def _identity(f):
@@ -319,7 +359,10 @@ _LOOP = njit(cache=True, nogil=True, error_model="numpy", _nrt=False)
 (
     begin_sample,
     select_flank,
+    left_the_hold,
+    pass_by,
     flank_width,
+    play_level,
     forget_counts,
     recenter,
     track_noise,
@@ -328,38 +371,43 @@ _LOOP = njit(cache=True, nogil=True, error_model="numpy", _nrt=False)
 ) = _make_backlash_steps(_identity)
 _compiled_steps = _make_backlash_steps(_JIT)
 _backlash_step_nb = _compiled_steps[-1]
-_flank_width_nb = _compiled_steps[2]
+_flank_width_nb = _compiled_steps[4]
+_play_level_nb = _compiled_steps[5]
 
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
-def _run_span(st, c, u, y, after_gap, lo, hi):  # pragma: no cover - compiled
-    """:func:`backlash_step` over samples ``lo:hi`` of the arrays, honouring gaps."""
+def _run_span(st, c, u, y, after_gap, seen, lo, hi):  # pragma: no cover - compiled
+    """:func:`backlash_step` over samples ``lo:hi`` of the arrays, honouring gaps and what the motion shows
+    (``seen``)."""
     for i in range(lo, hi):
         if after_gap[i]:
             st[S.HAVE_PREV] = 0.0
-        _backlash_step_nb(st, c, u[i], y[i])
+        _backlash_step_nb(st, c, u[i], y[i], seen[i])
 
 
 @_LOOP
-def backlash_run(st, c, u, y, after_gap, marks, out):  # pragma: no cover - compiled
-    """``learn_many``'s loop: :func:`backlash_step` over arrays, honouring gaps, recording the estimate
+def backlash_run(st, c, u, y, after_gap, seen, marks, out):  # pragma: no cover - compiled
+    """``learn_many``'s loop: :func:`backlash_step` over arrays, honouring gaps and ``seen``, recording the estimate
     after the first ``marks[k]`` samples (ascending, 1..n; none: :data:`NO_MARKS`) in ``out[k]``: the
-    play at the current output level (:func:`flank_width`, input units) and the slopes ``mL``, ``mR``
-    of eq. (1) -- what the estimator's ``backlash_``, ``m_left_`` and ``m_right_`` would read there,
-    without cutting the loop. One compiled loop for both uses: one load from numba's cache."""
+    play at the level it is read at (:func:`flank_width` at :func:`play_level`, input units) and the
+    slopes ``mL``, ``mR`` of eq. (1), and with ``ENGAGED_LEVEL`` that level in the caller's frame (0 without)
+    -- what the estimator's ``estimate_now()`` would read there, without cutting the loop. One compiled loop
+    for both uses: one load from numba's cache."""
     lo = 0
     for k in range(marks.shape[0]):
         hi = marks[k]
-        _run_span(st, c, u, y, after_gap, lo, hi)
-        out[k, 0] = _flank_width_nb(st, st[S.Y_PREV])
+        _run_span(st, c, u, y, after_gap, seen, lo, hi)
+        level = _play_level_nb(st, c, st[S.Y_PREV])
+        out[k, 0] = _flank_width_nb(st, level)
         out[k, 1] = st[S.LEFT + F.M]
         out[k, 2] = st[S.RIGHT + F.M]
+        out[k, 3] = level + st[S.Y0] if c[KC.ENGAGED_LEVEL] != 0.0 else 0.0
         lo = hi
-    _run_span(st, c, u, y, after_gap, lo, u.shape[0])
+    _run_span(st, c, u, y, after_gap, seen, lo, u.shape[0])
 
 
 #: ``marks`` and ``out`` of :func:`backlash_run` without marks
-NO_MARKS = (np.empty(0, dtype=np.int64), np.empty((0, 3)))
+NO_MARKS = (np.empty(0, dtype=np.int64), np.empty((0, 4)))
 
 
 # ---- CascadeRLS state layout -----------------------------------------------------------------

@@ -21,21 +21,25 @@ import numpy as np
 
 from ..bridging import GapPolicy
 from ..effect_terms import EffectTerms
-from ..errors import NotExcitedError, NotFittedError
+from ..errors import InvalidParameterError, NotExcitedError, NotFittedError
 from ..model import BacklashParams
 from . import _rls_kernels as K
 from ._base import EstimateAt, RecursiveEstimator, StateField, finite, memory_factors
 from ._layout import pack
 from ._validation import check_option, check_real
 from .batch import VorosBacklash, _direction_guess, _levenberg_marquardt, _start_params
+from .full_engagement import NO_FLANK, RESTING, FullEngagement
 
 _SWITCHING = ("model", "measured")
 S, F, KC = K.S, K.F, K.KC
 
 
-def _refine_with_effects(uc: np.ndarray, yc: np.ndarray, terms: np.ndarray, start: BacklashParams) -> BacklashParams:
-    """The batch refinement with effect columns: minimise ``|y - x_sim(u) - terms beta|^2`` over
-    ``[mL, cL, mR, cR, beta]`` jointly, from the batch estimate and ``beta = 0``.
+def _refine_with_effects(
+    uc: np.ndarray, yc: np.ndarray, terms: np.ndarray, start: BacklashParams, kept: np.ndarray
+) -> BacklashParams:
+    """The batch refinement with effect columns: minimise ``|y - x_sim(u) - terms beta|^2`` over the
+    ``kept`` samples (not a partial crossing) and ``[mL, cL, mR, cR, beta]`` jointly, from the batch
+    estimate and ``beta = 0``.
 
     ``x_sim`` is eq. (1)-(3) run freely on ``u`` (the simulation error of
     :meth:`VorosBacklash._refine`); the effects enter linearly, so the Jacobian is
@@ -43,11 +47,13 @@ def _refine_with_effects(uc: np.ndarray, yc: np.ndarray, terms: np.ndarray, star
     lines (``beta`` is learned again by the replay of the buffer).
     """
 
+    weight = kept.astype(float)
+
     def evaluate(v: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
         if not (v[0] * v[2] > 0 and v[1] + v[3] >= 0):  # eq. (1) needs it
             return None
         x, dx = VorosBacklash._simulate_with_jacobian(uc, BacklashParams(*v[:4]), yc[0])
-        return yc - x - terms @ v[4:], -np.hstack((dx, terms))
+        return (yc - x - terms @ v[4:]) * weight, -np.hstack((dx, terms)) * weight[:, None]
 
     v0 = np.concatenate(([start.m_left, start.c_left, start.m_right, start.c_right], np.zeros(terms.shape[1])))
     best = _levenberg_marquardt(evaluate, v0)
@@ -141,6 +147,12 @@ class BacklashRLS(RecursiveEstimator):
         restart the reading of the motion (:class:`~online_backlash.bridging.GapPolicy`; None:
         its defaults, gaps up to 0.1 s without a jump over 5 deg are bridged). Tallied in ``gaps_``
         (:class:`~online_backlash.bridging.GapTally`: gaps since made, reset or restored).
+    full_engagement : bool
+        Update a flank line only where the data show the flanks fully engaged: a sample of a partial
+        crossing of the gap (:class:`~.full_engagement.FullEngagement`, issue 27) updates neither line.
+        The warm start's batch fit and the replay of its buffer judge the buffer as a whole record (each
+        stroke against the full width its own end shows); the samples after it are judged as they come,
+        against the strokes completed before them. False: every sample, as the paper.
 
     Attributes
     ----------
@@ -148,18 +160,24 @@ class BacklashRLS(RecursiveEstimator):
         Slopes of eq. (1).
     c_left_, c_right_ : float
         Distances, input units, from the reference point to the left and right flanks at the
-        current output level; they sum to ``backlash_``. The reference point is the reference
+        level the play is read at; they sum to ``backlash_``. The reference point is the reference
         origin (the first sample with ``origin="first"``) carried along the band at the mean
         slope; with equal slopes, or at the origin's level, they are eq. (9)'s ``c1 / m1`` and
         ``c2 / m2``. Over a long run their split is only as good as the slopes (the origin lies
         far away), their sum is not.
     backlash_ : float
         The play: horizontal distance between the flanks at the current output level (equal
-        to ``c_left_ + c_right_`` when the slopes are equal), input units.
+        to ``c_left_ + c_right_`` when the slopes are equal), input units. With ``full_engagement``
+        (and no effects) at the level where the flanks were fully engaged: midway between the two
+        flanks' information centroids, where each line is best placed (a partial crossing at one end of
+        the stroke leaves a flank's line fitted over part of it only, and read far from its data a small
+        slope error would move the play).
     backlash_std_ : float
         Its standard error: the covariance of the local lines times the residual variance,
         plus the lag of each flank behind the wear (estimated wear rate times the mean age of
-        the flank's information, which grows while the flank sits disengaged).
+        the flank's information, which grows while the flank sits disengaged), and with
+        ``full_engagement`` what the samples left out would take off the play
+        (:attr:`FullEngagement.engagement_std_deg_ <.full_engagement.FullEngagement.engagement_std_deg_>`).
     theta_ : array, shape (4,)
         ``[mL, mL cL, mR, mR cR]`` of eq. (8) in reference-origin coordinates (extrapolated
         from the local lines: on a long run a tiny slope difference moves ``c1``, ``c2``).
@@ -220,12 +238,14 @@ class BacklashRLS(RecursiveEstimator):
         effects: Sequence[EffectTerms] | None = None,
         switching: str | None = None,
         gap_policy: GapPolicy | None = None,
+        full_engagement: bool = False,
     ) -> None:
         self.min_step_deg = min_step_deg
         self.wear_horizon_s = wear_horizon_s
         self.info_floor = info_floor
         self.effects = effects
         self.switching = switching
+        self.full_engagement = full_engagement
         super().__init__(memory_s, memory_reversals, sample_period_s, start, warm_start_samples, origin, noise_window, gap_policy)
 
     def _reset_own(self) -> None:
@@ -234,8 +254,13 @@ class BacklashRLS(RecursiveEstimator):
         self._R = np.zeros((0, 0))
         self._beta = np.zeros(0)
         self._prev_shift = 0.0
+        # the partial crossings (full_engagement), and the marks of the warm-start buffer while it is replayed
+        self._fe = FullEngagement() if self.full_engagement else None
+        self._replayed: np.ndarray | None = None
 
     def _validate(self) -> None:
+        if not isinstance(self.full_engagement, bool):
+            raise InvalidParameterError(f"full_engagement must be a bool, got {self.full_engagement!r}")
         check_real("min_step_deg", self.min_step_deg, 0.0, low_open=False)
         check_real("wear_horizon_s", self.wear_horizon_s, 0.0)
         check_real("info_floor", self.info_floor, 0.0)
@@ -248,7 +273,7 @@ class BacklashRLS(RecursiveEstimator):
             return self.switching
         return "measured" if self._fx.effects else "model"
 
-    def _warm_fit(self, uc: np.ndarray, yc: np.ndarray, terms: np.ndarray) -> tuple[BacklashParams, int]:
+    def _warm_fit(self, uc: np.ndarray, yc: np.ndarray, terms: np.ndarray) -> tuple[BacklashParams, int, bool]:
         """:class:`VorosBacklash` on the buffer (reference-origin coordinates; on a rig whose
         slope is not 1 it starts from the direction of motion, its ``start_``), then, with
         effects, its refinement again with the effect columns ``terms`` fitted jointly
@@ -260,10 +285,13 @@ class BacklashRLS(RecursiveEstimator):
         (56 %) high (``bench/closing_loop.py --tracker``, seed 0); the recursion, whose replay
         of the buffer had counted its information at the biased lines, did not correct it.
         """
-        batch = VorosBacklash(origin="zero").fit(uc, yc)
+        batch = VorosBacklash(origin="zero", full_engagement=self.full_engagement)
+        batch.warn_unconverged = False  # told by converged_ (warm_start_), as no warning the user could act on
+        batch.fit(uc, yc)
         if terms.shape[1] == 0:
-            return batch.params_, int(batch.n_iter_)
-        return _refine_with_effects(uc, yc, terms, batch.params_), int(batch.n_iter_)
+            return batch.params_, int(batch.n_iter_), bool(batch.converged_)
+        start = _refine_with_effects(uc, yc, terms, batch.params_, ~batch.partial_)
+        return start, int(batch.n_iter_), bool(batch.converged_)
 
     def _cold_params(self, u: np.ndarray | None, y: np.ndarray | None) -> BacklashParams:
         if u is None or y is None or u.size < 2:
@@ -279,8 +307,23 @@ class BacklashRLS(RecursiveEstimator):
             KC, K.N_CONSTS, DT=self.sample_period_s, LAM=lam, LAM_REV=lam_rev, FLOOR_M=self.info_floor,
             FLOOR_B=self.info_floor, MIN_STEP=self.min_step_deg, NOISE_WINDOW=self.noise_window,
             WEAR_HORIZON=self.wear_horizon_s, ORIGIN_FIRST=self.origin == "first",
-            SWITCH_MODEL=self._switching() == "model",
+            SWITCH_MODEL=self._switching() == "model", HOLD_BAND=self._hold_band(),
+            ENGAGED_LEVEL=self.full_engagement and not self._fx.effects,
         )  # fmt: skip
+
+    def _hold_band(self) -> float:
+        """How far a load seen following may be from the model's held output and still be held by a flank
+        there, degrees: what tells a partial crossing from the encoders' noise
+        (:attr:`FullEngagement.tolerance_deg_ <.full_engagement.FullEngagement.tolerance_deg_>`); unbounded
+        before the motion was judged (or without ``full_engagement``)."""
+        fe = self._fe
+        return math.inf if fe is None or not hasattr(fe, "tolerance_deg_") else float(fe.tolerance_deg_)
+
+    def _judged(self) -> None:
+        """The motion has been judged anew (the warm start, a restored state): its band into the constants."""
+        if self._started:
+            self._c[KC.HOLD_BAND] = self._hold_band()
+            self._c_arr = np.asarray(self._c)
 
     def _initial_state(self, start: BacklashParams) -> list[float]:
         """Eq. (1)'s lines through the reference origin (``u_ref = 0``): ``y = mL (u + cL)``, ``y = mR (u - cR)``."""
@@ -304,19 +347,46 @@ class BacklashRLS(RecursiveEstimator):
     def _gap_now(self) -> None:
         self._st[S.HAVE_PREV] = 0.0
         self._fx.reset()
+        if self._fe is not None and self._replayed is None:  # (the replay's marks were read with its gaps)
+            self._fe.mark_gap()
+
+    def _replay(self, buf: dict[str, list], compiled: bool) -> None:
+        """The warm start's replay, with the buffer judged as a whole record (:meth:`FullEngagement.fit
+        <.full_engagement.FullEngagement.fit>`), where ``full_engagement``."""
+        if self._fe is not None:
+            u, y, gap = np.asarray(buf["u"]), np.asarray(buf["y"]), np.asarray(buf["gap"], dtype=bool)
+            self._replayed = self._fe.fit(u, y, gap)
+            self._judged()
+        try:
+            super()._replay(buf, compiled)
+        finally:
+            self._replayed = None
+
+    def _seen(self, u: np.ndarray, y: np.ndarray, gap: np.ndarray | None) -> np.ndarray:
+        """What the motion shows of the samples (:class:`~.full_engagement.FullEngagement`'s judgement; all
+        ``RESTING``, left to the model, without ``full_engagement``): the replayed buffer's, taken in turn, or
+        the next samples' judged now."""
+        if self._replayed is not None:
+            seen, self._replayed = self._replayed[: u.size], self._replayed[u.size :]
+            return seen
+        if self._fe is None:
+            return np.full(u.size, RESTING, dtype=np.int8)
+        return self._fe.update(u, y, gap)
 
     # -- the two paths -------------------------------------------------------------------------
     def _learn_py(self, u: float, y: float, t: float, q: float) -> None:
+        seen = int(self._seen(np.array([u]), np.array([y]), None)[0])
         if self._fx.effects:
             row = self._fx.feed(np.array([u]), np.array([t]), np.array([q]))[0]
-            self._step_effects(u, y, row)
+            self._step_effects(u, y, row, seen)
         else:
-            K.backlash_step(self._st, self._c, u, y)
+            K.backlash_step(self._st, self._c, u, y, seen)
 
     def _learn_arrays(self, u: np.ndarray, y: np.ndarray, gap: np.ndarray, t: np.ndarray | None, q: np.ndarray | None) -> None:
+        seen = self._seen(u, y, gap)
         if t is None or q is None:  # no effects: compiled
             st = np.asarray(self._st, dtype=float)
-            K.backlash_run(st, self._c_arr, u, y, gap, *K.NO_MARKS)
+            K.backlash_run(st, self._c_arr, u, y, gap, seen, *K.NO_MARKS)
             self._st = st.tolist()
             return
         # segment by gap: effects keep a history that a gap must reset
@@ -326,7 +396,7 @@ class BacklashRLS(RecursiveEstimator):
                 self._gap_now()
             rows = self._fx.feed(u[lo:hi], t[lo:hi], q[lo:hi])
             for i in range(lo, hi):
-                self._step_effects(float(u[i]), float(y[i]), rows[i - lo])
+                self._step_effects(float(u[i]), float(y[i]), rows[i - lo], int(seen[i]))
 
     def _learn_arrays_marked(
         self, u: np.ndarray, y: np.ndarray, gap: np.ndarray, t: np.ndarray | None, q: np.ndarray | None, marks: np.ndarray
@@ -334,12 +404,12 @@ class BacklashRLS(RecursiveEstimator):
         if t is not None or q is not None:  # effects: the interpreted path, cut at the marks
             return super()._learn_arrays_marked(u, y, gap, t, q, marks)
         st = np.asarray(self._st, dtype=float)
-        out = np.empty((marks.size, 3))
-        K.backlash_run(st, self._c_arr, u, y, gap, marks, out)  # (play, mL, mR) at each mark
+        out = np.empty((marks.size, 4))
+        K.backlash_run(st, self._c_arr, u, y, gap, self._seen(u, y, gap), marks, out)  # (play, mL, mR, level) at each
         self._st = st.tolist()
-        return [EstimateAt(True, play, m_left, m_right) for play, m_left, m_right in out.tolist()]
+        return [EstimateAt(True, *row) for row in out.tolist()]
 
-    def _step_effects(self, u: float, y: float, terms: np.ndarray) -> None:
+    def _step_effects(self, u: float, y: float, terms: np.ndarray, seen: int) -> None:
         """:func:`_rls_kernels.backlash_step` with the effect columns in the regressor (numpy).
 
         The same pieces (sample, flank selection and reversal, recentring, noise, bookkeeping)
@@ -351,12 +421,15 @@ class BacklashRLS(RecursiveEstimator):
         """
         st, c, R = self._st, self._c, self._R
         uc, yc, du, y_prev = K.begin_sample(st, c, u, y)
+        if seen == NO_FLANK:
+            K.pass_by(st, yc - float(self._beta @ terms))
+            return
         if du == 0.0:
             return
         shift = float(self._beta @ terms)
         prev_shift, self._prev_shift = self._prev_shift, shift
         side, lam_rev, engaged = K.select_flank(st, c, uc, du, y_prev - prev_shift, yc - shift)
-        if side == 0:
+        if side == 0 or K.left_the_hold(st, c, seen, engaged, yc - shift):
             return
         floor = np.full(R.shape[0], self.info_floor)
         if lam_rev != 1.0:
@@ -395,11 +468,15 @@ class BacklashRLS(RecursiveEstimator):
         K.close_update(st, side)
 
     def _extra_state(self) -> dict[str, Any]:
-        if not self._fx.effects:
-            return {}
-        return {"effects_R": self._R.tolist(), "beta": self._beta.tolist(), "prev_shift": self._prev_shift}
+        extra: dict[str, Any] = {} if self._fe is None else {"full_engagement": self._fe.state_dict()}
+        if self._fx.effects:
+            extra.update(effects_R=self._R.tolist(), beta=self._beta.tolist(), prev_shift=self._prev_shift)
+        return extra
 
     def _restore_extra(self, d: dict[str, Any]) -> None:
+        if self._fe is not None:
+            self._fe = FullEngagement.from_state(d["full_engagement"])
+            self._judged()
         if self._fx.effects:
             self._R = np.asarray(d["effects_R"], dtype=float)
             self._beta = np.asarray(d["beta"], dtype=float)
@@ -472,15 +549,25 @@ class BacklashRLS(RecursiveEstimator):
         T = np.array([[1, 0, 0, 0], [-uL, 1, 0, 0], [0, 0, 1, 0], [0, 0, uR, -1]], dtype=float)
         return T @ self._local_cov() @ T.T
 
+    def _play_level_deg(self) -> float:
+        """The output level the play is read at, in the caller's frame, where it is the flanks' (``full_engagement``
+        without effects); 0 otherwise."""
+        return self._level() + self.y_ref_ if self._c[KC.ENGAGED_LEVEL] else 0.0
+
+    def _level(self) -> float:
+        """The output level the play is read at (reference-origin coordinates): the current one, or with
+        ``full_engagement`` (and no effects) where the flanks were fully engaged (:func:`~._rls_kernels.play_level`)."""
+        return float(K.play_level(self._st, self._c, self._st[S.Y_PREV]))
+
     def _flank_split(self) -> tuple[float, float]:
-        """Distances from the reference point to the left and right flanks at the current output level.
+        """Distances from the reference point to the left and right flanks at the level the play is read at.
 
         The reference point is the reference origin carried along the band at the mean slope,
         ``u* = level / ((mL + mR) / 2)`` (reference-origin coordinates).
         """
         self._check_started()
         mL, bL, uL, mR, bR, uR = self._lines()
-        level = self._st[S.Y_PREV]
+        level = self._level()
         u_star = level / (0.5 * (mL + mR))
         return u_star - (uL + (level - bL) / mL), (uR + (level - bR) / mR) - u_star
 
@@ -496,9 +583,11 @@ class BacklashRLS(RecursiveEstimator):
 
     @property
     def backlash_(self) -> float:
-        """Play at the current output level (local lines), input units."""
+        """Play at the current output level (local lines), input units; with ``full_engagement`` (and no
+        effects) at the level where the flanks were fully engaged (midway between the two flanks'
+        information centroids: where each line is best placed)."""
         self._check_started()
-        return float(K.flank_width(self._st, self._st[S.Y_PREV]))
+        return float(K.flank_width(self._st, self._level()))
 
     @property
     def beta_(self) -> np.ndarray:
@@ -517,13 +606,15 @@ class BacklashRLS(RecursiveEstimator):
 
     @property
     def backlash_std_(self) -> float:
-        """Standard error of ``backlash_``: noise through the local covariance, plus the lag behind the wear."""
+        """Standard error of ``backlash_``: noise through the local covariance, plus the lag behind the wear
+        and (``full_engagement``) what the samples left out would take off the play."""
         self._check_started()
         mL, bL, _, mR, bR, _ = self._lines()
-        level = self._st[S.Y_PREV]
+        level = self._level()
         # d width / d [mL, bL, mR, bR] with width = uR(level) - uL(level), uX = uref + (level - bX) / mX
         g = np.array([(level - bL) / mL**2, 1.0 / mL, -(level - bR) / mR**2, -1.0 / mR])
         var = self.noise_var_ * float(g @ self._local_cov() @ g)
         age_left, age_right = self._flank_ages()
         lag = abs(self.wear_rate_) * 0.5 * (age_left + age_right)
-        return math.sqrt(max(var, 0.0) + lag * lag)
+        engagement = 0.0 if self._fe is None else self._fe.engagement_std_deg_
+        return math.sqrt(max(var, 0.0) + lag * lag + engagement * engagement)

@@ -20,6 +20,13 @@ The paper leaves the stopping rule open; the one used here (``tol`` standard err
 previous estimate, or from an earlier one when the iteration cycles) is described in
 :meth:`_VorosBase._iterate`.
 
+Full engagement (issue 27). ``VorosBacklash(full_engagement=True)`` fits the flank lines only where the
+data show the flanks fully engaged: a drive whose gap is crossed in two steps (a train of two stages, a
+load torque holding the load across part of the gap) has samples of a partial crossing, on neither flank
+line (:class:`~.full_engagement.FullEngagement`); they are left out of eq. (14) and of the refinement's
+criterion (the model still runs through them), and the play is read where the flanks were fully engaged.
+The paper's examples and :mod:`online_backlash.diagnostics` keep every sample (the default).
+
 Offsets. With ``origin="zero"`` (the default) the data are fitted as given: ``c_left_`` and
 ``c_right_`` are eq. (1)'s, in the input's own coordinates (simulations, the paper's examples,
 where ``x = 0`` at ``u = 0`` is known). Encoders have arbitrary zeros: with ``origin="first"``
@@ -48,6 +55,7 @@ from ..model import (
     switching_at,
 )
 from ._validation import check_int, check_is_fitted, check_option, check_pair, check_real, check_reverses
+from .full_engagement import NO_FLANK, FullEngagement
 from .uncertainty import KinematicPlayScatter, PlayUncertainty
 
 _ORIGINS = ("first", "zero")
@@ -115,22 +123,25 @@ def _gram_solution(gram: np.ndarray, rhs: np.ndarray) -> tuple[np.ndarray, np.nd
     return theta, np.diag(gram_inv) / scale**2
 
 
-def _equation_error_step(u_t: np.ndarray, x_prev: np.ndarray, x_t: np.ndarray, params: BacklashParams) -> _Step:
+def _equation_error_step(
+    u_t: np.ndarray, x_prev: np.ndarray, x_t: np.ndarray, params: BacklashParams, kept: np.ndarray | None = None
+) -> _Step:
     """One step of the paper's iteration for backlash, eq. (12)-(14): the switching functions from
-    ``params`` and the measured ``x(t-1)``, then the least squares of eq. (14) over the samples with a
-    flank engaged, with the standard errors of :func:`_solve`; two compiled passes over the samples
-    (:func:`_eq14_normal_equations`, :func:`_eq14_rss`), no ``n x 4`` regressor formed."""
+    ``params`` and the measured ``x(t-1)``, then the least squares of eq. (14) over the ``kept`` samples
+    (all by default) with a flank engaged, with the standard errors of :func:`_solve`; two compiled passes
+    over the samples (:func:`_eq14_normal_equations`, :func:`_eq14_rss`), no ``n x 4`` regressor formed."""
+    kept = np.ones(u_t.size, dtype=np.bool_) if kept is None else kept
     gram, rhs = np.zeros((4, 4)), np.zeros(4)
     p = (params.m_left, params.c_left, params.m_right, params.c_right)
-    left, right, rows = _eq14_normal_equations(u_t, x_prev, x_t, *p, gram, rhs)
+    left, right, rows = _eq14_normal_equations(u_t, x_prev, x_t, kept, *p, gram, rhs)
     _check_sides(left, right)
     theta, inv_diag = _gram_solution(gram, rhs)
-    return _with_errors(theta, inv_diag, _eq14_rss(u_t, x_prev, x_t, *p, theta), rows, 4)
+    return _with_errors(theta, inv_diag, _eq14_rss(u_t, x_prev, x_t, kept, *p, theta), rows, 4)
 
 
 @njit(cache=True)
-def _eq14_normal_equations(u, x_prev, x, mL, cL, mR, cR, gram, rhs):  # pragma: no cover - compiled
-    """``gram += phi^T phi`` and ``rhs += phi^T target`` over the samples with ``f1 + f2 > 0``, with
+def _eq14_normal_equations(u, x_prev, x, kept, mL, cL, mR, cR, gram, rhs):  # pragma: no cover - compiled
+    """``gram += phi^T phi`` and ``rhs += phi^T target`` over the ``kept`` samples with ``f1 + f2 > 0``, with
     ``phi = [u f1, f1, u f2, -f2]`` (eq. 8) and ``target = x - x_prev (1 - f1)(1 - f2)`` (left side of
     eq. 11), ``f1``, ``f2`` of eq. (5)-(6) from ``x_prev`` as :func:`~online_backlash.model.switching_functions`
     evaluates them (:func:`~online_backlash.model.switching_at`); returns the samples with ``f1`` set,
@@ -141,7 +152,7 @@ def _eq14_normal_equations(u, x_prev, x, mL, cL, mR, cR, gram, rhs):  # pragma: 
     row = np.empty(4)
     for t in range(u.size):
         f1, f2 = switching_at(u[t], x_prev[t], mL, cL, mR, cR)
-        if f1 + f2 == 0:
+        if f1 + f2 == 0 or not kept[t]:
             continue
         left += f1 > 0
         right += f2 > 0
@@ -156,12 +167,12 @@ def _eq14_normal_equations(u, x_prev, x, mL, cL, mR, cR, gram, rhs):  # pragma: 
 
 
 @njit(cache=True)
-def _eq14_rss(u, x_prev, x, mL, cL, mR, cR, theta):  # pragma: no cover - compiled
+def _eq14_rss(u, x_prev, x, kept, mL, cL, mR, cR, theta):  # pragma: no cover - compiled
     """The residual sum of squares of eq. (14) at ``theta`` over the samples of :func:`_eq14_normal_equations`."""
     rss = 0.0
     for t in range(u.size):
         f1, f2 = switching_at(u[t], x_prev[t], mL, cL, mR, cR)
-        if f1 + f2 == 0:
+        if f1 + f2 == 0 or not kept[t]:
             continue
         e = x[t] - x_prev[t] * (1 - f1) * (1 - f2) - (theta[0] * u[t] * f1 + theta[1] * f1 + theta[2] * u[t] * f2 - theta[3] * f2)
         rss += e * e
@@ -174,17 +185,20 @@ def _start_params(u: np.ndarray, y: np.ndarray) -> BacklashParams:
     return BacklashParams(sign, 1e-3, sign, 1e-3)
 
 
-def _direction_guess(u: np.ndarray, y: np.ndarray) -> BacklashParams:
+def _direction_guess(u: np.ndarray, y: np.ndarray, kept: np.ndarray | None = None) -> BacklashParams:
     """Start lines from the direction of motion alone (no switching functions).
 
     A sample is taken as engaged when input and output move together (``du dy`` of the sign of
     the overall correlation): on the right flank when ``u`` rises, on the left when it falls.
     One least-squares fit ``y = m u + b_side`` gives a common slope and the two intercepts, so
-    the lines pass through the data of each flank whatever the slope.
+    the lines pass through the data of each flank whatever the slope. ``kept``: the samples that
+    may count (not a partial crossing of the gap; all by default).
     """
     du, dy = np.diff(u), np.diff(y)
     sign = 1.0 if _inner(du, dy) >= 0 else -1.0
     moving = du * dy * sign > 0
+    if kept is not None:
+        moving &= kept[1:]
     right = moving & (du > 0)
     left = moving & (du < 0)
     if right.sum() < 2 or left.sum() < 2:
@@ -200,6 +214,15 @@ def _direction_guess(u: np.ndarray, y: np.ndarray) -> BacklashParams:
     return BacklashParams(m, b_left / m, m, -b_right / m)
 
 
+def _engaged_level(u: np.ndarray, y: np.ndarray, kept: np.ndarray) -> float:
+    """The output level midway between the centroids of the samples on each flank (input and output moving
+    together, the ``kept`` ones): where the two lines are best placed, the play read there."""
+    du, dy = np.diff(u), np.diff(y)
+    moving = (du * dy * (1.0 if _inner(du, dy) >= 0 else -1.0) > 0) & kept[1:]
+    levels = [y[1:][moving & side] for side in (du > 0, du < 0)]
+    return 0.5 * sum(float(np.mean(v)) for v in levels) if all(v.size for v in levels) else 0.0
+
+
 def _check_sides(left: int, right: int) -> None:
     """Both flanks engaged by at least two samples (``left``, ``right``: the samples with ``f1``, ``f2`` set)."""
     if left < 2 or right < 2:
@@ -213,7 +236,16 @@ _RESOLUTION = float(np.sqrt(np.finfo(float).eps))  # relative change below which
 
 
 class _VorosBase:
-    """Shared settings, origin handling and the fitted backlash attributes."""
+    """Shared settings, origin handling and the fitted backlash attributes.
+
+    ``warn_unconverged`` (True) may be set False on an instance: an iteration stopped at ``max_iter``
+    is then told by ``converged_`` alone, without a ConvergenceWarning. The recursive estimators'
+    warm start does so; catching the warning instead (``warnings.catch_warnings``) would change the
+    process's warnings settings, which every thread shares, and swallow another thread's warnings.
+    """
+
+    #: Issue a ConvergenceWarning when the iteration stops at ``max_iter``.
+    warn_unconverged = True
 
     def __init__(self, max_iter: int, tol: float, refine: bool, origin: str) -> None:
         self.max_iter = max_iter
@@ -297,7 +329,7 @@ class _VorosBase:
                 break
         self.n_iter_ = len(history)
         self.converged_ = self.stop_reason_ != "max_iter"
-        if not self.converged_:
+        if not self.converged_ and self.warn_unconverged:
             warnings.warn(
                 f"{type(self).__name__}: no convergence within max_iter={self.max_iter} "
                 f"(tol={self.tol} standard errors); the last estimate is kept",
@@ -323,13 +355,23 @@ class VorosBacklash(_VorosBase):
         Finish with a simulation-error refinement from the paper's estimate.
     origin : {"first", "zero"}
         How constant offsets of ``u`` and ``x`` are absorbed (see the module docstring).
+    full_engagement : bool
+        Fit the flank lines only where the data show the flanks fully engaged: the samples of a partial
+        crossing of the gap (:class:`~.full_engagement.FullEngagement`, issue 27) are left out of eq. (14),
+        of the refinement's criterion and of the per-reversal plays. False: every sample, as the paper.
 
     Attributes
     ----------
     m_left_, c_left_, m_right_, c_right_ : float
         Slopes (dimensionless) and dead-band widths (input units) of eq. (1).
     backlash_ : float
-        ``c_left_ + c_right_``, the play, input units.
+        The play, input units: ``c_left_ + c_right_``, or with ``full_engagement`` the flanks' distance at
+        ``play_level_``.
+    partial_ : array of bool
+        The samples left out as partial crossings (all False without ``full_engagement``).
+    play_level_ : float
+        The output level (from the origin) the play is read at: 0 (the origin's), or with ``full_engagement``
+        midway between the centroids of the samples fitted on each flank.
     equation_error_params_ : BacklashParams
         The estimate of the paper's iteration alone.
     history_ : list of BacklashParams
@@ -337,7 +379,8 @@ class VorosBacklash(_VorosBase):
     n_iter_ : int
         Iterations of the paper's algorithm.
     converged_ : bool
-        False when the iteration stopped at ``max_iter`` (a ConvergenceWarning was issued).
+        False when the iteration stopped at ``max_iter`` (a ConvergenceWarning was issued, unless
+        ``warn_unconverged`` was set False on the instance).
     stop_reason_ : {"tol", "cycle", "max_iter"}
         Why the iteration stopped.
     start_ : {"paper", "direction"}
@@ -345,15 +388,18 @@ class VorosBacklash(_VorosBase):
     refine_nfev_ : int
         Simulations run by the refinement (when ``refine=True``).
     residual_rms_ : float
-        RMS of the simulation residual ``x - simulate(u)`` on the fitted data, input units.
+        RMS of the simulation residual ``x - simulate(u)`` on the fitted data (the samples not left out),
+        input units.
     backlash_std_ : float
         Standard error of ``backlash_``, input units: the scatter of the play over the reversal
         cycles and the model misfit, never below the white-noise standard error
-        (:mod:`~online_backlash.estimators.uncertainty`; the parts in ``uncertainty_``).
+        (:mod:`~online_backlash.estimators.uncertainty`; the parts in ``uncertainty_``); with
+        ``full_engagement`` the misfit includes what the samples left out would take off the play
+        (``uncertainty_.engagement_deg``).
     backlash_white_std_ : float
         The least-squares standard error of ``backlash_`` for white output noise:
         ``sqrt(g^T (J^T J)^-1 g RSS / (n - 4))`` with ``J`` the Jacobian of the simulation and
-        ``g = [0, 1, 0, 1]``.
+        ``g = [0, 1, 0, 1]`` (at ``play_level_ = L``: ``[L / mL^2, 1, -L / mR^2, 1]``).
     cycle_plays_ : array
         The play of every reversal (:class:`~online_backlash.estimators.uncertainty.CyclePlays`).
     uncertainty_ : PlayUncertainty
@@ -388,8 +434,16 @@ class VorosBacklash(_VorosBase):
     (1.3, 0.5, 2.5, 0.7)
     """
 
-    def __init__(self, max_iter: int = 50, tol: float = 0.1, refine: bool = True, origin: str = "zero") -> None:
+    def __init__(
+        self,
+        max_iter: int = 50,
+        tol: float = 0.1,
+        refine: bool = True,
+        origin: str = "zero",
+        full_engagement: bool = False,
+    ) -> None:
         super().__init__(max_iter, tol, refine, origin)
+        self.full_engagement = full_engagement
 
     def fit(self, u: np.ndarray, x: np.ndarray) -> VorosBacklash:
         """Fit eq. (1) to input ``u`` and output ``x`` (same units, e.g. degrees).
@@ -400,54 +454,85 @@ class VorosBacklash(_VorosBase):
             When ``u`` never reverses or one flank is never engaged (from either start, see Notes).
         """
         self._validate_params()
+        if not isinstance(self.full_engagement, bool):
+            raise InvalidParameterError(f"full_engagement must be a bool, got {self.full_engagement!r}")
         u, x = check_pair(u, x)
         check_reverses(u)
         uc, xc = self._center(u, x)
         u_t, x_t, x_prev = uc[1:], xc[1:], xc[:-1]
+        judge = FullEngagement()
+        self.partial_ = judge.fit(uc, xc) == NO_FLANK if self.full_engagement else np.zeros(uc.size, dtype=bool)
+        self._engagement_std = judge.engagement_std_deg_ if self.full_engagement else 0.0
+        kept = ~self.partial_
 
         def step(theta: np.ndarray) -> _Step:
-            # eq. (12)-(14): switching functions from the s-th estimate and the measured x(t-1), least squares
-            return _equation_error_step(u_t, x_prev, x_t, BacklashParams.from_theta(theta))
+            # eq. (12)-(14): switching functions from the s-th estimate (a negative dead band taken at
+            # zero: BacklashParams.feasible) and the measured x(t-1), least squares
+            return _equation_error_step(u_t, x_prev, x_t, BacklashParams.from_theta(theta).feasible(), kept[1:])
 
         def run(start: BacklashParams) -> list[BacklashParams]:
             # eq. (9) on every estimate: a zero slope or slopes of opposite sign raise here
-            return [BacklashParams.from_theta(t) for t in self._iterate(step, start.theta)[1]]
+            return [BacklashParams.from_theta(t).feasible() for t in self._iterate(step, start.theta)[1]]
 
         try:
+            if self.full_engagement:  # a partial crossing's samples left out: the paper's start may lie off them
+                raise NotExcitedError("start from the lines of the samples fitted")
             self.history_ = run(_start_params(uc, xc))
             self.start_ = "paper"
         except (NotExcitedError, InvalidParameterError):
             # the paper's start lines lie off the data (slope not +-1 over a long stroke):
             # start again from lines fitted to the direction of motion
             try:
-                self.history_ = run(_direction_guess(uc, xc))
-            except (NotExcitedError, InvalidParameterError) as exc:
+                guess = _direction_guess(uc, xc, kept)
+            except NotExcitedError as exc:
                 raise NotExcitedError(
                     "the paper's iteration found no estimate that engages both flanks, from the "
                     f"paper's start or from the direction of motion ({exc}); the data do not "
                     "excite both sides of the dead band well enough (more reversals needed)"
                 ) from exc
-            self.start_ = "direction"
+            try:
+                self.history_ = run(guess)
+                self.start_ = "direction"
+            except (NotExcitedError, InvalidParameterError):
+                # input and output move together both ways, yet eq. (5)-(6) engage one flank only: a dead band
+                # below what the encoders resolve (issue 27); the lines of the two directions of motion are the estimate
+                self.history_, self.n_iter_, self.converged_ = [guess.feasible()], 0, True
+                self.start_ = self.stop_reason_ = "direction lines"
         self.equation_error_params_ = self.history_[-1]
         params = self.equation_error_params_
         if self.refine:
-            params = self._refine(uc, xc, params)
+            params = self._refine(uc, xc, params, kept)
         self._set_backlash(params)
+        self.play_level_ = _engaged_level(uc, xc, kept) if self.full_engagement else 0.0
         x_sim, jac = self._simulate_with_jacobian(uc, params, xc[0])
-        self.residual_rms_ = float(np.sqrt(np.mean((xc - x_sim) ** 2)))
-        self._set_uncertainty(uc, xc, xc - x_sim, jac)
+        resid = (xc - x_sim)[kept]
+        self.residual_rms_ = float(np.sqrt(np.mean(resid**2)))
+        self._set_uncertainty(uc, xc, resid, jac[kept])
         return self
 
+    @property
+    def backlash_(self) -> float:
+        """The play, input units: ``c_left_ + c_right_`` (the flanks' distance at the origin's level); with
+        ``full_engagement`` their distance at ``play_level_``, where the flanks were fully engaged (equal where
+        the slopes are)."""
+        check_is_fitted(self, "params_")
+        level = self.play_level_
+        return (level / self.m_right_ + self.c_right_) - (level / self.m_left_ - self.c_left_)
+
     def _set_uncertainty(self, uc: np.ndarray, xc: np.ndarray, resid: np.ndarray, jac: np.ndarray) -> None:
-        """``backlash_std_`` and its parts: white noise through the Jacobian, then the per-cycle plays."""
-        grad = np.array([0.0, 1.0, 0.0, 1.0])  # d(cL + cR) / d[mL, cL, mR, cR]
+        """``backlash_std_`` and its parts: white noise through the Jacobian (the rows of the samples fitted),
+        then the per-cycle plays (without the partial crossings, ``partial_``)."""
+        level = self.play_level_  # d(play) / d[mL, cL, mR, cR], the play read at that level (eq. 1)
+        grad = np.array([level / self.m_left_**2, 1.0, -level / self.m_right_**2, 1.0])
         cov = np.linalg.pinv(jac.T @ jac)
         sigma2 = _inner(resid, resid) / max(resid.size - 4, 1)
         self.backlash_white_std_ = float(np.sqrt(max(sigma2 * float(grad @ cov @ grad), 0.0)))
         scatter = KinematicPlayScatter()
-        scatter.update(uc, xc, None, self.backlash_, self.m_left_, self.m_right_)
+        scatter.update(uc, xc, None, self.backlash_, self.m_left_, self.m_right_, self.partial_, self.play_level_)
         self.cycle_plays_ = scatter.plays_deg
-        self.uncertainty_: PlayUncertainty = scatter.uncertainty(self.backlash_white_std_, None, self.residual_rms_)
+        self.uncertainty_: PlayUncertainty = scatter.uncertainty(
+            self.backlash_white_std_, None, self.residual_rms_, self._engagement_std
+        )
         self.backlash_std_ = self.uncertainty_.std_deg
 
     @staticmethod
@@ -465,18 +550,20 @@ class VorosBacklash(_VorosBase):
         backlash_sensitivity(uc[1:], params, x_start, out=(x[1:], dx[1:]))
         return x, dx
 
-    def _refine(self, uc: np.ndarray, xc: np.ndarray, start: BacklashParams) -> BacklashParams:
-        """Minimise the simulation error over ``[mL, cL, mR, cR]`` from the paper's estimate.
+    def _refine(self, uc: np.ndarray, xc: np.ndarray, start: BacklashParams, kept: np.ndarray) -> BacklashParams:
+        """Minimise the simulation error of the ``kept`` samples over ``[mL, cL, mR, cR]`` from the paper's
+        estimate (the model runs through all of them: a partial crossing's samples are only not counted).
 
         Levenberg-Marquardt (damped Gauss-Newton) with the analytic Jacobian of
         :func:`~online_backlash.model.backlash_sensitivity` (switching pattern held fixed).
         """
+        weight = kept.astype(float)
 
         def evaluate(p: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
             if not (p[0] * p[2] > 0 and p[1] + p[3] >= 0):  # eq. (1) needs it
                 return None
             x, dx = self._simulate_with_jacobian(uc, BacklashParams(*p), xc[0])
-            return xc - x, -dx
+            return (xc - x) * weight, -dx * weight[:, None]
 
         p0 = np.array([start.m_left, start.c_left, start.m_right, start.c_right])
         best = _levenberg_marquardt(evaluate, p0)

@@ -154,11 +154,13 @@ class CascadeRLS(RecursiveEstimator):
         if self.trace_max is not None:
             check_real("trace_max", self.trace_max, 0.0)
 
-    def _warm_fit(self, uc: np.ndarray, yc: np.ndarray, terms: np.ndarray) -> tuple[np.ndarray, int]:
+    def _warm_fit(self, uc: np.ndarray, yc: np.ndarray, terms: np.ndarray) -> tuple[np.ndarray, int, bool]:
         """:class:`VorosCascade` on the buffer; returns the start ``theta`` of eq. (20).
         ``terms`` has no columns here (CascadeRLS takes no effects)."""
-        batch = VorosCascade(n_a=self.n_a, n_b=self.n_b, origin="zero").fit(uc, yc)
-        return np.concatenate((batch.params_.theta, batch.a_[1:], batch.b_)), int(batch.n_iter_)
+        batch = VorosCascade(n_a=self.n_a, n_b=self.n_b, origin="zero")
+        batch.warn_unconverged = False  # told by converged_ (warm_start_)
+        batch.fit(uc, yc)
+        return np.concatenate((batch.params_.theta, batch.a_[1:], batch.b_)), int(batch.n_iter_), bool(batch.converged_)
 
     def _cold_params(self, u: np.ndarray | None, y: np.ndarray | None) -> np.ndarray:
         start = BacklashParams(1.0, 1e-3, 1.0, 1e-3) if u is None or y is None or u.size < 2 else _start_params(u, y)

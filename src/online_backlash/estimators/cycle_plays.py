@@ -442,29 +442,34 @@ def _gap_flags(gap: np.ndarray | None, shape: tuple[int, ...]) -> np.ndarray:
 
 
 @numba.njit(inline="always")
-def _offset(x, v, side, m_left, m_right):  # pragma: no cover - compiled
-    """The flank offset of eq. (1) of input ``x`` and output ``v`` on flank ``side`` (-1/+1), 0 on none."""
+def _offset(x, v, side, m_left, m_right, level):  # pragma: no cover - compiled
+    """The flank offset of eq. (1) of input ``x`` and output ``v`` on flank ``side`` (-1/+1), 0 on none:
+    ``(v - level) / m - x``, minus where the flank lies at output ``level``."""
     if side < 0:
-        return v / m_left - x
+        return (v - level) / m_left - x
     if side > 0:
-        return v / m_right - x
+        return (v - level) / m_right - x
     return 0.0
 
 
 @numba.njit(cache=True, nogil=True)
-def _offsets(u, y, side, m_left, m_right):  # pragma: no cover - compiled
+def _offsets(u, y, side, m_left, m_right, level):  # pragma: no cover - compiled
     """:func:`kinematic_offsets` on arrays."""
     out = np.empty(side.size)
     for i in range(side.size):
-        out[i] = _offset(u[i], y[i], side[i], m_left, m_right)
+        out[i] = _offset(u[i], y[i], side[i], m_left, m_right, level)
     return out
 
 
-def kinematic_offsets(u: np.ndarray, y: np.ndarray, side: np.ndarray, m_left: float, m_right: float) -> np.ndarray:
+def kinematic_offsets(
+    u: np.ndarray, y: np.ndarray, side: np.ndarray, m_left: float, m_right: float, level_deg: float = 0.0
+) -> np.ndarray:
     """Flank offsets of eq. (1): ``y / mL - u`` on the left flank (``= cL``), ``y / mR - u`` on the
-    right (``= -cR``), degrees; 0 where no flank is engaged."""
+    right (``= -cR``), degrees; 0 where no flank is engaged. Read at the output level ``level_deg``
+    (``(y - level) / m - u``: minus where the flank lies at that level), the play they give is the flanks'
+    distance there."""
     u, y = np.ascontiguousarray(u, dtype=float), np.ascontiguousarray(y, dtype=float)
-    return _offsets(u, y, np.ascontiguousarray(side, dtype=np.int8), float(m_left), float(m_right))
+    return _offsets(u, y, np.ascontiguousarray(side, dtype=np.int8), float(m_left), float(m_right), float(level_deg))
 
 
 @numba.njit(cache=True, nogil=True)
@@ -542,9 +547,11 @@ class OutputNoise:
 
 
 @numba.njit(cache=True, nogil=True)
-def _kinematic_pass(u, y, gap, travel, hysteresis, flank_state, m_left, m_right, st, segs, n, min_samples, square, tail):  # pragma: no cover - compiled
+def _kinematic_pass(  # pragma: no cover - compiled
+    u, y, gap, left_out, travel, hysteresis, flank_state, m_left, m_right, level, st, segs, n, min_samples, square, tail
+):
     """:func:`kinematic_update`'s compiled part: one loop over the samples (flank, offset, engaged
-    samples kept), the segments of the engaged samples, the output's second differences. Returns
+    samples kept, but those ``left_out``), the segments of the engaged samples, the output's second differences. Returns
     the closed segments and their number, the first sample with a non-finite input, output or
     offset (-1: none; else nothing was changed), the second differences, their stretches' ends and
     the new tail."""
@@ -564,8 +571,8 @@ def _kinematic_pass(u, y, gap, travel, hysteresis, flank_state, m_left, m_right,
             gaps[n_cuts] = i
             n_cuts += 1
         side, d, turn, ext, rev, started = _flank_step(x, g, d, turn, ext, rev, started, travel, hysteresis)
-        if side != 0:
-            off = _offset(x, v, side, m_left, m_right)
+        if side != 0 and not left_out[i]:
+            off = _offset(x, v, side, m_left, m_right, level)
             if not math.isfinite(off):
                 return segs, n, i, vals[:0], cuts[:0], tail
             vals[m] = off
@@ -579,13 +586,16 @@ def _kinematic_pass(u, y, gap, travel, hysteresis, flank_state, m_left, m_right,
 
 def kinematic_update(
     flanks: MotionFlanks, cycles: CyclePlays, noise: OutputNoise, u: np.ndarray, y: np.ndarray, gap: np.ndarray | None,
-    m_left: float, m_right: float,
+    m_left: float, m_right: float, left_out: np.ndarray | None = None, level_deg: float = 0.0,
 ) -> None:  # fmt: skip
     """One block of a kinematic drive, input ``u`` and output ``y`` (degrees, load side), in one
     compiled pass: the flank of each sample (``flanks``, :meth:`MotionFlanks.update`), its offset
     with the slopes ``m_left``, ``m_right`` (eq. 1, :func:`kinematic_offsets`) into ``cycles``
     (:meth:`CyclePlays.update`, ``gap`` as the breaks) and the output's second differences into
     ``noise`` (:meth:`OutputNoise.update`): the same state as those calls give, bit for bit.
+    ``left_out`` (True: a sample on no flank, a partial crossing of the gap,
+    :class:`~.full_engagement.FullEngagement`) takes samples out of the flanks' segments; the offsets are
+    read at the output level ``level_deg`` (the level the estimator reads its play at).
 
     Raises
     ------
@@ -600,9 +610,12 @@ def kinematic_update(
     if not u.size:
         return
     g = _gap_flags(gap, u.shape)
+    out = np.zeros(u.shape, dtype=np.bool_) if left_out is None else np.ascontiguousarray(left_out, dtype=np.bool_)
+    if out.shape != u.shape:
+        raise InvalidParameterError(f"left_out must have the shape of the samples, {u.shape}, got {out.shape}")
     segs, n, bad, d2, ends, tail = _kinematic_pass(
-        u, y, g, flanks.travel, flanks.hysteresis, flanks._state, float(m_left), float(m_right), cycles._st, cycles._segs,
-        cycles._n, cycles.min_samples, _SQUARE, noise._tail,
+        u, y, g, out, flanks.travel, flanks.hysteresis, flanks._state, float(m_left), float(m_right), float(level_deg),
+        cycles._st, cycles._segs, cycles._n, cycles.min_samples, _SQUARE, noise._tail,
     )  # fmt: skip
     cycles._segs, cycles._n = segs, n
     if bad >= 0:

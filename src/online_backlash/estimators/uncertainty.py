@@ -58,6 +58,7 @@ the ratio of the mean square successive difference to the variance", Ann. Math. 
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -68,6 +69,7 @@ import numpy as np
 from ..errors import InvalidParameterError
 from ._base import NOT_STARTED, EstimateAt, finite_array
 from .cycle_plays import CyclePlays, MotionFlanks, OutputNoise, kinematic_offsets, kinematic_update
+from .full_engagement import NO_FLANK, FullEngagement
 
 __all__ = [
     "CyclePlays", "EstimateAt", "KinematicPlayScatter", "MotionFlanks", "OutputNoise", "PlayUncertainty", "RecursivePlayScatter",
@@ -116,8 +118,14 @@ class PlayUncertainty:
         Kish's effective number of plays, ``(sum w)^2 / sum w^2``.
     misfit_deg : float
         The model misfit seen in the residual: ``sqrt(max(0, residual_rms^2 - noise^2))``
-        (:func:`model_misfit`); 0 where not given. It and ``between_deg`` measure one thing two
-        ways (the drive is not the model: wind-up, creep): the larger counts.
+        (:func:`model_misfit`), with ``engagement_deg`` in quadrature; 0 where not given. It and
+        ``between_deg`` measure one thing two ways (the drive is not the model: wind-up, creep): the
+        larger counts.
+    engagement_deg : float
+        What the samples left out as partial crossings of the gap would take off the play, were they flank
+        samples after all (:attr:`~.full_engagement.FullEngagement.shortfall_deg_`: without a torque column a
+        partial crossing is not told apart from a wind-up that varies along the stroke); 0 where no sample was
+        left out. Part of ``misfit_deg``.
     """
 
     std_deg: float
@@ -126,6 +134,7 @@ class PlayUncertainty:
     n_plays: int
     n_effective: float
     misfit_deg: float = 0.0
+    engagement_deg: float = 0.0
 
 
 def play_uncertainty(
@@ -249,14 +258,19 @@ class KinematicPlayScatter:
         self.noise = OutputNoise()
         self._flanks: MotionFlanks | None = None
 
-    def update(self, u: np.ndarray, y: np.ndarray, gap: np.ndarray | None, play_deg: float, m_left: float, m_right: float) -> None:
+    def update(
+        self, u: np.ndarray, y: np.ndarray, gap: np.ndarray | None, play_deg: float, m_left: float, m_right: float,
+        left_out: np.ndarray | None = None, level_deg: float = 0.0,
+    ) -> None:  # fmt: skip
         """Add a block of input ``u`` and output ``y`` (degrees) with the current estimate (one
-        compiled pass, :func:`~.cycle_plays.kinematic_update`)."""
+        compiled pass, :func:`~.cycle_plays.kinematic_update`); ``left_out``: samples on no flank
+        (partial crossings of the gap, :class:`~.full_engagement.FullEngagement`); ``level_deg``: the output
+        level the estimator reads its play at (the per-cycle plays are the flanks' distance there)."""
         if self._flanks is None:
             self._flanks = MotionFlanks.for_play(play_deg)
         else:  # follow the estimate (wear), keep the motion state
             self._flanks.follow(play_deg)
-        kinematic_update(self._flanks, self.cycles, self.noise, u, y, gap, m_left, m_right)
+        kinematic_update(self._flanks, self.cycles, self.noise, u, y, gap, m_left, m_right, left_out, level_deg)
 
     @property
     def plays_deg(self) -> np.ndarray:
@@ -269,15 +283,19 @@ class KinematicPlayScatter:
         return self.cycles.noise_var_deg2
 
     def uncertainty(
-        self, floor_deg: float | None = None, memory_reversals: float | None = None, residual_rms_deg: float = math.nan
-    ) -> PlayUncertainty:
+        self, floor_deg: float | None = None, memory_reversals: float | None = None, residual_rms_deg: float = math.nan,
+        engagement_deg: float = 0.0,
+    ) -> PlayUncertainty:  # fmt: skip
         """:func:`play_uncertainty` of the plays so far, weighted by :func:`forgetting_weights`, with
-        the misfit of a fit whose residual RMS is ``residual_rms_deg`` against the output's noise."""
+        the misfit of a fit whose residual RMS is ``residual_rms_deg`` against the output's noise, and in
+        quadrature with it ``engagement_deg`` (:attr:`PlayUncertainty.engagement_deg`)."""
         plays = self.plays_deg
-        return play_uncertainty(
+        misfit = math.hypot(model_misfit(residual_rms_deg, self.noise.var_deg2), engagement_deg)
+        found = play_uncertainty(
             plays, forgetting_weights(plays.size, memory_reversals), noise_var_deg2=self.noise_var_deg2, floor_deg=floor_deg,
-            misfit_deg=model_misfit(residual_rms_deg, self.noise.var_deg2),
+            misfit_deg=misfit,
         )
+        return dataclasses.replace(found, engagement_deg=float(engagement_deg))
 
 
 class RecursivePlayScatter:
@@ -295,6 +313,13 @@ class RecursivePlayScatter:
     result at the estimator's own ``backlash_std_``. An estimator that takes torque
     (``takes_torque``) states its own standard error: it is passed through unchanged.
 
+    An estimator that fits its lines where the flanks are fully engaged (``full_engagement``, issue 27) is
+    followed alike: the partial crossings are judged here as it judges them
+    (:class:`~.full_engagement.FullEngagement`, the first samples measured as a whole record) and left out of
+    the segments, and the per-cycle plays are read at the output level it reads its play at (the level of its
+    first estimate measured, for the whole stream: a level moving from tick to tick would shift whole
+    segments).
+
     Parameters
     ----------
     estimator : RecursiveEstimator
@@ -305,9 +330,12 @@ class RecursivePlayScatter:
     def __init__(self, estimator: Any) -> None:
         self.estimator = estimator
         self.scatter = KinematicPlayScatter()
+        # the partial crossings, judged as the estimator judges them (full_engagement)
+        self._marks = FullEngagement() if getattr(estimator, "full_engagement", False) else None
         self._held: list[tuple[np.ndarray, np.ndarray, np.ndarray | None]] = []
         self._n_held = 0
         self._given_up = False
+        self._level_deg: float | None = None  # the output level the per-cycle plays are read at, once measured
 
     @property
     def _kinematic(self) -> bool:
@@ -367,7 +395,12 @@ class RecursivePlayScatter:
         else:
             u, y = (np.concatenate([h[k] for h in held]) for k in (0, 1))
             gap = np.concatenate([h[2] if h[2] is not None else np.zeros(len(h[0]), dtype=bool) for h in held])
-        self.scatter.update(u, y, gap, at.backlash_deg, at.m_left, at.m_right)
+        left_out = None
+        if self._marks is not None:  # the first samples measured are judged as a whole record
+            left_out = (self._marks.update if self._marks.settled_ else self._marks.fit)(u, y, gap) == NO_FLANK
+        if self._level_deg is None:  # one level for the stream: a level moving between ticks would shift whole segments
+            self._level_deg = at.level_deg
+        self.scatter.update(u, y, gap, at.backlash_deg, at.m_left, at.m_right, left_out, self._level_deg)
 
     def uncertainty(self) -> PlayUncertainty:
         """The parts of :attr:`std_deg` (the estimator's own standard error alone for a torque estimator)."""

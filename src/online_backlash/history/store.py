@@ -33,7 +33,10 @@ Tables
     leaves the row out), ``torque_mean_nm``, ``torque_rms_nm`` (of the data since the estimate
     before), ``torque_reversals`` and ``stiffness_nm_per_arcmin`` (NULL without torque); the
     machine's own usage (schema 4): ``machine_hours``, its hour meter at the estimate (NULL where
-    the log came without one; ``operating_hours`` counts only the time in motion the logs recorded).
+    the log came without one; ``operating_hours`` counts only the time in motion the logs recorded);
+    the path of the play (schema 5): ``play_method`` (``torque`` or ``kinematic``) and ``play_method_reason``,
+    and where the play is not reported (:func:`online_backlash.physical.play_verdict`) its ``reason``
+    and the bounds the data support, ``backlash_lower_bound_deg`` and ``backlash_upper_bound_deg``.
     ``(run_id, sample_index)`` is unique, so a row can never be written twice.
 
 Times are UNIX seconds (UTC), angles degrees on the load side.
@@ -49,7 +52,8 @@ newer version than this code knows is refused rather than guessed at. To change 
 edit the tables, append a migration from the current version, and increment
 :data:`SCHEMA_VERSION`. Version 1 is the first schema; version 2 adds ``gearboxes.warn_arcmin``;
 version 3 adds the load condition of each estimate and lets ``backlash_deg`` be NULL;
-version 4 adds ``estimates.machine_hours``.
+version 4 adds ``estimates.machine_hours``; version 5 adds the path of each play and its
+verdict, and applies that verdict to the plays stored before.
 
 Every write that belongs together (estimate rows, the run's resume point and the gearbox's
 checkpoint) is one transaction: a process killed at any instant leaves either all or none of it.
@@ -92,13 +96,14 @@ from sqlalchemy.engine import URL, Engine, make_url
 from sqlalchemy.exc import ArgumentError, DBAPIError, SQLAlchemyError
 
 from ..errors import HistoryError
+from ..physical import figure_verdict
 from ..rows import FIELDS, STORE_KEYS
 from .alarms import check_alarm_levels
 
 APPLICATION = "online-backlash"
 
 #: Version of the schema defined in this module.
-SCHEMA_VERSION = 4
+SCHEMA_VERSION = 5
 
 
 def _add_warn_arcmin(conn: Connection) -> None:
@@ -122,10 +127,11 @@ def _add_load_condition(conn: Connection) -> None:
     """
     if conn.dialect.name == "sqlite":
         conn.exec_driver_sql("ALTER TABLE estimates RENAME TO estimates_v2")
-        names = ", ".join(c["name"] for c in inspect(conn).get_columns("estimates_v2"))  # the columns schema 2 had
         for index in estimates_table.indexes:
             conn.exec_driver_sql(f"DROP INDEX IF EXISTS {index.name}")
-        estimates_table.create(conn)
+        estimates_table.create(conn)  # the current definition: later versions' columns are there, NULL
+        present = {c["name"] for c in inspect(conn).get_columns("estimates_v2")}
+        names = ", ".join(c.name for c in estimates_table.columns if c.name in present and c.name not in _V3_COLUMNS)
         conn.exec_driver_sql(f"INSERT INTO estimates ({names}, play_observable) SELECT {names}, 1 FROM estimates_v2")
         conn.exec_driver_sql("DROP TABLE estimates_v2")
         return
@@ -150,12 +156,40 @@ def _add_machine_hours(conn: Connection) -> None:
     conn.exec_driver_sql(f"ALTER TABLE estimates ADD COLUMN machine_hours {column_type}")
 
 
+def _add_play_method(conn: Connection) -> None:
+    """Version 4 -> 5: each estimate's path and verdict (issue 27), and the verdict of the plays stored before.
+
+    Adds ``play_method``, ``play_method_reason``, ``reason``, ``backlash_lower_bound_deg`` and
+    ``backlash_upper_bound_deg`` (NULL: not known; a store rebuilt by the SQLite step of version 3
+    has them already). Then applies the rule of :mod:`online_backlash.physical` to every stored play:
+    a play below zero, or whose standard error exceeds half its value, was never a play -- its
+    ``backlash_deg`` becomes NULL, ``play_observable`` false, and ``reason`` keeps what it was
+    (the encoders' resolution of those rows is not known, so a measured zero is not told apart here).
+    """
+    columns = ("play_method", "play_method_reason", "reason", "backlash_lower_bound_deg", "backlash_upper_bound_deg")
+    present = {c["name"] for c in inspect(conn).get_columns("estimates")}
+    for name in columns:
+        if name not in present:
+            sql_type = estimates_table.c[name].type.compile(dialect=conn.dialect)
+            conn.exec_driver_sql(f"ALTER TABLE estimates ADD COLUMN {name} {sql_type}")
+    t = estimates_table
+    stored = conn.execute(select(t.c.id, t.c.backlash_deg, t.c.backlash_std_deg).where(t.c.backlash_deg.is_not(None)))
+    for row_id, play, std in stored.all():
+        verdict = figure_verdict(play, std, "deg", "play")
+        if verdict.value is None:
+            reason = f"{verdict.reason} (stored before schema 5)"
+            values: dict[str, Any] = {"backlash_deg": None, "play_observable": False, "reason": reason}
+            values["backlash_upper_bound_deg"] = verdict.upper_bound
+            conn.execute(update(t).where(t.c.id == row_id).values(**values))
+
+
 #: ``MIGRATIONS[i]`` upgrades a store from schema version ``i`` to ``i + 1``, given a connection
 #: inside the upgrade transaction.
 MIGRATIONS: dict[int, Callable[[Connection], None]] = {
     1: _add_warn_arcmin,
     2: _add_load_condition,
     3: _add_machine_hours,
+    4: _add_play_method,
 }
 
 _SQLITE_MAGIC = b"SQLite format 3\x00"
@@ -202,7 +236,7 @@ runs_table = Table(
 )
 
 #: SQL type of each kind of estimate column (online_backlash.rows.RowField.kind).
-_SQL_TYPES: dict[type, Any] = {float: Double, int: BigInteger, bool: Boolean}
+_SQL_TYPES: dict[type, Any] = {float: Double, int: BigInteger, bool: Boolean, str: Text}
 
 
 def _estimate_column(key: str) -> Column:
@@ -291,6 +325,11 @@ class Estimate:
     torque_reversals: int | None = None
     stiffness_nm_per_arcmin: float | None = None
     machine_hours: float | None = None
+    play_method: str | None = None
+    play_method_reason: str | None = None
+    reason: str | None = None
+    backlash_lower_bound_deg: float | None = None
+    backlash_upper_bound_deg: float | None = None
 
 
 def resolve_url(db: str | os.PathLike[str]) -> URL:

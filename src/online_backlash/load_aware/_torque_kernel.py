@@ -19,7 +19,7 @@ from typing import NamedTuple
 from numba import njit
 
 from ..estimators._layout import offsets
-from .engagement import _MEDIAN_ABS_D2
+from ..estimators.resolution import MEDIAN_ABS_D2
 
 
 class FlankFields(NamedTuple):
@@ -59,6 +59,8 @@ class TorqueState(NamedTuple):
     Y_LEVEL: int = 1  # output of the latest flank update (reference coordinates)
     LEFT: int = FLANK_SIZE
     RIGHT: int = FLANK_SIZE
+    ENG_LEFT: int = 1  # torque at which the left flank engages, N m (signed as learned; issue 27)
+    ENG_RIGHT: int = 1  # and the right flank
 
 
 S, STATE_SIZE = offsets(TorqueState())
@@ -86,9 +88,10 @@ def torque_step(st, c, u, y, q):
     """One sample: reference origin, torque noise, engaged flank, and the flank's RLS update.
 
     ``u``, ``y`` degrees (load side), ``q`` torque N m. Nothing is learned right after a gap,
-    inside the dead band, while the running dead band is still settling, or when neither the
-    input (more than ``MIN_STEP``) nor the torque (more than the dead band) moved since the
-    last update: a still drive carries no information, and the flank not engaged keeps its line.
+    inside the dead band (taken about the torques at which the flanks engage, ``ENG_LEFT`` and
+    ``ENG_RIGHT``: :func:`~.engagement.engaged_flank`), while the running dead band is still settling,
+    or when neither the input (more than ``MIN_STEP``) nor the torque (more than the dead band) moved
+    since the last update: a still drive carries no information, and the flank not engaged keeps its line.
     """
     if st[S.N_SEEN] == 0.0 and c[KC.ORIGIN_FIRST] != 0.0:
         st[S.U0] = u
@@ -113,10 +116,12 @@ def torque_step(st, c, u, y, q):
     if c[KC.DEADBAND] >= 0.0:
         db = c[KC.DEADBAND]
     elif st[S.N_QMED] >= c[KC.NOISE_WARMUP]:
-        db = c[KC.N_SIGMA] * st[S.Q_MED] / _MEDIAN_ABS_D2
+        db = c[KC.N_SIGMA] * st[S.Q_MED] / MEDIAN_ABS_D2
     else:
         return  # the dead band is not known yet: no flank can be told
-    flank = 1.0 if q > db else (-1.0 if q < -db else 0.0)
+    eng_hi = max(st[S.ENG_LEFT], st[S.ENG_RIGHT])
+    eng_lo = min(st[S.ENG_LEFT], st[S.ENG_RIGHT])
+    flank = 1.0 if q > eng_hi + db else (-1.0 if q < eng_lo - db else 0.0)
     if flank == 0.0:
         return
     reversal = st[S.LAST_FLANK] != 0.0 and flank != st[S.LAST_FLANK]
@@ -220,7 +225,7 @@ def torque_step(st, c, u, y, q):
     st[o + F.UC] = uc
     st[o + F.N] += 1.0
     st[o + F.W] = lam * st[o + F.W] + 1.0
-    aq = abs(q)
+    aq = abs(q - (st[S.ENG_LEFT] if flank < 0.0 else st[S.ENG_RIGHT]))  # the torque the flank carries
     dq = aq - st[o + F.QMEAN]
     st[o + F.QMEAN] += dq / st[o + F.N]
     st[o + F.QM2] += dq * (aq - st[o + F.QMEAN])

@@ -33,6 +33,7 @@ from ..errors import InvalidParameterError
 from ..rows import ARCMIN_PER_DEG
 from .flank_fit import TorqueBacklash
 from .flank_lines import FlankLine
+from .segments import check_knots, hinge_columns
 
 __all__ = [
     "LOST_MOTION_FRACTION", "DatasheetFigures", "HysteresisCurve", "datasheet_figures", "hysteresis_curve", "line_figures",
@@ -71,9 +72,14 @@ def _finite_or_none(value: float) -> float | None:
     return float(value) if math.isfinite(value) else None
 
 
-def lost_motion_deg(left: FlankLine, right: FlankLine, at_Nm: float) -> float:
-    """The hysteresis curve's width between ``+at_Nm`` and ``-at_Nm`` (deg): ``(a_R + s_R T) - (a_L - s_L T)``."""
-    return (right.a + right.s * at_Nm) - (left.a - left.s * at_Nm)
+def lost_motion_deg(
+    left: FlankLine, right: FlankLine, at_Nm: float, engagement_Nm: tuple[float, float] = (0.0, 0.0)
+) -> float:
+    """The hysteresis curve's width between ``+at_Nm`` and ``-at_Nm`` carried by the flanks (deg):
+    ``(a_R + s_R (T_R + T)) - (a_L + s_L (T_L - T))``, ``(T_L, T_R) = engagement_Nm`` the measured torques
+    at which the flanks engage (0 where the sensor reads zero with no flank touching)."""
+    t_left, t_right = engagement_Nm
+    return (right.a + right.s * (t_right + at_Nm)) - (left.a + left.s * (t_left - at_Nm))
 
 
 def _lost_motion_torque(rated_torque_Nm: float | None, reached_Nm: float) -> tuple[float, str]:
@@ -94,6 +100,7 @@ def line_figures(
     rated_torque_Nm: float | None = None,
     operating_torque_Nm: float | None = None,
     compliance_var: tuple[float, float] = (1.0, 1.0),
+    engagement_Nm: tuple[float, float] = (0.0, 0.0),
 ) -> DatasheetFigures:
     """The figures of the flank lines: stiffness and lost motion (the hysteresis loss needs the
     whole curve, :func:`datasheet_figures`, and is None here).
@@ -103,7 +110,8 @@ def line_figures(
     torques, ``s = 0``): the lost motion is the width there (basis ``"operating torque"``).
     ``compliance_var``: the (relative) variances of the left and right compliances; the combined
     stiffness is the inverse of their inverse-variance weighted mean compliance, so a flank that
-    carried torque only briefly counts for little.
+    carried torque only briefly counts for little. ``engagement_Nm``: the measured torques at which
+    the (left, right) flank engage; torques at the API are the flanks' own (the measured one less it).
     """
     reached = [p for p in peaks_Nm if p is not None]
     at, basis = _lost_motion_torque(rated_torque_Nm, min(reached) if len(reached) == 2 else deadband_Nm)
@@ -115,7 +123,8 @@ def line_figures(
     pairs = [(line.s, var) for line, k, var in lines_k if line is not None and k is not None]
     weights = [1.0 / var if var > 0 and math.isfinite(var) else 0.0 for _, var in pairs]
     mean_s = sum(w * s for w, (s, _) in zip(weights, pairs)) / sum(weights) if pairs and sum(weights) > 0 else math.nan
-    lost = lost_motion_deg(left, right, at) * ARCMIN_PER_DEG if observable and left is not None and right is not None else None
+    both = observable and left is not None and right is not None
+    lost = lost_motion_deg(left, right, at, engagement_Nm) * ARCMIN_PER_DEG if both else None  # type: ignore[arg-type]
     return DatasheetFigures(
         stiffness_nm_per_arcmin=_finite_or_none(FlankLine(1.0, 0.0, mean_s).stiffness_nm_per_arcmin) if math.isfinite(mean_s) else None,
         stiffness_left_nm_per_arcmin=k_left,
@@ -160,9 +169,21 @@ def unloading_mask(flank: np.ndarray, torque_Nm: np.ndarray) -> np.ndarray:
     return out
 
 
-def _unloading_offset(line: FlankLine, u: np.ndarray, y: np.ndarray, q: np.ndarray) -> float:
-    """The flank's offset ``a`` fitted to its unloading samples alone (slope and compliance held)."""
-    return float(np.mean(line.m * u - line.s * q - y))
+def _unloading_offset(line: FlankLine, u: np.ndarray, y: np.ndarray, windup_deg: np.ndarray) -> float:
+    """The flank's offset where it carries no torque, fitted to its unloading samples alone (slope and
+    wind-up held): the mean of ``m u - y - windup``."""
+    return float(np.mean(line.m * u - y - windup_deg))
+
+
+def _windup_deg(est: TorqueBacklash, side: int, carried_Nm: np.ndarray) -> np.ndarray:
+    """The wind-up of a flank (``side`` -1 left, +1 right) carrying ``carried_Nm >= 0``, signed as in its
+    line: its three segments where they were fitted (:mod:`.segments`), else its line's compliance."""
+    seg = est.segments_[0 if side < 0 else 1]
+    line = est.left_ if side < 0 else est.right_
+    if seg is None or est.stiffness_torques_Nm is None:
+        return side * line.s * carried_Nm  # type: ignore[union-attr]
+    h = hinge_columns(carried_Nm, check_knots(est.stiffness_torques_Nm))
+    return side * sum((c or 0.0) * h[k] for k, c in enumerate(seg.compliance))
 
 
 def datasheet_figures(
@@ -171,23 +192,32 @@ def datasheet_figures(
     """Stiffness, lost motion and hysteresis loss (module docstring) of a fitted :class:`TorqueBacklash`
     on the data it was fitted to (``u``, ``y`` degrees, torque N m)."""
     q = est.torque_sign_ * np.asarray(torque_Nm, dtype=float)
+    t_left, t_right = est.engagement_torques_Nm_
+    carried = q - np.where(est.flank_ == 1, t_right, np.where(est.flank_ == -1, t_left, 0.0))  # the flanks' own torque
     left, right = est.left_, est.right_
     peaks = (
-        float(-q[est.flank_ == -1].min()) if left is not None else None,
-        float(q[est.flank_ == 1].max()) if right is not None else None,
+        float(-carried[est.flank_ == -1].min()) if left is not None else None,
+        float(carried[est.flank_ == 1].max()) if right is not None else None,
     )
     var = tuple(math.inf if f is None else float(f.cov[2, 2]) for f in (est.fits_[-1], est.fits_[1]))
     base = line_figures(
-        left, right, est.play_observable_, est.deadband_Nm_, peaks, rated_torque_Nm, est.operating_torque_Nm_, var  # type: ignore[arg-type]
+        left, right, est.play_observable_, est.deadband_Nm_, peaks, rated_torque_Nm, est.operating_torque_Nm_,
+        var, est.engagement_torques_Nm_,  # type: ignore[arg-type]
     )
+    lines = left is not None and right is not None
+    if base.lost_motion_arcmin is not None and lines and est.stiffness_torques_Nm is not None:
+        at = np.array([base.lost_motion_torque_Nm])  # the segments' wind-up up to the torque it is taken at
+        windups = float(_windup_deg(est, 1, at)[0] - _windup_deg(est, -1, at)[0])
+        width = lost_motion_deg(left, right, 0.0, est.engagement_torques_Nm_) + windups  # type: ignore[arg-type]
+        base = replace(base, lost_motion_arcmin=width * ARCMIN_PER_DEG)
     hyst = None
     if base.lost_motion_arcmin is not None and left is not None and right is not None:
         uc, yc = np.asarray(u, dtype=float) - est.u_ref_, np.asarray(y, dtype=float) - est.y_ref_
-        unl = unloading_mask(est.flank_, q)
+        unl = unloading_mask(est.flank_, carried)
         sel_l, sel_r = unl & (est.flank_ == -1), unl & (est.flank_ == 1)
-        if sel_l.any() and sel_r.any():
-            a_r = _unloading_offset(right, uc[sel_r], yc[sel_r], q[sel_r])
-            a_l = _unloading_offset(left, uc[sel_l], yc[sel_l], q[sel_l])
+        if sel_l.any() and sel_r.any():  # each unloading branch where its flank carries no torque
+            a_r = _unloading_offset(right, uc[sel_r], yc[sel_r], _windup_deg(est, 1, carried[sel_r]))
+            a_l = _unloading_offset(left, uc[sel_l], yc[sel_l], _windup_deg(est, -1, -carried[sel_l]))
             hyst = (a_r - a_l) * ARCMIN_PER_DEG
     return replace(base, hysteresis_loss_arcmin=hyst)
 

@@ -9,6 +9,13 @@ sensor's noise). This replaces the paper's unmeasurable switching functions ``f1
     f1(t) = 1  if tau(t) < -deadband      (left flank engaged,  -1)
     neither    otherwise                  (in the gap, or too close to zero to tell: 0)
 
+The torque that means "no flank touches" need not be zero (issue 27): a sensor reads a zero offset,
+and a friction torque between it and the flanks is read while the motor crosses the gap. Given the
+torques at which the left and the right flank engage (``T_L``, ``T_R``, from the dwells of the
+motion, :func:`~.observability.engagement_torques`), the rule reads ``tau > max(T_L, T_R) + deadband``
+(right) and ``tau < min(T_L, T_R) - deadband`` (left): between the two engagement torques the
+torque cannot tell the flanks apart.
+
 The dead band comes from the torque noise, estimated robustly from the torque's high-passed
 part (its second difference, whose median absolute value is insensitive to the steps at flank
 contacts): ``sigma = median(|d2 tau|) / (0.6745 * sqrt(6))`` for white noise, and
@@ -24,13 +31,12 @@ import math
 import numpy as np
 
 from ..errors import InvalidParameterError
+from ..estimators.resolution import robust_noise_std
 
 __all__ = ["DEADBAND_SIGMAS", "count_torque_reversals", "engaged_flank", "torque_deadband", "torque_noise_std", "torque_orientation"]
 
 #: Dead band in noise standard deviations (a Gaussian sample exceeds 4 sigma once in 16 000).
 DEADBAND_SIGMAS = 4.0
-#: ``median(|N(0, 6 sigma^2)|) / sigma``: the second difference of white noise has variance ``6 sigma^2``.
-_MEDIAN_ABS_D2 = 0.6744897501960817 * math.sqrt(6.0)
 
 
 def _torque_array(torque_Nm: np.ndarray) -> np.ndarray:
@@ -43,7 +49,8 @@ def _torque_array(torque_Nm: np.ndarray) -> np.ndarray:
 
 
 def torque_noise_std(torque_Nm: np.ndarray) -> float:
-    """Robust standard deviation of the torque sensor's noise, N m.
+    """Robust standard deviation of the torque sensor's noise, N m
+    (:func:`~online_backlash.estimators.resolution.robust_noise_std`).
 
     The median absolute second difference, scaled for white Gaussian noise. A quantised, noise-free
     torque (median 0) gives half its smallest non-zero step (the quantisation); a constant torque 0.
@@ -51,13 +58,7 @@ def torque_noise_std(torque_Nm: np.ndarray) -> float:
     q = _torque_array(torque_Nm)
     if q.size < 3:
         raise InvalidParameterError(f"need at least 3 torque samples to estimate its noise, got {q.size}")
-    d2 = np.abs(np.diff(q, 2))
-    sigma = float(np.median(d2)) / _MEDIAN_ABS_D2
-    if sigma > 0.0:
-        return sigma
-    steps = np.abs(np.diff(q))
-    steps = steps[steps > 0]
-    return float(steps.min()) / 2.0 if steps.size else 0.0
+    return robust_noise_std(q)
 
 
 def torque_deadband(torque_Nm: np.ndarray, n_sigma: float = DEADBAND_SIGMAS) -> float:
@@ -76,14 +77,17 @@ def _torque_and_deadband(torque_Nm: np.ndarray, deadband_Nm: float) -> np.ndarra
     return q
 
 
-def engaged_flank(torque_Nm: np.ndarray, deadband_Nm: float) -> np.ndarray:
+def engaged_flank(
+    torque_Nm: np.ndarray, deadband_Nm: float, engagement_Nm: tuple[float, float] = (0.0, 0.0)
+) -> np.ndarray:
     """The engaged flank at each sample: +1 right (torque > deadband), -1 left (torque < -deadband),
     0 neither (int8 array). The measured switching functions: ``f2 = (out == 1)``, ``f1 = (out == -1)``
-    (eq. 5-6)."""
+    (eq. 5-6). ``engagement_Nm``: the torques ``(T_L, T_R)`` at which the left and right flank engage
+    (module docstring); the dead band is then taken about them."""
     q = _torque_and_deadband(torque_Nm, deadband_Nm)
     out = np.zeros(q.size, dtype=np.int8)
-    out[q > deadband_Nm] = 1
-    out[q < -deadband_Nm] = -1
+    out[q > max(engagement_Nm) + deadband_Nm] = 1
+    out[q < min(engagement_Nm) - deadband_Nm] = -1
     return out
 
 

@@ -11,6 +11,12 @@ The play is observable only when the torque reverses: with the output held again
 the whole time (a preloaded drive), the other flank's line is never seen and ``backlash_`` is
 NaN with ``play_observable_`` False.
 
+The torque at which a flank engages need not be zero (issue 27): given the torques at which the
+left and the right flank engage (``engagement_Nm`` of :meth:`TorqueBacklash.fit`, from the dwells of
+the motion, :func:`~.observability.engagement_torques`), the flanks are told apart about them
+(:func:`~.engagement.engaged_flank`) and the play is measured where each flank carries no torque
+(:func:`~.flank_lines.play_between`).
+
 Units: degrees (load side), N m.
 """
 
@@ -25,6 +31,7 @@ from ..errors import InvalidParameterError, NotFittedError
 from ..estimators.uncertainty import CyclePlays, OutputNoise, model_misfit
 from .engagement import DEADBAND_SIGMAS, count_torque_reversals, engaged_flank, torque_noise_std, torque_orientation
 from .flank_lines import FlankLine, FlankPairFigures, at_operating_torque, noisy_torque_corrected, sample_offsets, windup_separable
+from .segments import SegmentFit, check_knots, fit_segments
 
 __all__ = ["FlankFit", "TorqueBacklash", "fit_flank"]
 
@@ -37,10 +44,19 @@ _MAX_COND = 1e6
 class FlankFit:
     """The least-squares line of one flank: ``line``, its unscaled covariance ``cov`` (3x3, of
     ``[m, a, s]``; multiply by the residual variance), residual sum of squares, sample count, and
-    the mean and standard deviation of the flank's torque (N m)."""
+    the mean and standard deviation of the torque the flank carries (N m: the measured torque less
+    ``engaged_at``, the torque at which the flank engages)."""
 
     def __init__(
-        self, line: FlankLine, cov: np.ndarray, rss: float, n: int, slope_fixed: bool, torque_mean: float = 0.0, torque_std: float = 0.0
+        self,
+        line: FlankLine,
+        cov: np.ndarray,
+        rss: float,
+        n: int,
+        slope_fixed: bool,
+        torque_mean: float = 0.0,
+        torque_std: float = 0.0,
+        engaged_at: float = 0.0,
     ) -> None:
         self.line = line
         self.cov = cov
@@ -49,6 +65,7 @@ class FlankFit:
         self.slope_fixed = slope_fixed
         self.torque_mean = torque_mean
         self.torque_std = torque_std
+        self.engaged_at = engaged_at
 
     @property
     def separable(self) -> bool:
@@ -57,9 +74,11 @@ class FlankFit:
 
     def at_operating_torque(self) -> FlankFit:
         """This fit with the wind-up at the mean torque folded into the offset (``s = 0``), covariance mapped."""
-        T = np.array([[1.0, 0.0, 0.0], [0.0, 1.0, self.torque_mean], [0.0, 0.0, 0.0]])
-        line = at_operating_torque(self.line, self.torque_mean)
-        return FlankFit(line, T @ self.cov @ T.T, self.rss, self.n, self.slope_fixed, self.torque_mean, self.torque_std)
+        measured = self.torque_mean + self.engaged_at  # the operating torque as the sensor reads it
+        T = np.array([[1.0, 0.0, 0.0], [0.0, 1.0, measured], [0.0, 0.0, 0.0]])
+        line = at_operating_torque(self.line, measured)
+        torque = (self.torque_mean, self.torque_std, self.engaged_at)
+        return FlankFit(line, T @ self.cov @ T.T, self.rss, self.n, self.slope_fixed, *torque)
 
 
 def _solve(columns: list[np.ndarray], target: np.ndarray, torque_var: float) -> tuple[np.ndarray, np.ndarray, float] | None:
@@ -85,7 +104,14 @@ def _solve(columns: list[np.ndarray], target: np.ndarray, torque_var: float) -> 
 
 
 def fit_flank(
-    u: np.ndarray, y: np.ndarray, torque_Nm: np.ndarray, *, fit_slope: bool = True, slope: float = 1.0, torque_var: float = 0.0
+    u: np.ndarray,
+    y: np.ndarray,
+    torque_Nm: np.ndarray,
+    *,
+    fit_slope: bool = True,
+    slope: float = 1.0,
+    torque_var: float = 0.0,
+    engaged_at: float = 0.0,
 ) -> FlankFit | None:
     """Fit ``y = m u - a - s tau`` to the samples of one engaged flank (eq. 11 with measured ``f``).
 
@@ -93,11 +119,12 @@ def fit_flank(
     and the result mapped back exactly. Without ``fit_slope``, or when the slope cannot be told
     apart from the wind-up (an ill-conditioned design, e.g. a flank touched only briefly),
     ``m = slope`` is held fixed. None when even that is singular. ``torque_var`` (N^2 m^2): the
-    torque sensor's noise variance, corrected for (errors in variables).
+    torque sensor's noise variance, corrected for (errors in variables). ``engaged_at`` (N m): the
+    torque at which the flank engages (the flank's own torque is the measured one less it).
     """
     if u.size < MIN_FLANK_SAMPLES:
         return None
-    stats = float(np.mean(torque_Nm)), float(np.std(torque_Nm))
+    stats = float(np.mean(torque_Nm)) - engaged_at, float(np.std(torque_Nm)), engaged_at
     uc = float(np.mean(u))
     du = u - uc
     ones = np.ones_like(u)
@@ -134,6 +161,11 @@ class TorqueBacklash(FlankPairFigures):
     torque_sign : {"auto", 1.0, -1.0}
         Multiplies the torque column so that the right flank carries positive torque; ``"auto"``:
         :func:`~.engagement.torque_orientation` (a sensor mounted the other way round is flipped).
+    stiffness_torques_Nm : (T1, T2) or None
+        The data sheet's segment torques, N m: each flank's wind-up is then the three-segment spring
+        of :mod:`.segments` (``K1`` to ``T1``, ``K2`` to ``T2``, ``K3`` above; the segments the torque
+        covers are fitted) instead of one straight line, and its offset where it carries no torque
+        places the play.
 
     Attributes
     ----------
@@ -146,6 +178,8 @@ class TorqueBacklash(FlankPairFigures):
         (:data:`~.flank_lines.MAX_LEVER`); else the stiffness is not determined (NaN).
     torque_sign_ : float
         The sign the torque column was multiplied by.
+    engagement_torques_Nm_ : (float, float)
+        The torques at which the left and the right flank engage (times ``torque_sign_``), N m.
     deadband_Nm_ : float
     flank_ : int8 array
         Engaged flank per sample (+1 right, -1 left, 0 neither).
@@ -163,6 +197,8 @@ class TorqueBacklash(FlankPairFigures):
         The white-noise standard error from the lines' covariance and residual variance (delta method), degrees.
     cycle_plays_ : CyclePlays
         One play per torque reversal (:func:`~.flank_lines.sample_offsets`).
+    segments_ : (SegmentFit or None, SegmentFit or None)
+        With ``stiffness_torques_Nm``: the left and right flanks' three-segment fits (:mod:`.segments`).
     c_left_, c_right_ : float
         Left and right flank offsets at the reference origin's level, degrees (NaN for a flank not seen).
     m_left_, m_right_ : float
@@ -189,16 +225,26 @@ class TorqueBacklash(FlankPairFigures):
         fit_slope: bool = True,
         origin: str = "first",
         torque_sign: float | str = "auto",
+        stiffness_torques_Nm: tuple[float, float] | None = None,
     ) -> None:
         self.deadband_Nm = deadband_Nm
         self.n_sigma = n_sigma
         self.fit_slope = fit_slope
         self.origin = origin
         self.torque_sign = torque_sign
+        self.stiffness_torques_Nm = stiffness_torques_Nm
 
-    def fit(self, u: np.ndarray, y: np.ndarray, torque_Nm: np.ndarray) -> TorqueBacklash:
+    def fit(
+        self,
+        u: np.ndarray,
+        y: np.ndarray,
+        torque_Nm: np.ndarray,
+        engagement_Nm: tuple[float | None, float | None] = (None, None),
+    ) -> TorqueBacklash:
         """Fit to input ``u`` (deg, motor referred to the load side), output ``y`` (deg) and the
-        transmitted torque (N m). InvalidParameterError for unequal lengths or non-finite values."""
+        transmitted torque (N m). ``engagement_Nm``: the torques (as measured, N m) at which the left
+        and the right flank engage (None: zero). InvalidParameterError for unequal lengths or
+        non-finite values."""
         from ..estimators._validation import check_pair  # the estimators' one statement of the input checks
 
         u, y = check_pair(u, y)
@@ -213,29 +259,51 @@ class TorqueBacklash(FlankPairFigures):
             raise InvalidParameterError(f"torque_sign must be 'auto', 1 or -1, got {self.torque_sign!r}")
         self.torque_sign_ = torque_orientation(u, y, q) if self.torque_sign == "auto" else float(self.torque_sign)
         q = self.torque_sign_ * q
+        eng = tuple(0.0 if t is None else self.torque_sign_ * float(t) for t in engagement_Nm)
+        self.engagement_torques_Nm_: tuple[float, float] = (eng[0], eng[1])
         u0, y0 = (u[0], y[0]) if self.origin == "first" else (0.0, 0.0)
         uc, yc = u - u0, y - y0
         sigma = torque_noise_std(q)
         self.torque_noise_std_Nm_ = sigma
         db = self.n_sigma * sigma if self.deadband_Nm is None else float(self.deadband_Nm)
-        flank = engaged_flank(q, db)
+        flank = engaged_flank(q, db, self.engagement_torques_Nm_)
         self.u_ref_, self.y_ref_ = float(u0), float(y0)
         self.deadband_Nm_ = db
         self.flank_ = flank
         self.torque_reversals_ = count_torque_reversals(flank)
         fits: dict[int, FlankFit | None] = {}
+        engaged_at = {-1: eng[0], 1: eng[1]}
         for side in (-1, 1):
             sel = flank == side
-            fits[side] = fit_flank(uc[sel], yc[sel], q[sel], fit_slope=self.fit_slope, torque_var=sigma**2)
+            fits[side] = fit_flank(
+                uc[sel], yc[sel], q[sel], fit_slope=self.fit_slope, torque_var=sigma**2, engaged_at=engaged_at[side]
+            )
         if fits[-1] is not None and fits[1] is not None and fits[-1].slope_fixed != fits[1].slope_fixed:
             # one flank too short to tell its slope: hold it at the other flank's
             short = -1 if fits[-1].slope_fixed else 1
             sel = flank == short
             other = fits[-short]
             assert other is not None
-            fits[short] = fit_flank(uc[sel], yc[sel], q[sel], fit_slope=False, slope=other.line.m, torque_var=sigma**2) or fits[short]
+            held = {"slope": other.line.m, "torque_var": sigma**2, "engaged_at": engaged_at[short]}
+            held_fit = fit_flank(uc[sel], yc[sel], q[sel], fit_slope=False, **held)
+            fits[short] = held_fit or fits[short]
+        knots = None if self.stiffness_torques_Nm is None else check_knots(self.stiffness_torques_Nm)
+        self.segments_: tuple[SegmentFit | None, SegmentFit | None] = (None, None)
+        if knots is not None:  # the data sheet's spring: the segments the torque covers, the slope held
+            segs: list[SegmentFit | None] = []
+            for side in (-1, 1):
+                sel, fit = flank == side, fits[side]
+                carried = side * (q[sel] - engaged_at[side])
+                seg_args = (carried, side, knots, fit.line.m, engaged_at[side], MIN_FLANK_SAMPLES) if fit else None
+                segs.append(None if seg_args is None else fit_segments(uc[sel], yc[sel], *seg_args))
+            self.segments_ = (segs[0], segs[1])
+            for side, seg in zip((-1, 1), segs):
+                fit = fits[side]
+                if seg is not None and fit is not None:
+                    torque = (fit.torque_mean, fit.torque_std, fit.engaged_at)
+                    fits[side] = FlankFit(seg.line, seg.cov, seg.rss, seg.n, True, *torque)
         self.raw_fits_ = dict(fits)
-        self.windup_separable_ = all(f.separable for f in fits.values() if f is not None)
+        self.windup_separable_ = knots is not None or all(f.separable for f in fits.values() if f is not None)
         if not self.windup_separable_:
             fits = {side: None if f is None else f.at_operating_torque() for side, f in fits.items()}
         self.fits_ = fits
@@ -249,7 +317,8 @@ class TorqueBacklash(FlankPairFigures):
         self.y_level_ = float(np.mean(yc[engaged])) if np.any(engaged) else 0.0
         self.play_observable_ = bool(self.left_ is not None and self.right_ is not None and self.torque_reversals_ >= 1)
         self.cycle_plays_ = CyclePlays()
-        self.cycle_plays_.update(flank, sample_offsets(uc, yc, q, flank, self.left_, self.right_, self.y_level_))
+        offsets = sample_offsets(uc, yc, q, flank, self.left_, self.right_, self.y_level_, self.engagement_torques_Nm_)
+        self.cycle_plays_.update(flank, offsets)
         noise = OutputNoise()
         noise.update(yc)
         self.output_noise_var_ = noise.var_deg2
@@ -291,5 +360,5 @@ class TorqueBacklash(FlankPairFigures):
         """The constructor arguments."""
         return {
             "deadband_Nm": self.deadband_Nm, "n_sigma": self.n_sigma, "fit_slope": self.fit_slope, "origin": self.origin,
-            "torque_sign": self.torque_sign,
+            "torque_sign": self.torque_sign, "stiffness_torques_Nm": self.stiffness_torques_Nm,
         }  # fmt: skip

@@ -9,7 +9,10 @@ added, each flank is a line linear in its parameters::
 i.e. the regressor of eq. (8) restricted to one flank, ``phi = [u, -1, -tau]``, with the
 switching functions eq. (5)-(6) measured from the torque (:mod:`.engagement`) and the wind-up
 column ``-tau`` appended. The play is the horizontal distance between the lines at zero torque
-(eq. 9: ``cL + cR`` when the slopes are equal).
+(eq. 9: ``cL + cR`` when the slopes are equal); where the sensor reads an offset or a friction
+torque while no flank touches, at the torques ``(T_L, T_R)`` at which each flank engages
+(``engagement_Nm``, issue 27: :func:`~.observability.engagement_torques`), where the flank itself
+carries none.
 
 Units: degrees (load side), N m; stiffness at the API in N m/arcmin (the data-sheet unit).
 """
@@ -68,45 +71,74 @@ class FlankLine:
         return math.inf if self.s <= 0 else 1.0 / (self.s * ARCMIN_PER_DEG)
 
 
-def play_between(left: FlankLine, right: FlankLine, y_level_deg: float = 0.0) -> float:
-    """The play, degrees: the horizontal distance between the flanks at zero torque and output
-    level ``y_level_deg`` (``cL + cR``, eq. 9, when the slopes are equal)."""
-    return right.u_at(y_level_deg) - left.u_at(y_level_deg)
+#: Torques at which the (left, right) flank engage where the sensor reads zero with no flank touching, N m.
+NO_ENGAGEMENT_OFFSET = (0.0, 0.0)
 
 
-def play_gradient(left: FlankLine, right: FlankLine, y_level_deg: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+def play_between(
+    left: FlankLine,
+    right: FlankLine,
+    y_level_deg: float = 0.0,
+    engagement_Nm: tuple[float, float] = NO_ENGAGEMENT_OFFSET,
+) -> float:
+    """The play, degrees: the horizontal distance between the flanks at output level ``y_level_deg``, each
+    where it carries no torque (the measured torque at its engagement, ``engagement_Nm = (T_L, T_R)``;
+    ``cL + cR``, eq. 9, when the slopes are equal)."""
+    return right.u_at(y_level_deg, engagement_Nm[1]) - left.u_at(y_level_deg, engagement_Nm[0])
+
+
+def play_gradient(
+    left: FlankLine,
+    right: FlankLine,
+    y_level_deg: float = 0.0,
+    engagement_Nm: tuple[float, float] = NO_ENGAGEMENT_OFFSET,
+) -> tuple[np.ndarray, np.ndarray]:
     """Gradients of :func:`play_between` with respect to ``[m, a, s]`` of the left and of the right
     flank (for the delta-method variance of the play)."""
-    gl = np.array([left.u_at(y_level_deg) / left.m, -1.0 / left.m, 0.0])
-    gr = np.array([-right.u_at(y_level_deg) / right.m, 1.0 / right.m, 0.0])
+    t_left, t_right = engagement_Nm
+    gl = np.array([left.u_at(y_level_deg, t_left) / left.m, -1.0 / left.m, -t_left / left.m])
+    gr = np.array([-right.u_at(y_level_deg, t_right) / right.m, 1.0 / right.m, t_right / right.m])
     return gl, gr
 
 
-def flank_offsets(left: FlankLine, right: FlankLine, y_level_deg: float = 0.0) -> tuple[float, float]:
+def flank_offsets(
+    left: FlankLine,
+    right: FlankLine,
+    y_level_deg: float = 0.0,
+    engagement_Nm: tuple[float, float] = NO_ENGAGEMENT_OFFSET,
+) -> tuple[float, float]:
     """``(c_left, c_right)``, degrees: the distances from the reference point, carried to the output
-    level ``y_level_deg`` at the mean slope, to the left and right flanks at zero torque. They sum to
-    :func:`play_between`; at ``y_level_deg = 0`` (or with equal slopes) they are eq. (9)'s ``cL``, ``cR``."""
+    level ``y_level_deg`` at the mean slope, to the left and right flanks where they carry no torque. They
+    sum to :func:`play_between`; at ``y_level_deg = 0`` (or with equal slopes) they are eq. (9)'s ``cL``, ``cR``."""
     mid = y_level_deg / (0.5 * (left.m + right.m))
-    return mid - left.u_at(y_level_deg), right.u_at(y_level_deg) - mid
+    return mid - left.u_at(y_level_deg, engagement_Nm[0]), right.u_at(y_level_deg, engagement_Nm[1]) - mid
 
 
 def sample_offsets(
-    u: np.ndarray, y: np.ndarray, torque_Nm: np.ndarray, side: np.ndarray, left: FlankLine | None, right: FlankLine | None, y_level_deg: float = 0.0
+    u: np.ndarray,
+    y: np.ndarray,
+    torque_Nm: np.ndarray,
+    side: np.ndarray,
+    left: FlankLine | None,
+    right: FlankLine | None,
+    y_level_deg: float = 0.0,
+    engagement_Nm: tuple[float, float] = NO_ENGAGEMENT_OFFSET,
 ) -> np.ndarray:
     """The flank offset each engaged sample implies, degrees (for :class:`~online_backlash.estimators.uncertainty.CyclePlays`).
 
-    On a flank ``y = m u - a - s tau``, a sample places the flank at ``u* = (y_level + a) / m`` with
-    ``a = m u - y - s tau``; its offset is ``-u* = (y + s tau - y_level) / m - u``, so that the left
-    flank's offsets sit the play (:func:`play_between` at ``y_level_deg``) above the right's.
+    On a flank ``y = m u - a - s tau``, a sample places the flank, where it carries no torque (at its
+    engagement torque ``T``), at ``u* = (y_level + a + s T) / m`` with ``a = m u - y - s tau``; its offset
+    is ``-u* = (y + s (tau - T) - y_level) / m - u``, so that the left flank's offsets sit the play
+    (:func:`play_between` at ``y_level_deg``) above the right's.
     ``side``: -1 left, +1 right, 0 none (offset 0; also for a flank whose line is None).
     ``u``, ``y`` in the lines' (reference) coordinates, degrees; torque N m.
     """
     out = np.zeros(np.shape(side))
-    for flank, line in ((-1, left), (1, right)):
+    for flank, line, engaged_at in ((-1, left, engagement_Nm[0]), (1, right, engagement_Nm[1])):
         if line is None:
             continue
         on = np.flatnonzero(side == flank)
-        out[on] = (y[on] + line.s * torque_Nm[on] - y_level_deg) / line.m - u[on]
+        out[on] = (y[on] + line.s * (torque_Nm[on] - engaged_at) - y_level_deg) / line.m - u[on]
     return out
 
 
@@ -157,6 +189,8 @@ class FlankPairFigures:
 
     memory_reversals: float | None = None
     cycle_plays_: CyclePlays
+    #: The torques at which the (left, right) flank engage, N m, as the lines' torque reads (issue 27)
+    engagement_torques_Nm_: tuple[float, float] = NO_ENGAGEMENT_OFFSET
 
     def _flank_pair(self) -> tuple[FlankLine | None, FlankLine | None]:
         raise NotImplementedError
@@ -184,7 +218,7 @@ class FlankPairFigures:
         left, right = self._flank_pair()
         if not self.play_observable_ or left is None or right is None:
             return math.nan
-        return play_between(left, right, self._y_level())
+        return play_between(left, right, self._y_level(), self.engagement_torques_Nm_)
 
     def _misfit_deg(self) -> float:
         return 0.0
@@ -203,7 +237,7 @@ class FlankPairFigures:
         if self.windup_separable_ or left is None or right is None or not self.play_observable_:
             return 0.0
         folded = self.backlash_
-        raw = play_between(left, right, self._y_level())
+        raw = play_between(left, right, self._y_level(), self.engagement_torques_Nm_)
         return abs(folded - raw) if math.isfinite(folded - raw) else 0.0
 
     @property
@@ -240,15 +274,19 @@ class FlankPairFigures:
         left, right = self._flank_pair()
         if not self.play_observable_ or left is None or right is None:
             return math.nan
-        gl, gr = play_gradient(left, right, self._y_level())
+        gl, gr = play_gradient(left, right, self._y_level(), self.engagement_torques_Nm_)
         cov_left, cov_right = self._pair_covs()
         return math.sqrt(max(self.noise_var_ * float(gl @ cov_left @ gl + gr @ cov_right @ gr), 0.0))
 
     def _offsets(self) -> tuple[float, float]:
         left, right = self._flank_pair()
+        t_left, t_right = self.engagement_torques_Nm_
         if left is not None and right is not None:
-            return flank_offsets(left, right, self._y_level())
-        return (math.nan if left is None else -left.u_at(0.0), math.nan if right is None else right.u_at(0.0))
+            return flank_offsets(left, right, self._y_level(), (t_left, t_right))
+        return (
+            math.nan if left is None else -left.u_at(0.0, t_left),
+            math.nan if right is None else right.u_at(0.0, t_right),
+        )
 
     @property
     def c_left_(self) -> float:

@@ -22,7 +22,7 @@ from ..estimators._layout import pack
 from ..estimators._validation import check_real
 from ..estimators.uncertainty import CyclePlays, OutputNoise, model_misfit
 from . import _torque_kernel as K
-from .engagement import DEADBAND_SIGMAS
+from .engagement import DEADBAND_SIGMAS, engaged_flank
 from .flank_lines import FlankLine, FlankPairFigures, at_operating_torque, noisy_torque_corrected, sample_offsets, windup_separable
 
 __all__ = ["TorqueBacklashRLS"]
@@ -171,7 +171,8 @@ class TorqueBacklashRLS(FlankPairFigures, RecursiveEstimator):
         if self.torque_sign not in (1.0, -1.0):
             raise InvalidParameterError(f"torque_sign must be 1 or -1, got {self.torque_sign!r}")
 
-    def _warm_fit(self, uc: np.ndarray, yc: np.ndarray, terms: np.ndarray) -> tuple[Any, int]:  # pragma: no cover - start is always cold
+    def _warm_fit(self, uc: np.ndarray, yc: np.ndarray, terms: np.ndarray) -> tuple[Any, int, bool]:  # pragma: no cover
+        # the start is always cold
         raise NotExcitedError("TorqueBacklashRLS needs no warm start: the torque gives the switching functions")
 
     def _cold_params(self, u: np.ndarray | None, y: np.ndarray | None) -> None:
@@ -214,12 +215,14 @@ class TorqueBacklashRLS(FlankPairFigures, RecursiveEstimator):
         u, y, q = (np.asarray(held[k], dtype=float) for k in ("u", "y", "q"))
         gap = np.asarray(held["gap"], dtype=bool)
         db = None if fz is None else fz["deadband"]  # None: the online dead band had not settled at the tick
-        side = np.zeros(q.size, np.int8) if db is None else np.where(q > db, 1, np.where(q < -db, -1, 0)).astype(np.int8)
+        saved = (0.0, 0.0) if fz is None else fz.get("engagement", (0.0, 0.0))  # lines frozen before issue 27: zero
+        engagement = (float(saved[0]), float(saved[1]))
+        side = np.zeros(q.size, np.int8) if db is None else engaged_flank(q, db, engagement)
         left, right = (None, None) if fz is None else (None if v is None else FlankLine(*v) for v in (fz["left"], fz["right"]))
         uc, yc = u - self._st[S.U0], y - self._st[S.Y0]
         # offsets at one output level (0) for the whole run: a level that moved from tick to tick would
         # shift a stretch against the next by the motion between the ticks
-        self._cycles.update(side, sample_offsets(uc, yc, q, side, left, right), gap)
+        self._cycles.update(side, sample_offsets(uc, yc, q, side, left, right, 0.0, engagement), gap)
         noise = OutputNoise()
         noise.update(y, gap)
         self._y_noise = [self._y_noise[0] + noise.total, self._y_noise[1] + noise.count]  # across blocks: 2 differences per tick lost
@@ -232,6 +235,7 @@ class TorqueBacklashRLS(FlankPairFigures, RecursiveEstimator):
         self._frozen = {
             "left": None if left is None else [left.m, left.a, left.s], "right": None if right is None else [right.m, right.a, right.s],
             "deadband": self.deadband_Nm_ if math.isfinite(self.deadband_Nm_) else None,
+            "engagement": list(self.engagement_torques_Nm_),
         }  # fmt: skip
 
     @property
@@ -275,6 +279,7 @@ class TorqueBacklashRLS(FlankPairFigures, RecursiveEstimator):
         return {"cycle_plays": self._cycles.state_dict(), "cycle_lines": self._frozen, "cycle_held": held, "output_noise": list(self._y_noise)}
 
     def _restore_extra(self, d: dict[str, Any]) -> None:
+        self._st += [0.0] * (K.STATE_SIZE - len(self._st))  # saved before the engagement torques: zero
         self._cycles = CyclePlays.from_state(d["cycle_plays"])
         self._frozen = d["cycle_lines"]
         self._held = d["cycle_held"]
@@ -292,7 +297,7 @@ class TorqueBacklashRLS(FlankPairFigures, RecursiveEstimator):
         if st[o + F.N] == 0.0:
             return None
         theta = np.array([st[o + F.M], st[o + F.B], st[o + F.S]])
-        sigma = st[S.Q_MED] / K._MEDIAN_ABS_D2 if st[S.N_QMED] >= _NOISE_WARMUP else 0.0
+        sigma = st[S.Q_MED] / K.MEDIAN_ABS_D2 if st[S.N_QMED] >= _NOISE_WARMUP else 0.0
         if sigma > 0.0 and st[o + F.N] > 3.0:
             P = np.asarray(st[o + F.P : o + F.P + 9]).reshape(3, 3)
             try:
@@ -303,8 +308,36 @@ class TorqueBacklashRLS(FlankPairFigures, RecursiveEstimator):
         return FlankLine(m, m * st[o + F.UC] - b, s)
 
     def _mean_torque(self, o: int) -> float:
-        """The flank's mean torque, signed (N m)."""
-        return self._st[o + F.QMEAN] * (-1.0 if o == S.LEFT else 1.0)
+        """The flank's mean torque as measured, signed (N m): the mean torque it carries plus its engagement torque."""
+        carried = self._st[o + F.QMEAN] * (-1.0 if o == S.LEFT else 1.0)
+        return carried + self._st[S.ENG_LEFT if o == S.LEFT else S.ENG_RIGHT]
+
+    @property
+    def engagement_torques_Nm_(self) -> tuple[float, float]:  # type: ignore[override]
+        """The torques (times ``torque_sign``) at which the left and the right flank engage, N m
+        (:meth:`set_engagement_torques`)."""
+        self._check_started()
+        return float(self._st[S.ENG_LEFT]), float(self._st[S.ENG_RIGHT])
+
+    def set_engagement_torques(self, left_Nm: float | None, right_Nm: float | None) -> None:
+        """The torques at which the left and the right flank engage, as measured (N m; None: zero), from
+        the dwells of the motion (:func:`~.observability.engagement_torques`, issue 27): the flanks are
+        told apart about them from the next sample on, and the play is measured where each flank carries
+        no torque. Where either moves by more than the dead band, the samples learned so far were read
+        with the wrong flank: the lines, the torque reversals and the per-reversal plays start afresh
+        (each flank from its prior). A no-op before the estimator has started."""
+        if not self._started:
+            return
+        new = [0.0 if t is None else self.torque_sign * float(t) for t in (left_Nm, right_Nm)]
+        db = self.deadband_Nm_
+        moved = abs(new[0] - self._st[S.ENG_LEFT]) > db or abs(new[1] - self._st[S.ENG_RIGHT]) > db
+        self._st[S.ENG_LEFT], self._st[S.ENG_RIGHT] = new
+        if moved and math.isfinite(db):
+            for o in (S.LEFT, S.RIGHT):
+                self._st[o + F.N] = 0.0
+            self._st[S.N_REV] = self._st[S.LAST_FLANK] = 0.0
+            self._cycles = CyclePlays()
+            self._frozen = None
 
     def _separable(self, o: int) -> bool:
         st = self._st
@@ -395,18 +428,29 @@ class TorqueBacklashRLS(FlankPairFigures, RecursiveEstimator):
         return self._st[S.Y_LEVEL]
 
     @property
+    def torque_sign_(self) -> float:
+        """The sign the torque is multiplied by (``torque_sign``, as ``TorqueBacklash.torque_sign_``)."""
+        return float(self.torque_sign)
+
+    @property
+    def torque_noise_std_Nm_(self) -> float:
+        """The torque sensor's noise standard deviation the dead band is made of, N m (NaN before it has settled)."""
+        return self.deadband_Nm_ / self.n_sigma
+
+    @property
     def deadband_Nm_(self) -> float:
         self._check_started()
         if self.deadband_Nm is not None:
             return float(self.deadband_Nm)
         st = self._st
-        return self.n_sigma * st[S.Q_MED] / K._MEDIAN_ABS_D2 if st[S.N_QMED] >= _NOISE_WARMUP else math.nan
+        return self.n_sigma * st[S.Q_MED] / K.MEDIAN_ABS_D2 if st[S.N_QMED] >= _NOISE_WARMUP else math.nan
 
     def predict_one(self, u: float, torque_Nm: float = 0.0) -> float:
         """The output (deg) of the flank the torque engages (NaN in the dead band or for a flank not yet seen)."""
         self._check_started()
         db = self.deadband_Nm_
-        o = S.RIGHT if torque_Nm > db else S.LEFT if torque_Nm < -db else None
+        side = engaged_flank(np.array([torque_Nm]), db, self.engagement_torques_Nm_)[0] if math.isfinite(db) else 0
+        o = S.RIGHT if side > 0 else S.LEFT if side < 0 else None
         line = None if o is None else self._line(o)
         if line is None:
             return math.nan
