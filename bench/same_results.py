@@ -2,12 +2,13 @@
 
 Every output is the command's own (``online-backlash ...`` in a fresh process), byte for byte:
 
-* ``estimate --json`` and ``estimate --trace`` of the three measured da Vinci runs
+* ``estimate --json``, ``estimate --trace`` and ``diagnose --json`` of the three measured da Vinci runs
   (``../shared/data/davinci_tool_gearhead_backlash``, the call of the README) and ``track`` of each
   into a SQLite store (one gearbox per run, ``--start`` given, ``--every 10``);
 * ``estimate --json`` of the bench logs: the simulated 30:1 rig (``--samples``, 1 kHz) written as
   Parquet (snappy, as ``bench/measurement_files.py`` writes it; uncompressed; LZ4), Arrow IPC, MDF4 and
-  CSV, and the two-mass rig logs of ``bench/diagnose_speed.py`` (2 and 10 minutes, with torque);
+  CSV, and the two-mass rig logs of ``bench/diagnose_speed.py`` (2 and 10 minutes, with torque; also
+  ``diagnose --json`` of these two);
   ``estimate --trace`` and ``track`` of the MDF4 and the Parquet file;
 * ``track --manifest`` of the fleet of ``bench/fleet.py`` (4 gearboxes x 3 logs x 120 s), serially
   and on a Dask ``LocalCluster`` of 2 workers.
@@ -16,7 +17,7 @@ A store is written out as JSON: every column of its estimates (ordered by gearbo
 its runs (but the time of the import) and each gearbox's checkpoint; ``id`` and ``run_id`` are left
 out (a cluster numbers its runs in the order the gearboxes start).
 
-    python bench/same_results.py OUT [--dir /tmp/online-backlash-same] [--samples 4000000]
+    python bench/same_results.py OUT [--dir /tmp/online-backlash-same] [--samples 4000000] [--runs DIR]
     diff -r OUT_BEFORE OUT_AFTER && echo same
 """
 
@@ -136,14 +137,19 @@ def main() -> None:
     ap.add_argument("out", type=Path, help="folder for the outputs (created)")
     ap.add_argument("--dir", type=Path, default=Path("/tmp/online-backlash-same"), help="where the bench logs are kept")
     ap.add_argument("--samples", type=int, default=4_000_000, help="samples of the simulated rig's files")
+    ap.add_argument("--runs", type=Path, default=SHARED, help="the measured da Vinci runs (a tree elsewhere: give it)")
     args = ap.parse_args()
     started = time.perf_counter()
     out, work = args.out, args.dir / "work"
     out.mkdir(parents=True, exist_ok=True)
     work.mkdir(parents=True, exist_ok=True)
     paths = write_inputs(args.dir, args.samples)
-    for run in sorted(SHARED.glob("*.csv")):
+    runs = sorted(args.runs.glob("*.csv"))
+    if not runs:
+        raise SystemExit(f"no measured runs (*.csv) in {args.runs}")
+    for run in runs:
         cli(out, f"{run.stem}.estimate.json", ["estimate", str(run), *DAVINCI, "--json"])
+        cli(out, f"{run.stem}.diagnose.json", ["diagnose", str(run), *DAVINCI, "--json"])
         trace = work / f"{run.stem}.trace.csv"
         cli(out, f"{run.stem}.trace.stdout", ["estimate", str(run), *DAVINCI, "--json", "--trace", str(trace)])
         (out / f"{run.stem}.trace.csv").write_bytes(trace.read_bytes())
@@ -156,6 +162,8 @@ def main() -> None:
     for kind, path in paths.items():
         options = TWO_MASS if kind.startswith("two_mass") else RIG + (MDF_COLUMNS if kind == "mf4" else [])
         cli(out, f"{kind}.estimate.json", ["estimate", str(path), *options, "--json"])
+        if kind.startswith("two_mass"):
+            cli(out, f"{kind}.diagnose.json", ["diagnose", str(path), *options, "--json"])
         if kind in ("parquet", "mf4"):
             trace = work / f"{kind}.trace.csv"
             cli(
