@@ -102,7 +102,7 @@ def test_the_compiled_estimator_loops_count_no_references():
 
     vec, flags = types.float64[::1], types.boolean[::1]
     signatures = {
-        _rls_kernels.backlash_run: (vec, vec, vec, vec, flags, types.int64[::1], types.float64[:, ::1]),
+        _rls_kernels.backlash_run: (vec, vec, vec, vec, flags, types.int8[::1], types.int64[::1], types.float64[:, ::1]),
         _rls_kernels.cascade_run: (vec, vec, vec, vec, flags, vec, vec),
     }
     for loop, signature in signatures.items():
