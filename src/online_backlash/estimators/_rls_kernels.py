@@ -354,7 +354,8 @@ _JIT = njit(cache=True, nogil=True, inline="always", error_model="numpy")
 #: sample, and numba counts those references with atomic increments and decrements that its pruning pass leaves
 #: in place when the step branches (numba issues 2345 and 2350, where its developers give this flag as the cure):
 #: eight per sample cost the cascade and BacklashRLS half their time. The arithmetic is the same, bit for bit.
-_LOOP = njit(cache=True, nogil=True, error_model="numpy", _nrt=False)
+#: (``_nrt`` is a keyword of numba's jit options that numba's own type hints do not list)
+_LOOP = njit(cache=True, nogil=True, error_model="numpy", _nrt=False)  # type: ignore[call-overload]
 
 (
     begin_sample,
