@@ -10,7 +10,9 @@ same order every round (one process at a time, so the compared things meet the s
   (``online-backlash``'s ``main``): wall time, CPU time (user + system, all threads, from ``wait4``) and
   peak RSS of the process;
 * the reference, in a fresh process: ``BacklashRLS().learn_many(u, y)`` on the samples of the big file
-  in memory (read before the timing; numba's compiled loop loaded on 20,000 other samples first);
+  in memory (read before the timing; numba's compiled loop loaded on 20,000 other samples first), and the
+  same with the estimator as ``estimate`` sets it up (``fitting.KINEMATIC``: ``full_engagement``, issue 27,
+  judges every sample's engagement in a second compiled pass);
 * the library's own decode of the snappy Parquet file alone (``ParquetFile.iter_batches`` of the three
   columns, as the reader calls it, the values taken without a copy), in a fresh process, timed after
   the import.
@@ -58,12 +60,14 @@ REFERENCE = """
 import json, sys, time
 import numpy as np, pyarrow.parquet as pq
 from online_backlash import BacklashRLS
+from online_backlash.fitting import KINEMATIC
+options = KINEMATIC if sys.argv[2] == "estimate's" else {}
 table = pq.read_table(sys.argv[1])
 u = np.ascontiguousarray(table.column("motor").to_numpy()) / 30.0
 y = np.ascontiguousarray(table.column("load").to_numpy())
-BacklashRLS().learn_many(u[-20000:], y[-20000:])  # numba's cache load, outside the timing
+BacklashRLS(**options).learn_many(u[-20000:], y[-20000:])  # numba's cache load, outside the timing
 wall, cpu = time.perf_counter(), time.process_time()
-est = BacklashRLS()
+est = BacklashRLS(**options)
 est.learn_many(u, y)
 print(json.dumps({"wall": time.perf_counter() - wall, "cpu": time.process_time() - cpu, "play": est.backlash_}))
 """
@@ -155,16 +159,19 @@ def main() -> None:
     runs: dict[str, list[dict]] = {}
     load = [os.getloadavg()[0]]
     for _ in range(args.rounds):
-        runs.setdefault("reference", []).append(run(REFERENCE, str(paths["parquet-none"][0])))
+        for setup in ("default", "estimate's"):
+            runs.setdefault(f"reference {setup}", []).append(run(REFERENCE, str(paths["parquet-none"][0]), setup))
         runs.setdefault("decode", []).append(run(DECODE, str(paths["parquet-snappy"][0])))
         for kind in kinds:
             options = ["--ratio", "30", *FORMATS[kind][1], "--json"]
             for size, path in zip(("big", "small"), paths[kind]):
                 runs.setdefault(f"{kind} {size}", []).append(run(ESTIMATE, "estimate", str(path), *options))
         load.append(os.getloadavg()[0])
-    inner = {k: [json.loads(r["out"]) for r in runs[k]] for k in ("reference", "decode")}
-    ref_rate = [args.samples / r["wall"] for r in inner["reference"]]
-    ref_cpu = [r["cpu"] for r in inner["reference"]]
+    inner = {k: [json.loads(r["out"]) for r in runs[k]] for k in runs if not k.endswith(("big", "small"))}
+    ref_rate = [args.samples / r["wall"] for r in inner["reference default"]]
+    ref_cpu = [r["cpu"] for r in inner["reference default"]]
+    setup_rate = [args.samples / r["wall"] for r in inner["reference estimate's"]]
+    setup_cpu = [r["cpu"] for r in inner["reference estimate's"]]
     decode_cpu = [r["cpu"] for r in inner["decode"]]
     extra = args.samples - SMALL_SAMPLES
     print(
@@ -173,13 +180,16 @@ def main() -> None:
     )
     print(
         f"`learn_many` on the samples in memory: {spread([r / 1e6 for r in ref_rate], '{:.1f}')} M samples/s "
-        f"(wall; CPU {spread(ref_cpu, '{:.3f}')} s); snappy decode alone {spread(decode_cpu, '{:.3f}')} CPU-s\n"
+        f"(wall; CPU {spread(ref_cpu, '{:.3f}')} s); as `estimate` sets it up (full_engagement) "
+        f"{spread([r / 1e6 for r in setup_rate], '{:.1f}')} M samples/s (CPU "
+        f"{spread(setup_cpu, '{:.3f}')} s); "
+        f"snappy decode alone {spread(decode_cpu, '{:.3f}')} CPU-s\n"
     )
     print(
         "| file | estimate BIG: wall s | SMALL: wall s | BIG - SMALL: wall s | M samples/s | vs learn_many "
-        "| CPU s over SMALL's | vs learn_many's CPU | peak RSS BIG / SMALL, MB |"
+        "| vs learn_many as estimate sets it up | CPU s over SMALL's | vs learn_many's CPU | peak RSS BIG / SMALL, MB |"
     )
-    print("|---|---:|---:|---:|---:|---:|---:|---:|---:|")
+    print("|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|")
     for kind in kinds:
         big, small = runs[f"{kind} big"], runs[f"{kind} small"]
         wall = [b["wall"] - s["wall"] for b, s in zip(big, small)]
@@ -188,6 +198,7 @@ def main() -> None:
         print(
             f"| {kind} | {spread([b['wall'] for b in big])} | {spread([s['wall'] for s in small])} | {spread(wall)} "
             f"| {spread([extra / w / 1e6 for w in wall], '{:.1f}')} | {spread([100 * s for s in share], '{:.0f}')} % "
+            f"| {spread([100 * extra / w / r for w, r in zip(wall, setup_rate)], '{:.0f}')} % "
             f"| {spread(cpu)} | {spread([100 * c / r for c, r in zip(cpu, ref_cpu)], '{:.0f}')} % "
             f"| {max(b['rss_mb'] for b in big):.0f} / {max(s['rss_mb'] for s in small):.0f} |"
         )
