@@ -94,9 +94,7 @@ def write_files(folder: Path, samples: int) -> dict[str, tuple[Path, Path]]:
     }
     if all(p.exists() for pair in paths.values() for p in pair):
         return paths
-    import pyarrow as pa
-    import pyarrow.parquet as pq
-    from asammdf import MDF, Signal
+    from same_results import write_rig_formats  # (this folder: the same files as the byte-identity check's)
 
     from online_backlash.rig import simulate_rig
 
@@ -105,24 +103,8 @@ def write_files(folder: Path, samples: int) -> dict[str, tuple[Path, Path]]:
         simulate_rig(duration_s=SMALL_SAMPLES / 1000.0, play_deg=0.5, seed=3, reversal_s=(0.2, 0.4)),
     )
     for which, rec in enumerate(records):
-        table = pa.table({"time": rec.time_s, "motor": rec.motor_deg, "load": rec.load_deg})
-        for compression in ("none", "lz4", "snappy"):
-            pq.write_table(
-                table, paths[f"parquet-{compression}"][which], row_group_size=1_000_000, compression=compression
-            )
-        with pa.OSFile(str(paths["arrow"][which]), "wb") as sink, pa.ipc.new_file(sink, table.schema) as writer:
-            for batch in table.to_batches(max_chunksize=1_000_000):
-                writer.write_batch(batch)
-        mdf = MDF(version="4.10")
-        mdf.append(
-            [
-                Signal(rec.motor_deg, rec.time_s, name="Motor", unit="deg"),
-                Signal(rec.load_deg, rec.time_s, name="Load", unit="deg"),
-            ]
-        )
-        mdf.save(paths["mf4"][which], overwrite=True)
-        mdf.close()
-        rec.write_csv(paths["csv"][which])
+        parquet = {compression: paths[f"parquet-{compression}"][which] for compression in ("none", "lz4", "snappy")}
+        write_rig_formats(rec, parquet, paths["arrow"][which], paths["mf4"][which], paths["csv"][which])
     return paths
 
 

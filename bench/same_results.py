@@ -40,6 +40,32 @@ MDF_COLUMNS = ["--columns", "motor=Motor,load=Load"]
 TWO_MASS = ["--ratio", "30", "--columns", "time=time,motor=motor,load=load,torque=torque"]
 
 
+def write_rig_formats(rec, parquet: dict[str, Path], arrow: Path, mf4: Path, csv: Path) -> None:
+    """The rig record ``rec`` (time, motor, load) as Parquet (``parquet``: compression -> path; row groups of
+    1,000,000 rows), Arrow IPC (uncompressed, batches of 1,000,000 rows), MDF 4.10 (asammdf; ``Motor`` and ``Load``
+    in one channel group) and CSV: the files the speed benches read (also ``bench/end_to_end.py``)."""
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+    from asammdf import MDF, Signal
+
+    table = pa.table({"time": rec.time_s, "motor": rec.motor_deg, "load": rec.load_deg})
+    for compression, path in parquet.items():
+        pq.write_table(table, path, row_group_size=1_000_000, compression=compression)
+    with pa.OSFile(str(arrow), "wb") as sink, pa.ipc.new_file(sink, table.schema) as writer:
+        for batch in table.to_batches(max_chunksize=1_000_000):
+            writer.write_batch(batch)
+    mdf = MDF(version="4.10")
+    mdf.append(
+        [
+            Signal(rec.motor_deg, rec.time_s, name="Motor", unit="deg"),
+            Signal(rec.load_deg, rec.time_s, name="Load", unit="deg"),
+        ]
+    )
+    mdf.save(mf4, overwrite=True)
+    mdf.close()
+    rec.write_csv(csv)
+
+
 def write_inputs(folder: Path, samples: int) -> dict[str, Path]:
     """The bench logs in ``folder`` (written once, kept between runs)."""
     folder.mkdir(parents=True, exist_ok=True)
@@ -52,31 +78,12 @@ def write_inputs(folder: Path, samples: int) -> dict[str, Path]:
     }  # fmt: skip
     if all(p.exists() for p in paths.values()):
         return paths
-    import pyarrow as pa
-    import pyarrow.parquet as pq
-    from asammdf import MDF, Signal
-
     from online_backlash.rig import simulate_rig
     from online_backlash.two_mass_rig import simulate_two_mass
 
+    parquet = {"snappy": paths["parquet"], "none": paths["uncompressed.parquet"], "lz4": paths["lz4.parquet"]}
     rec = simulate_rig(duration_s=samples / 1000.0, play_deg=0.5, seed=3)
-    table = pa.table({"time": rec.time_s, "motor": rec.motor_deg, "load": rec.load_deg})
-    pq.write_table(table, paths["parquet"], row_group_size=1_000_000)
-    pq.write_table(table, paths["uncompressed.parquet"], row_group_size=1_000_000, compression="none")
-    pq.write_table(table, paths["lz4.parquet"], row_group_size=1_000_000, compression="lz4")
-    with pa.OSFile(str(paths["arrow"]), "wb") as sink, pa.ipc.new_file(sink, table.schema) as writer:
-        for batch in table.to_batches(max_chunksize=1_000_000):
-            writer.write_batch(batch)
-    mdf = MDF(version="4.10")
-    mdf.append(
-        [
-            Signal(rec.motor_deg, rec.time_s, name="Motor", unit="deg"),
-            Signal(rec.load_deg, rec.time_s, name="Load", unit="deg"),
-        ]
-    )
-    mdf.save(paths["mf4"], overwrite=True)
-    mdf.close()
-    rec.write_csv(paths["csv"])
+    write_rig_formats(rec, parquet, paths["arrow"], paths["mf4"], paths["csv"])
     for minutes in (2, 10):
         simulate_two_mass(duration_s=60.0 * minutes, motion="rig", coulomb_nm=0.05, seed=0).write_csv(
             paths[f"two_mass_{minutes}min"]
