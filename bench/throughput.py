@@ -14,7 +14,9 @@ Prints one markdown table, all rows measured in this run on the same rig-like da
 Then a second table on an input that reverses every few samples (a leaky random walk plus a slow
 sine: about every 2 samples, the worst case for the switching and the reversal bookkeeping):
 ``BacklashRLS.learn_many`` and ``CascadeRLS.learn_many`` (n_a = n_b = 2) beside the bare compiled
-4-parameter RLS loop with forgetting on the same input, in the same run, as a share of it.
+4-parameter RLS loop with forgetting on the same input, in the same run, as a share of it, and beside
+a bare loop of the cascade's own size (7 parameters, its regressor eq. 19 and target eq. 24 built
+from the samples as they are: the limit for a 7-parameter covariance-form RLS).
 
 Each row also prints the estimate the timed run reached (a loop that skips updates is not
 fast, it is wrong). Then, with ``--csv-rows`` > 0, the end-to-end ``online-backlash estimate``
@@ -117,6 +119,56 @@ def bare_rls(u, y, side, lam):  # pragma: no cover - compiled
     return theta
 
 
+#: parameters of the cascade n_a = n_b = 2: [m1, c1, m2, c2] of eq. (20), a2, b1, b2
+CASCADE_PARAMS = 7
+
+
+@njit(cache=True)
+def bare_rls_cascade(u, x, y, lam):  # pragma: no cover - compiled
+    """Covariance-form RLS with the cascade's 7 parameters and its regressor, eq. (19) and target eq. (24)
+    for n_a = n_b = 2, on the samples as they are: no switching functions of a model, no x_hat of eq. (23).
+
+    ``phi(t) = [u(t-1) f1, f1, u(t-1) f2, -f2, x(t-2), -y(t-1), -y(t-2)]`` with ``f1``/``f2`` the direction
+    of ``u`` at ``t-1`` (decreasing: left; increasing: right; every sample updates one side) and ``x`` the
+    backlash output as given (measured, not estimated); target ``y(t) - x(t-1) (1 - f1) (1 - f2)``.
+    ``K = P phi / (lam + phi' P phi)``, ``theta += K e``, ``P = (P - K phi' P) / lam``: one division per
+    sample and the full 7x7 ``P`` (no use of its symmetry), the size fixed at compile time.
+    """
+    p = CASCADE_PARAMS
+    theta = np.zeros(p)
+    theta[0] = theta[2] = 1.0
+    P = np.eye(p) * 1e3
+    phi = np.zeros(p)
+    pphi = np.zeros(p)
+    inv_lam = 1.0 / lam
+    for t in range(2, u.shape[0]):
+        f2 = 1.0 if u[t - 1] > u[t - 2] else 0.0
+        f1 = 1.0 - f2
+        phi[0] = u[t - 1] * f1
+        phi[1] = f1
+        phi[2] = u[t - 1] * f2
+        phi[3] = -f2
+        phi[4] = x[t - 2]
+        phi[5] = -y[t - 1]
+        phi[6] = -y[t - 2]
+        s = lam
+        e = y[t] - x[t - 1] * (1.0 - f1) * (1.0 - f2)
+        for i in range(p):
+            acc = 0.0
+            for j in range(p):
+                acc += P[i, j] * phi[j]
+            pphi[i] = acc
+            s += phi[i] * acc
+            e -= theta[i] * phi[i]
+        inv_s = 1.0 / s
+        for i in range(p):
+            k = pphi[i] * inv_s
+            theta[i] += k * e
+            for j in range(p):
+                P[i, j] = (P[i, j] - k * pphi[j]) * inv_lam
+    return theta
+
+
 def reversal_dense_input(n: int, seed: int = 5) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Input that reverses every few samples, and the outputs of the two estimators' systems.
 
@@ -134,9 +186,10 @@ def reversal_dense_input(n: int, seed: int = 5) -> tuple[np.ndarray, np.ndarray,
     return u, x, y
 
 
-def reversal_dense_rows(n: int, repeat: int) -> list[tuple[str, int, Timer, str]]:
-    """The bare loop and both estimators' ``learn_many`` on :func:`reversal_dense_input`, each
-    started (warm start, compilation) on the first 20,000 samples and timed on the rest."""
+def reversal_dense_rows(n: int, repeat: int) -> list[tuple[str, int, Timer, str, int]]:
+    """The bare loops and both estimators' ``learn_many`` on :func:`reversal_dense_input`, each
+    started (warm start, compilation) on the first 20,000 samples and timed on the rest; each row ends with
+    the number of parameters of the bare loop it is compared to (its own size)."""
     u, x, y = reversal_dense_input(n)
     warm = 20_000
     rows = []
@@ -144,13 +197,21 @@ def reversal_dense_rows(n: int, repeat: int) -> list[tuple[str, int, Timer, str]
     bare_rls(u[:100], x[:100], side[:100], 1.0)
     t = best_of(repeat, lambda: bare_rls(u[warm:], x[warm:], side[warm:], 1.0 - 1e-4))
     reversals = int(np.sum(np.diff(side[warm:].astype(np.int8)) != 0))
-    rows.append(("bare compiled 4-parameter RLS loop (forgetting 1 - 1e-4, no switching)", n - warm, t, f"({reversals:,} reversals of the input)"))
+    name = "bare compiled 4-parameter RLS loop (forgetting 1 - 1e-4, no switching)"
+    rows.append((name, n - warm, t, f"({reversals:,} reversals of the input)", 4))
+    bare_rls_cascade(u[:100], x[:100], y[:100], 1.0)
+    t = best_of(repeat, lambda: bare_rls_cascade(u[warm:], x[warm:], y[warm:], 1.0 - 1e-4))
+    rows.append((
+        f"bare compiled {CASCADE_PARAMS}-parameter RLS loop, the cascade's regressor eq. (19) "
+        "(forgetting 1 - 1e-4, no switching)",
+        n - warm, t, "(the direction of u as switching, the measured x)", CASCADE_PARAMS,
+    ))  # fmt: skip
     # memory_reversals=None: a memory counted in reversals would be a few dozen samples here
-    for name, cls, kw, out in (
-        ("`BacklashRLS.learn_many`", BacklashRLS, {}, x),
-        ("`CascadeRLS.learn_many` n_a = n_b = 2", CascadeRLS, {}, y),
+    for name, cls, out, size in (
+        ("`BacklashRLS.learn_many`", BacklashRLS, x, 4),
+        ("`CascadeRLS.learn_many` n_a = n_b = 2", CascadeRLS, y, CASCADE_PARAMS),
     ):
-        est = cls(origin="zero", warm_start_samples=2000, memory_reversals=None, **kw)
+        est = cls(origin="zero", warm_start_samples=2000, memory_reversals=None)
         est.learn_many(u[:warm], out[:warm])
         state = est.state_dict()
         holder = {}
@@ -162,7 +223,8 @@ def reversal_dense_rows(n: int, repeat: int) -> list[tuple[str, int, Timer, str]
         t = best_of(repeat, run)
         e = holder["est"]
         th = e.theta_
-        rows.append((name, n - warm, t, f"mL {th[0]:.4f} cL {th[1] / th[0]:.4f} mR {th[2]:.4f} cR {th[3] / th[2]:.4f} (truth 1 0.25 1 0.25)"))
+        note = f"mL {th[0]:.4f} cL {th[1] / th[0]:.4f} mR {th[2]:.4f} cR {th[3] / th[2]:.4f} (truth 1 0.25 1 0.25)"
+        rows.append((name, n - warm, t, note, size))
     return rows
 
 
@@ -358,13 +420,17 @@ def main() -> None:
     print(f"\nlearn_many / filterpy loop: {rate_many / rate_filterpy:,.0f}x; cascade / filterpy loop: {rate_cascade / rate_filterpy:,.0f}x")
     print(f"a week at 1 kHz (604,800,000 samples) by learn_many: {604_800_000 / rate_many:.0f} s of CPU")
 
-    bare_rate = dense[0][1] / dense[0][2].cpu
+    bare_rates = {size: count / tm.cpu for _, count, tm, _, size in dense[:2]}
     print("\n## input reversing every few samples (leaky random walk + slow sine), same run\n")
-    print("| what | samples | CPU s | samples/s (CPU) | share of the bare loop | estimate reached |")
-    print("|---|---:|---:|---:|---:|---|")
-    for name, count, tm, note in dense:
+    print(
+        "| what | samples | CPU s | samples/s (CPU) | share of the bare 4-parameter loop "
+        "| share of the bare loop of its size | estimate reached |"
+    )
+    print("|---|---:|---:|---:|---:|---:|---|")
+    for name, count, tm, note, size in dense:
         rate = count / tm.cpu
-        print(f"| {name} | {count:,} | {tm.cpu:.3f} | {rate:,.0f} | {100 * rate / bare_rate:.0f} % | {note} |")
+        shares = f"{100 * rate / bare_rates[4]:.0f} % | {100 * rate / bare_rates[size]:.0f} %"
+        print(f"| {name} | {count:,} | {tm.cpu:.3f} | {rate:,.0f} | {shares} | {note} |")
 
     if args.csv_rows > 0:
         ensure_csv(args.csv, args.csv_rows)

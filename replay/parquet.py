@@ -11,7 +11,8 @@ the angles' units (:func:`~online_backlash.replay.tabular.channel_scales`).
 Parquet files stream by batches of ``block_rows`` (``ParquetFile.iter_batches``, a batch's columns
 decoded in pyarrow's thread pool; a column's values are handed on without a copy); Arrow IPC
 files (``.arrow``, ``.feather``, ``.ipc``) by their record batches, of which only the named columns
-are read (and decompressed). A file pyarrow cannot read raises
+are read (and decompressed), in blocks of ``block_rows`` copied out by the checking pass (one record
+batch is held at a time: memory is bounded by the file's largest batch). A file pyarrow cannot read raises
 :class:`~online_backlash.errors.LogFormatError` naming the file (and the row of the batch that failed).
 """
 
@@ -41,11 +42,11 @@ class _Table:
         import pyarrow.parquet as pq
 
         self.path = path
-        self._arrow = os.path.splitext(path.lower())[1] in ARROW_SUFFIXES
-        kind = "Arrow" if self._arrow else "Parquet"
+        self.arrow = os.path.splitext(path.lower())[1] in ARROW_SUFFIXES  # an Arrow IPC file, not Parquet
+        kind = "Arrow" if self.arrow else "Parquet"
         check_signature(path, kind)
         try:
-            if self._arrow:
+            if self.arrow:
                 # read, not memory-mapped: a map counts every page of the file it touched as resident
                 self._source = pa.OSFile(path, "rb")
                 self._reader: Any = pa.ipc.open_file(self._source)
@@ -56,7 +57,7 @@ class _Table:
                 # count the file's pages as resident, and none of them saves more than a tenth of the CPU)
                 self._source = pa.OSFile(path, "rb")
                 self._reader = pq.ParquetFile(self._source, pre_buffer=False, buffer_size=1 << 20)
-            self.schema = self._reader.schema_arrow if not self._arrow else self._reader.schema
+            self.schema = self._reader.schema_arrow if not self.arrow else self._reader.schema
         except OSError as exc:
             if isinstance(exc, FileNotFoundError) or not os.path.isfile(path):
                 raise LogFormatError(path, None, f"cannot open: {exc.strerror or exc}") from exc
@@ -68,7 +69,7 @@ class _Table:
 
     @property
     def rows(self) -> int:
-        if self._arrow:  # the row count of each batch, reading one column of it
+        if self.arrow:  # the row count of each batch, reading one column of it
             reader = self._ipc_reader([0] if len(self.schema) else [])
             return sum(reader.get_batch(i).num_rows for i in range(reader.num_record_batches))
         return int(self._reader.metadata.num_rows)
@@ -84,7 +85,7 @@ class _Table:
         """Record batches of the named columns, at most ``block_rows`` rows each."""
         row = 0
         try:
-            if self._arrow:
+            if self.arrow:
                 fields = [self.schema.get_field_index(name) for name in names]  # -1: a name held twice
                 reader = self._ipc_reader(sorted(set(fields)) if min(fields) >= 0 else [])
                 for i in range(reader.num_record_batches):
@@ -93,6 +94,7 @@ class _Table:
                         part = batch.slice(start, block_rows)
                         row += part.num_rows
                         yield part
+                    batch = part = None  # released before the next batch is read
             else:
                 # the columns of a batch are decoded side by side in pyarrow's thread pool, without the GIL: three
                 # quarters of the decode is snappy's decompression, which no option makes cheaper, so the reader's
@@ -217,7 +219,11 @@ class ParquetLog(MeasurementLog):
                 arrays[3] = arrays[3] * scales[3]
             size = arrays[0].size
             self.counters.frames += size
-            chunk, last_time = self._validate_columns(arrays, row, last_time, scales[1:3])
+            # an Arrow IPC record batch is read whole (a million rows of the bench's files, 24 MB) and the block's
+            # columns view it: copied out by the checking pass, so that one batch is held at a time, not every
+            # batch a block read ahead or waiting for the bookkeeping still views (three: 68 MB)
+            chunk, last_time = self._validate_columns(arrays, row, last_time, scales[1:3], copy=table.arrow)
+            arrays = []  # the views, released before the next block is read
             if len(chunk):
                 yield chunk
 
@@ -228,7 +234,8 @@ class ParquetLog(MeasurementLog):
         row = 0
         origin: list[int] = []  # the first timestamp, for a timestamp time column
         time_type = table.schema.field(self.columns["time"]).type
-        for batch in table.batches([self.columns[r] for r in roles], self.block_rows):
+        batches = table.batches([self.columns[r] for r in roles], self.block_rows)
+        while (batch := next(batches, None)) is not None:
             arrays = [
                 _as_float(batch.column(i), r, self.columns[r], self.path, row, origin) for i, r in enumerate(roles)
             ]
@@ -236,9 +243,12 @@ class ParquetLog(MeasurementLog):
             start = origin[0] / _TICKS_PER_SECOND[time_type.unit] if stamped else None
             if start is not None and start >= UNIX_TIME_MIN:  # not a device clock counting from 1970
                 self.time_origin_unix_s = start
-                self.time_origin_name = f"{'Arrow' if self._table._arrow else 'Parquet'} timestamp column"
+                self.time_origin_name = f"{'Arrow' if self._table.arrow else 'Parquet'} timestamp column"
+            rows = batch.num_rows
+            batch = None  # neither it nor its columns' views are held while the next batch is read
             yield row, arrays
-            row += batch.num_rows
+            arrays = []
+            row += rows
 
 
 def describe(path: str | os.PathLike[str]) -> list[ChannelInfo]:

@@ -92,9 +92,11 @@ def wear_logs(tmp_path_factory):
 
 
 def snapshot(db):
+    """The history in a store: gearboxes with their checkpoints, runs, estimates (not the gearbox's ``revision``, which
+    counts transactions: a replay commits the estimates it makes within tracking.COMMIT_EVERY_S together)."""
     with sqlite3.connect(db) as conn:
         return {
-            "gearboxes": conn.execute("SELECT id, ratio, limit_arcmin, checkpoint, revision FROM gearboxes ORDER BY id").fetchall(),
+            "gearboxes": conn.execute("SELECT id, ratio, limit_arcmin, checkpoint FROM gearboxes ORDER BY id").fetchall(),
             "runs": conn.execute(
                 "SELECT id, gearbox_id, source, log_sha256, status, started_unix_s, ended_unix_s, samples_done, "
                 "frames, samples, corrupt, skipped, gaps FROM runs ORDER BY id"
@@ -186,8 +188,36 @@ def test_resume_after_an_interruption_equals_an_uninterrupted_run(tmp_path, wear
     assert snapshot(db) == snapshot(reference)
 
 
+def test_a_replay_commits_its_estimates_together_and_an_error_those_before_it(tmp_path, wear_logs):
+    """Estimates a replay makes milliseconds apart share transactions (the gearbox's revision counts them; one per
+    estimate before); a log that stops on a bad row in its second block has the estimates of the first stored, as
+    tracking the first block alone stores them."""
+    with HistoryStore(tmp_path / "w.db", create=True) as store:
+        tracker = GearboxTracker(store, "g1", 30.0, every_s=1.0)
+        added = sum(tracker.track_log(p).estimates_added for p in wear_logs)
+        assert added > 80 and store.gearbox("g1").revision < added / 4
+    rec = simulate_rig(duration_s=120.0, play_deg=0.3, seed=4)
+    rec.time_s = rec.time_s + T0
+    whole, first_block = tmp_path / "whole.csv", tmp_path / "first_block.csv"
+    rec.write_csv(whole)
+    lines = whole.read_text().splitlines(keepends=True)
+    first_block.write_text("".join(lines[: 1 + 65536]))  # the reader's first block of rows
+    lines[1 + 100_000] = lines[1 + 100_000].rsplit(",", 1)[0] + ",nan\n"  # the load angle of row 100,000
+    whole.write_text("".join(lines))
+    with HistoryStore(tmp_path / "bad.db", create=True) as store:
+        with pytest.raises(LogFormatError, match="non-finite"):
+            GearboxTracker(store, "g2", 30.0, every_s=1.0).track_log(whole)
+        (run,) = store.runs("g2")
+        stored = [dataclasses.astuple(e) for e in store.estimates("g2")]
+    with HistoryStore(tmp_path / "reference.db", create=True) as store:
+        GearboxTracker(store, "g2", 30.0, every_s=1.0).track_log(first_block)
+        reference = [dataclasses.astuple(e) for e in store.estimates("g2")]
+    assert run.status == "running" and len(stored) > 40 and stored == reference
+
+
 def test_sigkill_mid_log_then_restart_gives_the_uninterrupted_history(tmp_path):
-    paths, _ = write_wear_logs(tmp_path, days=2, duration_s=90.0, play_at_hours=lambda h: 0.25 + 0.2 * h, seed=20)
+    # logs long enough (450 estimates each) that the second is still being tracked after its first transactions
+    paths, _ = write_wear_logs(tmp_path, days=2, duration_s=900.0, play_at_hours=lambda h: 0.25 + 0.2 * h, seed=20)
     argv = [str(p) for p in paths] + ["--ratio", "30", "--gearbox", "g1", "--every", "2", "--quiet"]
     command = [sys.executable, "-c", "import sys; from online_backlash.cli import main; sys.exit(main(sys.argv[1:]))", "track"]
     reference, db = tmp_path / "reference.db", tmp_path / "killed.db"

@@ -18,9 +18,11 @@ compacts memory to find a huge page at the fault (``/sys/kernel/mm/transparent_h
 already mapped. Measured on the 10-minute bench log (``docs/benchmarks.md``, session 9):
 system time 0.66-1.28 s by default, 0.43-1.02 s with the thresholds alone, 0.19-0.26 s with both.
 
-That suits a command that reads a record, processes it and ends (``estimate``, ``diagnose``), not a
-long-running service, and it is a setting of the whole process: the library never calls it by
-itself. Elsewhere than glibc (macOS, musl, Windows) only NumPy's advice is changed.
+That suits a command that reads a record, processes it and ends (``estimate``, ``diagnose``) and a
+fleet worker's task (``track --manifest``: a worker tracks one log after another in blocks of the same
+sizes; Dask's nanny starts workers with ``MALLOC_TRIM_THRESHOLD_=65536``, which made glibc return every
+freed block and fault the next one in anew), not a long-running service whose peak is rare, and it is a
+setting of the whole process: the library never calls it by itself. Elsewhere than glibc (macOS, musl, Windows) only NumPy's advice is changed.
 """
 
 from __future__ import annotations

@@ -14,12 +14,15 @@ newer one) is refused with :class:`~online_backlash.errors.HistoryError` naming 
 operating hour is counted twice and no use per day is negative. :func:`in_time_order` sorts the
 logs of one call by their first sample's calendar time.
 
-Every ``every_s`` seconds of data an estimate is appended, and in the same transaction the
-tracker state (estimator, with its effects by name; usage counters; data clock) becomes the gearbox's checkpoint and the
-run's resume point (``samples_done``) moves on. A process killed at any instant therefore
-leaves a consistent store; run again on the same log, it skips the samples the checkpoint
+Every ``every_s`` seconds of data an estimate is made; the estimates are appended in transactions
+(:class:`_Transactions`: each at once where they come seconds apart, as live; those a replayed log makes within
+:data:`COMMIT_EVERY_S` of each other together, up to :data:`COMMIT_ROWS`), and in the same transaction the
+tracker state after the last of them (estimator, with its effects by name; usage counters; data clock) becomes the
+gearbox's checkpoint and the run's resume point (``samples_done``) moves on. A process killed at any instant
+therefore leaves a consistent store; run again on the same log, it skips the samples the checkpoint
 already holds and continues, so the history ends the same as an uninterrupted run: no
-duplicate, no missing row, nothing learnt twice. Of a log already complete only its first
+duplicate, no missing row, nothing learnt twice. A run stopped by an error commits the estimates it made
+before the error first. Of a log already complete only its first
 samples are read (its key). A store written before logs were keyed by their samples holds the
 files' SHA-256 (:func:`file_sha256`) as keys: a log whose sample key the gearbox does not know is
 looked up by that too, so its runs are still found complete or resumed.
@@ -46,8 +49,10 @@ import copy
 import dataclasses
 import datetime as dt
 import hashlib
+import json
 import math
 import os
+import time
 import warnings
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field
@@ -462,13 +467,14 @@ class GearboxTracker:
         # a resumed run keeps its first clock (begin_run stored it; it is None only in a foreign store)
         clock = (run.started_unix_s if run.started_unix_s is not None else first_time_s + offset) - first_time_s
         everything = chain([first], chunks)
-        gearbox, run, state, ended = self._feed(gearbox, run, first, everything, clock, result, progress, on_row, meter)
+        fed = self._feed(gearbox, run, first, everything, clock, result, progress, on_row, meter)
+        gearbox, run, state, ended, waiting = fed
         if meter is not None and ended is not None:
             result.machine_hours = state.note_machine_hours(meter.hours_at(ended - clock), ended)
         done = result.resumed_from + result.samples_fed
         counts = counters() if counters is not None else {k: done if k == "samples" else 0 for k in _COUNTERS}
         result.counters = {**source_counts(counts), **state.pipeline.gap_tally.values()}
-        self.store.commit(gearbox, run, done, state.checkpoint(run.id), counters=result.counters, ended_unix_s=ended)
+        waiting.commit(gearbox, run, done, state.checkpoint(run.id), counters=result.counters, ended_unix_s=ended)
         if result.estimates_added == 0:
             result.note = why_no_estimate(state.pipeline.estimator, self.every_s)
         return result
@@ -523,11 +529,12 @@ class GearboxTracker:
         progress: ProgressCallback | None,
         on_row: RowCallback | None = None,
         meter: HourMeter | None = None,
-    ) -> tuple[Gearbox, Run, TrackerState, float | None]:
-        """Skip what the run already committed, learn the rest, commit at every estimate.
+    ) -> tuple[Gearbox, Run, TrackerState, float | None, _Transactions]:
+        """Skip what the run already committed, learn the rest, commit the estimates (:class:`_Transactions`).
 
-        Returns the latest gearbox and run records, the state after the last sample and the
-        calendar time of the last sample (None if every sample was skipped).
+        Returns the latest gearbox and run records, the state after the last sample, the calendar
+        time of the last sample (None if every sample was skipped) and the estimates still waiting for
+        the run's last transaction. An error (but the store's own) commits the estimates made before it.
         """
         state = TrackerState.load(
             gearbox.checkpoint, self.ratio, self.every_s, self.estimator_params, self.usage_params, first,
@@ -539,28 +546,85 @@ class GearboxTracker:
         skip = run.samples_done
         done = run.samples_done  # samples of this log in the state
         ended = None
-        for chunk in chunks:
-            ended = clock + float(chunk.time_s[-1])
-            if skip >= len(chunk):
-                skip -= len(chunk)
-                continue
-            if skip:
-                chunk, skip = tail(chunk, skip), 0
-            for step in state.pipeline.feed(chunk):
-                state.usage.update(step.chunk.time_s, step.u_deg, step.chunk.after_gap)
-                state.condition.update(step.chunk.torque_Nm)
-                done += len(step.chunk)
-                result.samples_fed += len(step.chunk)
-                if step.row is not None:
-                    row = state.store_row(step.row, done, clock + step.row.time_s)
-                    gearbox, run = self.store.commit(gearbox, run, done, state.checkpoint(run.id), [row])
-                    result.estimates_added += 1
-                    result.last_estimate = row
-                    if on_row is not None:
-                        on_row(step.row, row["time_unix_s"])
-                if progress is not None:
-                    progress(result.samples_fed, current_backlash_deg(state.pipeline.estimator))
-        return gearbox, run, state, ended
+        waiting = _Transactions(self.store, on_row)
+        try:
+            for chunk in chunks:
+                ended = clock + float(chunk.time_s[-1])
+                if skip >= len(chunk):
+                    skip -= len(chunk)
+                    continue
+                if skip:
+                    chunk, skip = tail(chunk, skip), 0
+                for step in state.pipeline.feed(chunk):
+                    state.usage.update(step.chunk.time_s, step.u_deg, step.chunk.after_gap)
+                    state.condition.update(step.chunk.torque_Nm)
+                    done += len(step.chunk)
+                    result.samples_fed += len(step.chunk)
+                    if step.row is not None:
+                        row = state.store_row(step.row, done, clock + step.row.time_s)
+                        gearbox, run = waiting.add(gearbox, run, row, step.row, done, state)
+                        result.estimates_added += 1
+                        result.last_estimate = row
+                    if progress is not None:
+                        progress(result.samples_fed, current_backlash_deg(state.pipeline.estimator))
+        except BaseException as exc:
+            if not isinstance(exc, HistoryError):  # the store refused a commit: it would refuse this one too
+                waiting.commit_saved(gearbox, run)
+            raise
+        return gearbox, run, state, ended, waiting
+
+
+#: Estimates of a run that wait for one transaction at most: a replayed log makes one every few milliseconds,
+#: and a transaction each (the checkpoint's JSON, two updates, an insert) cost more than estimating them
+COMMIT_ROWS = 64
+#: Wall seconds after the last commit at which the next estimate is committed at once (with those waiting)
+COMMIT_EVERY_S = 0.5
+
+
+class _Transactions:
+    """The estimates of a run waiting for their transaction, and the checkpoint after the last of them.
+
+    :meth:`add` commits an estimate at once, with those waiting, when :data:`COMMIT_EVERY_S` seconds of wall
+    time have passed since the last commit (a live stream: its estimates come ``every_s`` seconds apart) or
+    :data:`COMMIT_ROWS` are waiting; else it keeps the estimate and the checkpoint (JSON) after it, which
+    :meth:`commit_saved` commits when the run stops on an error. Each transaction holds its estimates and the
+    state after the last of them: a run killed between two resumes from the first and ends with the same rows.
+    ``on_row(row, time_unix_s)`` is called for each estimate once it is committed.
+    """
+
+    def __init__(self, store: HistoryStore, on_row: RowCallback | None) -> None:
+        self.store = store
+        self.on_row = on_row
+        self.rows: list[tuple[dict[str, Any], EstimateRow]] = []
+        self.saved: tuple[int, str] | None = None  # samples done and the checkpoint (JSON) after the last row
+        self.committed_at = time.monotonic()
+
+    def add(
+        self, gearbox: Gearbox, run: Run, row: dict[str, Any], estimate: EstimateRow, done: int, state: TrackerState
+    ) -> tuple[Gearbox, Run]:
+        """Take the store row of ``estimate``, made after ``done`` samples of the run in ``state``."""
+        self.rows.append((row, estimate))
+        if len(self.rows) >= COMMIT_ROWS or time.monotonic() - self.committed_at >= COMMIT_EVERY_S:
+            return self.commit(gearbox, run, done, state.checkpoint(run.id))
+        self.saved = (done, json.dumps(state.checkpoint(run.id)))
+        return gearbox, run
+
+    def commit(self, gearbox: Gearbox, run: Run, done: int, checkpoint: dict, **end: Any) -> tuple[Gearbox, Run]:
+        """Commit the waiting estimates with ``checkpoint``, the state after ``done`` samples of the run (``end``:
+        the run's ``counters`` and ``ended_unix_s`` when it is complete); returns the updated records."""
+        rows, self.rows, self.saved = self.rows, [], None
+        gearbox, run = self.store.commit(gearbox, run, done, checkpoint, [row for row, _ in rows], **end)
+        self.committed_at = time.monotonic()
+        if self.on_row is not None:
+            for row, estimate in rows:
+                self.on_row(estimate, row["time_unix_s"])
+        return gearbox, run
+
+    def commit_saved(self, gearbox: Gearbox, run: Run) -> None:
+        """Commit the waiting estimates with the checkpoint saved after the last of them (a run that stops)."""
+        if self.saved is not None:
+            done, checkpoint = self.saved
+            self.commit(gearbox, run, done, json.loads(checkpoint))
 
 
 _COUNTERS = ("frames", "samples", "corrupt", "skipped", "gaps")

@@ -14,6 +14,7 @@ import sys
 import time
 from functools import cache
 
+from .._allocator import keep_freed_memory
 from ..errors import BacklashError, InvalidParameterError
 from ..fleet import GearboxJob, GearboxOutcome, load_manifest, run_fleet
 from ..fleet.manifest import NOT_PER_GEARBOX
@@ -58,6 +59,11 @@ def track_gearbox(job: GearboxJob) -> GearboxOutcome:
     """
     from ..history.store import HistoryStore
 
+    # Dask's nanny starts its workers with MALLOC_TRIM_THRESHOLD_=65536 (distributed.nanny.pre-spawn-environ), so
+    # glibc handed every block a log's reading frees back to the kernel and faulted the next one in afresh: 94,000
+    # page faults and 1.6-1.7x the CPU of the same gearbox tracked in the CLI's process (docs/benchmarks.md). A worker
+    # tracks one log after another: its blocks are reused instead, as in the CLI's own one-shot commands.
+    keep_freed_memory()
     started, cpu = time.perf_counter(), time.process_time()
     outcome = GearboxOutcome(job.id, worker=f"{socket.gethostname()}:{os.getpid()}")
     try:

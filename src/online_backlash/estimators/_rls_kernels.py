@@ -349,6 +349,13 @@ def _identity(f):
 
 
 _JIT = njit(cache=True, nogil=True, inline="always", error_model="numpy")
+#: The loops over the samples: without numba's reference counting (``_nrt=False``). They allocate nothing and
+#: return nothing, but each step inlined into them binds the arrays it is given (``st``, ``c``, scratch) anew per
+#: sample, and numba counts those references with atomic increments and decrements that its pruning pass leaves
+#: in place when the step branches (numba issues 2345 and 2350, where its developers give this flag as the cure):
+#: eight per sample cost the cascade and BacklashRLS half their time. The arithmetic is the same, bit for bit.
+#: (``_nrt`` is a keyword of numba's jit options that numba's own type hints do not list)
+_LOOP = njit(cache=True, nogil=True, error_model="numpy", _nrt=False)  # type: ignore[call-overload]
 
 (
     begin_sample,
@@ -379,7 +386,7 @@ def _run_span(st, c, u, y, after_gap, seen, lo, hi):  # pragma: no cover - compi
         _backlash_step_nb(st, c, u[i], y[i], seen[i])
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@_LOOP
 def backlash_run(st, c, u, y, after_gap, seen, marks, out):  # pragma: no cover - compiled
     """``learn_many``'s loop: :func:`backlash_step` over arrays, honouring gaps and ``seen``, recording the estimate
     after the first ``marks[k]`` samples (ascending, 1..n; none: :data:`NO_MARKS`) in ``out[k]``: the
@@ -473,15 +480,19 @@ cascade_offsets = _make_cascade_offsets(_identity)
 C_THETA = CASCADE_SCALARS  # theta follows the scalars
 
 
-def _make_cascade_step(jit):
+def _make_cascade_step(jit, orders=(-1, -1)):
+    """The cascade's step compiled by ``jit``; ``orders = (n_a, n_b)`` fixes them at compile time (the loops then
+    have constant trip counts and the state's regions constant offsets: the same arithmetic, in the same order,
+    unrolled), ``(-1, -1)`` reads them from the constants ``c`` at every sample."""
     offsets_of = _make_cascade_offsets(jit)
     to_reference = _make_to_reference(jit)
+    na_fixed, nb_fixed = orders
 
     @jit
     def step(st, c, u, y, phi, pphi):
         """Learn one sample of the cascade, eq. (18)-(24); ``phi``, ``pphi`` are scratch vectors of length p."""
-        na = int(c[QC.NA])
-        nb = int(c[QC.NB])
+        na = int(c[QC.NA]) if na_fixed < 0 else na_fixed
+        nb = int(c[QC.NB]) if nb_fixed < 0 else nb_fixed
         # osx + 4 i: d x_hat(t-1-i) / d [m1, c1, m2, c2]; opsi: the ring of psi vectors
         p, op, ox, nx, oy, oyh, osx, opsi, _ = offsets_of(na, nb)
         oe = c[QC.OUTPUT_ERROR] != 0.0
@@ -588,11 +599,19 @@ def _make_cascade_step(jit):
             if c[QC.FREEZE] == 0.0:  # (warm-start replay: theta held, P gathers the information)
                 for i in range(p):
                     st[C_THETA + i] += pphi[i] * inv_s * e  # gain K = P phi / (1 + phi' P phi)
-            for i in range(p):  # P <- P - P phi phi' P / s, exactly symmetric
+            # P <- P - P phi phi' P / s; P stays exactly symmetric (pi pj = pj pi), so with the sizes fixed the
+            # upper triangle is computed and mirrored (the same values; with sizes read at run time that is slower)
+            for i in range(p):
                 row = op + i * p
                 pi = pphi[i]
-                for j in range(p):
-                    st[row + j] -= (pi * pphi[j]) * inv_s
+                if na_fixed < 0:
+                    for j in range(p):
+                        st[row + j] -= (pi * pphi[j]) * inv_s
+                else:
+                    for j in range(i, p):
+                        v = st[row + j] - (pi * pphi[j]) * inv_s
+                        st[row + j] = v
+                        st[op + j * p + i] = v
             if not pe:
                 # a-posteriori model output (eq. 18 with the updated theta), for the output-error regressor
                 y_hat = yc - target
@@ -642,11 +661,18 @@ def _make_cascade_step(jit):
 
 cascade_step = _make_cascade_step(_identity)
 _cascade_step_nb = _make_cascade_step(_JIT)
+_cascade_step_22 = _make_cascade_step(_JIT, (2, 2))
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@_LOOP
 def cascade_run(st, c, u, y, after_gap, phi, pphi):  # pragma: no cover - compiled
     """``learn_many``'s loop for the cascade."""
+    if c[QC.NA] == 2.0 and c[QC.NB] == 2.0:
+        for i in range(u.shape[0]):
+            if after_gap[i]:
+                st[CS.K] = 0.0
+            _cascade_step_22(st, c, u[i], y[i], phi, pphi)
+        return
     for i in range(u.shape[0]):
         if after_gap[i]:
             st[CS.K] = 0.0

@@ -216,13 +216,16 @@ def _move(st, ui, yi, gap, h_u, h_y):  # pragma: no cover - compiled
 def _classify(st, rec, u, y, gap, h_u, h_y, tol, out):  # pragma: no cover - compiled
     """The module docstring's rule over a block of a stream (the state ``st`` and the records ``rec``
     carried), each sample judged against the strokes completed before it: ``out[i]`` is :data:`RESTING`,
-    :data:`FOLLOWING` or :data:`NO_FLANK`."""
+    :data:`FOLLOWING` or :data:`NO_FLANK`. The least full width changes only where a stroke ends: it is computed
+    there (two medians of the ring), not for every sample judged."""
+    least = _least_full(_ring(st))
     for i in range(u.shape[0]):
         ui, yi = u[i], y[i]
         out[i] = RESTING
         k_was, d_was = st[_K], st[_D]
         if _move(st, ui, yi, gap[i], h_u, h_y):
             _end_stroke(st, _stroke_width(rec, k_was, d_was), st[_SHORTFALL], st[_JUDGED_NOW])
+            least = _least_full(_ring(st))
         d, k = st[_D], st[_K]
         if d == 0.0:  # the input has not moved yet: nothing to judge
             continue
@@ -243,7 +246,6 @@ def _classify(st, rec, u, y, gap, h_u, h_y, tol, out):  # pragma: no cover - com
         if not _valid(rec, other, b, k):  # no partner: the other flank rested here (no), or was never here (yes)
             out[i] = NO_FLANK if _unpaired(rec, other, b, k) else FOLLOWING
             continue
-        least = _least_full(_ring(st))
         if not np.isfinite(least):  # nothing yet shows the full width
             out[i] = NO_FLANK
             continue
