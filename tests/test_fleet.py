@@ -23,8 +23,8 @@ from online_backlash.fleet import GearboxOutcome, load_manifest, run_fleet
 from online_backlash.fleet.progress import FleetProgress
 from online_backlash.fleet.simulated import write_simulated_fleet
 from online_backlash.history.store import HistoryStore
-from online_backlash.rig import simulate_rig
-from online_backlash.rig_logs import rig_can_frames
+from online_backlash.simulation.rig import simulate_rig
+from online_backlash.simulation.rig_logs import rig_can_frames
 from online_backlash.tracking import CLOCK_MTIME, GearboxTracker, TrackResult
 
 DAY = 86400.0

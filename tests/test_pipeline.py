@@ -14,12 +14,12 @@ import pytest
 
 from online_backlash import BacklashRLS
 from online_backlash.cli import main
-from online_backlash.diagnostics import synthetic
 from online_backlash.errors import InvalidParameterError, LogFormatError
 from online_backlash.history.store import ESTIMATE_FIELDS, Estimate, HistoryStore, estimates_table
 from online_backlash.pipeline import DataClock, Pipeline
-from online_backlash.rig import simulate_rig
 from online_backlash.rows import FIELDS, HISTORY_CSV_COLUMNS, REPORT_KEYS, STORE_COLUMNS, TRACE_COLUMNS, EstimateRow
+from online_backlash.simulation import synthetic
+from online_backlash.simulation.rig import simulate_rig
 from online_backlash.stream import SampleChunk
 
 PACKAGE = Path(__import__("online_backlash").__file__).resolve().parent
