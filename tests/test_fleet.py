@@ -16,7 +16,7 @@ import pytest
 from live_run import kill_mid_work, run_live, send_frames, wait_until
 
 from online_backlash.cli import main
-from online_backlash.cli._fleet import track_gearbox
+from online_backlash.cli.track import track_gearbox
 from online_backlash.codecs.dbc import RIG_DBC, DbcDecoder
 from online_backlash.errors import HistoryError
 from online_backlash.fleet import GearboxOutcome, load_manifest, run_fleet
