@@ -19,7 +19,8 @@ from online_backlash.effect_terms import EFFECTS, effect_class, effect_from_dict
 from online_backlash.errors import InvalidParameterError
 from online_backlash.simulation.rig import simulate_rig
 
-#: a checkpoint carrying all six library effects, written by the code before issue 29 (tests/data/make_checkpoint_effects.py)
+#: a checkpoint carrying all six library effects, written by the code before issue 29
+#: (tests/data/make_checkpoint_effects.py)
 OLD_CHECKPOINT = Path(__file__).resolve().parent / "data" / "checkpoint_effects_62ce5a3.json"
 SPLIT = 30000  # the sample at which that checkpoint was written
 

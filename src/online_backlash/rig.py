@@ -1,5 +1,8 @@
-"""Moved to :mod:`online_backlash.simulation.rig` (issue 29); this name still imports it, with a DeprecationWarning."""
+"""Moved to :mod:`online_backlash.simulation.rig` (issue 29).
+
+This old name still imports it, with a DeprecationWarning.
+"""
 
 from ._moved import alias_moved_module
 
-alias_moved_module(__name__, "online_backlash.simulation.rig")
+alias_moved_module(__name__)

@@ -5,8 +5,9 @@ Written once with the code of commit 62ce5a3 (main before issue 29, whose effect
 ``python tests/data/make_checkpoint_effects.py "online-backlash 62ce5a3" tests/data/checkpoint_effects_62ce5a3.json``
 (the simulated rig was then ``online_backlash.simulation.rig``). The file is committed as it came out, so that
 ``tests/test_effect_registry.py`` loads a checkpoint made by the old code. It holds the state after the
-first 30000 samples of a 40 s rig and the play the estimator reached at the end of the record, uninterrupted and restored from that state
-(an effect without a stream history, ``dead_band_motion``, restarts on a restore, so the two differ).
+first 30000 samples of a 40 s rig and the play the estimator reached at the end of the record, uninterrupted
+and restored from that state (an effect without a stream history, ``dead_band_motion``, restarts on a
+restore, so the two differ).
 """
 
 import json
