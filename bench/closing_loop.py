@@ -7,7 +7,7 @@ the two-mass rig (``--generator two_mass``, the default: 30:1, 1 kHz, 14-bit mot
 and the wind-up follow from its dynamics, not from the estimator's model; a stiff gear for every
 case but compliance, where the gear is compliant and the transmitted torque is logged:
 ``synthetic.TWO_MASS_INJECTORS``) or by the estimator's own model (``--generator rig``:
-:func:`online_backlash.rig.simulate_rig` with 2 counts of load noise, ``synthetic.INJECTORS``),
+:func:`online_backlash.simulation.rig.simulate_rig` with 2 counts of load noise, ``synthetic.INJECTORS``),
 the effect is added, and
 :func:`online_backlash.diagnostics.loop.diagnose` is run. One case has no torque column whatever the
 generator (``NO_TORQUE``): ``inertial_twist``, a load that twists by ``-(J / k)`` times the analytic
@@ -51,10 +51,10 @@ from functools import partial
 import numpy as np
 
 from online_backlash import BacklashRLS
-from online_backlash.diagnostics import synthetic
 from online_backlash.diagnostics.loop import diagnose_arrays
-from online_backlash.diagnostics.synthetic import INJECTORS, TWO_MASS_INJECTORS
-from online_backlash.rig import simulate_rig
+from online_backlash.simulation import synthetic
+from online_backlash.simulation.rig import simulate_rig
+from online_backlash.simulation.synthetic import INJECTORS, TWO_MASS_INJECTORS
 
 PLAY_DEG = 0.5
 #: the record's start, left out of the "past start" figure: the two-mass rig starts with the load moving

@@ -32,7 +32,7 @@ import time
 from pathlib import Path
 
 from online_backlash.cli import main as cli
-from online_backlash.two_mass_rig import simulate_two_mass
+from online_backlash.simulation.two_mass_rig import simulate_two_mass
 
 COLUMNS = ["--ratio", "30", "--columns", "time=time,motor=motor,load=load,torque=torque", "--json"]
 #: length of the log of the warm-up run (imports and compiled caches, not timed), minutes

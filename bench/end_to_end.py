@@ -96,7 +96,7 @@ def write_files(folder: Path, samples: int) -> dict[str, tuple[Path, Path]]:
         return paths
     from same_results import write_rig_formats  # (this folder: the same files as the byte-identity check's)
 
-    from online_backlash.rig import simulate_rig
+    from online_backlash.simulation.rig import simulate_rig
 
     records = (
         simulate_rig(duration_s=samples / 1000.0, play_deg=0.5, seed=3),

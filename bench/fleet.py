@@ -32,7 +32,7 @@ from pathlib import Path
 
 from dask.distributed import LocalCluster
 
-from online_backlash.cli._fleet import parse_track_argv, track_defaults, track_gearbox
+from online_backlash.cli.track import parse_track_argv, track_defaults, track_gearbox
 from online_backlash.fleet import load_manifest, run_fleet
 from online_backlash.fleet.simulated import write_simulated_fleet
 from online_backlash.history.store import HistoryStore

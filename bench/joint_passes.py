@@ -21,7 +21,7 @@ import numpy as np
 
 from online_backlash.diagnostics.joint import _sensitivity_gram, _switched, play_sensitivity
 from online_backlash.model import BacklashParams, backlash_sensitivity, simulate_switching
-from online_backlash.two_mass_rig import simulate_two_mass
+from online_backlash.simulation.two_mass_rig import simulate_two_mass
 
 
 def main() -> None:

@@ -1,6 +1,6 @@
 """Load-aware play (issue 12): the two-mass sweep over the external torque, and the measured runs.
 
-(a) The two-mass rig (:mod:`online_backlash.two_mass_rig`: 30:1, 1 kHz, 14-bit motor, 17-bit
+(a) The two-mass rig (:mod:`online_backlash.simulation.two_mass_rig`: 30:1, 1 kHz, 14-bit motor, 17-bit
 load, play 0.4 deg, stiffness 0.1 N m/arcmin, torque noise 0.005 N m, a 30 deg sine at 0.5 Hz
 against a viscous load and a constant external torque) for external torques from 0 to above the
 largest torque the motion needs (the torque stops reversing at about 0.5 N m), several seeds.
@@ -32,8 +32,8 @@ import numpy as np
 from online_backlash.fitting import fit_batch, fit_recursive
 from online_backlash.plotting import plot_fit
 from online_backlash.replay import open_log
+from online_backlash.simulation.two_mass_rig import simulate_two_mass
 from online_backlash.stream import SampleChunk, read_all
-from online_backlash.two_mass_rig import simulate_two_mass
 
 TORQUES = (0.0, 0.1, 0.2, 0.3, 0.4, 0.45, 0.5, 0.6, 0.8, 1.0)
 PLAY = 0.4

@@ -1,6 +1,6 @@
 """``estimate`` end to end on 10 million samples from Parquet and from MDF4, beside ``learn_many``.
 
-The simulated 30:1 rig (:func:`online_backlash.rig.simulate_rig`, 1 kHz, play 0.5 deg) is
+The simulated 30:1 rig (:func:`online_backlash.simulation.rig.simulate_rig`, 1 kHz, play 0.5 deg) is
 written once as a Parquet file (pyarrow, row groups of 1,000,000) and as an MDF 4.10 file
 (asammdf, motor and load in one channel group). Each case then runs in a fresh interpreter:
 
@@ -51,7 +51,7 @@ print(json.dumps({{"seconds": seconds, "import_s": t - t_import, "max_rss_mb": i
 
 #: numba's compiled estimator loaded (from its cache) once per process, outside the timing, as for the reference
 WARM = (
-    "from online_backlash import BacklashRLS\nfrom online_backlash.rig import simulate_rig\n"
+    "from online_backlash import BacklashRLS\nfrom online_backlash.simulation.rig import simulate_rig\n"
     "_r = simulate_rig(20.0)\nBacklashRLS().learn_many(_r.motor_deg / 30, _r.load_deg)"
 )
 #: a process that has estimated before: the reader's library imported (asammdf through python-can, as the MDF
@@ -61,7 +61,7 @@ WARM = (
 STEADY = (
     "import importlib\nfor _m in {{'mdf': ['can', 'asammdf'], 'parquet': ['pyarrow.parquet']}}['{kind}']:\n    importlib.import_module(_m)\n"
     "from online_backlash.fitting import fit_recursive\n"
-    "from online_backlash.rig import simulate_rig\nfit_recursive([simulate_rig(20.0).to_chunk()], 30.0, ahead=1)"
+    "from online_backlash.simulation.rig import simulate_rig\nfit_recursive([simulate_rig(20.0).to_chunk()], 30.0, ahead=1)"
 )
 ESTIMATE = (
     "import io, contextlib\nfrom online_backlash.cli import main, build_parser\nimport online_backlash.replay.{kind}, online_backlash.fitting\n" + WARM,
@@ -161,7 +161,7 @@ def write_files(samples: int, folder: str) -> dict[str, str]:
     import pyarrow.parquet as pq
     from asammdf import MDF, Signal
 
-    from online_backlash.rig import simulate_rig
+    from online_backlash.simulation.rig import simulate_rig
 
     t0 = time.perf_counter()
     rec = simulate_rig(duration_s=samples / 1000.0, play_deg=0.5, seed=3)

@@ -135,7 +135,7 @@ def log_speed_table() -> list[str]:
     from pathlib import Path
 
     from online_backlash.replay import read_csv_arrays
-    from online_backlash.rig import simulate_rig
+    from online_backlash.simulation.rig import simulate_rig
     from online_backlash.stream import refer_to_load
 
     shared = Path(__file__).resolve().parents[2] / "shared" / "data" / "davinci_tool_gearhead_backlash"

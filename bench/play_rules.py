@@ -1,6 +1,6 @@
 """A play you can trust on synthetic drives (issue 27): what the rules do where the truth is known.
 
-(a) The two-mass rig (:mod:`online_backlash.two_mass_rig`, play 0.4 deg, 30:1, 1 kHz, 20 s, a 30 deg
+(a) The two-mass rig (:mod:`online_backlash.simulation.two_mass_rig`, play 0.4 deg, 30:1, 1 kHz, 20 s, a 30 deg
 sine at 0.5 Hz, 5 seeds) with what a real drive adds: a torque sensor with a zero offset and a
 friction torque between it and the flanks, a soft spring, Coulomb friction on the load. The torque
 path that takes zero torque as "no flank touches" (before issue 27) beside the one that estimates
@@ -10,7 +10,7 @@ the engagement torques from the dwells, batch and recursive, and the path ``auto
 N m): one straight wind-up line, then the three segments (``stiffness_torques_Nm``).
 
 (c) Plays of 0, 0.5 arcsec, 5 arcsec, 0.5 and 1 arcmin at 14-, 17- and 20-bit encoders (the kinematic
-rig, :mod:`online_backlash.rig`, 20 s, 2 counts of load-encoder noise): what batch, recursive and
+rig, :mod:`online_backlash.simulation.rig`, 20 s, 2 counts of load-encoder noise): what batch, recursive and
 ``track`` report, and what share of the samples the full-engagement rule leaves out.
 
 (d) A train with two gaps in series (``second_gap_deg``: 0.25 + 0.15 deg, stiff meshes, 1 N m/arcmin) whose
@@ -35,10 +35,10 @@ from online_backlash.estimators.full_engagement import NO_FLANK, FullEngagement
 from online_backlash.fitting import fit_batch, fit_recursive
 from online_backlash.history.store import HistoryStore
 from online_backlash.load_aware import TorqueBacklash
-from online_backlash.rig import simulate_rig
+from online_backlash.simulation.rig import simulate_rig
+from online_backlash.simulation.two_mass_rig import simulate_two_mass
 from online_backlash.stream import SampleChunk
 from online_backlash.tracking import GearboxTracker
-from online_backlash.two_mass_rig import simulate_two_mass
 
 PLAY = 0.4
 SENSOR = {"play_deg": PLAY, "stiffness_nm_per_arcmin": 0.02, "coulomb_nm": 0.03}

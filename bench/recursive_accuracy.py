@@ -26,7 +26,7 @@ import numpy as np
 
 from online_backlash import BacklashRLS, CascadeRLS, VorosCascade
 from online_backlash.model import BacklashParams, simulate_backlash_varying, simulate_cascade
-from online_backlash.rig import quantise, rig_motion, simulate_rig
+from online_backlash.simulation.rig import quantise, rig_motion, simulate_rig
 
 LOAD_COUNT_DEG = 360.0 / 2**17
 HOUR_S = 3600.0

@@ -1,7 +1,7 @@
 """Replay of a 1,000,000-frame BLF log: our reader (decode + check + pair) beside a bare
 ``can.LogReader`` loop over the same file, in one run.
 
-The log is the simulated 30:1 rig (:func:`online_backlash.rig.simulate_rig`) at 2 kHz with motor
+The log is the simulated 30:1 rig (:func:`online_backlash.simulation.rig.simulate_rig`) at 2 kHz with motor
 and load in two messages of the shipped ``rig.dbc`` (``MotorAngle``, ``LoadAngle``: counter and
 CRC-8 checksum), so 1,000,000 frames are 500,000 samples. The loops run interleaved,
 ``--repeat`` times each, and the best time of each is reported (the machine is shared).
@@ -26,7 +26,7 @@ import can
 
 from online_backlash.codecs.dbc import RIG_DBC, DbcDecoder
 from online_backlash.replay.canlog import CanLog
-from online_backlash.rig_logs import write_rig_can_log
+from online_backlash.simulation.rig_logs import write_rig_can_log
 
 SIGNALS = ("MotorAngle.Count", "LoadAngle.Count")
 

@@ -78,8 +78,8 @@ def write_inputs(folder: Path, samples: int) -> dict[str, Path]:
     }  # fmt: skip
     if all(p.exists() for p in paths.values()):
         return paths
-    from online_backlash.rig import simulate_rig
-    from online_backlash.two_mass_rig import simulate_two_mass
+    from online_backlash.simulation.rig import simulate_rig
+    from online_backlash.simulation.two_mass_rig import simulate_two_mass
 
     parquet = {"snappy": paths["parquet"], "none": paths["uncompressed.parquet"], "lz4": paths["lz4.parquet"]}
     rec = simulate_rig(duration_s=samples / 1000.0, play_deg=0.5, seed=3)

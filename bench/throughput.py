@@ -43,7 +43,7 @@ from scipy.signal import lfilter
 
 from online_backlash import BacklashRLS, CascadeRLS, VorosBacklash
 from online_backlash.model import BacklashParams, simulate_backlash, simulate_cascade
-from online_backlash.rig import simulate_rig
+from online_backlash.simulation.rig import simulate_rig
 
 PLAY_DEG = 0.5
 LOAD_COUNT_DEG = 360.0 / 2**17

@@ -15,8 +15,8 @@ the batch fit (which stated none) the white-noise least-squares standard error
 
 Sets of runs (none shaped by the estimator: the two-mass rig integrates the dynamics):
 
-* ``rig``: :func:`online_backlash.rig.simulate_rig` (the estimator's own model), 0.5 deg, seeds;
-* ``two-mass rig``: :func:`online_backlash.two_mass_rig.simulate_two_mass`, continuous rotation
+* ``rig``: :func:`online_backlash.simulation.rig.simulate_rig` (the estimator's own model), 0.5 deg, seeds;
+* ``two-mass rig``: :func:`online_backlash.simulation.two_mass_rig.simulate_two_mass`, continuous rotation
   with reversals (``motion="rig"``), no external torque, seeds; angles only (the kinematic path);
 * ``two-mass rig, torque``: the same runs with their torque column (the torque-aware path);
 * ``two-mass sine``: 30 deg sine at 0.3-0.7 Hz (like the measured rig), no external torque: runs
@@ -43,9 +43,9 @@ import numpy as np
 
 from online_backlash.fitting import fit_batch, fit_recursive
 from online_backlash.replay import read_csv_arrays
-from online_backlash.rig import simulate_rig
+from online_backlash.simulation.rig import simulate_rig
+from online_backlash.simulation.two_mass_rig import simulate_two_mass
 from online_backlash.stream import SampleChunk
-from online_backlash.two_mass_rig import simulate_two_mass
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "davinci_tool_gearhead_backlash"
 RUNS = ("tool4_L_run00_0.1Hz_torque10pct.csv", "tool4_L_run20_0.3Hz_torque10pct.csv")

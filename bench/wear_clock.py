@@ -2,14 +2,14 @@
 
 Issue 28's done-when: on daily snapshot logs with an hour meter, the trend and the forecast in
 machine hours within 10 % of the truth, the date within 10 % of the days remaining. Each case
-writes a series of snapshot logs (:mod:`online_backlash.wear_logs`: a machine running 16 h a day,
+writes a series of snapshot logs (:mod:`online_backlash.simulation.wear_logs`: a machine running 16 h a day,
 the meter as a column, the play growing linearly with the machine's hours) into a temporary
 folder, tracks it as ``online-backlash track LOG... --hours-column hours`` does, and reads
 ``history --json``'s figures:
 
-* ``rig``: :func:`online_backlash.rig.simulate_rig` (eq. (1), quantised noisy encoders), 50 Hz,
+* ``rig``: :func:`online_backlash.simulation.rig.simulate_rig` (eq. (1), quantised noisy encoders), 50 Hz,
   60 s snapshots, 40 days, play 12 -> 18 arcmin, limit 21 arcmin;
-* ``two-mass``: :func:`online_backlash.two_mass_rig.simulate_two_mass` (a compliant drive with
+* ``two-mass``: :func:`online_backlash.simulation.two_mass_rig.simulate_two_mass` (a compliant drive with
   contact dynamics and a torque column, not the estimator's model), 500 Hz, 30 s snapshots,
   25 days, play 18 -> 24 arcmin, limit 27 arcmin, ``--memory-reversals 5``;
 
@@ -42,7 +42,7 @@ from online_backlash.cli import main as cli
 from online_backlash.history import HistoryStore
 from online_backlash.history.report import estimate_column, observable_mask
 from online_backlash.history.trend import summarise
-from online_backlash.wear_logs import SnapshotPlan, daily, truth, write_snapshot_logs
+from online_backlash.simulation.wear_logs import SnapshotPlan, daily, truth, write_snapshot_logs
 
 COUNTS = ["--units", "counts", "--motor-cpr", "16384", "--load-cpr", "131072"]
 #: simulator -> (plan options, days, limit in arcmin, extra track options)

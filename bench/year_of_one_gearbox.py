@@ -36,7 +36,7 @@ def write_files(folder: Path) -> dict[str, tuple[Path, Path]]:
     paths = {kind: (folder / f"hour{suffix}", folder / f"small{suffix}") for kind, suffix in FORMATS.items()}
     if all(p.exists() for pair in paths.values() for p in pair):
         return paths
-    from online_backlash.rig import simulate_rig
+    from online_backlash.simulation.rig import simulate_rig
 
     records = (
         simulate_rig(duration_s=HOUR / 1000.0, play_deg=0.5, seed=3),

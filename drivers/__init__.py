@@ -11,5 +11,5 @@
 The frame rules (DBC decoding, serial framing, pairing, unwrapping, gaps) live in
 :mod:`online_backlash.codecs`, which the recorded-log readers (:mod:`online_backlash.replay`)
 apply too, so a raw capture replays to the samples seen live. Simulated frames and bytes for
-tests and demos: :mod:`online_backlash.rig_logs`.
+tests and demos: :mod:`online_backlash.simulation.rig_logs`.
 """

@@ -12,7 +12,7 @@ It writes ``src/online_backlash/data/demo_rig_30to1.csv.gz`` (deterministic: see
 
 from pathlib import Path
 
-from online_backlash.rig import simulate_rig
+from online_backlash.simulation.rig import simulate_rig
 
 DEMO = dict(duration_s=60.0, ratio=30.0, play_deg=0.5, left_fraction=0.4, noise_counts=2.0, seed=2026)
 

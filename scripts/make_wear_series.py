@@ -1,6 +1,6 @@
 """Make the wear series bundled for ``online-backlash demo``: two months of daily snapshots against the hour meter.
 
-A synthetic 30:1 gearbox (the rig of ``online_backlash.rig.simulate_rig``: rotation with reversals
+A synthetic 30:1 gearbox (the rig of ``online_backlash.simulation.rig.simulate_rig``: rotation with reversals
 every 2-6 s at 3 deg/s load side, 14-bit motor and 17-bit load encoders, 2 counts of noise, 50 Hz)
 on a machine that runs 16 h a day. Once a day, at a time between 07:00 and 10:00 UTC, a 60 s
 snapshot of its encoders is logged with the controller's hour meter (column ``hours``, 0.001 h
@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from online_backlash.wear_logs import SnapshotPlan, write_snapshot_logs
+from online_backlash.simulation.wear_logs import SnapshotPlan, write_snapshot_logs
 
 DAYS = 60
 LIMIT_ARCMIN = 21.0

@@ -20,7 +20,7 @@ from hypothesis import strategies as st
 from online_backlash.cli import main
 from online_backlash.errors import BacklashWarning, LogFormatError
 from online_backlash.replay import open_log
-from online_backlash.rig import simulate_rig
+from online_backlash.simulation.rig import simulate_rig
 
 FUZZ = settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
 

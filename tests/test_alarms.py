@@ -21,7 +21,7 @@ from online_backlash.history.alarms import (
     worst_state,
 )
 from online_backlash.history.store import SCHEMA_VERSION, HistoryStore, resolve_url
-from online_backlash.rig import simulate_rig
+from online_backlash.simulation.rig import simulate_rig
 
 HOUR = 3600.0
 NOW = time.time()

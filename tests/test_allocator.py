@@ -12,7 +12,7 @@ import textwrap
 
 import pytest
 
-from online_backlash.rig import simulate_rig
+from online_backlash.simulation.rig import simulate_rig
 
 glibc = pytest.mark.skipif(platform.libc_ver()[0] != "glibc", reason="mallopt is glibc's")
 

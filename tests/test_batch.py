@@ -11,7 +11,7 @@ from online_backlash import VorosBacklash, VorosCascade
 from online_backlash.errors import ConvergenceWarning, InvalidParameterError, NotExcitedError, NotFittedError
 from online_backlash.model import PAPER_EXAMPLES, BacklashParams, simulate_backlash, simulate_cascade
 from online_backlash.replay import read_csv_arrays
-from online_backlash.rig import simulate_rig
+from online_backlash.simulation.rig import simulate_rig
 from online_backlash.stream import refer_to_load
 
 SHARED = Path(__file__).resolve().parents[2] / "shared" / "data" / "davinci_tool_gearhead_backlash"

@@ -19,8 +19,8 @@ from online_backlash.drivers.can import CanSource
 from online_backlash.drivers.rawlog import RawCanLog
 from online_backlash.errors import FrameError, InvalidParameterError, SourceError
 from online_backlash.replay import open_log
-from online_backlash.rig import simulate_rig
-from online_backlash.rig_logs import rig_can_frames
+from online_backlash.simulation.rig import simulate_rig
+from online_backlash.simulation.rig_logs import rig_can_frames
 from online_backlash.stream import SampleSource
 
 SPLIT = ("MotorAngle.Count", "LoadAngle.Count")

@@ -18,8 +18,8 @@ from online_backlash.codecs.gaps import GapDetector
 from online_backlash.codecs.pairing import FramePipeline
 from online_backlash.replay import canlog
 from online_backlash.replay.canlog import CanLog
-from online_backlash.rig import simulate_rig
-from online_backlash.rig_logs import rig_can_frames
+from online_backlash.simulation.rig import simulate_rig
+from online_backlash.simulation.rig_logs import rig_can_frames
 from online_backlash.stream import chunked
 
 SPLIT = ("MotorAngle.Count", "LoadAngle.Count")

@@ -21,7 +21,7 @@ from online_backlash.cli import main
 from online_backlash.codecs.canopen import CanopenLayout, SyncPipeline, canopen_pipeline
 from online_backlash.errors import InvalidParameterError, LogFormatError
 from online_backlash.replay import open_log
-from online_backlash.rig import RigRecording, simulate_rig
+from online_backlash.simulation.rig import RigRecording, simulate_rig
 
 MOTOR_BITS, LOAD_BITS = 14, 17
 SYNC_OVERFLOW = 16

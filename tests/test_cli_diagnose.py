@@ -9,8 +9,8 @@ from pathlib import Path
 import pytest
 
 from online_backlash.cli import main
-from online_backlash.diagnostics import synthetic
-from online_backlash.rig import simulate_rig
+from online_backlash.simulation import synthetic
+from online_backlash.simulation.rig import simulate_rig
 
 KEYS = {"rms_before_deg", "rms_after_deg", "noise_floor_deg", "backlash_before_deg", "backlash_after_deg", "effects", "unexplained"}
 EFFECT_KEYS = {"name", "parameters", "rms_before_deg", "rms_after_deg", "evidence"}

@@ -16,8 +16,8 @@ from live_run import run_live, send_frames
 from online_backlash.cli import main
 from online_backlash.codecs.dbc import RIG_DBC, DbcDecoder
 from online_backlash.history.store import SCHEMA_VERSION, HistoryStore
-from online_backlash.rig import simulate_rig
-from online_backlash.rig_logs import rig_can_frames
+from online_backlash.simulation.rig import simulate_rig
+from online_backlash.simulation.rig_logs import rig_can_frames
 
 DAY = 86400.0
 T0 = 1.7e9

@@ -17,8 +17,8 @@ from live_run import LIMIT_S, run_live, send_frames, wait_until
 from online_backlash.cli import main
 from online_backlash.cli._live import CTRL_C_READY, ctrl_c_ends_the_run
 from online_backlash.codecs.dbc import RIG_DBC, DbcDecoder
-from online_backlash.rig import simulate_rig
-from online_backlash.rig_logs import rig_can_frames, rig_serial_records
+from online_backlash.simulation.rig import simulate_rig
+from online_backlash.simulation.rig_logs import rig_can_frames, rig_serial_records
 
 ESTIMATE_KEYS = {
     "backlash_deg", "backlash_arcmin", "c_left_deg", "c_right_deg", "m_left", "m_right",

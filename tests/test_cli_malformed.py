@@ -35,7 +35,7 @@ from online_backlash.cli import main
 from online_backlash.cli._common import EXIT_NO_PLAY, run_command
 from online_backlash.errors import BacklashWarning
 from online_backlash.history.store import HistoryStore
-from online_backlash.rig import simulate_rig
+from online_backlash.simulation.rig import simulate_rig
 
 DEMO = Path(__file__).resolve().parents[1] / "src" / "online_backlash" / "data" / "demo_rig_30to1.csv.gz"
 
@@ -133,7 +133,7 @@ def _binary_logs(d: Path, rec) -> None:
     from asammdf import MDF, Signal
     from nptdms import ChannelObject, TdmsWriter
 
-    from online_backlash.rig_logs import write_rig_can_log
+    from online_backlash.simulation.rig_logs import write_rig_can_log
 
     with TdmsWriter(d / "bench.tdms") as writer:  # one segment, as one write of LabVIEW's
         writer.write_segment([

@@ -10,14 +10,14 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from online_backlash.diagnostics import synthetic
 from online_backlash.diagnostics._folds import cycle_folds, reversal_cycles
 from online_backlash.diagnostics._scoring import Detection, DetectionData
 from online_backlash.diagnostics._search_round import inseparable_rivals
 from online_backlash.diagnostics.effects import Drift, TransmissionError
 from online_backlash.diagnostics.loop import diagnose_arrays
-from online_backlash.rig import rig_motion, simulate_rig
-from online_backlash.two_mass_rig import ARCMIN_PER_DEG
+from online_backlash.simulation import synthetic
+from online_backlash.simulation.rig import rig_motion, simulate_rig
+from online_backlash.simulation.two_mass_rig import ARCMIN_PER_DEG
 
 
 @pytest.fixture(scope="module")

@@ -16,7 +16,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from online_backlash.diagnostics import _refits, synthetic
+from online_backlash.diagnostics import _refits
 from online_backlash.diagnostics._fit_view import FitView, detection_data, held_mask, stacked_columns
 from online_backlash.diagnostics._folds import cycle_folds
 from online_backlash.diagnostics._normal_equations import Projector
@@ -28,7 +28,8 @@ from online_backlash.diagnostics.joint import fit_guarded
 from online_backlash.diagnostics.loop import diagnose_arrays
 from online_backlash.estimators.batch import VorosBacklash
 from online_backlash.load_aware.engagement import torque_deadband
-from online_backlash.two_mass_rig import ARCMIN_PER_DEG, simulate_two_mass
+from online_backlash.simulation import synthetic
+from online_backlash.simulation.two_mass_rig import ARCMIN_PER_DEG, simulate_two_mass
 
 
 @pytest.mark.parametrize(("w", "near"), [(5, [4, 6]), (1, [2]), (16, [11]), (7, [6, 8]), (40, [16])])

@@ -1,6 +1,6 @@
 """Compliance found without a torque column (issue 27, item 6): the load's acceleration stands in for the torque.
 
-The logs come from :func:`online_backlash.diagnostics.synthetic.inertial_twist`: a prescribed smooth motion,
+The logs come from :func:`online_backlash.simulation.synthetic.inertial_twist`: a prescribed smooth motion,
 a load that twists by ``-(J / k)`` times the motion's *analytic* acceleration while a flank is engaged,
 encoders quantised afterwards. The tool reads only the quantised angles and differentiates them its own way
 (a causal Savitzky-Golay filter), so it cannot succeed by inverting the simulator's arithmetic.
@@ -15,11 +15,11 @@ import numpy as np
 import pytest
 
 from online_backlash import BacklashRLS
-from online_backlash.diagnostics import synthetic
 from online_backlash.diagnostics._causal import START_SAMPLES, CausalWindow, savgol_derivative
 from online_backlash.diagnostics._fit_view import held_mask
 from online_backlash.diagnostics.effects import Compliance
 from online_backlash.diagnostics.loop import diagnose_arrays
+from online_backlash.simulation import synthetic
 
 #: the default twist of the simulator, s^2 (J / k)
 J_OVER_K = synthetic.INERTIA_OVER_STIFFNESS_S2

@@ -33,8 +33,8 @@ from online_backlash.errors import InvalidParameterError
 from online_backlash.estimators import RecursiveEstimator
 from online_backlash.load_aware import TorqueBacklashRLS
 from online_backlash.model import BacklashParams, simulate_cascade
-from online_backlash.rig import simulate_rig
-from online_backlash.two_mass_rig import simulate_two_mass
+from online_backlash.simulation.rig import simulate_rig
+from online_backlash.simulation.two_mass_rig import simulate_two_mass
 
 
 @dataclass(frozen=True)
@@ -62,7 +62,7 @@ def _rig_case(make: Callable[[], RecursiveEstimator], warm: int) -> Case:
 
 def _two_gap_case() -> Case:
     """A train with two gaps whose load an overrunning torque holds across the second one for part of every
-    rising stroke (:mod:`online_backlash.two_mass_rig`): partial crossings the estimator leaves out."""
+    rising stroke (:mod:`online_backlash.simulation.two_mass_rig`): partial crossings the estimator leaves out."""
     rec = simulate_two_mass(
         duration_s=16.0, play_deg=0.4, second_gap_deg=0.15, stiffness_nm_per_arcmin=1.0, viscous_nms_per_rad=0.05,
         external_torque_nm=lambda t: -0.15 * (1.0 - np.sin(np.pi * t)), seed=4,

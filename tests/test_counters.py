@@ -17,9 +17,9 @@ import pytest
 from online_backlash.cli import main
 from online_backlash.codecs.dbc import RIG_DBC, DbcDecoder
 from online_backlash.replay import open_log
-from online_backlash.rig import simulate_rig
-from online_backlash.rig_logs import rig_can_frames, write_rig_serial_capture
 from online_backlash.rows import COUNTER_KEYS, FIELDS, GAP_KEYS, describe_counts, source_counts
+from online_backlash.simulation.rig import simulate_rig
+from online_backlash.simulation.rig_logs import rig_can_frames, write_rig_serial_capture
 
 CAN_OPTIONS = ["--dbc", "rig", "--motor-signal", "MotorAngle.Count", "--load-signal", "LoadAngle.Count", "--skip-bad-rows"]
 BAD_ROWS = (100, 2000, 7001)  # data rows (0-based) made unparsable

@@ -23,7 +23,7 @@ from online_backlash.diagnostics.generic_terms import VelocityFunction
 from online_backlash.diagnostics.loop import Diagnosis, diagnose_arrays
 from online_backlash.errors import InvalidParameterError
 from online_backlash.model import BacklashParams
-from online_backlash.two_mass_rig import simulate_two_mass
+from online_backlash.simulation.two_mass_rig import simulate_two_mass
 
 
 def _stroke(speed_deg_s: float, ramp_s: float, dwell_s: float = 0.08, amplitude_deg: float = 20.0) -> Callable[[float, float], tuple[np.ndarray, np.ndarray]]:

@@ -18,7 +18,7 @@ from online_backlash.codecs.dbc import RIG_DBC, DbcDecoder
 from online_backlash.codecs.pairing import FramePipeline
 from online_backlash.codecs.units import ANGLE_UNITS
 from online_backlash.errors import InvalidParameterError
-from online_backlash.rig import simulate_rig
+from online_backlash.simulation.rig import simulate_rig
 
 T0 = 1_700_000_000.0
 

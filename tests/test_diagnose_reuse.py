@@ -15,7 +15,6 @@ import pytest
 from threadpoolctl import threadpool_limits
 
 from online_backlash import VorosBacklash
-from online_backlash.diagnostics import synthetic
 from online_backlash.diagnostics._causal import motion_direction
 from online_backlash.diagnostics._fit_view import detection_data, held_mask, stacked_columns
 from online_backlash.diagnostics._folds import cycle_folds
@@ -25,6 +24,7 @@ from online_backlash.diagnostics.effects import Compliance, Drift
 from online_backlash.diagnostics.joint import engaged_index, fit_guarded, fit_joint, hold_columns, separable
 from online_backlash.diagnostics.loop import diagnose_arrays
 from online_backlash.model import BacklashParams, simulate_backlash
+from online_backlash.simulation import synthetic
 
 
 @pytest.fixture(scope="module")

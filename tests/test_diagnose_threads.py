@@ -11,7 +11,8 @@ from __future__ import annotations
 import numpy as np
 from threadpoolctl import threadpool_info, threadpool_limits
 
-from online_backlash.diagnostics import loop, synthetic
+from online_backlash.diagnostics import loop
+from online_backlash.simulation import synthetic
 
 
 def _blas_threads() -> list[int]:

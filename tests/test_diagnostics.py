@@ -6,7 +6,6 @@ import numpy as np
 import pytest
 
 from online_backlash import BacklashRLS, VorosBacklash
-from online_backlash.diagnostics import synthetic
 from online_backlash.diagnostics._causal import motion_direction
 from online_backlash.diagnostics.joint import MAX_PLAY_INFLATION, fit_guarded, fit_joint, separable
 from online_backlash.diagnostics.loop import diagnose_arrays
@@ -21,7 +20,8 @@ from online_backlash.diagnostics.residuals import (
     time_spectrum,
 )
 from online_backlash.model import BacklashParams, simulate_backlash
-from online_backlash.rig import quantise, simulate_rig
+from online_backlash.simulation import synthetic
+from online_backlash.simulation.rig import quantise, simulate_rig
 
 PLAY = 0.5
 DURATION_S = 40.0

@@ -16,6 +16,7 @@ import pytest
 import online_backlash
 import online_backlash.drivers
 import online_backlash.replay
+from online_backlash._moved import MOVED_MODULES
 
 FLAGS = doctest.NORMALIZE_WHITESPACE | doctest.ELLIPSIS
 
@@ -25,7 +26,7 @@ def _module_names() -> list[str]:
     for package in (online_backlash, online_backlash.replay, online_backlash.drivers):
         names.add(package.__name__)
         names.update(m.name for m in pkgutil.walk_packages(package.__path__, package.__name__ + "."))
-    return sorted(names)
+    return sorted(names - MOVED_MODULES.keys())  # an old name is its new module, doctested under that name
 
 
 MODULES = _module_names()

@@ -27,8 +27,8 @@ from online_backlash.estimators import BacklashRLS
 from online_backlash.fitting import fit_batch, fit_recursive
 from online_backlash.pipeline import Pipeline
 from online_backlash.replay import CsvLog, read_csv_arrays
-from online_backlash.rig import simulate_rig
-from online_backlash.rig_logs import rig_can_frames, write_rig_serial_capture
+from online_backlash.simulation.rig import simulate_rig
+from online_backlash.simulation.rig_logs import rig_can_frames, write_rig_serial_capture
 
 PLAY_DEG = 0.5
 

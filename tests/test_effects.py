@@ -251,7 +251,7 @@ def test_dead_band_motion_hands_on_its_columns_on_every_sample_only():
     assert det is not None and det.columns is not None
     np.testing.assert_array_equal(det.columns, det.effect.clone().terms(u, t, q))
     assert det.nonzero_rows is not None and np.array_equal(det.nonzero_rows, nonzero_rows(det.columns))  # noted by the pass
-    from online_backlash.rig import simulate_rig
+    from online_backlash.simulation.rig import simulate_rig
 
     rec = simulate_rig(duration_s=85.0, reversal_s=(0.4, 1.0), seed=5)  # 49 reversal cycles: a screen of 15
     u, t = rec.motor_deg / 30.0, rec.time_s
@@ -270,7 +270,7 @@ def _speed_law_record(seed: int = 3) -> tuple[np.ndarray, np.ndarray, np.ndarray
     """Rig motion (speeds 15-45 deg/s, smooth reversals) and a smooth nonlinear law of the
     physical speed (``np.gradient``, not the term's causal 10-sample difference): a lag growing
     with the square of the speed plus a Stribeck-like step, deg, with 0.002 deg of white noise."""
-    from online_backlash.rig import rig_motion
+    from online_backlash.simulation.rig import rig_motion
 
     t, u = rig_motion(60.0, seed=seed)
     v = np.gradient(u, t)

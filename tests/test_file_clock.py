@@ -23,7 +23,7 @@ from online_backlash.clocks import CLOCK_MTIME, start_from_name, suggest_name_pa
 from online_backlash.errors import BacklashWarning, HistoryError, InvalidParameterError, LogFormatError
 from online_backlash.history.store import HistoryStore
 from online_backlash.replay import open_log
-from online_backlash.rig import simulate_rig
+from online_backlash.simulation.rig import simulate_rig
 from online_backlash.tracking import GearboxTracker
 
 #: 2026-03-02 08:00:00.250 UTC, the recordings' start.

@@ -13,7 +13,6 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from online_backlash.diagnostics import synthetic
 from online_backlash.diagnostics._scoring import DetectionData
 from online_backlash.diagnostics.dead_band import DeadBandMotion
 from online_backlash.diagnostics.effects import LIBRARY, VOCABULARY
@@ -22,7 +21,8 @@ from online_backlash.diagnostics.loop import diagnose_arrays
 from online_backlash.effect_terms import effect_class, effect_from_dict, effect_to_dict
 from online_backlash.errors import InvalidParameterError
 from online_backlash.model import BacklashParams
-from online_backlash.two_mass_rig import ARCMIN_PER_DEG, simulate_two_mass
+from online_backlash.simulation import synthetic
+from online_backlash.simulation.two_mass_rig import ARCMIN_PER_DEG, simulate_two_mass
 
 STIFFNESS_NM_PER_ARCMIN = 0.1
 COULOMB_NM = 0.05

@@ -19,15 +19,15 @@ import pytest
 from live_run import kill_mid_work, run_live, send_frames, wait_until
 
 from online_backlash.cli import main
-from online_backlash.cli._fleet import track_gearbox
+from online_backlash.cli.track import track_gearbox
 from online_backlash.codecs.dbc import RIG_DBC, DbcDecoder
 from online_backlash.errors import HistoryError
 from online_backlash.fleet import GearboxOutcome, load_manifest, run_fleet
 from online_backlash.fleet.progress import FleetProgress
 from online_backlash.fleet.simulated import write_simulated_fleet
 from online_backlash.history.store import HistoryStore
-from online_backlash.rig import simulate_rig
-from online_backlash.rig_logs import rig_can_frames
+from online_backlash.simulation.rig import simulate_rig
+from online_backlash.simulation.rig_logs import rig_can_frames
 from online_backlash.tracking import CLOCK_MTIME, GearboxTracker, TrackResult
 
 DAY = 86400.0
@@ -200,7 +200,7 @@ def test_a_dask_scheduler_and_two_dask_workers_give_the_rows_of_serial_tracking(
 KEPT_AFTER_A_TASK = """
 import os, sys
 import numpy as np
-from online_backlash.cli._fleet import parse_track_argv, track_defaults, track_gearbox
+from online_backlash.cli.track import parse_track_argv, track_defaults, track_gearbox
 from online_backlash.fleet import load_manifest
 from online_backlash.history.store import HistoryStore
 

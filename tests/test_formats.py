@@ -18,7 +18,7 @@ from online_backlash.replay import registry
 from online_backlash.replay.formats import LogFormat
 from online_backlash.replay.options import Timing, Units
 from online_backlash.replay.summary import ChannelInfo, FileSummary
-from online_backlash.rig import simulate_rig
+from online_backlash.simulation.rig import simulate_rig
 from online_backlash.stream import SampleChunk, SampleSource, StreamCounters
 
 

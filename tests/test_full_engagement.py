@@ -1,6 +1,6 @@
 """One drive, one play (issue 27): the flank lines where the flanks are fully engaged, partial crossings left out.
 
-A train with two gaps in series (:mod:`online_backlash.two_mass_rig`, ``second_gap_deg``): an overrunning
+A train with two gaps in series (:mod:`online_backlash.simulation.two_mass_rig`, ``second_gap_deg``): an overrunning
 load torque holds the load across the second gap for part of every rising stroke, so the load follows with
 only part of the play crossed, then falls back onto the driving flank. That is not the estimators' model
 (eq. 1 has one gap, the load on a flank or resting), and it is the measured gearhead's two-step crossing
@@ -20,10 +20,10 @@ from online_backlash import BacklashRLS, VorosBacklash
 from online_backlash.estimators.full_engagement import FOLLOWING, NO_FLANK, RESTING, FullEngagement
 from online_backlash.fitting import fit_batch, fit_recursive
 from online_backlash.history.store import HistoryStore
-from online_backlash.rig import simulate_rig
+from online_backlash.simulation.rig import simulate_rig
+from online_backlash.simulation.two_mass_rig import simulate_two_mass
 from online_backlash.stream import SampleChunk
 from online_backlash.tracking import GearboxTracker
-from online_backlash.two_mass_rig import simulate_two_mass
 
 PLAY = 0.4
 T0 = 1.7e9

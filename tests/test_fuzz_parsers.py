@@ -18,8 +18,8 @@ from online_backlash.codecs.pairing import FramePipeline
 from online_backlash.codecs.serialframes import AsciiParser, BinaryParser, encode_ascii, encode_binary
 from online_backlash.errors import FrameError, LogFormatError
 from online_backlash.replay import open_log
-from online_backlash.rig import simulate_rig
-from online_backlash.rig_logs import rig_can_frames
+from online_backlash.simulation.rig import simulate_rig
+from online_backlash.simulation.rig_logs import rig_can_frames
 
 FUZZ = settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
 CPR = {"motor_cpr": 2**14, "load_cpr": 2**17}

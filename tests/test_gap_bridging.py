@@ -20,10 +20,10 @@ from online_backlash.fitting import fit_batch
 from online_backlash.load_aware import TorqueBacklashRLS
 from online_backlash.model import BacklashParams, simulate_cascade
 from online_backlash.pipeline import Pipeline
-from online_backlash.rig import simulate_rig
+from online_backlash.simulation.rig import simulate_rig
+from online_backlash.simulation.two_mass_rig import simulate_two_mass
 from online_backlash.stream import SampleChunk
 from online_backlash.tracking import TrackerState
-from online_backlash.two_mass_rig import simulate_two_mass
 
 PLAY_DEG = 0.5
 NO_BRIDGE = GapPolicy(bridge_s=0.0)

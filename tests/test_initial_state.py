@@ -12,14 +12,15 @@ import numpy as np
 import pytest
 
 from online_backlash.cli import main
-from online_backlash.diagnostics import loop, synthetic
+from online_backlash.diagnostics import loop
 from online_backlash.diagnostics._initial_state import InitialState, estimate_initial_state, simulate_with_coast
 from online_backlash.diagnostics.loop import diagnose_arrays
 from online_backlash.diagnostics.residuals import simulation_residual
 from online_backlash.estimators import VorosBacklash
 from online_backlash.model import BacklashParams, simulate_backlash
-from online_backlash.rig import simulate_rig
-from online_backlash.two_mass_rig import simulate_two_mass
+from online_backlash.simulation import synthetic
+from online_backlash.simulation.rig import simulate_rig
+from online_backlash.simulation.two_mass_rig import simulate_two_mass
 
 #: the first samples of a record, where the two-mass rig's load coasts from mid-gap (about 15 ms)
 START = 50

@@ -1,6 +1,6 @@
 """Load-aware play (issue 12): the torque decides the engaged flank, a preloaded drive is not observable.
 
-Data the estimators did not shape: the two-mass rig (:mod:`online_backlash.two_mass_rig`:
+Data the estimators did not shape: the two-mass rig (:mod:`online_backlash.simulation.two_mass_rig`:
 inertia, viscous load, contact stiffness and damping, an external torque; the play and the
 wind-up follow from its dynamics, not from the estimators' model), files written by pyarrow
 with foreign column names, and the measured da Vinci gearhead runs (ODbL v1.0, see
@@ -23,7 +23,7 @@ from online_backlash.errors import InvalidParameterError
 from online_backlash.fitting import fit_batch, fit_recursive
 from online_backlash.load_aware import DwellTracker, TorqueBacklash, TorqueBacklashRLS, count_torque_reversals, engaged_flank, torque_deadband, torque_noise_std
 from online_backlash.load_aware.engagement import either_flank_engaged, torque_orientation
-from online_backlash.two_mass_rig import simulate_two_mass
+from online_backlash.simulation.two_mass_rig import simulate_two_mass
 
 DAVINCI = Path(__file__).resolve().parents[2] / "shared" / "data" / "davinci_tool_gearhead_backlash"
 DAVINCI_ARGS = [

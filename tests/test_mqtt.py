@@ -32,9 +32,9 @@ from online_backlash.errors import InvalidParameterError
 from online_backlash.fitting import fit_recursive
 from online_backlash.publish import PASSWORD_ENV, MqttPublisher, MqttTarget, MqttTls, estimate_message, live_state
 from online_backlash.replay import open_log
-from online_backlash.rig import simulate_rig
-from online_backlash.rig_logs import rig_can_frames
 from online_backlash.rows import REPORT_KEYS, EstimateRow
+from online_backlash.simulation.rig import simulate_rig
+from online_backlash.simulation.rig_logs import rig_can_frames
 
 T0 = 1.75e9  # the frames' clock: UNIX seconds
 CAN_OPTIONS = ["--interface", "virtual", "--dbc", "rig", "--motor-signal", "MotorAngle.Count", "--load-signal", "LoadAngle.Count"]

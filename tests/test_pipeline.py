@@ -1,4 +1,5 @@
-"""The pipeline (chunks -> estimator -> a row every N s of data), the declared estimate row, and the import rules."""
+"""The pipeline (chunks -> estimator -> a row every N s of data), the declared estimate row, and that the pipeline's
+modules never print (the import rules: tests/test_imports.py)."""
 
 from __future__ import annotations
 
@@ -14,12 +15,12 @@ import pytest
 
 from online_backlash import BacklashRLS
 from online_backlash.cli import main
-from online_backlash.diagnostics import synthetic
 from online_backlash.errors import InvalidParameterError, LogFormatError
 from online_backlash.history.store import ESTIMATE_FIELDS, Estimate, HistoryStore, estimates_table
 from online_backlash.pipeline import DataClock, Pipeline
-from online_backlash.rig import simulate_rig
 from online_backlash.rows import FIELDS, HISTORY_CSV_COLUMNS, REPORT_KEYS, STORE_COLUMNS, TRACE_COLUMNS, EstimateRow
+from online_backlash.simulation import synthetic
+from online_backlash.simulation.rig import simulate_rig
 from online_backlash.stream import SampleChunk
 
 PACKAGE = Path(__import__("online_backlash").__file__).resolve().parent
@@ -223,103 +224,6 @@ def test_track_diagnose_keeps_the_effects_in_the_checkpoint(te_logs, tmp_path, c
     # the effect tracked with the play explains the residual the plain model leaves
     assert with_effects[-1].residual_rms_deg < 0.6 * without[-1].residual_rms_deg
     assert with_effects[-1].backlash_deg == pytest.approx(0.5, abs=0.003)
-
-
-# -- who may import whom -------------------------------------------------------------------------
-
-
-def _package_files() -> dict[str, list[Path]]:
-    """Installed package name -> its source files; ``drivers/`` and ``replay/`` are mapped into
-    ``online_backlash`` from the repository's top level, so they are walked from their own paths."""
-    import online_backlash.drivers
-    import online_backlash.replay
-
-    roots = {"online_backlash": PACKAGE}
-    roots.update({p.__name__: Path(p.__path__[0]).resolve() for p in (online_backlash.drivers, online_backlash.replay)})
-    files: dict[str, list[Path]] = {}
-    for name, root in roots.items():
-        for path in sorted(root.rglob("*.py")):
-            parts = path.relative_to(root).parent.parts
-            files.setdefault(".".join((name, *parts)), []).append(path)
-    return files
-
-
-FILES = _package_files()
-
-
-def _imports(package: str, path: Path) -> set[str]:
-    """The online_backlash modules a source file of ``package`` imports (relative imports resolved)."""
-    out = set()
-    for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
-        if isinstance(node, ast.ImportFrom):
-            base = package.rsplit(".", node.level - 1)[0] if node.level > 1 else package
-            module = f"{base}.{node.module}" if node.level and node.module else (base if node.level else node.module or "")
-            out.add(module)
-            out.update(f"{module}.{a.name}" for a in node.names)
-        elif isinstance(node, ast.Import):
-            out.update(a.name for a in node.names)
-    return {m for m in out if m.startswith("online_backlash")}
-
-
-def _refers_to(imported: set[str], packages: tuple[str, ...]) -> list[str]:
-    return sorted(m for m in imported if any(m == p or m.startswith(p + ".") for p in packages))
-
-
-def _layer_imports(layer: str) -> list[tuple[Path, set[str]]]:
-    """Every file of ``online_backlash.<layer>`` (a sub-package, or a module) with what it imports."""
-    name = f"online_backlash.{layer}"
-    found = [(path, _imports(pkg, path)) for pkg, paths in FILES.items() if pkg == name or pkg.startswith(name + ".") for path in paths]
-    module = PACKAGE / f"{layer}.py"
-    if module.exists():
-        found.append((module, _imports("online_backlash", module)))
-    assert found, f"no files for {name}"
-    return found
-
-
-#: docs/architecture.md, "Who may import whom": layer -> what it never imports
-NEVER_IMPORTS = {
-    "history": ("estimators", "replay", "drivers", "codecs", "pipeline", "tracking", "fitting", "diagnostics", "cli", "publish"),
-    "codecs": ("replay", "drivers", "estimators", "pipeline", "tracking", "history", "diagnostics", "fitting", "cli", "publish"),
-    "replay": ("drivers", "estimators", "pipeline", "tracking", "history", "diagnostics", "fitting", "cli", "publish"),
-    "drivers": ("replay", "estimators", "pipeline", "tracking", "history", "diagnostics", "fitting", "cli", "publish"),
-    "estimators": ("replay", "drivers", "codecs", "pipeline", "tracking", "history", "fitting", "cli"),
-    "stream": ("replay", "drivers", "codecs", "estimators", "pipeline", "tracking", "history", "diagnostics", "cli"),
-    "pipeline": ("replay", "drivers", "codecs", "tracking", "history", "cli"),
-    "rows": ("replay", "drivers", "codecs", "estimators", "pipeline", "tracking", "history", "diagnostics", "cli"),
-    "bridging": ("replay", "drivers", "codecs", "estimators", "pipeline", "tracking", "history", "diagnostics", "fitting", "cli"),
-    "web": ("replay", "drivers", "codecs", "estimators", "pipeline", "tracking", "diagnostics", "fitting", "cli", "publish"),
-    "opcua": (
-        "replay", "drivers", "codecs", "estimators", "pipeline", "tracking", "diagnostics", "fitting", "cli", "publish",
-        "web",
-    ),
-    "load_aware": ("replay", "drivers", "codecs", "pipeline", "tracking", "history", "diagnostics", "fitting", "cli", "publish", "web"),
-    "fleet": ("replay", "drivers", "codecs", "estimators", "pipeline", "tracking", "history", "diagnostics", "fitting", "cli", "publish", "web"),
-    # the rule of what may be reported as a play (issue 27): the history store applies it too
-    "physical": (
-        "rows", "stream", "replay", "drivers", "codecs", "estimators", "pipeline", "tracking", "history",
-        "load_aware", "cli",
-    ),
-}
-
-
-@pytest.mark.parametrize("layer", sorted(NEVER_IMPORTS))
-def test_who_may_import_whom(layer):
-    forbidden = tuple(f"online_backlash.{p}" for p in NEVER_IMPORTS[layer])
-    for path, imported in _layer_imports(layer):
-        bad = _refers_to(imported, forbidden)
-        assert not bad, f"{path} ({layer}) imports {bad}"
-
-
-def test_the_library_never_imports_the_cli():
-    for package, paths in FILES.items():
-        if package == "online_backlash.cli" or package.startswith("online_backlash.cli."):
-            continue
-        for path in paths:
-            assert not _refers_to(_imports(package, path), ("online_backlash.cli",)), f"{path} imports the CLI"
-
-
-def test_the_import_rules_see_every_layer():
-    assert {"online_backlash.drivers", "online_backlash.replay", "online_backlash.codecs", "online_backlash.history"} <= set(FILES)
 
 
 def test_the_pipeline_modules_never_print():

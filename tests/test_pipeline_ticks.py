@@ -18,7 +18,7 @@ from online_backlash.errors import InvalidParameterError
 from online_backlash.estimators.uncertainty import SCATTER_EVERY_S, RecursivePlayScatter
 from online_backlash.fitting import fit_recursive
 from online_backlash.pipeline import DataClock, Pipeline
-from online_backlash.rig import simulate_rig
+from online_backlash.simulation.rig import simulate_rig
 from online_backlash.stream import SampleChunk
 
 

@@ -3,7 +3,7 @@ gearbox without play is measured, and the data sheet's three-segment stiffness.
 
 Data the estimators did not shape: the two-mass rig with what real drives add (a friction torque
 between the torque sensor and the flanks, a sensor zero offset, a hardening spring:
-:mod:`online_backlash.two_mass_rig`), the kinematic rig at 14- to 20-bit encoders, and the measured
+:mod:`online_backlash.simulation.two_mass_rig`), the kinematic rig at 14- to 20-bit encoders, and the measured
 da Vinci gearhead runs (ODbL v1.0, see ``shared/data/davinci_tool_gearhead_backlash/README.md``:
 MRDLab mis-tool-characterization, O'Neill, Stephens, Kowalewski, IEEE RA-L 3(4) 2018).
 """
@@ -22,9 +22,9 @@ from online_backlash.cli._common import EXIT_NO_PLAY
 from online_backlash.fitting import fit_batch, fit_recursive
 from online_backlash.history.store import HistoryStore
 from online_backlash.load_aware import TorqueBacklash
-from online_backlash.rig import simulate_rig
+from online_backlash.simulation.rig import simulate_rig
+from online_backlash.simulation.two_mass_rig import simulate_two_mass
 from online_backlash.tracking import GearboxTracker, TrackerState
-from online_backlash.two_mass_rig import simulate_two_mass
 
 DAVINCI = Path(__file__).resolve().parents[2] / "shared" / "data" / "davinci_tool_gearhead_backlash"
 UNITS = ["--ratio", "-35", "--units", "counts", "--motor-cpr", "4096", "--load-cpr", "8192"]

@@ -13,12 +13,12 @@ import numpy as np
 import pytest
 
 from online_backlash import BacklashRLS, CascadeRLS, VorosBacklash, VorosCascade
-from online_backlash.diagnostics import synthetic
 from online_backlash.diagnostics.effects import TransmissionError
 from online_backlash.errors import BacklashWarning, InvalidParameterError, NotExcitedError, NotFittedError
 from online_backlash.model import BacklashParams, simulate_backlash_varying, simulate_cascade
 from online_backlash.replay import read_csv_arrays
-from online_backlash.rig import quantise, rig_motion, simulate_rig
+from online_backlash.simulation import synthetic
+from online_backlash.simulation.rig import quantise, rig_motion, simulate_rig
 
 LOAD_COUNT_DEG = 360.0 / 2**17  # one count of the 17-bit load encoder
 

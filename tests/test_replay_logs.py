@@ -14,8 +14,8 @@ from online_backlash.codecs.pairing import FramePipeline
 from online_backlash.errors import InvalidParameterError, LogFormatError
 from online_backlash.replay import LOG_READERS, open_log, read_log_arrays
 from online_backlash.replay.canlog import CanLog
-from online_backlash.rig import simulate_rig
-from online_backlash.rig_logs import rig_can_frames
+from online_backlash.simulation.rig import simulate_rig
+from online_backlash.simulation.rig_logs import rig_can_frames
 
 SPLIT = {"dbc": RIG_DBC, "motor_signal": "MotorAngle.Count", "load_signal": "LoadAngle.Count"}
 T0 = 1_700_000_000.0
@@ -86,7 +86,7 @@ def test_open_log_and_read_log_arrays_take_a_raw_log_directory(tmp_path, frames,
 
 
 def test_a_serial_capture_directory_reads_as_one_capture(tmp_path):
-    from online_backlash.rig_logs import write_rig_serial_capture
+    from online_backlash.simulation.rig_logs import write_rig_serial_capture
 
     write_rig_serial_capture(tmp_path / "whole.serial", "binary", duration_s=0.2)
     data = (tmp_path / "whole.serial").read_bytes()
@@ -154,7 +154,7 @@ def test_gzip_of_a_damaged_file_is_a_log_format_error(tmp_path, frames):
 
 
 def test_simulated_rig_logs_for_the_readme_examples(tmp_path):
-    from online_backlash.rig_logs import write_rig_can_log, write_rig_serial_capture
+    from online_backlash.simulation.rig_logs import write_rig_can_log, write_rig_serial_capture
 
     assert write_rig_can_log(tmp_path / "rig.trc", duration_s=0.5) == 1000
     log = open_log(tmp_path / "rig.trc", **SPLIT)

@@ -16,7 +16,7 @@ import pytest
 from same_answer import assert_same_answer
 
 from online_backlash.cli import main as cli
-from online_backlash.diagnostics import _folds, synthetic
+from online_backlash.diagnostics import _folds
 from online_backlash.diagnostics._folds import N_FOLDS, SCREEN_CYCLES, SCREEN_FACTOR, SCREEN_STRIDE, cycle_folds
 from online_backlash.diagnostics._harmonics import harmonic_at_sources, harmonic_columns, held_harmonic, held_per_flank, shaft_harmonic
 from online_backlash.diagnostics._record_cache import RecordCache
@@ -28,7 +28,8 @@ from online_backlash.diagnostics.report import markdown_report
 from online_backlash.errors import InvalidParameterError
 from online_backlash.estimators.batch import VorosBacklash
 from online_backlash.model import BacklashParams, backlash_sensitivity, backlash_sensitivity_spans, simulate_backlash
-from online_backlash.rig import simulate_rig
+from online_backlash.simulation import synthetic
+from online_backlash.simulation.rig import simulate_rig
 
 
 @pytest.fixture(autouse=True)

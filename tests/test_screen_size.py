@@ -15,7 +15,7 @@ from same_answer import assert_same_answer
 
 from online_backlash.diagnostics._folds import SCREEN_CYCLES, SCREEN_FACTOR, SCREEN_MIN_SAMPLES, cycle_folds
 from online_backlash.diagnostics.loop import diagnose_arrays
-from online_backlash.two_mass_rig import simulate_two_mass
+from online_backlash.simulation.two_mass_rig import simulate_two_mass
 
 
 def _strokes(cycles: int, per_cycle: int) -> np.ndarray:

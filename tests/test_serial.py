@@ -15,8 +15,8 @@ from online_backlash.drivers.serial import SerialSource
 from online_backlash.errors import FrameError, InvalidParameterError, LogFormatError
 from online_backlash.replay import open_log
 from online_backlash.replay.serialcapture import SerialCapture
-from online_backlash.rig import simulate_rig
-from online_backlash.rig_logs import rig_serial_records
+from online_backlash.simulation.rig import simulate_rig
+from online_backlash.simulation.rig_logs import rig_serial_records
 from online_backlash.stream import SampleSource
 
 CPR = {"motor_cpr": 2**14, "load_cpr": 2**17}

@@ -15,7 +15,7 @@ from online_backlash.errors import InvalidParameterError
 from online_backlash.replay import LOG_READERS, CsvLog, open_log, read_csv_arrays
 from online_backlash.replay.canlog import CanLog
 from online_backlash.replay.serialcapture import SerialCapture
-from online_backlash.rig import quantise, simulate_rig
+from online_backlash.simulation.rig import quantise, simulate_rig
 from online_backlash.stream import Gap, Sample, SampleSource, StreamCounters, chunked, concat_chunks, rechunk, refer_to_load
 
 

@@ -33,8 +33,8 @@ from online_backlash.pipeline import read_ahead
 from online_backlash.replay import LOG_READERS
 from online_backlash.replay.mdf import MdfLog
 from online_backlash.replay.parquet import ParquetLog
-from online_backlash.rig import simulate_rig
-from online_backlash.rig_logs import rig_can_frames
+from online_backlash.simulation.rig import simulate_rig
+from online_backlash.simulation.rig_logs import rig_can_frames
 from online_backlash.stream import SampleChunk
 
 T0 = 1.7e9

@@ -24,8 +24,8 @@ from online_backlash.estimators.uncertainty import RecursivePlayScatter
 from online_backlash.fitting import fit_recursive
 from online_backlash.pipeline import OrderedWorker, Pipeline
 from online_backlash.replay.csv import CsvLog
-from online_backlash.rig import simulate_rig
 from online_backlash.rows import EstimateRow
+from online_backlash.simulation.rig import simulate_rig
 from online_backlash.stream import SampleChunk
 
 DAVINCI = Path(__file__).resolve().parents[2] / "shared" / "data" / "davinci_tool_gearhead_backlash"

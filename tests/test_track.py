@@ -18,7 +18,7 @@ from online_backlash.history.report import wear_report
 from online_backlash.history.series import bundled_wear_series
 from online_backlash.history.store import HistoryStore
 from online_backlash.history.usage import UsageCounter
-from online_backlash.rig import simulate_rig
+from online_backlash.simulation.rig import simulate_rig
 from online_backlash.tracking import GearboxTracker, track_series
 
 DAY = 86400.0

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from online_backlash.errors import InvalidParameterError
-from online_backlash.two_mass_rig import ARCMIN_PER_DEG, simulate_two_mass
+from online_backlash.simulation.two_mass_rig import ARCMIN_PER_DEG, simulate_two_mass
 
 
 def test_engaged_flank_is_flank_offset_plus_windup():

@@ -23,9 +23,9 @@ from online_backlash.estimators.uncertainty import (
 )
 from online_backlash.fitting import fit_batch, fit_recursive
 from online_backlash.replay import read_csv_arrays
-from online_backlash.rig import simulate_rig
+from online_backlash.simulation.rig import simulate_rig
+from online_backlash.simulation.two_mass_rig import simulate_two_mass
 from online_backlash.stream import SampleChunk
-from online_backlash.two_mass_rig import simulate_two_mass
 
 DAVINCI = Path(__file__).resolve().parents[2] / "shared" / "data" / "davinci_tool_gearhead_backlash"
 

@@ -1,7 +1,7 @@
 """Wear against the machine's own clock (issue 28): the hour meter given or recorded, the trend's clock, snapshot
 logs one point each, the forecast in machine hours and as a date, one wording for every reader, old stores.
 
-The logs are written by :mod:`online_backlash.wear_logs` from the two-mass rig (a compliant drive with contact
+The logs are written by :mod:`online_backlash.simulation.wear_logs` from the two-mass rig (a compliant drive with contact
 dynamics, not the model the estimator assumes) or the simulated rig, and tracked through the command line.
 """
 
@@ -30,9 +30,9 @@ from online_backlash.history.store import SCHEMA_VERSION, resolve_url
 from online_backlash.history.text import wear_figures
 from online_backlash.history.trend import fit_trend
 from online_backlash.publish import MqttPublisher
-from online_backlash.rig import simulate_rig
 from online_backlash.rows import EstimateRow
-from online_backlash.wear_logs import SnapshotPlan, daily, truth, write_snapshot_logs
+from online_backlash.simulation.rig import simulate_rig
+from online_backlash.simulation.wear_logs import SnapshotPlan, daily, truth, write_snapshot_logs
 from online_backlash.web.fleet import fleet_row
 
 DATA = Path(__file__).resolve().parent / "data"

@@ -11,7 +11,8 @@ Terms are *causal* and *streaming-consistent*: an effect keeps what history it n
 (previous angle, time, ...) between calls, so calling :meth:`EffectTerms.terms` once on a whole
 record gives the same rows as calling it on consecutive pieces, or one sample at a time.
 
-Effects are saved by name: :data:`EFFECTS` maps a name to its class, and
+Effects are saved by name: :data:`EFFECTS` maps a name to its class (the library's, listed once where they
+are declared, in :data:`online_backlash.diagnostics.effects.LIBRARY`, and any added by :func:`register_effect`), and
 :func:`effect_to_dict` / :func:`effect_from_dict` turn an effect into JSON and back (its
 constructor arguments; the stream history is the estimator's to restore, see
 :meth:`~online_backlash.estimators.BacklashRLS.state_dict`).
@@ -21,6 +22,7 @@ from __future__ import annotations
 
 import importlib
 import json
+from collections.abc import Iterator, MutableMapping
 from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
@@ -63,17 +65,44 @@ def stream_history(effect: EffectTerms) -> int | None:
     return None if h is None else int(h)
 
 
-#: The library's effects by their ``name``: ``"module:Class"``, imported on first use (so that
-#: importing this module stays light and the estimators do not import the diagnostics).
-#: :func:`register_effect` adds others.
-EFFECTS: dict[str, str | type] = {
-    "transmission_error": "online_backlash.diagnostics.effects:TransmissionError",
-    "delay": "online_backlash.diagnostics.effects:Delay",
-    "compliance": "online_backlash.diagnostics.effects:Compliance",
-    "drift": "online_backlash.diagnostics.effects:Drift",
-    "dead_band_motion": "online_backlash.diagnostics.dead_band:DeadBandMotion",
-    "flank_profile": "online_backlash.diagnostics.flank_profile:FlankProfile",
-}
+#: The module that declares the library's effects: its ``LIBRARY`` lists them. It is imported on the first look-up by
+#: name, not here, so that importing this module stays light and the estimators do not import the diagnostics.
+LIBRARY_MODULE = "online_backlash.diagnostics.effects"
+
+
+class EffectRegistry(MutableMapping[str, type]):
+    """Effect classes by their ``name``: the library's (``LIBRARY`` of :data:`LIBRARY_MODULE`, read on first use)
+    and those added with :func:`register_effect`, which take precedence over a library effect of the same name."""
+
+    def __init__(self, library_module: str) -> None:
+        self._library_module = library_module
+        self._added: dict[str, type] = {}
+        self._classes: dict[str, type] | None = None
+
+    def _all(self) -> dict[str, type]:
+        if self._classes is None:
+            library = importlib.import_module(self._library_module).LIBRARY
+            self._classes = {cls.name: cls for cls in library}
+        return {**self._classes, **self._added}
+
+    def __getitem__(self, name: str) -> type:
+        return self._all()[name]
+
+    def __setitem__(self, name: str, cls: type) -> None:
+        self._added[name] = cls
+
+    def __delitem__(self, name: str) -> None:
+        del self._added[name]
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(self._all())
+
+    def __len__(self) -> int:
+        return len(self._all())
+
+
+#: The effects a saved estimator can name. :func:`register_effect` adds others.
+EFFECTS = EffectRegistry(LIBRARY_MODULE)
 
 
 def register_effect(cls: type, name: str | None = None) -> type:
@@ -91,9 +120,6 @@ def effect_class(name: str) -> type:
     entry = EFFECTS.get(name)
     if entry is None:
         raise InvalidParameterError(f"no effect named {name!r} is registered; known: {sorted(EFFECTS)}")
-    if isinstance(entry, str):
-        module, _, attr = entry.partition(":")
-        entry = EFFECTS[name] = getattr(importlib.import_module(module), attr)
     return entry
 
 

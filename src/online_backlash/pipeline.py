@@ -416,7 +416,7 @@ class Pipeline:
     Examples
     --------
     >>> from online_backlash import BacklashRLS
-    >>> from online_backlash.rig import simulate_rig
+    >>> from online_backlash.simulation.rig import simulate_rig
     >>> rec = simulate_rig(duration_s=20.0, ratio=30.0, play_deg=0.5, seed=1)
     >>> pipe = Pipeline(BacklashRLS(), 30.0, every_s=5.0)
     >>> rows = [s.row for s in pipe.run([rec.to_chunk()]) if s.row is not None]

@@ -10,13 +10,19 @@ from __future__ import annotations
 import argparse
 import datetime as dt
 import math
+import os
+import socket
 import sys
+import time
 from collections.abc import Iterator
 from contextlib import contextmanager
+from functools import cache
 from typing import TYPE_CHECKING, Any
 
+from .._allocator import keep_freed_memory
 from ..clocks import TIME_UNITS as TIME_UNIT_NAMES
-from ..errors import InvalidParameterError
+from ..errors import BacklashError, InvalidParameterError
+from ..fleet import GearboxJob, GearboxOutcome
 from ..rows import describe_counts
 from ._common import (
     LOG_FORMATS,
@@ -200,7 +206,7 @@ def run(args: argparse.Namespace) -> int:
     if args.manifest is not None:
         from ._fleet import run_manifest
 
-        return run_manifest(args)
+        return run_manifest(args, track_gearbox, parse_track_argv, track_defaults(), report)
     if args.workers is not None or args.scheduler is not None:
         raise InvalidParameterError("--workers and --scheduler run a fleet: give them with --manifest")
     check_track_args(args)
@@ -371,3 +377,64 @@ def report(result: TrackResult, as_json: bool) -> None:
     counts = describe_counts(result.counters)
     clock = f"; placed in time by the {result.clock}" if result.clock else ""
     print(f"{line}\n  source: {counts}{clock}" if counts or clock else line)
+
+
+# -- one gearbox of a fleet manifest (track --manifest, cli/_fleet.py), tracked as track tracks it alone --------
+
+
+class _OptionError(argparse.ArgumentParser):
+    """An argument parser whose errors raise InvalidParameterError instead of exiting."""
+
+    def error(self, message: str) -> None:  # type: ignore[override]
+        raise InvalidParameterError(message)
+
+
+@cache
+def _track_parser() -> argparse.ArgumentParser:
+    """``track``'s own option parser (as ``online-backlash track`` builds it), raising on bad options."""
+    root = argparse.ArgumentParser(prog="online-backlash")
+    subparsers = root.add_subparsers(parser_class=_OptionError)
+    add_subparser(subparsers)
+    return subparsers.choices["track"]
+
+
+def parse_track_argv(argv: list[str]) -> argparse.Namespace:
+    """One gearbox's ``track`` arguments, parsed and checked as ``track`` checks them."""
+    args = _track_parser().parse_args(argv)
+    check_track_args(args)
+    return args
+
+
+def track_defaults() -> dict[str, object]:
+    """Every option of ``track`` (dest name) with its default."""
+    return {k: v for k, v in vars(_track_parser().parse_args(["--db", "-"])).items() if k != "func"}
+
+
+def track_gearbox(job: GearboxJob) -> GearboxOutcome:
+    """Track one gearbox of a fleet (a Dask task): its logs in time order into the store, as ``track`` does.
+
+    An error of the gearbox's options, logs or store is returned in the outcome (the logs before
+    it are stored); the task is not retried for it.
+    """
+    from ..history.store import HistoryStore
+
+    # Dask's nanny starts its workers with MALLOC_TRIM_THRESHOLD_=65536 (distributed.nanny.pre-spawn-environ), so
+    # glibc handed every block a log's reading frees back to the kernel and faulted the next one in afresh: 94,000
+    # page faults and 1.6-1.7x the CPU of the same gearbox tracked in the CLI's process (docs/benchmarks.md). A worker
+    # tracks one log after another: its blocks are reused instead, as in the CLI's own one-shot commands.
+    keep_freed_memory()
+    started, cpu = time.perf_counter(), time.process_time()
+    outcome = GearboxOutcome(job.id, worker=f"{socket.gethostname()}:{os.getpid()}")
+    try:
+        args = parse_track_argv(list(job.argv))
+        with HistoryStore(args.db, create=True) as store:
+            per_log = {path: dict(keys) for path, keys in job.per_log.items()}
+            logs = ordered_logs(argparse.Namespace(**{**vars(args), "quiet": True}), per_log)
+            tracker = gearbox_tracker(store, args, logs)
+            for result in track_logs(tracker, args, logs, per_log=per_log):
+                outcome.results.append(result)
+    except (BacklashError, OSError) as exc:
+        outcome.error = str(exc)
+    outcome.elapsed_s = time.perf_counter() - started
+    outcome.cpu_s = time.process_time() - cpu
+    return outcome

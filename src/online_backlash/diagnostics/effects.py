@@ -50,9 +50,6 @@ from ._speed import MAX_INNER_KNOTS, held_spline_columns, record_speed_knots
 from .dead_band import DeadBandMotion
 from .flank_profile import FlankProfile
 
-#: the names an effect of the library may carry (the ``name`` of the JSON contract)
-VOCABULARY = ("transmission_error", "delay", "compliance", "drift", "dead_band_motion", "flank_profile")
-
 _RAD = np.pi / 180.0
 #: share of the residual one harmonic order must explain on its own to be kept
 MIN_ORDER_GAIN = 0.01
@@ -550,5 +547,10 @@ class Drift(EffectBase):
         )
 
 
-#: the named effects, in the order they are tried
+#: The library's effects, in the order the closing-the-loop search tries them: the one list of them. A saved
+#: estimator names its effects, and :func:`online_backlash.effect_terms.effect_class` finds them here by their
+#: ``name`` (:data:`online_backlash.effect_terms.EFFECTS` is built from this list on its first look-up).
 LIBRARY = (TransmissionError, Delay, Compliance, Drift, DeadBandMotion, FlankProfile)
+
+#: the names an effect of the library may carry (the ``name`` of the JSON contract)
+VOCABULARY = tuple(effect.name for effect in LIBRARY)

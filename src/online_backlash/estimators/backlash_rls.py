@@ -210,7 +210,7 @@ class BacklashRLS(RecursiveEstimator):
     Examples
     --------
     >>> from online_backlash import BacklashRLS
-    >>> from online_backlash.rig import simulate_rig
+    >>> from online_backlash.simulation.rig import simulate_rig
     >>> rec = simulate_rig(duration_s=60.0, play_deg=0.5)
     >>> est = BacklashRLS(memory_reversals=20)
     >>> est.learn_many(rec.motor_deg / rec.ratio, rec.load_deg)

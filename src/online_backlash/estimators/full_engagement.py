@@ -395,7 +395,7 @@ class FullEngagement:
     The estimator's own model: the load is always on a flank; only a few samples in the turning zones,
     where one flank's load rested and the other's followed, are on neither line.
 
-    >>> from online_backlash.rig import simulate_rig
+    >>> from online_backlash.simulation.rig import simulate_rig
     >>> rec = simulate_rig(duration_s=20.0, play_deg=0.5)
     >>> fe = FullEngagement()
     >>> seen = fe.fit(rec.motor_deg / rec.ratio, rec.load_deg)

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from ..rig import simulate_rig
+from ..simulation.rig import simulate_rig
 
 #: 2023-11-14 22:13:20 UTC: the simulated logs carry UNIX times from here, one log a day.
 START_UNIX_S = 1.7e9

@@ -177,7 +177,7 @@ def engagement_torques(
     towards, or without torque).
 
     While the motor crosses the gap no flank touches, so the sensor reads its zero offset plus the
-    friction between it and the flanks in that direction of motion (:mod:`online_backlash.two_mass_rig`
+    friction between it and the flanks in that direction of motion (:mod:`online_backlash.simulation.two_mass_rig`
     simulates both): what it reads when the flank the motor moves towards begins to carry."""
     out: list[float | None] = []
     for direction in (-1.0, 1.0):

@@ -122,7 +122,7 @@ class TorqueBacklashRLS(FlankPairFigures, RecursiveEstimator):
 
     Examples
     --------
-    >>> from online_backlash.two_mass_rig import simulate_two_mass
+    >>> from online_backlash.simulation.two_mass_rig import simulate_two_mass
     >>> rec = simulate_two_mass(duration_s=10.0, play_deg=0.4)
     >>> est = TorqueBacklashRLS()
     >>> est.learn_many(rec.motor_deg / rec.ratio, rec.load_deg, torque_Nm=rec.torque_Nm)
