@@ -94,14 +94,9 @@ def write_files(folder: Path, samples: int) -> dict[str, tuple[Path, Path]]:
     }
     if all(p.exists() for pair in paths.values() for p in pair):
         return paths
-    from same_results import write_rig_formats  # (this folder: the same files as the byte-identity check's)
+    from same_results import bench_rig, write_rig_formats  # (this folder: the same files as the byte-identity check's)
 
-    from online_backlash.simulation.rig import simulate_rig
-
-    records = (
-        simulate_rig(duration_s=samples / 1000.0, play_deg=0.5, seed=3),
-        simulate_rig(duration_s=SMALL_SAMPLES / 1000.0, play_deg=0.5, seed=3, reversal_s=(0.2, 0.4)),
-    )
+    records = (bench_rig(samples), bench_rig(SMALL_SAMPLES, quick=True))
     for which, rec in enumerate(records):
         parquet = {compression: paths[f"parquet-{compression}"][which] for compression in ("none", "lz4", "snappy")}
         write_rig_formats(rec, parquet, paths["arrow"][which], paths["mf4"][which], paths["csv"][which])

@@ -40,6 +40,14 @@ MDF_COLUMNS = ["--columns", "motor=Motor,load=Load"]
 TWO_MASS = ["--ratio", "30", "--columns", "time=time,motor=motor,load=load,torque=torque"]
 
 
+def bench_rig(samples: int, quick: bool = False):
+    """The simulated 30:1 rig the speed benches read: ``samples`` at 1 kHz, play 0.5 deg, seed 3; ``quick``: reversing
+    every 0.2-0.4 s (a short file whose samples start the estimator)."""
+    from online_backlash.simulation.rig import simulate_rig
+
+    return simulate_rig(duration_s=samples / 1000.0, play_deg=0.5, seed=3, **({"reversal_s": (0.2, 0.4)} if quick else {}))
+
+
 def write_rig_formats(rec, parquet: dict[str, Path], arrow: Path, mf4: Path, csv: Path) -> None:
     """The rig record ``rec`` (time, motor, load) as Parquet (``parquet``: compression -> path; row groups of
     1,000,000 rows), Arrow IPC (uncompressed, batches of 1,000,000 rows), MDF 4.10 (asammdf; ``Motor`` and ``Load``
@@ -78,12 +86,10 @@ def write_inputs(folder: Path, samples: int) -> dict[str, Path]:
     }  # fmt: skip
     if all(p.exists() for p in paths.values()):
         return paths
-    from online_backlash.simulation.rig import simulate_rig
     from online_backlash.simulation.two_mass_rig import simulate_two_mass
 
     parquet = {"snappy": paths["parquet"], "none": paths["uncompressed.parquet"], "lz4": paths["lz4.parquet"]}
-    rec = simulate_rig(duration_s=samples / 1000.0, play_deg=0.5, seed=3)
-    write_rig_formats(rec, parquet, paths["arrow"], paths["mf4"], paths["csv"])
+    write_rig_formats(bench_rig(samples), parquet, paths["arrow"], paths["mf4"], paths["csv"])
     for minutes in (2, 10):
         simulate_two_mass(duration_s=60.0 * minutes, motion="rig", coulomb_nm=0.05, seed=0).write_csv(
             paths[f"two_mass_{minutes}min"]

@@ -21,7 +21,7 @@ import statistics
 from pathlib import Path
 
 from end_to_end import ESTIMATE, run, spread  # (this folder)
-from same_results import write_rig_formats
+from same_results import bench_rig, write_rig_formats
 
 HOUR = 3_600_000
 SMALL = 2000
@@ -36,12 +36,7 @@ def write_files(folder: Path) -> dict[str, tuple[Path, Path]]:
     paths = {kind: (folder / f"hour{suffix}", folder / f"small{suffix}") for kind, suffix in FORMATS.items()}
     if all(p.exists() for pair in paths.values() for p in pair):
         return paths
-    from online_backlash.simulation.rig import simulate_rig
-
-    records = (
-        simulate_rig(duration_s=HOUR / 1000.0, play_deg=0.5, seed=3),
-        simulate_rig(duration_s=SMALL / 1000.0, play_deg=0.5, seed=3, reversal_s=(0.2, 0.4)),
-    )
+    records = (bench_rig(HOUR), bench_rig(SMALL, quick=True))
     for which, rec in enumerate(records):
         names = [paths[kind][which] for kind in ("parquet", "csv", "mf4")]
         arrow = folder / "unused.arrow"
