@@ -149,8 +149,10 @@ class BacklashReport:
         )
 
     def plausibility(self, ratio: float) -> str | None:
-        """:func:`plausibility` of this fit (a torque column: ``torque_reversals`` is set)."""
-        return plausibility(self.m_left, self.m_right, self.backlash_deg, ratio, self.torque_reversals is not None)
+        """:func:`plausibility` of this fit (a torque column: ``torque_reversals`` is set); None where the
+        report's ``reason`` says it already (a play withheld for its slopes, :meth:`withhold_off_slope`)."""
+        note = plausibility(self.m_left, self.m_right, self.backlash_deg, ratio, self.torque_reversals is not None)
+        return None if note is not None and self.reason is not None and note in self.reason else note
 
     def take_datasheet(self, drawn: BacklashReport) -> BacklashReport:
         """Take the data-sheet figures (stiffness, lost motion, hysteresis loss: :class:`DatasheetFigures`' keys)
@@ -168,7 +170,7 @@ class BacklashReport:
         where the play is not observable, else a fit that gave no number (check units and ratio)."""
         if math.isfinite(self.backlash_deg):
             return None
-        return self.as_dict().get("reason") or (
+        return self.reason or (
             "the fit gave no finite play: check the units (--units, --motor-cpr/--load-cpr) and --ratio"
         )
 
@@ -463,7 +465,7 @@ def _load_lines(report: BacklashReport) -> list[str]:
     if values.get("unused_torque_columns"):
         unused = ", ".join(values["unused_torque_columns"])
         lines.append(f"torque:         column(s) {unused} present but not used (map one with --columns torque=NAME)")
-    reason = values.get("reason") or report.no_play_reason()  # a measured zero has a play and its reason
+    reason = report.reason or report.no_play_reason()  # a measured zero has a play and its reason
     if reason is not None:
         lower, upper = report.backlash_lower_bound_deg, values.get("backlash_upper_bound_deg")
         bounds = [f"at least {lower:.4f} deg"] if lower else []

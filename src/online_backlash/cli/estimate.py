@@ -180,9 +180,8 @@ def run(args: argparse.Namespace) -> int:
         if fitted is None:  # the data-sheet figures of the curve drawn, not a second set from the recursive fit
             report.take_datasheet(drawn)
     print_report(report.as_dict() if args.json else describe(report, args.log), files_written(args))
-    note, why_none = report.plausibility(args.ratio), report.no_play_reason()
-    warn_if_implausible(None if note is not None and why_none is not None and note in why_none else note, args.log)
-    return play_exit_code(report.backlash_deg, args.log, why_none)
+    warn_if_implausible(report.plausibility(args.ratio), args.log)
+    return play_exit_code(report.backlash_deg, args.log, report.no_play_reason())
 
 
 def write_trace(
