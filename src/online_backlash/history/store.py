@@ -143,35 +143,37 @@ def _add_load_condition(conn: Connection) -> None:
         conn.exec_driver_sql(f"ALTER TABLE estimates ADD COLUMN IF NOT EXISTS {name} {sql_type}{default}")
 
 
+def _add_estimate_columns(conn: Connection, names: tuple[str, ...]) -> None:
+    """Add to ``estimates`` those of the columns ``names`` it lacks, typed as the current definition types them
+    (an SQLite store coming from version 2 has them already: version 3 rebuilt its table from that definition)."""
+    present = {c["name"] for c in inspect(conn).get_columns("estimates")}
+    for name in names:
+        if name not in present:
+            sql_type = estimates_table.c[name].type.compile(dialect=conn.dialect)
+            conn.exec_driver_sql(f"ALTER TABLE estimates ADD COLUMN {name} {sql_type}")
+
+
 def _add_machine_hours(conn: Connection) -> None:
     """Version 3 -> 4: each estimate's machine hours (the machine's hour meter, issue 28; NULL: not given).
 
     The estimates stored before keep their logged operating hours; their machine hours are not
-    known. (An SQLite store coming from version 2 has the column already: version 3 rebuilt its
-    table from the current definition.)
+    known.
     """
-    if "machine_hours" in {c["name"] for c in inspect(conn).get_columns("estimates")}:
-        return
-    column_type = Double().compile(dialect=conn.dialect)
-    conn.exec_driver_sql(f"ALTER TABLE estimates ADD COLUMN machine_hours {column_type}")
+    _add_estimate_columns(conn, ("machine_hours",))
 
 
 def _add_play_method(conn: Connection) -> None:
     """Version 4 -> 5: each estimate's path and verdict (issue 27), and the verdict of the plays stored before.
 
     Adds ``play_method``, ``play_method_reason``, ``reason``, ``backlash_lower_bound_deg`` and
-    ``backlash_upper_bound_deg`` (NULL: not known; a store rebuilt by the SQLite step of version 3
-    has them already). Then applies the rule of :mod:`online_backlash.physical` to every stored play:
+    ``backlash_upper_bound_deg`` (NULL: not known). Then applies the rule of :mod:`online_backlash.physical` to every stored play:
     a play below zero, or whose standard error exceeds half its value, was never a play -- its
     ``backlash_deg`` becomes NULL, ``play_observable`` false, and ``reason`` keeps what it was
     (the encoders' resolution of those rows is not known, so a measured zero is not told apart here).
     """
-    columns = ("play_method", "play_method_reason", "reason", "backlash_lower_bound_deg", "backlash_upper_bound_deg")
-    present = {c["name"] for c in inspect(conn).get_columns("estimates")}
-    for name in columns:
-        if name not in present:
-            sql_type = estimates_table.c[name].type.compile(dialect=conn.dialect)
-            conn.exec_driver_sql(f"ALTER TABLE estimates ADD COLUMN {name} {sql_type}")
+    _add_estimate_columns(
+        conn, ("play_method", "play_method_reason", "reason", "backlash_lower_bound_deg", "backlash_upper_bound_deg")
+    )
     t = estimates_table
     stored = conn.execute(select(t.c.id, t.c.backlash_deg, t.c.backlash_std_deg).where(t.c.backlash_deg.is_not(None)))
     for row_id, play, std in stored.all():
