@@ -294,11 +294,12 @@ def test_a_fit_whose_slopes_say_wrong_units_has_no_play():
     referred motor at slope 8, so the 22.8 deg that comes out is no play of the gearbox; batch and recursive say
     why instead (the reason names units and ratio), and the same rig at its own ratio keeps its play."""
     rig = simulate_rig(duration_s=40.0, ratio=3.75, play_deg=0.5, seed=4)
-    for fit in (fit_batch, fit_recursive):
-        off = fit([rig.to_chunk()] if fit is fit_recursive else rig.to_chunk(), 30.0)[0]
+    chunk = rig.to_chunk()
+    for fit, log in ((fit_batch, chunk), (fit_recursive, [chunk])):
+        off = fit(log, 30.0)[0]
         assert math.isnan(off.backlash_deg) and off.play_observable is False
         assert off.no_play_reason().startswith("not reported: fitted slope 8") and "--ratio 3.75" in off.no_play_reason()
-        right = fit([rig.to_chunk()] if fit is fit_recursive else rig.to_chunk(), 3.75)[0]
+        right = fit(log, 3.75)[0]
         assert right.backlash_deg == pytest.approx(0.5, abs=0.02) and right.no_play_reason() is None
 
 

@@ -288,9 +288,7 @@ class BacklashRLS(RecursiveEstimator):
         batch = VorosBacklash(origin="zero", full_engagement=self.full_engagement)
         batch.warn_unconverged = False  # told by converged_ (warm_start_), as no warning the user could act on
         batch.fit(uc, yc)
-        if terms.shape[1] == 0:
-            return batch.params_, int(batch.n_iter_), bool(batch.converged_)
-        start = _refine_with_effects(uc, yc, terms, batch.params_, ~batch.partial_)
+        start = batch.params_ if terms.shape[1] == 0 else _refine_with_effects(uc, yc, terms, batch.params_, ~batch.partial_)
         return start, int(batch.n_iter_), bool(batch.converged_)
 
     def _cold_params(self, u: np.ndarray | None, y: np.ndarray | None) -> BacklashParams:
