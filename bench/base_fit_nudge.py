@@ -36,8 +36,17 @@ RUNS = {
     "run49": "tool4_L_run49_0.5Hz_torque100pct.csv",
 }
 ARGS = [
-    "--ratio", "-35", "--units", "counts", "--motor-cpr", "4096", "--load-cpr", "8192",
-    "--columns", "time=time_s,motor=motor_counts,load=spindle_counts,torque=backend_torque_Nm", "--json",
+    "--ratio",
+    "-35",
+    "--units",
+    "counts",
+    "--motor-cpr",
+    "4096",
+    "--load-cpr",
+    "8192",
+    "--columns",
+    "time=time_s,motor=motor_counts,load=spindle_counts,torque=backend_torque_Nm",
+    "--json",
 ]
 
 
@@ -67,9 +76,13 @@ def diagnosed(path: Path, change: float, blas_threads: int | None = None) -> dic
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--changes", default="0,1e-12,-1e-12,1e-9,-1e-9,1e-7,-1e-7", help="comma-separated relative changes")
+    parser.add_argument(
+        "--changes", default="0,1e-12,-1e-12,1e-9,-1e-9,1e-7,-1e-7", help="comma-separated relative changes"
+    )
     parser.add_argument("--runs", default=",".join(RUNS), help="comma-separated subset of " + ",".join(RUNS))
-    parser.add_argument("--blas-threads", type=int, default=None, help="BLAS threads for the loop (default: its own pin to one)")
+    parser.add_argument(
+        "--blas-threads", type=int, default=None, help="BLAS threads for the loop (default: its own pin to one)"
+    )
     args = parser.parse_args()
     print("| recording | change | terms in the order added | RMS after, deg | play after, deg |")
     print("|---|---|---|---|---|")
@@ -77,7 +90,9 @@ def main() -> None:
         for change in (float(c) for c in args.changes.split(",")):
             d = diagnosed(DATA / RUNS[run], change, args.blas_threads)
             terms = [e["name"] for e in d["effects"]] + [f"unexplained {e['name']}" for e in d["unexplained"]]
-            print(f"| {run} | {change:g} | {', '.join(terms)} | {d['rms_after_deg']:.6f} | {d['backlash_after_deg']:.6f} |")
+            print(
+                f"| {run} | {change:g} | {', '.join(terms)} | {d['rms_after_deg']:.6f} | {d['backlash_after_deg']:.6f} |"
+            )
 
 
 if __name__ == "__main__":

@@ -86,7 +86,9 @@ def run_case(name: str, seed: int, duration_s: float, generator: str = "two_mass
     d = diagnosis.as_dict()
     d["seconds"] = time.perf_counter() - t0
     past_start = diagnosis.time_s >= diagnosis.time_s[0] + START_S
-    d["after_floor_past_start"] = float(np.sqrt(np.mean(diagnosis.residual_after_deg[past_start] ** 2))) / d["noise_floor_deg"]
+    d["after_floor_past_start"] = (
+        float(np.sqrt(np.mean(diagnosis.residual_after_deg[past_start] ** 2))) / d["noise_floor_deg"]
+    )
     names = [e["name"] for e in d["effects"]]
     unexplained = [e["name"] if e["name"] != "not_separable" else "|".join(e["candidates"]) for e in d["unexplained"]]
     physics = [n for n in names if n == "dead_band_motion" and generator == "two_mass"]
@@ -147,7 +149,10 @@ def tracker(seeds: int, duration_s: float) -> None:
                 est = BacklashRLS(effects=effects)
                 est.learn_many(u, y, time_s=t, torque_Nm=q)
                 plays.append(est.backlash_)
-            print(f"| {name} | {seed} | {', '.join(map(repr, found)) or '-'} | {plays[0]:.4f} | {plays[1]:.4f} |", flush=True)
+            print(
+                f"| {name} | {seed} | {', '.join(map(repr, found)) or '-'} | {plays[0]:.4f} | {plays[1]:.4f} |",
+                flush=True,
+            )
 
 
 def count(rows: list[dict], key: str) -> str:
@@ -163,13 +168,17 @@ def _seed_range(seeds: list[int]) -> str:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seeds", type=int, default=10)
-    parser.add_argument("--seed-list", default=None, help="comma-separated seeds to run instead of 0..SEEDS-1 (e.g. 0 or 0,4)")
+    parser.add_argument(
+        "--seed-list", default=None, help="comma-separated seeds to run instead of 0..SEEDS-1 (e.g. 0 or 0,4)"
+    )
     parser.add_argument("--duration-s", type=float, default=180.0)
     cases = ",".join([*INJECTORS, *NO_TORQUE])
     parser.add_argument("--cases", default=cases, help="comma-separated subset of " + cases)
     parser.add_argument("--verbose", action="store_true", help="print one line per log")
     parser.add_argument(
-        "--generator", choices=("two_mass", "rig"), default="two_mass",
+        "--generator",
+        choices=("two_mass", "rig"),
+        default="two_mass",
         help="two_mass: the two-mass rig, a simulator the estimator does not assume; rig: the estimator's own model plus the effect",
     )
     parser.add_argument("--tracker", action="store_true", help="run the recursive-estimator check instead")
@@ -178,8 +187,12 @@ def main() -> None:
     if args.tracker:
         tracker(args.seeds, args.duration_s)
         return
-    print(f"machine: {platform.processor() or platform.machine()}, {os.cpu_count()} CPUs, Python {platform.python_version()}")
-    print(f"logs: {args.generator}, {args.duration_s:.0f} s at 1 kHz, play {PLAY_DEG} deg, seeds {_seed_range(seeds)}\n")
+    print(
+        f"machine: {platform.processor() or platform.machine()}, {os.cpu_count()} CPUs, Python {platform.python_version()}"
+    )
+    print(
+        f"logs: {args.generator}, {args.duration_s:.0f} s at 1 kHz, play {PLAY_DEG} deg, seeds {_seed_range(seeds)}\n"
+    )
     print(
         "| case | named first | <= 1.5 floor | <= 1.1 clean | <= 1/2 before | play 2 % | dead band motion | RMS before, deg | RMS after, deg | floor, deg "
         "| after / floor past start | play before, deg | play after, deg | terms found (seed 0) | s per log |"

@@ -75,7 +75,11 @@ def one(command: str, path: Path, warm: Path) -> None:
 def timed(command: str, path: Path, warm: Path) -> dict:
     """:func:`one` in a child process (the same interpreter and environment)."""
     done = subprocess.run(
-        [sys.executable, __file__, "--one", command, str(path), str(warm)], check=True, capture_output=True, text=True, env=os.environ.copy()
+        [sys.executable, __file__, "--one", command, str(path), str(warm)],
+        check=True,
+        capture_output=True,
+        text=True,
+        env=os.environ.copy(),
     )
     return json.loads(done.stdout.strip().splitlines()[-1])
 

@@ -41,7 +41,9 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--duration", type=float, default=60.0, help="seconds of traffic")
     ap.add_argument("--rate", type=float, default=2000.0, help="samples per second (two frames each)")
-    ap.add_argument("--switch-interval", type=float, help="sys.setswitchinterval (GIL hand-over between threads), seconds")
+    ap.add_argument(
+        "--switch-interval", type=float, help="sys.setswitchinterval (GIL hand-over between threads), seconds"
+    )
     args = ap.parse_args()
     if args.switch_interval:
         sys.setswitchinterval(args.switch_interval)
@@ -84,7 +86,9 @@ def main() -> None:
     sender = threading.Thread(target=send)
     wall0, cpu0 = time.perf_counter(), time.process_time()
     sender.start()
-    report, est = fit_recursive(timed(source.iter_chunks()), rec.ratio, memory_reversals=10.0, sample_period_s=1.0 / args.rate)
+    report, est = fit_recursive(
+        timed(source.iter_chunks()), rec.ratio, memory_reversals=10.0, sample_period_s=1.0 / args.rate
+    )
     sender.join()
     source.close()
     wall, cpu = time.perf_counter() - wall0, time.process_time() - cpu0
@@ -101,10 +105,14 @@ def main() -> None:
         f"switch interval {sys.getswitchinterval() * 1e3:g} ms"
     )
     print(f"frames sent               {len(frames)}")
-    print(f"frames counted by source  {c.frames}  (samples {c.samples}, corrupt {c.corrupt}, skipped {c.skipped}, unpaired {c.unpaired}, gaps {c.gaps})")
+    print(
+        f"frames counted by source  {c.frames}  (samples {c.samples}, corrupt {c.corrupt}, skipped {c.skipped}, unpaired {c.unpaired}, gaps {c.gaps})"
+    )
     print(f"frames in the raw log     {read_back}  ({len(source.raw_log.files)} file(s))")
     print(f"lost                      {len(frames) - read_back}")
-    print(f"estimate                  {report.backlash_deg * 60:.3f} arcmin ± {report.extra['backlash_std_deg'] * 60:.3f} (true {rec.play_deg[-1] * 60:.3f})")
+    print(
+        f"estimate                  {report.backlash_deg * 60:.3f} arcmin ± {report.extra['backlash_std_deg'] * 60:.3f} (true {rec.play_deg[-1] * 60:.3f})"
+    )
     for name, lat in (("all samples", latency_ms), ("after warm start + 1 s", after)):
         p50, p99, p999 = np.percentile(lat, [50, 99, 99.9])
         print(f"latency {name:24s} p50 {p50:7.3f} ms  p99 {p99:7.3f} ms  p99.9 {p999:7.3f} ms  max {lat.max():8.3f} ms")

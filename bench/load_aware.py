@@ -74,7 +74,9 @@ def sweep(seeds: int, duration_s: float) -> None:
     )
     print("|---|---|---|---|---|---|---|---|---|---|")
     for ext in TORQUES:
-        rows: dict[str, list] = {k: [] for k in ("rev", "obs_b", "obs_r", "pb", "pr", "k", "kdir", "kin_b", "kin_r", "kin_obs")}
+        rows: dict[str, list] = {
+            k: [] for k in ("rev", "obs_b", "obs_r", "pb", "pr", "k", "kdir", "kin_b", "kin_r", "kin_obs")
+        }
         for seed in range(seeds):
             rec = simulate_two_mass(duration_s=duration_s, play_deg=PLAY, external_torque_nm=ext, seed=seed)
             chunk = rec.to_chunk()
@@ -89,7 +91,9 @@ def sweep(seeds: int, duration_s: float) -> None:
             rows["pr"].append(_err(rls.backlash_deg, PLAY))
             rows["k"] += [_err(r.stiffness_nm_per_arcmin, STIFFNESS) for r in (batch, rls) if r.play_observable]
             rows["kdir"] += [
-                _err(v, STIFFNESS) for r in (batch, rls) for v in (r.stiffness_left_nm_per_arcmin, r.stiffness_right_nm_per_arcmin)
+                _err(v, STIFFNESS)
+                for r in (batch, rls)
+                for v in (r.stiffness_left_nm_per_arcmin, r.stiffness_right_nm_per_arcmin)
             ]
             rows["kin_b"].append(kin_b_est.backlash_)  # what the kinematic fit says, observable or not
             rows["kin_r"].append(kin_r_est.estimator.backlash_)  # the estimator itself, before the verdict
@@ -108,7 +112,9 @@ def _value(d: dict, key: str, scale: float = 1.0, digits: int = 3) -> str:
 
 
 def measured(plot_dir: Path | None) -> None:
-    print("\n## (b) measured da Vinci gearhead runs (ODbL v1.0; ratio -1 on output-referred motor counts, slope fitted)\n")
+    print(
+        "\n## (b) measured da Vinci gearhead runs (ODbL v1.0; ratio -1 on output-referred motor counts, slope fitted)\n"
+    )
     print(
         "| run | method | path taken | play deg | torque path: reversals | its play deg (or why not) "
         "| lost motion arcmin (at N m) | stiffness N m/arcmin (left, right) | hysteresis loss arcmin |"

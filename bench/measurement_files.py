@@ -64,7 +64,8 @@ STEADY = (
     "from online_backlash.simulation.rig import simulate_rig\nfit_recursive([simulate_rig(20.0).to_chunk()], 30.0, ahead=1)"
 )
 ESTIMATE = (
-    "import io, contextlib\nfrom online_backlash.cli import main, build_parser\nimport online_backlash.replay.{kind}, online_backlash.fitting\n" + WARM,
+    "import io, contextlib\nfrom online_backlash.cli import main, build_parser\nimport online_backlash.replay.{kind}, online_backlash.fitting\n"
+    + WARM,
     "buf = io.StringIO()\nwith contextlib.redirect_stdout(buf):\n    main(['estimate', {path!r}, '--ratio', '30', '--json'{extra}])\n"
     "out = round(json.loads(buf.getvalue())['backlash_deg'], 5)",
 )
@@ -101,12 +102,21 @@ RECORDS = "\ncolumns = list(np.column_stack(columns).T)\ncheck([c[:100000] for c
 CASES = {
     "`BacklashRLS.learn_many`, samples in memory (reference)": ("parquet", LEARN_MANY, ""),
     "`estimate` of the Parquet file": ("parquet", ESTIMATE, ""),
-    "`estimate` of the Parquet file, cold (lazy imports and numba's cache load timed too)": ("parquet", (COLD, ESTIMATE[1]), ""),
-    "`estimate` of the Parquet file, pyarrow imported and the consumer's compiled loops loaded": ("parquet", ESTIMATE_STEADY, ""),
+    "`estimate` of the Parquet file, cold (lazy imports and numba's cache load timed too)": (
+        "parquet",
+        (COLD, ESTIMATE[1]),
+        "",
+    ),
+    "`estimate` of the Parquet file, pyarrow imported and the consumer's compiled loops loaded": (
+        "parquet",
+        ESTIMATE_STEADY,
+        "",
+    ),
     "`fit_recursive` of the Parquet file on one thread (no read-ahead)": (
         "parquet",
         (
-            "from online_backlash.replay.parquet import ParquetLog\nfrom online_backlash.fitting import fit_recursive\n" + WARM,
+            "from online_backlash.replay.parquet import ParquetLog\nfrom online_backlash.fitting import fit_recursive\n"
+            + WARM,
             "with ParquetLog({path!r}) as log:\n    out = round(fit_recursive(log.iter_chunks(), 30.0, ahead=0)[0].backlash_deg, 5)",
         ),
         "",
@@ -114,18 +124,33 @@ CASES = {
     "`ParquetLog.iter_chunks()` alone": (
         "parquet",
         (
-            "from online_backlash.replay.parquet import ParquetLog\n" + FIRST_CHUNK.format(reader="ParquetLog({path!r})"),
+            "from online_backlash.replay.parquet import ParquetLog\n"
+            + FIRST_CHUNK.format(reader="ParquetLog({path!r})"),
             "with ParquetLog({path!r}) as log:\n    out = sum(len(c) for c in log.iter_chunks())",
         ),
         "",
     ),
-    "the block checks alone (`screen_block` + the gap rule, blocks of 65,536 rows), contiguous columns": ("parquet", CHECKS, ""),
-    "the block checks alone, columns strided in records (as MDF), samples copied out": ("parquet", (CHECKS[0] + RECORDS, CHECKS[1]), ""),
-    "`pyarrow.parquet.read_table` (whole file)": ("parquet", ("import pyarrow.parquet as pq", "out = pq.read_table({path!r}).num_rows"), ""),
+    "the block checks alone (`screen_block` + the gap rule, blocks of 65,536 rows), contiguous columns": (
+        "parquet",
+        CHECKS,
+        "",
+    ),
+    "the block checks alone, columns strided in records (as MDF), samples copied out": (
+        "parquet",
+        (CHECKS[0] + RECORDS, CHECKS[1]),
+        "",
+    ),
+    "`pyarrow.parquet.read_table` (whole file)": (
+        "parquet",
+        ("import pyarrow.parquet as pq", "out = pq.read_table({path!r}).num_rows"),
+        "",
+    ),
     "`estimate` of the MDF4 file": ("mf4", ESTIMATE, ", '--columns', 'motor=Motor,load=Load'"),
     "`estimate` of the MDF4 file, cold": ("mf4", (COLD, ESTIMATE[1]), ", '--columns', 'motor=Motor,load=Load'"),
     "`estimate` of the MDF4 file, asammdf imported and the consumer's compiled loops loaded": (
-        "mf4", ESTIMATE_STEADY, ", '--columns', 'motor=Motor,load=Load'"
+        "mf4",
+        ESTIMATE_STEADY,
+        ", '--columns', 'motor=Motor,load=Load'",
     ),
     "`fit_recursive` of the MDF4 file on one thread (no read-ahead)": (
         "mf4",
@@ -139,14 +164,18 @@ CASES = {
     "`MdfLog.iter_chunks()` alone": (
         "mf4",
         (
-            "from online_backlash.replay.mdf import MdfLog\n" + FIRST_CHUNK.format(reader="MdfLog({path!r}, columns={{'motor': 'Motor', 'load': 'Load'}})"),
+            "from online_backlash.replay.mdf import MdfLog\n"
+            + FIRST_CHUNK.format(reader="MdfLog({path!r}, columns={{'motor': 'Motor', 'load': 'Load'}})"),
             "with MdfLog({path!r}, columns={{'motor': 'Motor', 'load': 'Load'}}) as log:\n    out = sum(len(c) for c in log.iter_chunks())",
         ),
         "",
     ),
     "`asammdf.MDF.get` of both channels (whole file)": (
         "mf4",
-        ("from asammdf import MDF", "mdf = MDF({path!r})\nout = len(mdf.get('Motor').samples) + 0 * len(mdf.get('Load').samples)\nmdf.close()"),
+        (
+            "from asammdf import MDF",
+            "mdf = MDF({path!r})\nout = len(mdf.get('Motor').samples) + 0 * len(mdf.get('Load').samples)\nmdf.close()",
+        ),
         "",
     ),
 }
@@ -154,7 +183,10 @@ CASES = {
 
 def write_files(samples: int, folder: str) -> dict[str, str]:
     """The rig recording as Parquet and MDF4 in ``folder`` (kept between runs)."""
-    paths = {"parquet": os.path.join(folder, f"online-backlash-rig-{samples}.parquet"), "mf4": os.path.join(folder, f"online-backlash-rig-{samples}.mf4")}
+    paths = {
+        "parquet": os.path.join(folder, f"online-backlash-rig-{samples}.parquet"),
+        "mf4": os.path.join(folder, f"online-backlash-rig-{samples}.mf4"),
+    }
     if all(os.path.exists(p) for p in paths.values()):
         return paths
     import pyarrow as pa
@@ -165,9 +197,18 @@ def write_files(samples: int, folder: str) -> dict[str, str]:
 
     t0 = time.perf_counter()
     rec = simulate_rig(duration_s=samples / 1000.0, play_deg=0.5, seed=3)
-    pq.write_table(pa.table({"time": rec.time_s, "motor": rec.motor_deg, "load": rec.load_deg}), paths["parquet"], row_group_size=1_000_000)
+    pq.write_table(
+        pa.table({"time": rec.time_s, "motor": rec.motor_deg, "load": rec.load_deg}),
+        paths["parquet"],
+        row_group_size=1_000_000,
+    )
     mdf = MDF(version="4.10")
-    mdf.append([Signal(rec.motor_deg, rec.time_s, name="Motor", unit="deg"), Signal(rec.load_deg, rec.time_s, name="Load", unit="deg")])
+    mdf.append(
+        [
+            Signal(rec.motor_deg, rec.time_s, name="Motor", unit="deg"),
+            Signal(rec.load_deg, rec.time_s, name="Load", unit="deg"),
+        ]
+    )
     mdf.save(paths["mf4"], overwrite=True)
     mdf.close()
     sizes = ", ".join(f"{os.path.getsize(p) / 2**20:.0f} MiB" for p in paths.values())
@@ -176,7 +217,9 @@ def write_files(samples: int, folder: str) -> dict[str, str]:
 
 
 def run_child(imports: str, body: str) -> dict:
-    done = subprocess.run([sys.executable, "-c", CHILD.format(imports=imports, body=body)], capture_output=True, text=True)
+    done = subprocess.run(
+        [sys.executable, "-c", CHILD.format(imports=imports, body=body)], capture_output=True, text=True
+    )
     if done.returncode:
         raise SystemExit(f"a benchmark case failed (exit {done.returncode}):\n{body}\n{done.stderr[-2000:]}")
     return json.loads(done.stdout.strip().splitlines()[-1])
@@ -186,13 +229,21 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--samples", type=int, default=10_000_000)
     ap.add_argument("--dir", default="/tmp", help="where to keep the generated files")
-    ap.add_argument("--repeat", type=int, default=3, help="runs of each case, interleaved; the fastest is reported, with the highest peak RSS")
+    ap.add_argument(
+        "--repeat",
+        type=int,
+        default=3,
+        help="runs of each case, interleaved; the fastest is reported, with the highest peak RSS",
+    )
     args = ap.parse_args()
     paths = write_files(args.samples, args.dir)
     results: dict[str, dict] = {}
     for _ in range(args.repeat):
         for name, (kind, (imports, body), extra) in CASES.items():
-            res = run_child(imports.format(path=paths[kind], kind="parquet" if kind == "parquet" else "mdf"), body.format(path=paths[kind], extra=extra))
+            res = run_child(
+                imports.format(path=paths[kind], kind="parquet" if kind == "parquet" else "mdf"),
+                body.format(path=paths[kind], extra=extra),
+            )
             best = results.setdefault(name, res)
             if res["seconds"] < best["seconds"]:
                 results[name] = {**res, "max_rss_mb": max(res["max_rss_mb"], best["max_rss_mb"])}
@@ -208,7 +259,9 @@ def main() -> None:
     print("|---|---:|---:|---:|---:|---:|---|")
     for name, res in results.items():
         rate = args.samples / res["seconds"]
-        print(f"| {name} | {res['seconds']:.2f} | {rate:,.0f} | {rate / reference:.0%} | {res['max_rss_mb']:.0f} | {res['import_s']:.1f} | {res['out']} |")
+        print(
+            f"| {name} | {res['seconds']:.2f} | {rate:,.0f} | {rate / reference:.0%} | {res['max_rss_mb']:.0f} | {res['import_s']:.1f} | {res['out']} |"
+        )
 
 
 if __name__ == "__main__":

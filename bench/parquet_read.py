@@ -38,7 +38,13 @@ print(json.dumps({{"wall": wall, "cpu": cpu, "hwm_mb": int(hwm) / 1024, "base_mb
 VALUES = "[np.frombuffer(c.buffers()[1], dtype=np.float64, count=len(c), offset=c.offset * 8) for c in {batch}.columns]"
 
 
-def iter_batches(batch_rows: int, threads: bool, source: str = "pa.OSFile(PATH, 'rb')", pre_buffer: bool = False, buffer_size: int = 1 << 20) -> str:
+def iter_batches(
+    batch_rows: int,
+    threads: bool,
+    source: str = "pa.OSFile(PATH, 'rb')",
+    pre_buffer: bool = False,
+    buffer_size: int = 1 << 20,
+) -> str:
     return (
         f"source = {source}\nfile = pq.ParquetFile(source, pre_buffer={pre_buffer}, buffer_size={buffer_size})\nrows = 0\n"
         f"for batch in file.iter_batches(batch_size={batch_rows}, columns=NAMES, use_threads={threads}):\n"
@@ -46,7 +52,9 @@ def iter_batches(batch_rows: int, threads: bool, source: str = "pa.OSFile(PATH, 
     )
 
 
-def row_groups(threads: bool, source: str = "pa.OSFile(PATH, 'rb')", pre_buffer: bool = False, buffer_size: int = 0) -> str:
+def row_groups(
+    threads: bool, source: str = "pa.OSFile(PATH, 'rb')", pre_buffer: bool = False, buffer_size: int = 0
+) -> str:
     return (
         f"source = {source}\nfile = pq.ParquetFile(source, pre_buffer={pre_buffer}, buffer_size={buffer_size})\nrows = 0\n"
         f"for i in range(file.num_row_groups):\n"
@@ -74,30 +82,54 @@ SNAPPY = (
 )
 MMAP = "pa.memory_map(PATH, 'r')"
 CASES: dict[str, tuple[str, str, dict[str, str]]] = {
-    "`iter_batches(65536)`, use_threads=False, OSFile, buffer 1 MiB (the reader before)": ("", iter_batches(65536, False), {}),
+    "`iter_batches(65536)`, use_threads=False, OSFile, buffer 1 MiB (the reader before)": (
+        "",
+        iter_batches(65536, False),
+        {},
+    ),
     "`iter_batches(65536)`, use_threads=True (the reader now)": ("", iter_batches(65536, True), {}),
     "`iter_batches(65536)`, unbuffered (buffer_size=0)": ("", iter_batches(65536, False, buffer_size=0), {}),
     "`iter_batches(65536)`, pre_buffer=True": ("", iter_batches(65536, False, pre_buffer=True, buffer_size=0), {}),
     "`iter_batches(65536)`, memory_map": ("", iter_batches(65536, False, source=MMAP, buffer_size=0), {}),
     "`iter_batches(262144)`": ("", iter_batches(262144, False), {}),
     "`iter_batches(1048576)`": ("", iter_batches(1 << 20, False), {}),
-    "`iter_batches(65536)`, system allocator": ("", iter_batches(65536, False), {"ARROW_DEFAULT_MEMORY_POOL": "system"}),
+    "`iter_batches(65536)`, system allocator": (
+        "",
+        iter_batches(65536, False),
+        {"ARROW_DEFAULT_MEMORY_POOL": "system"},
+    ),
     "`iter_batches(65536)`, jemalloc": ("", iter_batches(65536, False), {"ARROW_DEFAULT_MEMORY_POOL": "jemalloc"}),
     "`read_row_group(i)`, OSFile unbuffered": ("", row_groups(False), {}),
     "`read_row_group(i)`, use_threads=True": ("", row_groups(True), {}),
     "`read_row_group(i)`, pre_buffer=True": ("", row_groups(False, pre_buffer=True), {}),
     "`read_row_group(i)`, memory_map": ("", row_groups(False, source=MMAP), {}),
-    "`read_row_group(i)`, memory_map, system allocator": ("", row_groups(False, source=MMAP), {"ARROW_DEFAULT_MEMORY_POOL": "system"}),
+    "`read_row_group(i)`, memory_map, system allocator": (
+        "",
+        row_groups(False, source=MMAP),
+        {"ARROW_DEFAULT_MEMORY_POOL": "system"},
+    ),
     "`read_row_group(i)`, memory_map, use_threads=True": ("", row_groups(True, source=MMAP), {}),
     "dataset scanner, batches of 65536, no threads, readahead 1/1": ("", scanner(65536, False, 1, 1, False), {}),
-    "dataset scanner, batches of 65536, threads, default readahead (16/4), pre_buffer": ("", scanner(65536, True, 16, 4, True), {}),
+    "dataset scanner, batches of 65536, threads, default readahead (16/4), pre_buffer": (
+        "",
+        scanner(65536, True, 16, 4, True),
+        {},
+    ),
     "snappy's decompression alone, the same values as 1 MiB pages (`pa.Codec('snappy').decompress`)": (
         SNAPPY,
         "size = 0\nfor page, n in pages:\n    size += len(codec.decompress(page, decompressed_size=n))\nrows = size // 24",
         {},
     ),
-    "the same rows written uncompressed (`compression='none'`), `iter_batches(65536)`": ("", iter_batches(65536, False, source="pa.OSFile(PLAIN, 'rb')"), {}),
-    "`read_table` (whole file), use_threads=False": ("", "rows = pq.read_table(PATH, columns=NAMES, use_threads=False).num_rows", {}),
+    "the same rows written uncompressed (`compression='none'`), `iter_batches(65536)`": (
+        "",
+        iter_batches(65536, False, source="pa.OSFile(PLAIN, 'rb')"),
+        {},
+    ),
+    "`read_table` (whole file), use_threads=False": (
+        "",
+        "rows = pq.read_table(PATH, columns=NAMES, use_threads=False).num_rows",
+        {},
+    ),
     "`read_table` (whole file), defaults": ("", "rows = pq.read_table(PATH, columns=NAMES).num_rows", {}),
     "`ParquetLog.iter_chunks()` (the reader, with its checks)": (
         "from online_backlash.replay.parquet import ParquetLog\nwith ParquetLog({path!r}) as _log:\n    next(iter(_log.iter_chunks()))",
@@ -149,11 +181,15 @@ def main() -> None:
             if res["cpu"] < old["cpu"]:
                 best[name] = res
             best[name]["hwm_mb"] = hwm
-    print(f"{args.samples:,} rows, {len(cases)} cases x {args.repeat}, load average {os.getloadavg()[0]:.1f} at the end")
+    print(
+        f"{args.samples:,} rows, {len(cases)} cases x {args.repeat}, load average {os.getloadavg()[0]:.1f} at the end"
+    )
     print("| option | wall, s | CPU, s | peak RSS (MB) | RSS over base (MB) |")
     print("|---|---:|---:|---:|---:|")
     for name, res in best.items():
-        print(f"| {name} | {res['wall']:.2f} | {res['cpu']:.2f} | {res['hwm_mb']:.0f} | {res['hwm_mb'] - res['base_mb']:.0f} |")
+        print(
+            f"| {name} | {res['wall']:.2f} | {res['cpu']:.2f} | {res['hwm_mb']:.0f} | {res['hwm_mb'] - res['base_mb']:.0f} |"
+        )
 
 
 if __name__ == "__main__":

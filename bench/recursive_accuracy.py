@@ -136,7 +136,9 @@ def main() -> None:
     print(f"command: `python bench/recursive_accuracy.py --seeds {args.seeds} --cascade-seeds {args.cascade_seeds}`\n")
 
     print("## Wear: play 0.50 -> 0.60 deg over 2 h of rig data (after the first 5 min; 1 load count = 0.00275 deg)\n")
-    print("| settings | seed | RMS error (deg) | RMS / play | RMS (counts) | max (counts) | truth within +-3 std | mean std (counts) |")
+    print(
+        "| settings | seed | RMS error (deg) | RMS / play | RMS (counts) | max (counts) | truth within +-3 std | mean std (counts) |"
+    )
     print("|---|---:|---:|---:|---:|---:|---:|---:|")
     memories = (
         ("default (memory_reversals=10)", {}),

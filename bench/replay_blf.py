@@ -83,7 +83,9 @@ def main() -> None:
     }
     t0 = time.perf_counter()
     chunks(args.path, "Checksum")
-    print(f"first block-path run in this process (includes loading or compiling the numba loop): {time.perf_counter() - t0:.2f} s")
+    print(
+        f"first block-path run in this process (includes loading or compiling the numba loop): {time.perf_counter() - t0:.2f} s"
+    )
     best: dict[str, float] = {}
     counts: dict[str, tuple[int, int]] = {}
     for _ in range(args.repeat):
@@ -93,7 +95,9 @@ def main() -> None:
             best[name] = min(best.get(name, float("inf")), time.perf_counter() - t0)
     base = best["bare can.LogReader loop"]
     print(f"python {platform.python_version()}, python-can {can.__version__}, best of {args.repeat}")
-    print(f"{'loop':36s} {'frames':>9s} {'samples':>9s} {'time s':>8s} {'frames/s':>10s} {'samples/s':>10s} {'vs bare':>8s}")
+    print(
+        f"{'loop':36s} {'frames':>9s} {'samples':>9s} {'time s':>8s} {'frames/s':>10s} {'samples/s':>10s} {'vs bare':>8s}"
+    )
     for name, t in best.items():
         frames, samples = counts[name]
         rate = f"{samples / t:10.0f}" if samples else f"{'-':>10s}"

@@ -45,7 +45,9 @@ def bench_rig(samples: int, quick: bool = False):
     every 0.2-0.4 s (a short file whose samples start the estimator)."""
     from online_backlash.simulation.rig import simulate_rig
 
-    return simulate_rig(duration_s=samples / 1000.0, play_deg=0.5, seed=3, **({"reversal_s": (0.2, 0.4)} if quick else {}))
+    return simulate_rig(
+        duration_s=samples / 1000.0, play_deg=0.5, seed=3, **({"reversal_s": (0.2, 0.4)} if quick else {})
+    )
 
 
 def write_rig_formats(rec, parquet: dict[str, Path], arrow: Path, mf4: Path, csv: Path) -> None:

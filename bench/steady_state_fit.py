@@ -60,7 +60,9 @@ def main() -> None:
         for i in range(0, u.size, 262144):
             est.learn_many(u[i : i + 262144], y[i : i + 262144])
 
-    for open_log in logs.values():  # the readers' compiled checks loaded from numba's cache: a process that has read before
+    for (
+        open_log
+    ) in logs.values():  # the readers' compiled checks loaded from numba's cache: a process that has read before
         _fit(open_log)
     times: dict[str, list[tuple[float, ...]]] = {}
     load_start = os.getloadavg()[0]
@@ -70,12 +72,16 @@ def main() -> None:
             for depth, where in ((0, "on the estimator's thread"), (fitting.BOOKKEEPING_AHEAD, "in the worker thread")):
                 saved, fitting.BOOKKEEPING_AHEAD = fitting.BOOKKEEPING_AHEAD, depth
                 try:
-                    times.setdefault(f"{kind}, bookkeeping {where}", []).append(_timed(functools.partial(_fit, open_log)))
+                    times.setdefault(f"{kind}, bookkeeping {where}", []).append(
+                        _timed(functools.partial(_fit, open_log))
+                    )
                 finally:
                     fitting.BOOKKEEPING_AHEAD = saved
     references = [t[0] for t in next(iter(times.values()))]
     best_reference = min(references)
-    print(f"{os.cpu_count()} cores, load average {load_start:.1f} at the start, {os.getloadavg()[0]:.1f} at the end, {args.rounds} rounds")
+    print(
+        f"{os.cpu_count()} cores, load average {load_start:.1f} at the start, {os.getloadavg()[0]:.1f} at the end, {args.rounds} rounds"
+    )
     print(
         "| what | fastest, s | median, s | slowest, s | vs learn_many (fastest) | (worst round) "
         "| CPU s: process | estimator thread | reader thread | bookkeeping thread | library threads |"
@@ -116,8 +122,12 @@ def _timed(call: Callable[[], None]) -> tuple[float, ...]:
     wall, process, own = time.perf_counter(), time.process_time(), time.thread_time()
     call()
     wall, process, own = time.perf_counter() - wall, time.process_time() - process, time.thread_time() - own
-    reader, books = _THREAD_CPU.get("online-backlash-read-ahead", 0.0), _THREAD_CPU.get("online-backlash-bookkeeping", 0.0)
+    reader, books = (
+        _THREAD_CPU.get("online-backlash-read-ahead", 0.0),
+        _THREAD_CPU.get("online-backlash-bookkeeping", 0.0),
+    )
     return wall, process, own, reader, books, process - own - reader - books
+
 
 if __name__ == "__main__":
     main()

@@ -239,7 +239,7 @@ def print_acceptance(figures: dict[str, Any]) -> None:
     n = figures["runs"]
     print("\n| criterion | required | result |\n|---|---|---|")
     reasoned = figures["physical_or_reasoned"]
-    print(f"| every run a physical play or \"not observable\" with a reason | all | {reasoned} |")
+    print(f'| every run a physical play or "not observable" with a reason | all | {reasoned} |')
     print(f"| observable runs | >= {MIN_OBSERVABLE} of 50 | {figures['observable']} of {n} |")
     print(
         f"| observable plays within {MAX_SPREAD:.0%} of their median (max - min <= {MAX_SPREAD} median) "

@@ -348,7 +348,14 @@ def main() -> None:
     t = best_of(args.repeat, run_many)
     est = holder["est"]
     rate_many = (n - warm) / t.cpu
-    rows.append(("`BacklashRLS.learn_many` (compiled)", n - warm, t, f"play {est.backlash_:.5f} deg (truth {PLAY_DEG}), {est.n_reversals_} reversals"))
+    rows.append(
+        (
+            "`BacklashRLS.learn_many` (compiled)",
+            n - warm,
+            t,
+            f"play {est.backlash_:.5f} deg (truth {PLAY_DEG}), {est.n_reversals_} reversals",
+        )
+    )
 
     # CascadeRLS.learn_many, example 3 of the paper with a random input, SNR 25
     rng = np.random.default_rng(2)
@@ -377,7 +384,14 @@ def main() -> None:
     uu, yy = u - u[0], y - y[0]
     bare_rls(uu[:100], yy[:100], side[:100], 1.0)
     t = best_of(args.repeat, lambda: bare_rls(uu, yy, side, 1.0 - 1e-4))
-    rows.append(("bare compiled 4-parameter RLS update, no switching (limit)", n, t, "(none: every sample updates the side given by the direction)"))
+    rows.append(
+        (
+            "bare compiled 4-parameter RLS update, no switching (limit)",
+            n,
+            t,
+            "(none: every sample updates the side given by the direction)",
+        )
+    )
 
     # interpreted and third-party loops on the first slow_samples after the warm start
     m = args.slow_samples
@@ -393,31 +407,57 @@ def main() -> None:
     lu, ly = su - su[0], sy - sy[0]
     t, (th, k) = timed(lambda: filterpy_loop(lu, ly, theta0))
     rate_filterpy = m / t.cpu
-    rows.append(("Python loop + filterpy `KalmanFilter.update` (same RLS update)", m, t, f"play {theta_play(th):.5f} deg, {k:,} updates"))
+    rows.append(
+        (
+            "Python loop + filterpy `KalmanFilter.update` (same RLS update)",
+            m,
+            t,
+            f"play {theta_play(th):.5f} deg, {k:,} updates",
+        )
+    )
     t, (th, k) = timed(lambda: padasip_loop(lu, ly, theta0))
-    rows.append(("Python loop + padasip `FilterRLS.adapt` (same regressor)", m, t, f"play {theta_play(th):.5f} deg, {k:,} updates"))
+    rows.append(
+        (
+            "Python loop + padasip `FilterRLS.adapt` (same regressor)",
+            m,
+            t,
+            f"play {theta_play(th):.5f} deg, {k:,} updates",
+        )
+    )
 
     # batch refit on a sliding window: 10 s window, refit every second of data
     window, hop, refits = 10_000, 1_000, 5
     fits = []
+
     def refit(k: int) -> None:
         lo = warm + k * hop
         fits.append(VorosBacklash(origin="first").fit(u[lo : lo + window], y[lo : lo + window]))
 
     t, _ = timed(lambda: [refit(k) for k in range(refits)])
-    rows.append((f"`VorosBacklash` refit on a sliding {window // 1000} s window every {hop // 1000} s", refits * hop, t, f"play {fits[-1].backlash_:.5f} deg"))
+    rows.append(
+        (
+            f"`VorosBacklash` refit on a sliding {window // 1000} s window every {hop // 1000} s",
+            refits * hop,
+            t,
+            f"play {fits[-1].backlash_:.5f} deg",
+        )
+    )
 
     dense = reversal_dense_rows(n, args.repeat)
 
     load = os.getloadavg()
-    print(f"# throughput ({platform.machine()}, {os.cpu_count()} cores, Python {platform.python_version()}; load average {load[0]:.1f})\n")
+    print(
+        f"# throughput ({platform.machine()}, {os.cpu_count()} cores, Python {platform.python_version()}; load average {load[0]:.1f})\n"
+    )
     print(f"command: `python bench/throughput.py --samples {n} --slow-samples {m} --csv-rows {args.csv_rows}`\n")
     print("samples/s from CPU time (one core's work); wall-clock beside it (the machine is shared)\n")
     print("| what | samples | CPU s | samples/s (CPU) | samples/s (wall) | estimate reached |")
     print("|---|---:|---:|---:|---:|---|")
     for name, count, tm, note in rows:
         print(f"| {name} | {count:,} | {tm.cpu:.3f} | {count / tm.cpu:,.0f} | {count / tm.wall:,.0f} | {note} |")
-    print(f"\nlearn_many / filterpy loop: {rate_many / rate_filterpy:,.0f}x; cascade / filterpy loop: {rate_cascade / rate_filterpy:,.0f}x")
+    print(
+        f"\nlearn_many / filterpy loop: {rate_many / rate_filterpy:,.0f}x; cascade / filterpy loop: {rate_cascade / rate_filterpy:,.0f}x"
+    )
     print(f"a week at 1 kHz (604,800,000 samples) by learn_many: {604_800_000 / rate_many:.0f} s of CPU")
 
     bare_rates = {size: count / tm.cpu for _, count, tm, _, size in dense[:2]}
@@ -440,7 +480,9 @@ def main() -> None:
         print("|---|---:|---:|---:|---|")
         for name, body in CSV_CASES.items():
             res = run_child(body.format(path=args.csv))
-            print(f"| {name} | {res['seconds']:.1f} | {args.csv_rows / res['seconds']:,.0f} | {res['max_rss_mb']:.0f} | {res['out']} |")
+            print(
+                f"| {name} | {res['seconds']:.1f} | {args.csv_rows / res['seconds']:,.0f} | {res['max_rss_mb']:.0f} | {res['out']} |"
+            )
         print("\n(wall-clock seconds inside each process, imports included; peak RSS = VmHWM of that process)")
 
 

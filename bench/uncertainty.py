@@ -104,7 +104,9 @@ def row(name: str, method: str, results: list[Result]) -> str:
     )
 
 
-def run_set(name: str, chunks: Iterable[tuple[SampleChunk, float]], methods: dict[str, Callable[[SampleChunk, float], Result]]) -> list[str]:
+def run_set(
+    name: str, chunks: Iterable[tuple[SampleChunk, float]], methods: dict[str, Callable[[SampleChunk, float], Result]]
+) -> list[str]:
     results: dict[str, list[Result]] = {m: [] for m in methods}
     for chunk, ratio in chunks:
         for m, fit in methods.items():
@@ -129,13 +131,20 @@ def main(argv: list[str] | None = None) -> None:
     for line in run_set("rig (own model), 0.5 deg", ((r.to_chunk(), q) for r, q in rig), kinematic):
         print(line, flush=True)
     two = [simulate_two_mass(duration_s=args.duration_s, motion="rig", seed=s) for s in seeds]
-    for line in run_set("two-mass rig, 0.4 deg, angles only", ((without_torque(r.to_chunk()), r.ratio) for r in two), kinematic):
+    for line in run_set(
+        "two-mass rig, 0.4 deg, angles only", ((without_torque(r.to_chunk()), r.ratio) for r in two), kinematic
+    ):
         print(line, flush=True)
     for line in run_set("two-mass rig, 0.4 deg, with torque", ((r.to_chunk(), r.ratio) for r in two), kinematic):
         print(line, flush=True)
     freqs = np.linspace(0.3, 0.7, args.seeds)
-    sine = ((simulate_two_mass(duration_s=args.duration_s, frequency_hz=float(f), seed=i), 30.0) for i, f in enumerate(freqs))
-    for line in run_set("two-mass sine 0.3-0.7 Hz, angles only", ((without_torque(r.to_chunk()), q) for r, q in sine), kinematic):
+    sine = (
+        (simulate_two_mass(duration_s=args.duration_s, frequency_hz=float(f), seed=i), 30.0)
+        for i, f in enumerate(freqs)
+    )
+    for line in run_set(
+        "two-mass sine 0.3-0.7 Hz, angles only", ((without_torque(r.to_chunk()), q) for r, q in sine), kinematic
+    ):
         print(line, flush=True)
     print(f"\n({time.perf_counter() - t0:.0f} s)\n")
     measured()
@@ -145,7 +154,11 @@ def main(argv: list[str] | None = None) -> None:
 #: column (the torque-aware path; motor counts output-referred, ratio -1, as ``bench/load_aware.py``).
 MEASURED = {
     "angles only": ({"time": "time_s", "motor": "motor_counts", "load": "spindle_counts"}, 4096, -35.0),
-    "with torque": ({"time": "time_s", "motor": "motor_counts", "load": "spindle_counts", "torque": "backend_torque_Nm"}, 4096 * 35, -1.0),
+    "with torque": (
+        {"time": "time_s", "motor": "motor_counts", "load": "spindle_counts", "torque": "backend_torque_Nm"},
+        4096 * 35,
+        -1.0,
+    ),
 }
 
 

@@ -50,7 +50,9 @@ CASES = {
     "rig": (dict(rate_hz=50.0, durations_s=(60.0,), play_start_deg=0.20, play_end_deg=0.30), 40, 21.0, []),
     "two-mass": (
         dict(simulator="two-mass", rate_hz=500.0, durations_s=(30.0,), play_start_deg=0.30, play_end_deg=0.40),
-        25, 27.0, ["--memory-reversals", "5"],
+        25,
+        27.0,
+        ["--memory-reversals", "5"],
     ),
 }
 
@@ -82,8 +84,25 @@ def run_case(simulator: str, schedule: str, seed: int) -> dict:
         write_snapshot_logs(folder, plan)
         db = str(Path(folder) / "w.db")
         logs = sorted(glob.glob(str(Path(folder) / "*.csv.gz")))
-        argv = ["track", *logs, "--ratio", "30", "--db", db, "--gearbox", "g", "--every", "10", "--quiet", *COUNTS,
-                "--hours-column", "hours", "--limit-arcmin", str(limit_arcmin), *extra]
+        argv = [
+            "track",
+            *logs,
+            "--ratio",
+            "30",
+            "--db",
+            db,
+            "--gearbox",
+            "g",
+            "--every",
+            "10",
+            "--quiet",
+            *COUNTS,
+            "--hours-column",
+            "hours",
+            "--limit-arcmin",
+            str(limit_arcmin),
+            *extra,
+        ]
         started = time.perf_counter()
         with contextlib.redirect_stdout(io.StringIO()):
             assert cli(argv) == 0

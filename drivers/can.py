@@ -152,7 +152,9 @@ class CanSource(LiveSource):
         units: str | None = None,
         wrap_deg: WrapDeg = None,
     ) -> None:
-        decoder = DbcDecoder(dbc, motor_signal, load_signal, motor_cpr, load_cpr, counter_signal, checksum_signal, units, wrap_deg)
+        decoder = DbcDecoder(
+            dbc, motor_signal, load_signal, motor_cpr, load_cpr, counter_signal, checksum_signal, units, wrap_deg
+        )
         pipeline = FramePipeline(decoder, period_s, max_skew_s, strict)
         self.pipeline: CanPipeline = pipeline
         self._listen(bus, pipeline, raw_log_dir, raw_format, duration_s, timeout_s, own_bus)

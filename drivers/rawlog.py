@@ -49,7 +49,13 @@ class RawCanLog(can.Listener):
         Frames written.
     """
 
-    def __init__(self, directory: str | os.PathLike[str], fmt: str = "blf", max_bytes: int = 64 * 2**20, container_bytes: int = 16 * 2**10) -> None:
+    def __init__(
+        self,
+        directory: str | os.PathLike[str],
+        fmt: str = "blf",
+        max_bytes: int = 64 * 2**20,
+        container_bytes: int = 16 * 2**10,
+    ) -> None:
         if fmt not in CAN_RAW_FORMATS:
             raise InvalidParameterError(f"raw CAN log format must be one of {CAN_RAW_FORMATS}, got {fmt!r}")
         self.directory = Path(directory)

@@ -27,6 +27,14 @@ from .formats import LogFormat
 from .registry import FORMATS, LOG_READERS, format_of, log_suffix, open_log, read_log_arrays, register_format
 
 __all__ = [
-    "FORMATS", "LOG_READERS", "CsvLog", "LogFormat", "format_of", "log_suffix", "open_log", "read_csv_arrays",
-    "read_log_arrays", "register_format",
+    "FORMATS",
+    "LOG_READERS",
+    "CsvLog",
+    "LogFormat",
+    "format_of",
+    "log_suffix",
+    "open_log",
+    "read_csv_arrays",
+    "read_log_arrays",
+    "register_format",
 ]

@@ -97,8 +97,12 @@ class CanLog(SampleSource):
         wrap_deg: WrapDeg = None,
     ) -> None:
         if dbc is None or motor_signal is None or load_signal is None:
-            raise InvalidParameterError("a CAN log needs dbc, motor_signal and load_signal (--dbc, --motor-signal, --load-signal)")
-        self.decoder = DbcDecoder(dbc, motor_signal, load_signal, motor_cpr, load_cpr, counter_signal, checksum_signal, units, wrap_deg)
+            raise InvalidParameterError(
+                "a CAN log needs dbc, motor_signal and load_signal (--dbc, --motor-signal, --load-signal)"
+            )
+        self.decoder = DbcDecoder(
+            dbc, motor_signal, load_signal, motor_cpr, load_cpr, counter_signal, checksum_signal, units, wrap_deg
+        )
         self._pipeline_args = (period_s, max_skew_s, strict, realtime)
         self._setup(path, skip_bad, realtime)
 

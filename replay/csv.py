@@ -135,14 +135,18 @@ def check_encoding(encoding: str | None) -> None:
 def check_dialect(delimiter: str | None, decimal: str | None, comment: str | None = None) -> None:
     """Raise InvalidParameterError unless ``delimiter`` (one character), ``decimal`` (``.`` or ``,``) and ``comment``
     (one character other than them, not a digit, sign or point) can be used."""
-    unusable = comment is not None and (len(comment) != 1 or comment.isalnum() or comment in "+-.\"\r\n")
+    unusable = comment is not None and (len(comment) != 1 or comment.isalnum() or comment in '+-."\r\n')
     if unusable or (comment is not None and comment in (delimiter, decimal)):
         raise InvalidParameterError(
             f"comment must be one character such as # or %, not a digit, letter, sign, point or the separator; "
             f"got {comment!r}"
         )
-    if delimiter is not None and (len(delimiter) != 1 or delimiter in '"\r\n' or delimiter.isalnum() or delimiter in "+-."):
-        raise InvalidParameterError(f"delimiter must be one character such as , ; | or a tab, not a quote, sign, point or letter; got {delimiter!r}")
+    if delimiter is not None and (
+        len(delimiter) != 1 or delimiter in '"\r\n' or delimiter.isalnum() or delimiter in "+-."
+    ):
+        raise InvalidParameterError(
+            f"delimiter must be one character such as , ; | or a tab, not a quote, sign, point or letter; got {delimiter!r}"
+        )
     if decimal is not None and decimal not in DECIMALS:
         raise InvalidParameterError(f"decimal must be one of {DECIMALS}, got {decimal!r}")
     if delimiter is not None and delimiter == decimal:
@@ -205,8 +209,10 @@ def text_encoding(head: bytes, path: str, encoding: str | None = None) -> str:
             return codec
     if b"\0" in head:
         raise LogFormatError(
-            path, 1, f"not a text CSV file: NUL bytes in its first {len(head)} bytes (binary data; "
-            "UTF-16 text without a byte-order mark needs --encoding utf-16-le or utf-16-be)"
+            path,
+            1,
+            f"not a text CSV file: NUL bytes in its first {len(head)} bytes (binary data; "
+            "UTF-16 text without a byte-order mark needs --encoding utf-16-le or utf-16-be)",
         )
     return "utf-8-sig"
 
@@ -458,8 +464,14 @@ def _read_block(text: str, usecols: list[int], dialect: CsvDialect) -> np.ndarra
     import pandas as pd  # imported here: only reading a log needs it
 
     frame = pd.read_csv(
-        io.StringIO(text), header=None, usecols=usecols, dtype=float, engine="c", skip_blank_lines=True,
-        sep=dialect.delimiter, decimal=dialect.decimal,
+        io.StringIO(text),
+        header=None,
+        usecols=usecols,
+        dtype=float,
+        engine="c",
+        skip_blank_lines=True,
+        sep=dialect.delimiter,
+        decimal=dialect.decimal,
     )
     return frame[usecols].to_numpy(dtype=float)
 
@@ -474,7 +486,10 @@ SAMPLE_ROWS = 10000
 
 
 def describe_columns(
-    path: str, delimiter: str | None = None, decimal: str | None = None, comment: str | None = None,
+    path: str,
+    delimiter: str | None = None,
+    decimal: str | None = None,
+    comment: str | None = None,
     encoding: str | None = None,
 ) -> list[ChannelInfo]:
     """The header's columns, each with its type in the first :data:`SAMPLE_ROWS` rows and the file's data row count,

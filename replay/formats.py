@@ -203,8 +203,13 @@ HDF5 = LogFormat("hdf5", (".h5", ".hdf5"), _open_hdf5, _TABULAR, _describe_hdf5)
 #: here so python-can (and the asammdf and pandas it loads, 55 MB) is imported only when a CAN log is read. A test
 #: holds it equal to python-can's table. Its ``.mf4`` files are those :data:`MDF` does not recognise.
 CAN = LogFormat(
-    "can", (".asc", ".blf", ".db", ".log", ".trc", MF4), _can_log, (CanDecoding, WholeCounts, BadRows, Pace, Timing),
+    "can",
+    (".asc", ".blf", ".db", ".log", ".trc", MF4),
+    _can_log,
+    (CanDecoding, WholeCounts, BadRows, Pace, Timing),
     _describe_can,
     directories=True,
 )
-SERIAL = LogFormat("serial", (".serial",), _open_serial, (SerialFraming, Counts, BadRows, Pace, Timing), directories=True)
+SERIAL = LogFormat(
+    "serial", (".serial",), _open_serial, (SerialFraming, Counts, BadRows, Pace, Timing), directories=True
+)

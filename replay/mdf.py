@@ -158,7 +158,9 @@ class MdfLog(MeasurementLog):
             raise missing_channel(self.path, role, self.columns[role], self._mdf.channels_db)
         if len(found) > 1:
             groups = sorted(g for g, _ in found)
-            raise LogFormatError(self.path, None, f"channel {name!r} for {role} is in several groups {groups}; name one as {name}@GROUP")
+            raise LogFormatError(
+                self.path, None, f"channel {name!r} for {role} is in several groups {groups}; name one as {name}@GROUP"
+            )
         return found[0]
 
     def _fragments(self, role: str, where: tuple[int, int]) -> Iterator[_Fragment]:
@@ -172,10 +174,14 @@ class MdfLog(MeasurementLog):
             except StopIteration:
                 return
             except Exception as exc:  # a damaged data block
-                raise LogFormatError(self.path, None, f"cannot read {role} channel {self.columns[role]!r} ({type(exc).__name__}: {exc})") from exc
+                raise LogFormatError(
+                    self.path, None, f"cannot read {role} channel {self.columns[role]!r} ({type(exc).__name__}: {exc})"
+                ) from exc
             values = signal.samples
             if values.dtype.kind not in "biuf":
-                raise LogFormatError(self.path, None, f"{role} channel {self.columns[role]!r} holds {values.dtype} values, not numbers")
+                raise LogFormatError(
+                    self.path, None, f"{role} channel {self.columns[role]!r} holds {values.dtype} values, not numbers"
+                )
             yield np.asarray(signal.timestamps, dtype=float), values.astype(float, copy=False), signal.unit
 
     def _read(self) -> Iterator[SampleChunk]:
@@ -189,7 +195,11 @@ class MdfLog(MeasurementLog):
         present = [r for r in ("time", "motor", "load", "torque") if where.get(r) is not None]
         motor_group = where["motor"][0]  # type: ignore[index]
         aligned = {r: where[r][1] for r in present if where[r][0] == motor_group}  # type: ignore[index]
-        foreign = {r: Resampler(((t, v) for t, v, _ in self._fragments(r, where[r])), self.path, self.columns[r]) for r in present if r not in aligned}  # type: ignore[arg-type]
+        foreign = {
+            r: Resampler(((t, v) for t, v, _ in self._fragments(r, where[r])), self.path, self.columns[r])
+            for r in present
+            if r not in aligned
+        }  # type: ignore[arg-type]
         units: dict[str, str | None] = {r: self._unit_of((motor_group, i)) or "" for r, i in aligned.items()}
         units.update({r: self._unit_of(where[r]) for r in foreign})  # type: ignore[arg-type]
         if "time" not in self.mapped:
@@ -220,7 +230,9 @@ class MdfLog(MeasurementLog):
             if len(chunk):
                 yield chunk
 
-    def _group_records(self, group: int, channels: dict[str, int]) -> Iterator[tuple[np.ndarray, dict[str, np.ndarray], np.ndarray | None]]:
+    def _group_records(
+        self, group: int, channels: dict[str, int]
+    ) -> Iterator[tuple[np.ndarray, dict[str, np.ndarray], np.ndarray | None]]:
         """(master time, role -> values, valid) per fragment of one channel group, its records read once for all its channels.
 
         ``valid`` is False for the records in which one of the channels is marked invalid (MDF4
@@ -237,7 +249,9 @@ class MdfLog(MeasurementLog):
         master_index = mdf.masters_db.get(group)
         remote = mdf.groups[group].channel_group.flags & FLAG_CG_REMOTE_MASTER  # the master lies in another group
         master_field = _record_field(mdf, group, master_index) if master_index is not None and not remote else None
-        fragments = mdf._mdf._load_data(mdf.groups[group])  # the group's records in fragments, as asammdf's own iter_get reads them
+        fragments = mdf._mdf._load_data(
+            mdf.groups[group]
+        )  # the group's records in fragments, as asammdf's own iter_get reads them
         names = ", ".join(f"{r} {self.columns[r]!r}" for r in channels)
         while True:
             try:
@@ -245,14 +259,22 @@ class MdfLog(MeasurementLog):
                     fragment = next(fragments, None)
                     if fragment is None:
                         return
-                    master = mdf.get_master(group, data=fragment) if master_field is None else _values(fragment, master_field)
+                    master = (
+                        mdf.get_master(group, data=fragment)
+                        if master_field is None
+                        else _values(fragment, master_field)
+                    )
                     columns = {r: _in_records(fragment, fields[r], mdf, group, i) for r, i in channels.items()}
                     valid = _valid(fragment, mdf, group, list(channels.values()), len(master))
             except Exception as exc:  # a damaged data block
-                raise LogFormatError(self.path, None, f"cannot read channel group {group} ({names}) ({type(exc).__name__}: {exc})") from exc
+                raise LogFormatError(
+                    self.path, None, f"cannot read channel group {group} ({names}) ({type(exc).__name__}: {exc})"
+                ) from exc
             for r, values in columns.items():
                 if values.dtype.kind not in "biuf":
-                    raise LogFormatError(self.path, None, f"{r} channel {self.columns[r]!r} holds {values.dtype} values, not numbers")
+                    raise LogFormatError(
+                        self.path, None, f"{r} channel {self.columns[r]!r} holds {values.dtype} values, not numbers"
+                    )
             yield np.asarray(master, dtype=float), {r: v.astype(float, copy=False) for r, v in columns.items()}, valid
 
     def _unit_of(self, where: tuple[int, int]) -> str | None:
@@ -356,8 +378,14 @@ def _valid(fragment: Any, mdf: Any, group: int, channels: list[int], records: in
         if grp.uses_ld:
             data, offset, stride = fragment.invalidation_data, 0, sizes.invalidation_bytes_nr
         else:
-            data, offset, stride = fragment.data, sizes.samples_byte_nr, sizes.samples_byte_nr + sizes.invalidation_bytes_nr
-        bits = np.ndarray((records,), np.uint8, buffer=data, offset=offset + channel.pos_invalidation_bit // 8, strides=(stride,))
+            data, offset, stride = (
+                fragment.data,
+                sizes.samples_byte_nr,
+                sizes.samples_byte_nr + sizes.invalidation_bytes_nr,
+            )
+        bits = np.ndarray(
+            (records,), np.uint8, buffer=data, offset=offset + channel.pos_invalidation_bit // 8, strides=(stride,)
+        )
         ok = (bits >> (channel.pos_invalidation_bit % 8)) & 1 == 0
         valid = ok if valid is None else valid & ok
     return valid
@@ -375,7 +403,11 @@ def _values(fragment: Any, field: _Field) -> np.ndarray:
     """A channel's values in a fragment of records (a strided view of asammdf's buffer, not a copy)."""
     offset, dtype, record = field
     count = len(fragment.data) // record
-    return np.ndarray((count,), dtype, buffer=fragment.data, offset=offset, strides=(record,)) if count else np.empty(0, dtype)
+    return (
+        np.ndarray((count,), dtype, buffer=fragment.data, offset=offset, strides=(record,))
+        if count
+        else np.empty(0, dtype)
+    )
 
 
 #: MDF4 channel data types (little/big endian) -> numpy-like kind names, for ``inspect``.

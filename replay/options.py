@@ -100,7 +100,12 @@ class CsvDialect(ReaderOption):
     encoding: str | None = None
 
     def kwargs(self) -> dict[str, Any]:
-        given = {"delimiter": self.delimiter, "decimal": self.decimal, "comment": self.comment, "encoding": self.encoding}
+        given = {
+            "delimiter": self.delimiter,
+            "decimal": self.decimal,
+            "comment": self.comment,
+            "encoding": self.encoding,
+        }
         return {k: v for k, v in given.items() if v is not None}
 
 

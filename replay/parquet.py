@@ -105,7 +105,9 @@ class _Table:
         except (OSError, Exception) as exc:  # a damaged page or batch
             if isinstance(exc, LogFormatError):
                 raise
-            raise LogFormatError(self.path, row, f"cannot read the rows after this one ({type(exc).__name__}: {exc})") from exc
+            raise LogFormatError(
+                self.path, row, f"cannot read the rows after this one ({type(exc).__name__}: {exc})"
+            ) from exc
 
     def close(self) -> None:
         source = getattr(self, "_source", None)

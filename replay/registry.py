@@ -94,7 +94,11 @@ def _directory_suffix(directory: str | os.PathLike[str]) -> str:
     found = {log_suffix(os.path.join(directory, n)) for n in names}
     readers = {formats_for(s) for s in found}
     if len(readers) != 1 or () in readers:
-        raise LogFormatError(directory, None, f"a log directory must hold files of one format, found suffixes {sorted(found)} in {names[:5]}...")
+        raise LogFormatError(
+            directory,
+            None,
+            f"a log directory must hold files of one format, found suffixes {sorted(found)} in {names[:5]}...",
+        )
     if not any(f.directories for f in readers.pop()):
         raise LogFormatError(directory, None, f"a directory of {sorted(found)} logs is not supported; give one file")
     return min(found)

@@ -51,7 +51,16 @@ def screen_block(
     time_s, motor, load = columns[:3]
     torque = columns[3] if len(columns) > 3 else _NONE
     found = _screen(
-        time_s, motor, load, torque, float(limits[0]), float(limits[1]), float(last_time), float(scales[0]), float(scales[1]), _NO_OUT if out is None else out
+        time_s,
+        motor,
+        load,
+        torque,
+        float(limits[0]),
+        float(limits[1]),
+        float(last_time),
+        float(scales[0]),
+        float(scales[1]),
+        _NO_OUT if out is None else out,
     )
     return Screened(*found)
 
@@ -61,7 +70,9 @@ _NO_OUT = np.empty((0, 0))
 
 
 @njit(cache=True, nogil=True)
-def _screen(time_s, motor, load, torque, motor_limit, load_limit, last_time, motor_scale, load_scale, out):  # pragma: no cover - compiled
+def _screen(
+    time_s, motor, load, torque, motor_limit, load_limit, last_time, motor_scale, load_scale, out
+):  # pragma: no cover - compiled
     has_torque = torque.shape[0] > 0
     write = out.shape[0] > 0
     previous = last_time

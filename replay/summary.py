@@ -69,4 +69,3 @@ class FileSummary:
 def _channel_dict(channel: ChannelInfo) -> dict[str, Any]:
     """A channel as JSON; ``shape`` only where the format has arrays (MATLAB, HDF5)."""
     return {k: v for k, v in asdict(channel).items() if k != "shape" or v is not None}
-

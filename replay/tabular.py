@@ -79,16 +79,25 @@ def unit_scale(unit: str, cpr: float | None, which: str, channel: str | None = N
     if key in COUNT_UNITS:
         if cpr is None or not math.isfinite(cpr) or cpr <= 0:
             raise LogFormatError(
-                path or "", None, f"{name} is in encoder counts (unit {unit!r}): needs a positive {which}_cpr (--{which}-cpr), got {cpr!r}"
+                path or "",
+                None,
+                f"{name} is in encoder counts (unit {unit!r}): needs a positive {which}_cpr (--{which}-cpr), got {cpr!r}",
             )
         return 360.0 / cpr
     raise LogFormatError(
-        path or "", None, f"{name} has unit {unit!r}, not an angle ({', '.join(sorted(ANGLE_UNITS))}) or a count; override with units=/--units"
+        path or "",
+        None,
+        f"{name} has unit {unit!r}, not an angle ({', '.join(sorted(ANGLE_UNITS))}) or a count; override with units=/--units",
     )
 
 
 def channel_scales(
-    path: str, names: dict[str, str], units: dict[str, str | None], override: str | None, motor_cpr: float | None, load_cpr: float | None
+    path: str,
+    names: dict[str, str],
+    units: dict[str, str | None],
+    override: str | None,
+    motor_cpr: float | None,
+    load_cpr: float | None,
 ) -> tuple[float, float, float, float]:
     """Scales (seconds, motor degrees, load degrees, N m per unit) from the channels' own units.
 
@@ -115,13 +124,17 @@ def channel_scales(
     return time_scale, scales[0], scales[1], torque_scale
 
 
-def _lookup(table: dict[str, float], unit: str | None, role: str, names: dict[str, str], path: str, expected: str) -> float:
+def _lookup(
+    table: dict[str, float], unit: str | None, role: str, names: dict[str, str], path: str, expected: str
+) -> float:
     if unit is None:
         return 1.0
     try:
         return table[unit.strip().lower()]
     except KeyError:
-        raise LogFormatError(path, None, f"{role} channel {names[role]!r} has unit {unit!r}, expected {expected}") from None
+        raise LogFormatError(
+            path, None, f"{role} channel {names[role]!r} has unit {unit!r}, expected {expected}"
+        ) from None
 
 
 def open_with(
@@ -175,7 +188,9 @@ def missing_channel(path: str, role: str, name: str, available: Iterable[str], k
     available = list(available)
     close = difflib.get_close_matches(name, available, n=5, cutoff=0.5)
     hint = f"closest: {close}" if close else f"{len(available)} {kind}s, e.g. {available[:8]}"
-    return LogFormatError(path, None, f"no {kind} {name!r} for {role} ({hint}); map it with columns=/--columns {role}=NAME")
+    return LogFormatError(
+        path, None, f"no {kind} {name!r} for {role} ({hint}); map it with columns=/--columns {role}=NAME"
+    )
 
 
 @dataclass(frozen=True)
@@ -330,7 +345,9 @@ class TabularSource(SampleSource):
         self.nominal_period_s = self._gap_rule.period_s
         self.counters.samples += time.size
         self._pass_last_time = found.last_time
-        return SampleChunk(time_s=time, motor_deg=motor, load_deg=load, torque_Nm=torque, after_gap=after_gap), found.last_time
+        return SampleChunk(
+            time_s=time, motor_deg=motor, load_deg=load, torque_Nm=torque, after_gap=after_gap
+        ), found.last_time
 
     def _on_motor_time(
         self,
@@ -356,6 +373,7 @@ class TabularSource(SampleSource):
         if not inside.all():
             arrays, numbers = [a[inside] for a in arrays], np.flatnonzero(inside) + first
         return self._validate_columns(arrays, numbers, last_time, scales[1:3])
+
     def _warn_of_radians(self, angles_deg: dict[str, np.ndarray], scales: tuple[float, float]) -> None:
         """One BacklashWarning when angles read as degrees as they are (scale 1) step on a grid of radians
         (:func:`~online_backlash.replay.unit_hints.radian_counts`), naming the columns and ``--units rad``."""

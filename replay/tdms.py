@@ -123,7 +123,11 @@ class TdmsLog(MeasurementLog):
         if len(by_name) == 1:
             return channels[by_name[0]]
         if len(by_name) > 1:
-            raise LogFormatError(self.path, None, f"channel {name!r} for {role} is in several groups: {by_name}; name it as GROUP/CHANNEL")
+            raise LogFormatError(
+                self.path,
+                None,
+                f"channel {name!r} for {role} is in several groups: {by_name}; name it as GROUP/CHANNEL",
+            )
         if role in ("torque", "time") and role not in self.mapped:
             return None
         raise missing_channel(self.path, role, name, channels)
@@ -132,9 +136,13 @@ class TdmsLog(MeasurementLog):
         try:
             values = channel[start:stop]
         except Exception as exc:  # a damaged segment
-            raise LogFormatError(self.path, start, f"cannot read {role} channel {self.columns[role]!r} ({type(exc).__name__}: {exc})") from exc
+            raise LogFormatError(
+                self.path, start, f"cannot read {role} channel {self.columns[role]!r} ({type(exc).__name__}: {exc})"
+            ) from exc
         if values.dtype.kind not in "biuf":
-            raise LogFormatError(self.path, start, f"{role} channel {self.columns[role]!r} holds {values.dtype} values, not numbers")
+            raise LogFormatError(
+                self.path, start, f"{role} channel {self.columns[role]!r} holds {values.dtype} values, not numbers"
+            )
         return values.astype(float, copy=False)
 
     def _waveform(self, role: str, channel: Any) -> tuple[float, float]:
@@ -149,9 +157,15 @@ class TdmsLog(MeasurementLog):
         try:
             increment, start = float(props["wf_increment"]), float(props.get("wf_start_offset", 0.0))
         except (TypeError, ValueError) as exc:
-            raise LogFormatError(self.path, None, f"{role} channel {self.columns[role]!r}: wf_increment/wf_start_offset are not numbers") from exc
+            raise LogFormatError(
+                self.path, None, f"{role} channel {self.columns[role]!r}: wf_increment/wf_start_offset are not numbers"
+            ) from exc
         if not (np.isfinite(increment) and increment > 0 and np.isfinite(start)):
-            raise LogFormatError(self.path, None, f"{role} channel {self.columns[role]!r}: wf_increment {increment!r} is not a positive time step")
+            raise LogFormatError(
+                self.path,
+                None,
+                f"{role} channel {self.columns[role]!r}: wf_increment {increment!r} is not a positive time step",
+            )
         return start, increment
 
     def _foreign_blocks(self, role: str, channel: Any) -> Iterator[tuple[np.ndarray, np.ndarray]]:
@@ -179,9 +193,17 @@ class TdmsLog(MeasurementLog):
         motor = found["motor"]
         n = len(motor)
         aligned = [r for r in present if len(found[r]) == n and found[r].group_name == motor.group_name]
-        foreign = {r: Resampler(self._foreign_blocks(r, found[r]), self.path, self.columns[r]) for r in present if r not in aligned}
+        foreign = {
+            r: Resampler(self._foreign_blocks(r, found[r]), self.path, self.columns[r])
+            for r in present
+            if r not in aligned
+        }
         if "time" in foreign:
-            raise LogFormatError(self.path, None, f"time channel {self.columns['time']!r} has {len(found['time'])} values, the motor channel {n}")
+            raise LogFormatError(
+                self.path,
+                None,
+                f"time channel {self.columns['time']!r} has {len(found['time'])} values, the motor channel {n}",
+            )
         units = {r: (found[r].properties.get("unit_string") if r in present else None) for r in ROLES}
         if "time" not in present:
             units["time"] = None
@@ -225,7 +247,11 @@ def describe(path: str | os.PathLike[str]) -> tuple[list[ChannelInfo], str | Non
         for name, channel in _channels(tdms).items():
             props = channel.properties
             increment = props.get("wf_increment")
-            rate = float(f"{1.0 / float(increment):.6g}") if isinstance(increment, (int, float)) and increment > 0 else None
+            rate = (
+                float(f"{1.0 / float(increment):.6g}")
+                if isinstance(increment, (int, float)) and increment > 0
+                else None
+            )
             dtype = np.dtype(channel.dtype).name if channel.dtype is not None else "none"
             infos.append(ChannelInfo(name, dtype, len(channel), channel.group_name, props.get("unit_string"), rate))
         return infos, _cut_short(_channels(tdms)) if cut else None

@@ -36,16 +36,21 @@ def main() -> int:
     dirs = package_dirs()
     with tempfile.TemporaryDirectory(prefix="online-backlash-typecheck.") as stage:
         for name, folder in dirs.items():
-            shutil.copytree(folder, Path(stage, *name.split(".")), dirs_exist_ok=True, ignore=shutil.ignore_patterns("__pycache__"))
+            shutil.copytree(
+                folder, Path(stage, *name.split(".")), dirs_exist_ok=True, ignore=shutil.ignore_patterns("__pycache__")
+            )
         proc = subprocess.run(
             [sys.executable, "-m", "mypy", "--config-file", str(ROOT / "pyproject.toml"), "-p", "online_backlash"],
-            cwd=stage, capture_output=True, text=True,
+            cwd=stage,
+            capture_output=True,
+            text=True,
         )
     report = proc.stdout + proc.stderr
     for name, folder in sorted(dirs.items(), key=lambda kv: -kv[0].count(".")):  # deepest mapping first
         staged = name.replace(".", "/") + "/"
         report = "\n".join(
-            str(folder.relative_to(ROOT)) + "/" + line[len(staged):] if line.startswith(staged) else line for line in report.splitlines()
+            str(folder.relative_to(ROOT)) + "/" + line[len(staged) :] if line.startswith(staged) else line
+            for line in report.splitlines()
         )
     print(report)
     return proc.returncode

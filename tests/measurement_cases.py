@@ -56,7 +56,9 @@ def read_all(path: Path, **options):
         counters = log.counters
     if not chunks:
         return np.empty((0, 4)), counters
-    return np.column_stack([np.concatenate([getattr(c, f) for c in chunks]) for f in ("time_s", "motor_deg", "load_deg", "torque_Nm")]), counters
+    return np.column_stack(
+        [np.concatenate([getattr(c, f) for c in chunks]) for f in ("time_s", "motor_deg", "load_deg", "torque_Nm")]
+    ), counters
 
 
 def damaged(data: bytes, draw) -> bytes:

@@ -51,11 +51,62 @@ class BrokerCertificates:
         ext.write_text("subjectAltName=IP:127.0.0.1,DNS:localhost\n")
         openssl = shutil.which("openssl") or "openssl"
         quiet = {"check": True, "capture_output": True}
-        subprocess.run([openssl, "req", "-x509", "-newkey", "rsa:2048", "-nodes", "-days", "2", "-subj", "/CN=test CA",
-                        "-keyout", str(ca_key), "-out", str(ca)], **quiet)
-        subprocess.run([openssl, "req", "-newkey", "rsa:2048", "-nodes", "-subj", "/CN=127.0.0.1", "-keyout", str(key), "-out", str(request)], **quiet)
-        subprocess.run([openssl, "x509", "-req", "-in", str(request), "-CA", str(ca), "-CAkey", str(ca_key), "-CAcreateserial",
-                        "-days", "2", "-extfile", str(ext), "-out", str(cert)], **quiet)
+        subprocess.run(
+            [
+                openssl,
+                "req",
+                "-x509",
+                "-newkey",
+                "rsa:2048",
+                "-nodes",
+                "-days",
+                "2",
+                "-subj",
+                "/CN=test CA",
+                "-keyout",
+                str(ca_key),
+                "-out",
+                str(ca),
+            ],
+            **quiet,
+        )
+        subprocess.run(
+            [
+                openssl,
+                "req",
+                "-newkey",
+                "rsa:2048",
+                "-nodes",
+                "-subj",
+                "/CN=127.0.0.1",
+                "-keyout",
+                str(key),
+                "-out",
+                str(request),
+            ],
+            **quiet,
+        )
+        subprocess.run(
+            [
+                openssl,
+                "x509",
+                "-req",
+                "-in",
+                str(request),
+                "-CA",
+                str(ca),
+                "-CAkey",
+                str(ca_key),
+                "-CAcreateserial",
+                "-days",
+                "2",
+                "-extfile",
+                str(ext),
+                "-out",
+                str(cert),
+            ],
+            **quiet,
+        )
         return cls(ca, cert, key)
 
 
@@ -80,7 +131,17 @@ class MosquittoBroker:
             passwords = folder / "passwords"
             for i, (user, password) in enumerate(users.items()):
                 create = ["-c"] if i == 0 else []
-                subprocess.run([shutil.which("mosquitto_passwd") or "mosquitto_passwd", *create, "-b", str(passwords), user, password], check=True)
+                subprocess.run(
+                    [
+                        shutil.which("mosquitto_passwd") or "mosquitto_passwd",
+                        *create,
+                        "-b",
+                        str(passwords),
+                        user,
+                        password,
+                    ],
+                    check=True,
+                )
             self._settings += ["allow_anonymous false", f"password_file {passwords}"]
         else:
             self._settings.append("allow_anonymous true")

@@ -119,15 +119,27 @@ def test_worst_state_puts_unknown_between_warning_and_alarm():
 @pytest.mark.parametrize(
     ("status", "forecast", "line"),
     [
-        (AlarmStatus("warning", "", 19.2, 0.0, 18.0, 21.0), "in 310 machine hours, around 2026-12-01",
-         "BACKLASH WARNING - GB-7 play 19.2 arcmin, limit 21 in 310 machine hours, around 2026-12-01 "
-         "| play_arcmin=19.2;18;21"),
-        (AlarmStatus("ok", "", 12.04, 0.0, None, 21.0), "no wear measured",
-         "BACKLASH OK - GB-7 play 12.0 arcmin, limit 21 no wear measured | play_arcmin=12.0;;21"),
-        (AlarmStatus("alarm", "", 22.3, 0.0, 18.0, 21.0, 0.0), "exceeded since 2026-11-20T08:00:00+00:00",
-         "BACKLASH CRITICAL - GB-7 play 22.3 arcmin, limit 21 exceeded since 2026-11-20T08:00:00+00:00 | play_arcmin=22.3;18;21"),
-        (AlarmStatus("unknown", "no observable estimate", None, None, 18.0, 21.0), "no forecast yet",
-         "BACKLASH UNKNOWN - GB-7 no observable estimate | play_arcmin=U;18;21"),
+        (
+            AlarmStatus("warning", "", 19.2, 0.0, 18.0, 21.0),
+            "in 310 machine hours, around 2026-12-01",
+            "BACKLASH WARNING - GB-7 play 19.2 arcmin, limit 21 in 310 machine hours, around 2026-12-01 "
+            "| play_arcmin=19.2;18;21",
+        ),
+        (
+            AlarmStatus("ok", "", 12.04, 0.0, None, 21.0),
+            "no wear measured",
+            "BACKLASH OK - GB-7 play 12.0 arcmin, limit 21 no wear measured | play_arcmin=12.0;;21",
+        ),
+        (
+            AlarmStatus("alarm", "", 22.3, 0.0, 18.0, 21.0, 0.0),
+            "exceeded since 2026-11-20T08:00:00+00:00",
+            "BACKLASH CRITICAL - GB-7 play 22.3 arcmin, limit 21 exceeded since 2026-11-20T08:00:00+00:00 | play_arcmin=22.3;18;21",
+        ),
+        (
+            AlarmStatus("unknown", "no observable estimate", None, None, 18.0, 21.0),
+            "no forecast yet",
+            "BACKLASH UNKNOWN - GB-7 no observable estimate | play_arcmin=U;18;21",
+        ),
     ],
 )
 def test_plugin_line_format(status, forecast, line):
@@ -180,13 +192,27 @@ def _fill(store, gearbox_id, play_arcmin, end_unix_s, warn=18.0, limit=21.0, hou
     rows = []
     n = len(play_arcmin)
     for i, p in enumerate(play_arcmin):
-        rows.append(dict(
-            sample_index=1000 * (i + 1), time_unix_s=end_unix_s - (n - 1 - i) * HOUR, backlash_deg=p / 60.0, backlash_std_deg=0.002,
-            c_left_deg=None, c_right_deg=None, m_left=None, m_right=None, residual_rms_deg=None, n_samples=1000 * (i + 1),
-            operating_hours=hours_per_step * (i + 1), load_revolutions=100.0 * (i + 1), reversals=50 * (i + 1),
-        ))
+        rows.append(
+            dict(
+                sample_index=1000 * (i + 1),
+                time_unix_s=end_unix_s - (n - 1 - i) * HOUR,
+                backlash_deg=p / 60.0,
+                backlash_std_deg=0.002,
+                c_left_deg=None,
+                c_right_deg=None,
+                m_left=None,
+                m_right=None,
+                residual_rms_deg=None,
+                n_samples=1000 * (i + 1),
+                operating_hours=hours_per_step * (i + 1),
+                load_revolutions=100.0 * (i + 1),
+                reversals=50 * (i + 1),
+            )
+        )
     gearbox, run = store.commit(gearbox, run, 1000 * n, {"format": 1}, rows)
-    store.commit(gearbox, run, 1000 * n, {"format": 1}, counters=dict(frames=1, samples=1, corrupt=0, skipped=0, gaps=0))
+    store.commit(
+        gearbox, run, 1000 * n, {"format": 1}, counters=dict(frames=1, samples=1, corrupt=0, skipped=0, gaps=0)
+    )
 
 
 @pytest.fixture
@@ -201,10 +227,12 @@ def fleet_db(tmp_path):
 
 
 def test_check_one_gearbox_each_state(capsys, fleet_db):
-    expected = {"GB-1": (0, "BACKLASH OK - GB-1 play 12.0 arcmin, limit 21 in "),
-                "GB-2": (1, "BACKLASH WARNING - GB-2 play 19.2 arcmin, limit 21 in "),
-                "GB-3": (2, "BACKLASH CRITICAL - GB-3 play 22.8 arcmin, limit 21 exceeded since "),
-                "GB-4": (3, "BACKLASH UNKNOWN - GB-4 the latest observable estimate is 30.0 days old (")}
+    expected = {
+        "GB-1": (0, "BACKLASH OK - GB-1 play 12.0 arcmin, limit 21 in "),
+        "GB-2": (1, "BACKLASH WARNING - GB-2 play 19.2 arcmin, limit 21 in "),
+        "GB-3": (2, "BACKLASH CRITICAL - GB-3 play 22.8 arcmin, limit 21 exceeded since "),
+        "GB-4": (3, "BACKLASH UNKNOWN - GB-4 the latest observable estimate is 30.0 days old ("),
+    }
     for gearbox, (code_expected, start) in expected.items():
         code, out, err = run_cli(capsys, "history", "--db", fleet_db, "--gearbox", gearbox, "--check")
         assert code == code_expected and err == "" and out.startswith(start) and out.count("\n") == 1, out
@@ -256,7 +284,11 @@ def test_track_stores_and_checks_the_levels(capsys, tmp_path):
     db = tmp_path / "w.db"
     base = ("track", log, "--ratio", 30, "--db", db, "--gearbox", "g1", "--every", 5)
     code, _, err = run_cli(capsys, *base, "--limit-arcmin", -1)
-    assert code == 1 and err == "error: the limit must be a finite positive angle in arcmin, got -1.0\n" and not db.exists()
+    assert (
+        code == 1
+        and err == "error: the limit must be a finite positive angle in arcmin, got -1.0\n"
+        and not db.exists()
+    )
     code, _, err = run_cli(capsys, *base, "--limit-arcmin", 21, "--warn-arcmin", 25)
     assert code == 1 and "the warning level 25 arcmin is above the limit 21 arcmin" in err and not db.exists()
     code, _, _ = run_cli(capsys, *base, "--limit-arcmin", 21, "--warn-arcmin", 17)
@@ -265,6 +297,10 @@ def test_track_stores_and_checks_the_levels(capsys, tmp_path):
         g = store.gearbox("g1")
     assert (g.warn_arcmin, g.limit_arcmin) == (17.0, 21.0)
     code, out, _ = run_cli(capsys, "history", "--db", db, "--gearbox", "g1", "--check")
-    assert code == 1 and out.startswith("BACKLASH WARNING - g1 play 18.0 arcmin, limit 21") and out.rstrip().endswith(";17;21")
+    assert (
+        code == 1
+        and out.startswith("BACKLASH WARNING - g1 play 18.0 arcmin, limit 21")
+        and out.rstrip().endswith(";17;21")
+    )
     code, _, err = run_cli(capsys, "track", log, "--ratio", 30, "--db", db, "--gearbox", "g1", "--warn-arcmin", 22)
     assert code == 1 and "the warning level 22 arcmin is above the limit 21 arcmin" in err

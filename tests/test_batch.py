@@ -246,7 +246,9 @@ def test_default_estimators_fit_the_papers_examples_as_given(number):
     ex = PAPER_EXAMPLES[number]
     cls = VorosCascade if ex.cascade else VorosBacklash
     truth = ex.parameters()
-    errors = np.array([[abs(cls().fit(*ex.generate(seed)).estimates()[k] / v - 1) for k, v in truth.items()] for seed in range(20)])
+    errors = np.array(
+        [[abs(cls().fit(*ex.generate(seed)).estimates()[k] / v - 1) for k, v in truth.items()] for seed in range(20)]
+    )
     medians = dict(zip(truth, np.median(errors, axis=0)))
     assert all(m < 0.03 for m in medians.values()), medians
 

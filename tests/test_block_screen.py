@@ -88,7 +88,11 @@ def check_against_reference(read, rows, block_rows, skip_bad, first_number):
     kept, corrupt, repeated, gaps = expected
     width = rows.shape[1]
     fields = ("time_s", "motor_deg", "load_deg", "torque_Nm")[:width]
-    got = np.column_stack([np.concatenate([getattr(c, f) for c in chunks] or [np.empty(0)]) for f in fields]) if chunks else np.empty((0, width))
+    got = (
+        np.column_stack([np.concatenate([getattr(c, f) for c in chunks] or [np.empty(0)]) for f in fields])
+        if chunks
+        else np.empty((0, width))
+    )
     np.testing.assert_array_equal(got.reshape(-1, width), kept)
     assert counters.corrupt == corrupt and counters.samples == len(kept) and counters.frames == len(rows)
     flags = np.concatenate([c.after_gap for c in chunks]).tolist() if chunks else []
@@ -136,4 +140,6 @@ def check_whole_pass(read, rows, block_rows, skip_bad, first_number):
     result = check_against_reference(read, rows, block_rows, skip_bad, first_number)
     if result is not None:
         repeated, seen = result
-        assert [str(w.message).split(": ", 1)[1].split(" of ")[0] for w in seen] == ([str(repeated)] if repeated and len(expected[0]) >= 2 else [])
+        assert [str(w.message).split(": ", 1)[1].split(" of ")[0] for w in seen] == (
+            [str(repeated)] if repeated and len(expected[0]) >= 2 else []
+        )

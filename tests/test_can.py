@@ -29,7 +29,10 @@ T0 = 1_700_000_000.0  # epoch seconds, as a real bus timestamps frames
 
 
 def reconciles(counters, frames_per_sample):
-    return counters.frames == counters.skipped + counters.corrupt + counters.unpaired + frames_per_sample * counters.samples
+    return (
+        counters.frames
+        == counters.skipped + counters.corrupt + counters.unpaired + frames_per_sample * counters.samples
+    )
 
 
 @pytest.fixture(scope="module")
@@ -255,7 +258,9 @@ def test_live_estimates_equal_the_replayed_raw_log_bit_for_bit(tmp_path, rec, si
     replayed = list(log)
     assert isinstance(log, SampleSource)
     assert log.counters.as_dict() == c.as_dict()
-    assert [(s.motor_deg, s.load_deg, s.seq, s.after_gap) for s in replayed] == [(s.motor_deg, s.load_deg, s.seq, s.after_gap) for s in live]
+    assert [(s.motor_deg, s.load_deg, s.seq, s.after_gap) for s in replayed] == [
+        (s.motor_deg, s.load_deg, s.seq, s.after_gap) for s in live
+    ]
     assert np.allclose([s.time_s for s in replayed], [s.time_s for s in live], rtol=0, atol=1e-3)
 
     est_live, est_replay = learn(live, rec.ratio), learn(replayed, rec.ratio)

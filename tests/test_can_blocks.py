@@ -74,7 +74,11 @@ def damaged_frames(signals, counter_signal="Counter"):
         f.dlc = len(f.data)
     del frames[n // 3 : n // 3 + 5]  # lost frames: a counter jump (and an orphan in two messages)
     del frames[n // 2]
-    frames[n // 2 + 100 : n // 2 + 102] = [frames[n // 2 + 100], frames[n // 2 + 100], frames[n // 2 + 101]]  # a repeated frame
+    frames[n // 2 + 100 : n // 2 + 102] = [
+        frames[n // 2 + 100],
+        frames[n // 2 + 100],
+        frames[n // 2 + 101],
+    ]  # a repeated frame
     for f in frames[3 * n // 4 :]:
         f.timestamp += 0.05  # a silence
     for f in frames[n // 4 : n // 4 + 2]:
@@ -87,8 +91,18 @@ def damaged_frames(signals, counter_signal="Counter"):
     ]
     for k, i in enumerate(range(50, len(frames), 150)):
         msg = extra[k % len(extra)]
-        frames.insert(i, can.Message(timestamp=frames[i].timestamp, arbitration_id=msg.arbitration_id, is_extended_id=msg.is_extended_id,
-                                     is_error_frame=msg.is_error_frame, is_remote_frame=msg.is_remote_frame, dlc=msg.dlc, data=msg.data))
+        frames.insert(
+            i,
+            can.Message(
+                timestamp=frames[i].timestamp,
+                arbitration_id=msg.arbitration_id,
+                is_extended_id=msg.is_extended_id,
+                is_error_frame=msg.is_error_frame,
+                is_remote_frame=msg.is_remote_frame,
+                dlc=msg.dlc,
+                data=msg.data,
+            ),
+        )
     return frames
 
 
@@ -111,7 +125,9 @@ def test_block_path_equals_the_per_frame_path(tmp_path, monkeypatch, signals, op
         for f in frames:
             writer.on_message_received(f)
     decoder_options = {k: options[k] for k in ("motor_cpr", "counter_signal") if k in options}
-    pipe = FramePipeline(DbcDecoder(RIG_DBC, *signals, **decoder_options), options.get("period_s"), options.get("max_skew_s", 1e-3))
+    pipe = FramePipeline(
+        DbcDecoder(RIG_DBC, *signals, **decoder_options), options.get("period_s"), options.get("max_skew_s", 1e-3)
+    )
     expected = [s for s in map(pipe.feed, can.LogReader(path)) if s is not None]
     pipe.flush()
 
@@ -130,7 +146,9 @@ def test_block_path_equals_the_per_frame_path(tmp_path, monkeypatch, signals, op
         for field in ("time_s", "motor_deg", "load_deg", "after_gap"):
             assert np.array_equal(getattr(g, field), getattr(w, field)), field
         assert np.isnan(g.torque_Nm).all()
-        assert [q if q >= 0 else None for q in g.seq.tolist()] == [s.seq for s in w.samples()]  # the rolling counters ride along
+        assert [q if q >= 0 else None for q in g.seq.tolist()] == [
+            s.seq for s in w.samples()
+        ]  # the rolling counters ride along
 
 
 def test_realtime_and_strict_take_the_per_frame_path(tmp_path):
@@ -157,13 +175,37 @@ SCALED = ("Scaled.Motor", "Scaled.Load")
 #: name -> (dbc, signals, decoder options, pipeline options)
 CONFIGS = {
     "by-counter": (RIG_DBC, SPLIT, {}, {}),
-    "by-counter-no-checksum": (RIG_DBC, SPLIT, {"checksum_signal": None}, {}),  # flips reach counters and counts: jumps, unwrapping
+    "by-counter-no-checksum": (
+        RIG_DBC,
+        SPLIT,
+        {"checksum_signal": None},
+        {},
+    ),  # flips reach counters and counts: jumps, unwrapping
     "by-time": (RIG_DBC, SPLIT, {"counter_signal": None}, {"max_skew_s": 2e-4}),
-    "one-message-no-checksum": (RIG_DBC, ONE, {"checksum_signal": None, "motor_cpr": 16000}, {"period_s": 1e-3}),  # out-of-range counts
+    "one-message-no-checksum": (
+        RIG_DBC,
+        ONE,
+        {"checksum_signal": None, "motor_cpr": 16000},
+        {"period_s": 1e-3},
+    ),  # out-of-range counts
     "scaled-multi-turn": (SCALED_DBC, SCALED, {"checksum_signal": None}, {}),  # flips reach scaled, signed values
     "scaled-wrapping": (SCALED_DBC, SCALED, {"wrap_deg": 360.0}, {}),  # angles unwrapped at 360 deg
 }
-DAMAGE = ("flip", "cut", "pad", "drop", "repeat", "swap", "foreign", "extended", "error", "remote", "silence", "back", "nan")
+DAMAGE = (
+    "flip",
+    "cut",
+    "pad",
+    "drop",
+    "repeat",
+    "swap",
+    "foreign",
+    "extended",
+    "error",
+    "remote",
+    "silence",
+    "back",
+    "nan",
+)
 
 
 def clean_frames(dbc, signals, decoder_options):
@@ -175,7 +217,9 @@ CLEAN = {name: clean_frames(dbc, signals, dec) for name, (dbc, signals, dec, _) 
 
 
 def copy(f):
-    return can.Message(timestamp=f.timestamp, arbitration_id=f.arbitration_id, is_extended_id=f.is_extended_id, data=bytearray(f.data))
+    return can.Message(
+        timestamp=f.timestamp, arbitration_id=f.arbitration_id, is_extended_id=f.is_extended_id, data=bytearray(f.data)
+    )
 
 
 def damage(frames, ops):
@@ -203,7 +247,9 @@ def damage(frames, ops):
             setattr(f, f"is_{kind}_frame", True)
         elif kind == "silence":
             for later in out[i:]:
-                later.timestamp += 1e-4 * (1 + value)  # 1.1 to 26.6 periods: around the gap rule's 3, maybe a whole counter wrap
+                later.timestamp += 1e-4 * (
+                    1 + value
+                )  # 1.1 to 26.6 periods: around the gap rule's 3, maybe a whole counter wrap
         elif kind == "back":
             f.timestamp -= 1.0  # time goes backwards
         elif kind == "nan":
@@ -242,7 +288,9 @@ def test_every_frame_rule_is_the_same_on_both_paths(name, ops, block):
 
 @settings(max_examples=200, deadline=None)
 @given(
-    steps=st.lists(st.one_of(st.just(1e-3), st.floats(0.0, 0.02), st.sampled_from([0.0, 0.05, 1.0])), min_size=0, max_size=80),
+    steps=st.lists(
+        st.one_of(st.just(1e-3), st.floats(0.0, 0.02), st.sampled_from([0.0, 0.05, 1.0])), min_size=0, max_size=80
+    ),
     block=st.integers(1, 30),
     period_s=st.sampled_from([None, 1e-3, 4e-3]),
 )

@@ -29,10 +29,14 @@ SYNC_OVERFLOW = 16
 
 @pytest.fixture(scope="module")
 def rec() -> RigRecording:
-    return simulate_rig(duration_s=4.0, rate_hz=1000.0, reversal_s=(0.4, 0.8), seed=5, motor_bits=MOTOR_BITS, load_bits=LOAD_BITS)
+    return simulate_rig(
+        duration_s=4.0, rate_hz=1000.0, reversal_s=(0.4, 0.8), seed=5, motor_bits=MOTOR_BITS, load_bits=LOAD_BITS
+    )
 
 
-def _var(name: str, index: int, subindex: int, data_type: int, default: int | None = None, relative: str | None = None) -> ODVariable:
+def _var(
+    name: str, index: int, subindex: int, data_type: int, default: int | None = None, relative: str | None = None
+) -> ODVariable:
     var = ODVariable(name, index, subindex)
     var.data_type = data_type
     var.access_type = "rw"
@@ -51,8 +55,15 @@ def _record(name: str, index: int, members: list[ODVariable], array: bool = Fals
 
 
 def write_eds(
-    path: Path, node: int, mapped: list[tuple[int, int]], *, resolution: int | None, trans_type: int = 1, sync: bool = True,
-    second: list[tuple[int, int]] | None = None, factor_group: dict[int, tuple[int, int]] | None = None,
+    path: Path,
+    node: int,
+    mapped: list[tuple[int, int]],
+    *,
+    resolution: int | None,
+    trans_type: int = 1,
+    sync: bool = True,
+    second: list[tuple[int, int]] | None = None,
+    factor_group: dict[int, tuple[int, int]] | None = None,
 ) -> Path:
     """A servo drive's EDS written by ``canopen.export_od``: TPDO1 (COB-ID $NODEID+0x180) maps ``mapped`` objects (32 bits each),
     TPDO2 ($NODEID+0x280) the ``second`` ones, both of transmission type ``trans_type``; ``factor_group`` gives the
@@ -64,31 +75,77 @@ def write_eds(
         od.add_object(_var("Synchronous counter overflow value", 0x1019, 0, u8, SYNC_OVERFLOW))
     for n, objects in enumerate([mapped] if second is None else [mapped, second]):
         comm, mapping = 0x1800 + n, 0x1A00 + n
-        od.add_object(_record(f"Transmit PDO {n + 1} communication parameter", comm, [
-            _var("Highest sub-index supported", comm, 0, u8, 2),
-            _var("COB-ID used by TPDO", comm, 1, u32, 0x180 + 0x100 * n + node, relative=f"$NODEID+0x{0x180 + 0x100 * n:X}"),
-            _var("Transmission type", comm, 2, u8, trans_type),
-        ]))
-        entries = [_var(f"Application object {i + 1}", mapping, i + 1, u32, (index << 16) | (sub << 8) | 32) for i, (index, sub) in enumerate(objects)]
-        od.add_object(_record(f"Transmit PDO {n + 1} mapping parameter", mapping, [_var("Number of mapped objects", mapping, 0, u8, len(objects)), *entries]))
+        od.add_object(
+            _record(
+                f"Transmit PDO {n + 1} communication parameter",
+                comm,
+                [
+                    _var("Highest sub-index supported", comm, 0, u8, 2),
+                    _var(
+                        "COB-ID used by TPDO",
+                        comm,
+                        1,
+                        u32,
+                        0x180 + 0x100 * n + node,
+                        relative=f"$NODEID+0x{0x180 + 0x100 * n:X}",
+                    ),
+                    _var("Transmission type", comm, 2, u8, trans_type),
+                ],
+            )
+        )
+        entries = [
+            _var(f"Application object {i + 1}", mapping, i + 1, u32, (index << 16) | (sub << 8) | 32)
+            for i, (index, sub) in enumerate(objects)
+        ]
+        od.add_object(
+            _record(
+                f"Transmit PDO {n + 1} mapping parameter",
+                mapping,
+                [_var("Number of mapped objects", mapping, 0, u8, len(objects)), *entries],
+            )
+        )
     od.add_object(_var("Position actual value", 0x6064, 0, i32, 0))
-    od.add_object(_record("Additional position actual value", 0x60E4, [
-        _var("Highest sub-index supported", 0x60E4, 0, u8, 2),
-        _var("Additional position actual value 1", 0x60E4, 1, i32, 0),
-        _var("Additional position actual value 2", 0x60E4, 2, i32, 0),
-    ], array=True))
+    od.add_object(
+        _record(
+            "Additional position actual value",
+            0x60E4,
+            [
+                _var("Highest sub-index supported", 0x60E4, 0, u8, 2),
+                _var("Additional position actual value 1", 0x60E4, 1, i32, 0),
+                _var("Additional position actual value 2", 0x60E4, 2, i32, 0),
+            ],
+            array=True,
+        )
+    )
     if resolution is not None:
-        od.add_object(_record("Position encoder resolution", 0x608F, [
-            _var("Highest sub-index supported", 0x608F, 0, u8, 2),
-            _var("Encoder increments", 0x608F, 1, u32, resolution),
-            _var("Motor revolutions", 0x608F, 2, u32, 1),
-        ]))
-    names = {0x6091: ("Gear ratio", "Motor shaft revolutions", "Driving shaft revolutions"), 0x6092: ("Feed constant", "Feed", "Shaft revolutions")}
+        od.add_object(
+            _record(
+                "Position encoder resolution",
+                0x608F,
+                [
+                    _var("Highest sub-index supported", 0x608F, 0, u8, 2),
+                    _var("Encoder increments", 0x608F, 1, u32, resolution),
+                    _var("Motor revolutions", 0x608F, 2, u32, 1),
+                ],
+            )
+        )
+    names = {
+        0x6091: ("Gear ratio", "Motor shaft revolutions", "Driving shaft revolutions"),
+        0x6092: ("Feed constant", "Feed", "Shaft revolutions"),
+    }
     for index, (top, bottom) in (factor_group or {}).items():
         name, first, second_name = names[index]
-        od.add_object(_record(name, index, [
-            _var("Number of entries", index, 0, u8, 2), _var(first, index, 1, u32, top), _var(second_name, index, 2, u32, bottom),
-        ]))
+        od.add_object(
+            _record(
+                name,
+                index,
+                [
+                    _var("Number of entries", index, 0, u8, 2),
+                    _var(first, index, 1, u32, top),
+                    _var(second_name, index, 2, u32, bottom),
+                ],
+            )
+        )
     canopen.export_od(od, str(path))
     return path
 
@@ -130,7 +187,9 @@ class Rig:
             node.tpdo.read(from_od=True)
             self.nodes[node_id] = node
 
-    def play(self, rec: RigRecording, values: dict[tuple[int, int, int], list[int]], t0: float = 1.7e9, hook=None) -> None:
+    def play(
+        self, rec: RigRecording, values: dict[tuple[int, int, int], list[int]], t0: float = 1.7e9, hook=None
+    ) -> None:
         """For sample k: SYNC (counter 1..16), then each node's TPDO1 with ``values[(node, index, sub)][k]``."""
         for k, t in enumerate(rec.time_s.tolist()):
             self.clock.now = t0 + t
@@ -145,7 +204,12 @@ class Rig:
                     pdo.transmit()
 
     def play_events(
-        self, rec: RigRecording, values: dict[tuple[int, int, int], list[int]], offsets_s: dict[int, float], on_change: bool = False, t0: float = 1.7e9
+        self,
+        rec: RigRecording,
+        values: dict[tuple[int, int, int], list[int]],
+        offsets_s: dict[int, float],
+        on_change: bool = False,
+        t0: float = 1.7e9,
     ) -> None:
         """Event-driven TPDOs, no SYNC: at sample k each node sends every TPDO on its own timer (``offsets_s[node]`` after the
         sample, 10 us between its PDOs) or, ``on_change``, only the PDOs whose value changed since they were last sent."""
@@ -198,11 +262,17 @@ def drives(tmp_path_factory) -> dict[str, Path]:
 
 
 def one_node_values(rec: RigRecording) -> dict[tuple[int, int, int], list[int]]:
-    return {(3, 0x6064, 0): int32(counts(rec.motor_deg, 2**MOTOR_BITS)), (3, 0x60E4, 1): int32(counts(rec.load_deg, 2**LOAD_BITS))}
+    return {
+        (3, 0x6064, 0): int32(counts(rec.motor_deg, 2**MOTOR_BITS)),
+        (3, 0x60E4, 1): int32(counts(rec.load_deg, 2**LOAD_BITS)),
+    }
 
 
 def two_node_values(rec: RigRecording) -> dict[tuple[int, int, int], list[int]]:
-    return {(3, 0x6064, 0): int32(counts(rec.motor_deg, 2**MOTOR_BITS)), (4, 0x6064, 0): int32(counts(rec.load_deg, 2**LOAD_BITS))}
+    return {
+        (3, 0x6064, 0): int32(counts(rec.motor_deg, 2**MOTOR_BITS)),
+        (4, 0x6064, 0): int32(counts(rec.load_deg, 2**LOAD_BITS)),
+    }
 
 
 def test_the_positions_roll_over_within_the_run(rec):
@@ -213,8 +283,17 @@ def test_the_positions_roll_over_within_the_run(rec):
 def test_the_eds_is_the_library_s_and_the_mapping_comes_from_it(drives):
     layout = CanopenLayout.from_files(drives["both"], 3, load_cpr=2**LOAD_BITS)
     assert (layout.motor.pdo.cob_id, layout.motor.obj.index, layout.motor.obj.bit_offset) == (0x183, 0x6064, 0)
-    assert (layout.load.pdo.cob_id, layout.load.obj.index, layout.load.obj.subindex, layout.load.obj.bit_offset) == (0x183, 0x60E4, 1, 32)
-    assert layout.motor.counts_per_rev == 2**MOTOR_BITS and layout.sync_cob_id == 0x80 and layout.sync_overflow == SYNC_OVERFLOW
+    assert (layout.load.pdo.cob_id, layout.load.obj.index, layout.load.obj.subindex, layout.load.obj.bit_offset) == (
+        0x183,
+        0x60E4,
+        1,
+        32,
+    )
+    assert (
+        layout.motor.counts_per_rev == 2**MOTOR_BITS
+        and layout.sync_cob_id == 0x80
+        and layout.sync_overflow == SYNC_OVERFLOW
+    )
     # the same EDS for another node: $NODEID in the file moves the COB-ID
     assert CanopenLayout.from_files(drives["motor"], 3, load_node=5, load_cpr=100).load.pdo.cob_id == 0x185
     assert "$NODEID" in drives["motor"].read_text()
@@ -241,11 +320,30 @@ def test_estimate_a_recorded_log_of_one_drive_with_0x60e4(tmp_path, capsys, rec,
     finally:
         rig.close()
     assert len(frames) == 2 * rec.time_s.size
-    argv = ["estimate", str(log), "--eds", str(drives["both"]), "--node", "3", "--load-cpr", str(2**LOAD_BITS), "--ratio", "30", "--json"]
+    argv = [
+        "estimate",
+        str(log),
+        "--eds",
+        str(drives["both"]),
+        "--node",
+        "3",
+        "--load-cpr",
+        str(2**LOAD_BITS),
+        "--ratio",
+        "30",
+        "--json",
+    ]
     assert main(argv) == 0
     out = json.loads(capsys.readouterr().out)
     assert out["backlash_deg"] == pytest.approx(0.5, abs=0.02)
-    assert (out["frames"], out["samples"], out["corrupt"], out["skipped"], out["unpaired"], out["gaps"]) == (len(frames), rec.time_s.size, 0, 0, 0, 0)
+    assert (out["frames"], out["samples"], out["corrupt"], out["skipped"], out["unpaired"], out["gaps"]) == (
+        len(frames),
+        rec.time_s.size,
+        0,
+        0,
+        0,
+        0,
+    )
     # the samples are the rig's angles, through the 32-bit rollover, timestamped at the SYNC
     with open_log(log, eds=drives["both"], node=3, load_cpr=2**LOAD_BITS) as source:
         chunk = next(source.iter_chunks(max_samples=10**6))
@@ -261,20 +359,40 @@ def test_a_second_node_as_load_encoder_and_damaged_frames_counted(tmp_path, caps
     def hook(k: int, what: int | str) -> bool:
         return not ((k == lost_sync and what == "sync") or (k == lost_pdo and what == 4))
 
-    foreign = [can.Message(arbitration_id=0x703, data=[5], timestamp=1.7e9 + 0.5 + i * 1e-4, is_extended_id=False) for i in range(7)]
+    foreign = [
+        can.Message(arbitration_id=0x703, data=[5], timestamp=1.7e9 + 0.5 + i * 1e-4, is_extended_id=False)
+        for i in range(7)
+    ]
     log = tmp_path / "two.blf"
     try:
         frames = record("co-two", lambda: rig.play(rec, two_node_values(rec), hook=hook), log, extra=foreign)
     finally:
         rig.close()
     # one PDO of the motor node cut short (DLC 3), written again
-    frames = [m if not (m.arbitration_id == 0x183 and abs(m.timestamp - 1.7e9 - rec.time_s[short_pdo]) < 1e-4) else
-              can.Message(arbitration_id=0x183, data=m.data[:3], timestamp=m.timestamp, is_extended_id=False) for m in frames]
+    frames = [
+        m
+        if not (m.arbitration_id == 0x183 and abs(m.timestamp - 1.7e9 - rec.time_s[short_pdo]) < 1e-4)
+        else can.Message(arbitration_id=0x183, data=m.data[:3], timestamp=m.timestamp, is_extended_id=False)
+        for m in frames
+    ]
     with can.Logger(str(log)) as writer:
         for msg in frames:
             writer.on_message_received(msg)
-    argv = ["estimate", str(log), "--eds", str(drives["motor"]), "--node", "3", "--load-node", "4", "--load-eds", str(drives["load"]),
-            "--ratio", "30", "--json"]
+    argv = [
+        "estimate",
+        str(log),
+        "--eds",
+        str(drives["motor"]),
+        "--node",
+        "3",
+        "--load-node",
+        "4",
+        "--load-eds",
+        str(drives["load"]),
+        "--ratio",
+        "30",
+        "--json",
+    ]
     assert main(argv) == 0
     out = json.loads(capsys.readouterr().out)
     assert out["backlash_deg"] == pytest.approx(0.5, abs=0.02)
@@ -286,14 +404,53 @@ def test_a_second_node_as_load_encoder_and_damaged_frames_counted(tmp_path, caps
     assert out["frames"] == len(frames) == out["skipped"] + out["corrupt"] + out["unpaired"] + 3 * out["samples"]
     # track and diagnose read it the same way
     nodes = ["--eds", str(drives["motor"]), "--node", "3", "--load-node", "4", "--load-eds", str(drives["load"])]
-    assert main(["track", str(log), *nodes, "--ratio", "30", "--db", str(tmp_path / "wear.db"), "--gearbox", "gb1", "--every", "1", "--json"]) == 0
+    assert (
+        main(
+            [
+                "track",
+                str(log),
+                *nodes,
+                "--ratio",
+                "30",
+                "--db",
+                str(tmp_path / "wear.db"),
+                "--gearbox",
+                "gb1",
+                "--every",
+                "1",
+                "--json",
+            ]
+        )
+        == 0
+    )
     tracked = json.loads(capsys.readouterr().out)
     # (4 s of data are too short for the tracker's warm start: it says so, and counts the log as read)
-    assert tracked["samples_fed"] == n - 3 and tracked["counters"]["unpaired"] == 6 and tracked["counters"]["frames"] == len(frames)
+    assert (
+        tracked["samples_fed"] == n - 3
+        and tracked["counters"]["unpaired"] == 6
+        and tracked["counters"]["frames"] == len(frames)
+    )
     assert main(["diagnose", str(log), *nodes, "--ratio", "30", "--json"]) == 0
     assert json.loads(capsys.readouterr().out)["corrupt"] == 1
     # the CAN IDs of inspect, named by the dictionaries
-    assert main(["inspect", str(log), "--eds", str(drives["motor"]), "--node", "3", "--load-node", "4", "--load-eds", str(drives["load"]), "--json"]) == 0
+    assert (
+        main(
+            [
+                "inspect",
+                str(log),
+                "--eds",
+                str(drives["motor"]),
+                "--node",
+                "3",
+                "--load-node",
+                "4",
+                "--load-eds",
+                str(drives["load"]),
+                "--json",
+            ]
+        )
+        == 0
+    )
     ids = {i["id"]: i for i in json.loads(capsys.readouterr().out)["can_ids"]}
     assert ids["0x080"]["message"] == "SYNC" and ids["0x080"]["frames"] == n - 1
     assert ids["0x183"]["message"] == "TxPDO1_node3: 0x6064.0 Position actual value"
@@ -302,7 +459,9 @@ def test_a_second_node_as_load_encoder_and_damaged_frames_counted(tmp_path, caps
 
 
 @pytest.mark.parametrize("trigger", ["sync", "event"])
-def test_listen_can_live_on_a_virtual_bus_replays_to_the_same_estimate(tmp_path, capsys, rec, drives, event_drives, trigger):
+def test_listen_can_live_on_a_virtual_bus_replays_to_the_same_estimate(
+    tmp_path, capsys, rec, drives, event_drives, trigger
+):
     channel = f"co-live-{trigger}"
     eds = drives["both"] if trigger == "sync" else event_drives["both"]
 
@@ -317,14 +476,50 @@ def test_listen_can_live_on_a_virtual_bus_replays_to_the_same_estimate(tmp_path,
             rig.close()  # then Ctrl-C: the frames still waiting on the bus are learned too
 
     raw = tmp_path / "raw"
-    argv = ["listen", "can", "--interface", "virtual", "--channel", channel, "--eds", str(eds), "--node", "3",
-            "--load-cpr", str(2**LOAD_BITS), "--ratio", "30", "--raw-log", str(raw), "--json"]
+    argv = [
+        "listen",
+        "can",
+        "--interface",
+        "virtual",
+        "--channel",
+        channel,
+        "--eds",
+        str(eds),
+        "--node",
+        "3",
+        "--load-cpr",
+        str(2**LOAD_BITS),
+        "--ratio",
+        "30",
+        "--raw-log",
+        str(raw),
+        "--json",
+    ]
     assert run_live(argv, send) == 0
     live = json.loads(capsys.readouterr().out)
     per_sample = 2 if trigger == "sync" else 1  # SYNC + PDO, or the event-driven PDO alone
-    assert live["samples"] == rec.time_s.size and live["frames"] == per_sample * rec.time_s.size and live["unpaired"] == 0
+    assert (
+        live["samples"] == rec.time_s.size and live["frames"] == per_sample * rec.time_s.size and live["unpaired"] == 0
+    )
     assert live["backlash_deg"] == pytest.approx(0.5, abs=0.02)
-    assert main(["estimate", str(raw), "--eds", str(eds), "--node", "3", "--load-cpr", str(2**LOAD_BITS), "--ratio", "30", "--json"]) == 0
+    assert (
+        main(
+            [
+                "estimate",
+                str(raw),
+                "--eds",
+                str(eds),
+                "--node",
+                "3",
+                "--load-cpr",
+                str(2**LOAD_BITS),
+                "--ratio",
+                "30",
+                "--json",
+            ]
+        )
+        == 0
+    )
     replayed = json.loads(capsys.readouterr().out)
     assert replayed["backlash_deg"] == live["backlash_deg"] and replayed["samples"] == live["samples"]
 
@@ -340,9 +535,19 @@ def e35_like(tmp_path_factory) -> dict[str, Path]:
     folder = tmp_path_factory.mktemp("e35")
     defaults = {0x6091: (1, 1), 0x6092: (1, 1)}
     return {
-        "e35": write_eds(folder / "e35_like.eds", 3, [(0x6064, 0), (0x60E4, 1)], resolution=E35_RESOLUTION, factor_group=defaults),
-        "no_resolution": write_eds(folder / "feed_only.eds", 3, [(0x6064, 0), (0x60E4, 1)], resolution=None, factor_group=defaults),
-        "set_feed": write_eds(folder / "set_feed.eds", 3, [(0x6064, 0)], resolution=E35_RESOLUTION, factor_group={0x6092: (3600, 1), 0x6091: (2, 1)}),
+        "e35": write_eds(
+            folder / "e35_like.eds", 3, [(0x6064, 0), (0x60E4, 1)], resolution=E35_RESOLUTION, factor_group=defaults
+        ),
+        "no_resolution": write_eds(
+            folder / "feed_only.eds", 3, [(0x6064, 0), (0x60E4, 1)], resolution=None, factor_group=defaults
+        ),
+        "set_feed": write_eds(
+            folder / "set_feed.eds",
+            3,
+            [(0x6064, 0)],
+            resolution=E35_RESOLUTION,
+            factor_group={0x6092: (3600, 1), 0x6091: (2, 1)},
+        ),
     }
 
 
@@ -350,17 +555,55 @@ def test_a_feed_constant_at_its_unit_default_takes_the_encoder_resolution(tmp_pa
     """e35.eds read as 1 count per revolution gave ``backlash: nan deg`` with exit 0; 0x608F gives the real play."""
     layout = CanopenLayout.from_files(e35_like["e35"], 3, load_cpr=2**LOAD_BITS)
     assert layout.motor.counts_per_rev == E35_RESOLUTION
-    assert CanopenLayout.from_files(e35_like["set_feed"], 3, load_node=4, load_cpr=100).motor.counts_per_rev == 1800  # 3600 / 2
+    assert (
+        CanopenLayout.from_files(e35_like["set_feed"], 3, load_node=4, load_cpr=100).motor.counts_per_rev == 1800
+    )  # 3600 / 2
     rig = Rig("co-e35", {3: e35_like["e35"]})
     log = tmp_path / "e35.blf"
-    values = {(3, 0x6064, 0): int32(counts(rec.motor_deg, E35_RESOLUTION)), (3, 0x60E4, 1): int32(counts(rec.load_deg, 2**LOAD_BITS))}
+    values = {
+        (3, 0x6064, 0): int32(counts(rec.motor_deg, E35_RESOLUTION)),
+        (3, 0x60E4, 1): int32(counts(rec.load_deg, 2**LOAD_BITS)),
+    }
     try:
         record("co-e35", lambda: rig.play(rec, values), log)
     finally:
         rig.close()
-    assert main(["estimate", str(log), "--eds", str(e35_like["e35"]), "--node", "3", "--load-cpr", str(2**LOAD_BITS), "--ratio", "30", "--json"]) == 0
+    assert (
+        main(
+            [
+                "estimate",
+                str(log),
+                "--eds",
+                str(e35_like["e35"]),
+                "--node",
+                "3",
+                "--load-cpr",
+                str(2**LOAD_BITS),
+                "--ratio",
+                "30",
+                "--json",
+            ]
+        )
+        == 0
+    )
     assert json.loads(capsys.readouterr().out)["backlash_deg"] == pytest.approx(0.5, abs=0.05)
-    assert main(["estimate", str(log), "--eds", str(e35_like["no_resolution"]), "--node", "3", "--load-cpr", "4096", "--ratio", "30"]) == 1
+    assert (
+        main(
+            [
+                "estimate",
+                str(log),
+                "--eds",
+                str(e35_like["no_resolution"]),
+                "--node",
+                "3",
+                "--load-cpr",
+                "4096",
+                "--ratio",
+                "30",
+            ]
+        )
+        == 1
+    )
     err = capsys.readouterr().err
     assert err == (
         f"error: {e35_like['no_resolution']}: node 3: no counts per revolution in the dictionary (the feed constant 0x6092 is 1/1, "
@@ -374,13 +617,32 @@ def test_bad_dictionaries_and_nodes_name_the_file_and_the_object(tmp_path, capsy
     with can.Logger(str(log)) as writer:
         writer.on_message_received(can.Message(arbitration_id=0x80, data=[], timestamp=1.0, is_extended_id=False))
     cases = [
-        (["--eds", str(drives["no_cpr"]), "--node", "3", "--load-node", "4"], f"{drives['no_cpr']}: node 3: no counts per revolution", "--motor-cpr"),
-        (["--eds", str(drives["motor"]), "--node", "3"], f"{drives['motor']}: node 3: object 0x60E4 is not mapped", "TxPDO1_node3: 0x6064.0"),
-        (["--eds", str(drives["rtr"]), "--node", "3", "--load-node", "4"], f"{drives['rtr']}: node 3: TxPDO1_node3 (0x1800) has transmission type 253",
-         "neither synchronous (0-240) nor event-driven (254, 255)"),
-        (["--eds", str(tmp_path / "missing.eds"), "--node", "3"], f"{tmp_path / 'missing.eds'}: no such object dictionary", ""),
+        (
+            ["--eds", str(drives["no_cpr"]), "--node", "3", "--load-node", "4"],
+            f"{drives['no_cpr']}: node 3: no counts per revolution",
+            "--motor-cpr",
+        ),
+        (
+            ["--eds", str(drives["motor"]), "--node", "3"],
+            f"{drives['motor']}: node 3: object 0x60E4 is not mapped",
+            "TxPDO1_node3: 0x6064.0",
+        ),
+        (
+            ["--eds", str(drives["rtr"]), "--node", "3", "--load-node", "4"],
+            f"{drives['rtr']}: node 3: TxPDO1_node3 (0x1800) has transmission type 253",
+            "neither synchronous (0-240) nor event-driven (254, 255)",
+        ),
+        (
+            ["--eds", str(tmp_path / "missing.eds"), "--node", "3"],
+            f"{tmp_path / 'missing.eds'}: no such object dictionary",
+            "",
+        ),
         (["--eds", str(drives["both"])], "give --node N", ""),
-        (["--eds", str(drives["both"]), "--node", "3"], "0x60E4.1 Additional position actual value 1 of node 3: give its counts per load revolution", ""),
+        (
+            ["--eds", str(drives["both"]), "--node", "3"],
+            "0x60E4.1 Additional position actual value 1 of node 3: give its counts per load revolution",
+            "",
+        ),
     ]
     for options, message, also in cases:
         assert main(["estimate", str(log), *options, "--ratio", "30"]) != 0
@@ -407,14 +669,22 @@ def test_sync_pipeline_frame_by_frame_counts_every_frame(drives):
         return can.Message(arbitration_id=cob_id, data=data, timestamp=t, is_extended_id=extended)
 
     motor, load = (4096).to_bytes(4, "little", signed=True), (-32768).to_bytes(4, "little", signed=True)
-    rows = [pipe.feed_row(f) for f in [
-        frame(0x80, b"\x01", 0.0), frame(0x183, motor, 0.0001), frame(0x184, load, 0.0002),   # a sample
-        frame(0x80, b"\x02", 0.001), frame(0x183, motor, 0.0011), frame(0x183, motor, 0.0012), frame(0x184, load, 0.0013),  # a repeat
-        frame(0x80, b"\x01\x02", 0.002),  # SYNC with 2 bytes: corrupt
-        frame(0x183, motor, 0.0021),  # no period: unpaired
-        frame(0x183, motor, 0.0022, extended=True),  # an extended ID: not ours
-        frame(0x80, b"\x04", 0.003),  # left open at the end: unpaired
-    ]]
+    rows = [
+        pipe.feed_row(f)
+        for f in [
+            frame(0x80, b"\x01", 0.0),
+            frame(0x183, motor, 0.0001),
+            frame(0x184, load, 0.0002),  # a sample
+            frame(0x80, b"\x02", 0.001),
+            frame(0x183, motor, 0.0011),
+            frame(0x183, motor, 0.0012),
+            frame(0x184, load, 0.0013),  # a repeat
+            frame(0x80, b"\x01\x02", 0.002),  # SYNC with 2 bytes: corrupt
+            frame(0x183, motor, 0.0021),  # no period: unpaired
+            frame(0x183, motor, 0.0022, extended=True),  # an extended ID: not ours
+            frame(0x80, b"\x04", 0.003),  # left open at the end: unpaired
+        ]
+    ]
     samples = [r for r in rows if r is not None]
     assert samples[0] == (0.0, 90.0, -90.0, 0, False) and samples[1][:4] == (0.001, 90.0, -90.0, 1)
     pipe.flush()
@@ -425,9 +695,32 @@ def test_sync_pipeline_frame_by_frame_counts_every_frame(drives):
 
 def test_track_listen_can_opens_the_canopen_source(tmp_path, capsys, drives):
     """``track --listen can --eds``: the CANopen live source on the bus (here a silent one: the timeout says where it listened)."""
-    argv = ["track", "--listen", "can", "--interface", "virtual", "--channel", "co-silent", "--eds", str(drives["both"]), "--node", "3",
-            "--load-cpr", str(2**LOAD_BITS), "--ratio", "30", "--db", str(tmp_path / "wear.db"), "--gearbox", "gb1",
-            "--raw-log", str(tmp_path / "raw"), "--timeout", "0.3", "--quiet"]
+    argv = [
+        "track",
+        "--listen",
+        "can",
+        "--interface",
+        "virtual",
+        "--channel",
+        "co-silent",
+        "--eds",
+        str(drives["both"]),
+        "--node",
+        "3",
+        "--load-cpr",
+        str(2**LOAD_BITS),
+        "--ratio",
+        "30",
+        "--db",
+        str(tmp_path / "wear.db"),
+        "--gearbox",
+        "gb1",
+        "--raw-log",
+        str(tmp_path / "raw"),
+        "--timeout",
+        "0.3",
+        "--quiet",
+    ]
     assert main(argv) != 0
     err = capsys.readouterr().err
     listening, error = err.splitlines()
@@ -438,7 +731,17 @@ def test_track_listen_can_opens_the_canopen_source(tmp_path, capsys, drives):
 
 
 @settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
-@given(st.lists(st.tuples(st.sampled_from([0x80, 0x183, 0x184, 0x703, 0x7FF]), st.binary(max_size=8), st.booleans(), st.floats(0, 1e-3)), max_size=60))
+@given(
+    st.lists(
+        st.tuples(
+            st.sampled_from([0x80, 0x183, 0x184, 0x703, 0x7FF]),
+            st.binary(max_size=8),
+            st.booleans(),
+            st.floats(0, 1e-3),
+        ),
+        max_size=60,
+    )
+)
 def test_fuzzed_frames_are_counted_and_reconcile(drives, event_drives, frames):
     """Any frames (our COB-IDs with any length, others, extended IDs, times out of order): only counted, never raised,
     by the SYNC grouping and by the event-driven pairing alike."""
@@ -464,14 +767,28 @@ def _fuzz(pipe, frames) -> None:
 def event_drives(tmp_path_factory) -> dict[str, Path]:
     folder = tmp_path_factory.mktemp("eds-event")
     return {
-        "both": write_eds(folder / "both.eds", 3, [(0x6064, 0), (0x60E4, 1)], resolution=2**MOTOR_BITS, trans_type=255, sync=False),
-        "split": write_eds(folder / "split.eds", 3, [(0x6064, 0)], second=[(0x60E4, 1)], resolution=2**MOTOR_BITS, trans_type=254, sync=False),
-        "motor": write_eds(folder / "motor.eds", 3, [(0x6064, 0)], resolution=2**MOTOR_BITS, trans_type=255, sync=False),
+        "both": write_eds(
+            folder / "both.eds", 3, [(0x6064, 0), (0x60E4, 1)], resolution=2**MOTOR_BITS, trans_type=255, sync=False
+        ),
+        "split": write_eds(
+            folder / "split.eds",
+            3,
+            [(0x6064, 0)],
+            second=[(0x60E4, 1)],
+            resolution=2**MOTOR_BITS,
+            trans_type=254,
+            sync=False,
+        ),
+        "motor": write_eds(
+            folder / "motor.eds", 3, [(0x6064, 0)], resolution=2**MOTOR_BITS, trans_type=255, sync=False
+        ),
         "load": write_eds(folder / "load.eds", 4, [(0x6064, 0)], resolution=2**LOAD_BITS, trans_type=255, sync=False),
     }
 
 
-def _event_log(tmp_path: Path, name: str, rec: RigRecording, nodes: dict[int, Path], values, offsets_s, on_change=False) -> tuple[Path, list]:
+def _event_log(
+    tmp_path: Path, name: str, rec: RigRecording, nodes: dict[int, Path], values, offsets_s, on_change=False
+) -> tuple[Path, list]:
     rig = Rig(f"ev-{name}", nodes)
     log = tmp_path / f"{name}.blf"
     try:
@@ -499,9 +816,21 @@ def test_event_driven_tpdos_on_their_timer_are_paired_in_time(tmp_path, capsys, 
     assert main(["estimate", str(log), *eds, "--ratio", "30", "--json"]) == 0
     out = json.loads(capsys.readouterr().out)
     n = rec.time_s.size
-    assert (out["frames"], out["samples"], out["corrupt"], out["skipped"], out["unpaired"], out["gaps"]) == (len(frames), n, 0, 0, 0, 0)
+    assert (out["frames"], out["samples"], out["corrupt"], out["skipped"], out["unpaired"], out["gaps"]) == (
+        len(frames),
+        n,
+        0,
+        0,
+        0,
+        0,
+    )
     assert out["backlash_deg"] == pytest.approx(0.5, abs=0.02)
-    with open_log(log, eds=paths[3], node=3, **({"load_node": 4, "load_eds": paths[4]} if 4 in paths else {"load_cpr": 2**LOAD_BITS})) as source:
+    with open_log(
+        log,
+        eds=paths[3],
+        node=3,
+        **({"load_node": 4, "load_eds": paths[4]} if 4 in paths else {"load_cpr": 2**LOAD_BITS}),
+    ) as source:
         chunk = next(source.iter_chunks(max_samples=10**6))
         assert source.counters.frames == per_sample * n
     # the rig's angles through the 32-bit rollover, stamped at the earlier frame of each pair
@@ -514,8 +843,24 @@ def test_event_driven_tpdos_sent_on_change_count_what_cannot_pair(tmp_path, caps
     """Two nodes sending only when their position changed: a value whose partner did not change (the motor at rest at a
     reversal) waits, is replaced and counted unpaired; the samples lost are gaps the estimator bridges."""
     paths = {3: event_drives["motor"], 4: event_drives["load"]}
-    log, frames = _event_log(tmp_path, "on-change", rec, paths, two_node_values(rec), {3: 5e-5, 4: 6.3e-4}, on_change=True)
-    argv = ["estimate", str(log), "--eds", str(paths[3]), "--node", "3", "--load-node", "4", "--load-eds", str(paths[4]), "--ratio", "30", "--json"]
+    log, frames = _event_log(
+        tmp_path, "on-change", rec, paths, two_node_values(rec), {3: 5e-5, 4: 6.3e-4}, on_change=True
+    )
+    argv = [
+        "estimate",
+        str(log),
+        "--eds",
+        str(paths[3]),
+        "--node",
+        "3",
+        "--load-node",
+        "4",
+        "--load-eds",
+        str(paths[4]),
+        "--ratio",
+        "30",
+        "--json",
+    ]
     assert main(argv) == 0
     out = json.loads(capsys.readouterr().out)
     assert len(frames) < 2 * rec.time_s.size and out["unpaired"] > 0 and out["samples"] > 0.9 * rec.time_s.size
@@ -526,20 +871,28 @@ def test_event_driven_tpdos_sent_on_change_count_what_cannot_pair(tmp_path, caps
 def test_event_driven_pairing_frame_by_frame(event_drives):
     """The DBC path's pairing rules on PDOs: within max_skew_s a pair, an orphan replaced, SYNC and others skipped, a short PDO corrupt."""
     layout = CanopenLayout.from_files(event_drives["motor"], 3, load_node=4, load_eds=event_drives["load"])
-    assert layout.event_driven and layout.names() == {0x183: "TxPDO1_node3: 0x6064.0 Position actual value (motor: 0x6064.0 Position actual value)",
-                                                       0x184: "TxPDO1_node4: 0x6064.0 Position actual value (load: 0x6064.0 Position actual value)"}
+    assert layout.event_driven and layout.names() == {
+        0x183: "TxPDO1_node3: 0x6064.0 Position actual value (motor: 0x6064.0 Position actual value)",
+        0x184: "TxPDO1_node4: 0x6064.0 Position actual value (load: 0x6064.0 Position actual value)",
+    }
     pipe = canopen_pipeline(layout, max_skew_s=5e-4)
 
     def frame(cob_id: int, data: bytes, t: float) -> can.Message:
         return can.Message(arbitration_id=cob_id, data=data, timestamp=t, is_extended_id=False)
 
     motor, load = (4096).to_bytes(4, "little", signed=True), (-32768).to_bytes(4, "little", signed=True)
-    rows = [pipe.feed_row(f) for f in [
-        frame(0x183, motor, 0.0), frame(0x184, load, 0.0003),  # a pair, 0.3 ms apart
-        frame(0x183, motor, 0.001), frame(0x184, load, 0.0019),  # 0.9 ms apart: no pair, the load value waits
-        frame(0x183, motor, 0.002),  # pairs with the waiting load value; the motor value of 0.001 was an orphan
-        frame(0x80, b"", 0.0025), frame(0x184, load[:3], 0.003),  # a SYNC: not ours; a short PDO: corrupt
-    ]]
+    rows = [
+        pipe.feed_row(f)
+        for f in [
+            frame(0x183, motor, 0.0),
+            frame(0x184, load, 0.0003),  # a pair, 0.3 ms apart
+            frame(0x183, motor, 0.001),
+            frame(0x184, load, 0.0019),  # 0.9 ms apart: no pair, the load value waits
+            frame(0x183, motor, 0.002),  # pairs with the waiting load value; the motor value of 0.001 was an orphan
+            frame(0x80, b"", 0.0025),
+            frame(0x184, load[:3], 0.003),  # a SYNC: not ours; a short PDO: corrupt
+        ]
+    ]
     samples = [r for r in rows if r is not None]
     assert [s[:3] for s in samples] == [(0.0, 90.0, -90.0), (0.0019, 90.0, -90.0)]
     pipe.flush()
@@ -554,26 +907,43 @@ def test_inspect_lists_the_tpdo_mapping_of_several_nodes(tmp_path, capsys, rec, 
     nodes = ["--eds", str(event_drives["split"]), "--node", "3", "--eds", str(drives["load"]), "--node", "4"]
     assert main(["inspect", *nodes, "--json"]) == 0
     listed = {n["node"]: n for n in json.loads(capsys.readouterr().out)["nodes"]}
-    assert [(p["cob_id"], p["transmission_type"], p["trigger"], [o["object"] for o in p["objects"]]) for p in listed[3]["tpdos"]] == [
-        ("0x183", 254, "event", ["0x6064.0"]), ("0x283", 254, "event", ["0x60E4.1"])]
-    assert [(p["cob_id"], p["trigger"], p["objects"][0]["bit_length"]) for p in listed[4]["tpdos"]] == [("0x184", "sync", 32)]
+    assert [
+        (p["cob_id"], p["transmission_type"], p["trigger"], [o["object"] for o in p["objects"]])
+        for p in listed[3]["tpdos"]
+    ] == [("0x183", 254, "event", ["0x6064.0"]), ("0x283", 254, "event", ["0x60E4.1"])]
+    assert [(p["cob_id"], p["trigger"], p["objects"][0]["bit_length"]) for p in listed[4]["tpdos"]] == [
+        ("0x184", "sync", 32)
+    ]
     assert listed[4]["eds"] == str(drives["load"]) and listed[3]["eds"] == str(event_drives["split"])
     assert main(["inspect", *nodes]) == 0
     text = capsys.readouterr().out
     assert "node 3 (" in text and "0x283   254 (event)  0x60E4.1 Additional position actual value 1 [32 bit]" in text
     # a log of two event-driven nodes: its COB-IDs named, the mapping listed beside them; one --eds for two --node
-    log, _ = _event_log(tmp_path, "inspect", rec, {3: event_drives["motor"], 4: event_drives["motor"]}, two_node_values(rec), {3: 5e-5, 4: 3e-4})
+    log, _ = _event_log(
+        tmp_path,
+        "inspect",
+        rec,
+        {3: event_drives["motor"], 4: event_drives["motor"]},
+        two_node_values(rec),
+        {3: 5e-5, 4: 3e-4},
+    )
     assert main(["inspect", str(log), "--eds", str(event_drives["motor"]), "--node", "3", "--node", "4", "--json"]) == 0
     out = json.loads(capsys.readouterr().out)
     ids = {i["id"]: i["message"] for i in out["can_ids"]}
-    assert ids == {"0x183": "TxPDO1_node3: 0x6064.0 Position actual value", "0x184": "TxPDO1_node4: 0x6064.0 Position actual value"}
+    assert ids == {
+        "0x183": "TxPDO1_node3: 0x6064.0 Position actual value",
+        "0x184": "TxPDO1_node4: 0x6064.0 Position actual value",
+    }
     assert [n["node"] for n in out["nodes"]] == [3, 4] and out["nodes"][1]["tpdos"][0]["cob_id"] == "0x184"
 
 
 @pytest.mark.parametrize(
     ("argv", "message"),
     [
-        (["--eds", "{a}", "--eds", "{b}", "--node", "3"], "2 --eds for 1 --node: give one --eds per --node, or one for all"),
+        (
+            ["--eds", "{a}", "--eds", "{b}", "--node", "3"],
+            "2 --eds for 1 --node: give one --eds per --node, or one for all",
+        ),
         (["--eds", "{a}", "--node", "3", "--node", "3"], "node-ID 3 given twice"),
         (["--eds", "{a}"], "give --node N"),
         ([], "give a FILE to inspect, or --eds FILE --node N"),

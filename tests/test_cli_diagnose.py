@@ -12,7 +12,15 @@ from online_backlash.cli import main
 from online_backlash.simulation import synthetic
 from online_backlash.simulation.rig import simulate_rig
 
-KEYS = {"rms_before_deg", "rms_after_deg", "noise_floor_deg", "backlash_before_deg", "backlash_after_deg", "effects", "unexplained"}
+KEYS = {
+    "rms_before_deg",
+    "rms_after_deg",
+    "noise_floor_deg",
+    "backlash_before_deg",
+    "backlash_after_deg",
+    "effects",
+    "unexplained",
+}
 EFFECT_KEYS = {"name", "parameters", "rms_before_deg", "rms_after_deg", "evidence"}
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "davinci_tool_gearhead_backlash"
 RUN49 = DATA / "tool4_L_run49_0.5Hz_torque100pct.csv"

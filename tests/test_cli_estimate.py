@@ -14,7 +14,17 @@ from online_backlash.fitting import TRACE_COLUMNS, fit_recursive
 from online_backlash.replay import CsvLog, read_csv_arrays
 from online_backlash.simulation.rig import simulate_rig
 
-BATCH_KEYS = ["backlash_deg", "backlash_arcmin", "c_left_deg", "c_right_deg", "m_left", "m_right", "samples", "residual_rms_deg", "method"]
+BATCH_KEYS = [
+    "backlash_deg",
+    "backlash_arcmin",
+    "c_left_deg",
+    "c_right_deg",
+    "m_left",
+    "m_right",
+    "samples",
+    "residual_rms_deg",
+    "method",
+]
 
 
 @pytest.fixture(scope="module")

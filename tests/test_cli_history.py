@@ -37,16 +37,30 @@ def history_db(tmp_path):
     rng = np.random.default_rng(0)
     with HistoryStore(db, create=True) as store:
         for day in range(20):
-            gearbox, run = store.begin_run("g1", 30.0, f"day{day}.csv", f"{day:064x}", T0 + day * DAY, limit_arcmin=21.0)
+            gearbox, run = store.begin_run(
+                "g1", 30.0, f"day{day}.csv", f"{day:064x}", T0 + day * DAY, limit_arcmin=21.0
+            )
             hours = 0.5 * (day + 1)
             backlash = 0.2 + RATE * hours + rng.normal(0, 0.0005)
             row = dict(
-                sample_index=1800_000, time_unix_s=T0 + day * DAY + 1800, backlash_deg=backlash, backlash_std_deg=0.001,
-                c_left_deg=backlash / 2, c_right_deg=backlash / 2, m_left=1.0, m_right=1.0, residual_rms_deg=0.002,
-                n_samples=1800_000 * (day + 1), operating_hours=hours, load_revolutions=150.0 * hours, reversals=400 * (day + 1),
+                sample_index=1800_000,
+                time_unix_s=T0 + day * DAY + 1800,
+                backlash_deg=backlash,
+                backlash_std_deg=0.001,
+                c_left_deg=backlash / 2,
+                c_right_deg=backlash / 2,
+                m_left=1.0,
+                m_right=1.0,
+                residual_rms_deg=0.002,
+                n_samples=1800_000 * (day + 1),
+                operating_hours=hours,
+                load_revolutions=150.0 * hours,
+                reversals=400 * (day + 1),
             )
             gearbox, run = store.commit(gearbox, run, 1800_000, {"format": 1}, [row])
-            store.commit(gearbox, run, 1800_000, {"format": 1}, counters=dict(frames=1, samples=1, corrupt=0, skipped=0, gaps=0))
+            store.commit(
+                gearbox, run, 1800_000, {"format": 1}, counters=dict(frames=1, samples=1, corrupt=0, skipped=0, gaps=0)
+            )
     return db
 
 
@@ -190,7 +204,10 @@ def test_track_ratio_contradicting_the_store(capsys, history_db, short_log):
     before = dump(history_db)
     code, _, err = run_cli(capsys, "track", short_log, "--ratio", 35, "--db", history_db, "--gearbox", "g1")
     assert code == 1
-    assert err == "error: gearbox 'g1' is stored with ratio 30; --ratio 35 contradicts it (use another gearbox id for another gearbox)\n"
+    assert (
+        err
+        == "error: gearbox 'g1' is stored with ratio 30; --ratio 35 contradicts it (use another gearbox id for another gearbox)\n"
+    )
     assert dump(history_db) == before
 
 
@@ -204,9 +221,13 @@ def test_track_into_a_file_that_is_not_a_store(capsys, tmp_path, short_log):
 
 def test_track_progress_bar_only_on_a_terminal(capsys, monkeypatch, tmp_path, short_log):
     monkeypatch.setattr("sys.stderr.isatty", lambda: True)
-    code, _, err = run_cli(capsys, "track", short_log, "--ratio", 30, "--db", tmp_path / "a.db", "--gearbox", "g1", "--every", 5)
+    code, _, err = run_cli(
+        capsys, "track", short_log, "--ratio", 30, "--db", tmp_path / "a.db", "--gearbox", "g1", "--every", 5
+    )
     assert code == 0 and "samples/s" in err and "backlash 0.3" in err
-    code, _, err = run_cli(capsys, "track", short_log, "--ratio", 30, "--db", tmp_path / "b.db", "--gearbox", "g1", "--quiet")
+    code, _, err = run_cli(
+        capsys, "track", short_log, "--ratio", 30, "--db", tmp_path / "b.db", "--gearbox", "g1", "--quiet"
+    )
     assert code == 0 and err == ""
 
 
@@ -215,7 +236,21 @@ def test_track_start_option(capsys, tmp_path):
     path = tmp_path / "relative.csv"
     rec.write_csv(path)
     db = tmp_path / "w.db"
-    code, _, _ = run_cli(capsys, "track", path, "--ratio", 30, "--db", db, "--gearbox", "g1", "--every", 12, "--start", "2026-03-01T06:00:00")
+    code, _, _ = run_cli(
+        capsys,
+        "track",
+        path,
+        "--ratio",
+        30,
+        "--db",
+        db,
+        "--gearbox",
+        "g1",
+        "--every",
+        12,
+        "--start",
+        "2026-03-01T06:00:00",
+    )
     assert code == 0
     with HistoryStore(db) as store:
         (run,) = store.runs("g1")
@@ -232,13 +267,33 @@ def test_track_live_can_then_the_raw_log_gives_the_same_history(capsys, tmp_path
     channel = "track-live"
     can_options = ["--dbc", "rig", "--motor-signal", "MotorAngle.Count", "--load-signal", "LoadAngle.Count"]
     live_db, replay_db = tmp_path / "live.db", tmp_path / "replay.db"
-    argv = ["track", "--listen", "can", "--interface", "virtual", "--channel", channel, *can_options,
-            "--raw-log", tmp_path / "raw", "--ratio", 30, "--db", live_db, "--gearbox", "g1", "--every", 1]
+    argv = [
+        "track",
+        "--listen",
+        "can",
+        "--interface",
+        "virtual",
+        "--channel",
+        channel,
+        *can_options,
+        "--raw-log",
+        tmp_path / "raw",
+        "--ratio",
+        30,
+        "--db",
+        live_db,
+        "--gearbox",
+        "g1",
+        "--every",
+        1,
+    ]
     code = run_live(argv, lambda _: send_frames(channel, frames))  # then Ctrl-C: the frames waiting are learned too
     out = capsys.readouterr().out
     assert code == 0 and out.startswith(f"g1: can virtual {channel}: {rec.time_s.size} samples, 4 estimates added")
     (raw,) = sorted((tmp_path / "raw").iterdir())
-    code, out, _ = run_cli(capsys, "track", raw, *can_options, "--ratio", 30, "--db", replay_db, "--gearbox", "g1", "--every", 1)
+    code, out, _ = run_cli(
+        capsys, "track", raw, *can_options, "--ratio", 30, "--db", replay_db, "--gearbox", "g1", "--every", 1
+    )
     assert code == 0
     live, replayed = dump(live_db), dump(replay_db)
     assert len(live["estimates"]) == 4 and live["estimates"] == replayed["estimates"]
@@ -247,7 +302,21 @@ def test_track_live_can_then_the_raw_log_gives_the_same_history(capsys, tmp_path
 
 @pytest.mark.postgres
 def test_track_and_history_on_postgresql(capsys, postgres_db, short_log):
-    code, out, _ = run_cli(capsys, "track", short_log, "--ratio", 30, "--db", postgres_db, "--gearbox", "rig-7", "--every", 5, "--limit-arcmin", 30)
+    code, out, _ = run_cli(
+        capsys,
+        "track",
+        short_log,
+        "--ratio",
+        30,
+        "--db",
+        postgres_db,
+        "--gearbox",
+        "rig-7",
+        "--every",
+        5,
+        "--limit-arcmin",
+        30,
+    )
     assert code == 0 and "3 estimates added" in out
     code, out, _ = run_cli(capsys, "history", "--db", postgres_db, "--gearbox", "rig-7", "--json")
     d = json.loads(out)
@@ -260,7 +329,7 @@ def test_track_and_history_on_postgresql(capsys, postgres_db, short_log):
 def test_demo_replays_the_bundled_wear_series(capsys, tmp_path):
     assert main(["demo", "--plot", str(tmp_path / "fit.png")]) == 0
     out = capsys.readouterr().out
-    wear = out[out.index("wear history:"):]
+    wear = out[out.index("wear history:") :]
     assert "60 daily 60 s snapshots of gearbox demo-30to1 on a machine running 16 h a day" in wear
     assert "(true play 12.0 -> 18.0 arcmin)" in wear
     assert re.search(r"^clock: machine hours: the machine's hour meter was given with every log$", wear, re.M)
@@ -270,7 +339,9 @@ def test_demo_replays_the_bundled_wear_series(capsys, tmp_path):
     assert re.search(r"^use: 16 machine hours per calendar day recently$", wear, re.M)
     forecast = re.search(
         r"^forecast: limit 21 arcmin in ([0-9,]+) machine hours \[([0-9,]+), ([0-9,]+)\] from the last estimate, "
-        r"around (\S+) \[(\S+), (\S+)\] \(UTC\) at 16 machine hours per calendar day$", wear, re.M,
+        r"around (\S+) \[(\S+), (\S+)\] \(UTC\) at 16 machine hours per calendar day$",
+        wear,
+        re.M,
     )
     hours, low, high = (float(forecast.group(k).replace(",", "")) for k in (1, 2, 3))
     true_left = re.search(r"on the hour meter, ([0-9,]+) machine hours after the last estimate", wear).group(1)

@@ -51,7 +51,14 @@ def test_mdf_channels_with_group_unit_rate_and_samples(capsys, many_channels):
     names = [c["name"] for c in out["channels"] if c["name"] != "time"]
     assert len(names) == 400
     motor = next(c for c in out["channels"] if c["name"] == "EncMotor_Pos")
-    assert motor == {"name": "EncMotor_Pos", "dtype": "float64", "samples": 1000, "group": 0, "unit": "deg", "rate_hz": 1000.0}
+    assert motor == {
+        "name": "EncMotor_Pos",
+        "dtype": "float64",
+        "samples": 1000,
+        "group": 0,
+        "unit": "deg",
+        "rate_hz": 1000.0,
+    }
     temp = next(c for c in out["channels"] if c["name"] == "Temp_07")
     assert (temp["group"], temp["samples"], temp["rate_hz"], temp["unit"]) == (1, 100, 100.0, "degC")
 
@@ -66,7 +73,10 @@ def test_filter_finds_the_two_encoders_among_400_channels(capsys, many_channels)
         ["EncMotor_Pos", "0", "deg", "float64", "1000", "1000"],
         ["EncLoad_Pos", "0", "rad", "float64", "1000", "1000"],
     ]
-    assert [c["name"] for c in inspect_json(capsys, str(many_channels), "--filter", "Temp_0[12]")["channels"]] == ["Temp_01", "Temp_02"]
+    assert [c["name"] for c in inspect_json(capsys, str(many_channels), "--filter", "Temp_0[12]")["channels"]] == [
+        "Temp_01",
+        "Temp_02",
+    ]
 
 
 def test_tdms_groups_and_channels(capsys, tmp_path):
@@ -74,24 +84,55 @@ def test_tdms_groups_and_channels(capsys, tmp_path):
     with TdmsWriter(str(path)) as writer:
         writer.write_segment(
             [
-                ChannelObject("Encoders", "Motor", np.zeros(500), properties={"unit_string": "deg", "wf_increment": 1e-3}),
-                ChannelObject("Encoders", "Load", np.zeros(500, np.int32), properties={"unit_string": "counts", "wf_increment": 1e-3}),
+                ChannelObject(
+                    "Encoders", "Motor", np.zeros(500), properties={"unit_string": "deg", "wf_increment": 1e-3}
+                ),
+                ChannelObject(
+                    "Encoders",
+                    "Load",
+                    np.zeros(500, np.int32),
+                    properties={"unit_string": "counts", "wf_increment": 1e-3},
+                ),
                 ChannelObject("Torque", "Shaft", np.zeros(50), properties={"unit_string": "Nm", "wf_increment": 1e-2}),
             ]
         )
     out = inspect_json(capsys, str(path))
     assert out["kind"] == "tdms"
     assert out["channels"] == [
-        {"name": "Encoders/Motor", "dtype": "float64", "samples": 500, "group": "Encoders", "unit": "deg", "rate_hz": 1000.0},
-        {"name": "Encoders/Load", "dtype": "int32", "samples": 500, "group": "Encoders", "unit": "counts", "rate_hz": 1000.0},
+        {
+            "name": "Encoders/Motor",
+            "dtype": "float64",
+            "samples": 500,
+            "group": "Encoders",
+            "unit": "deg",
+            "rate_hz": 1000.0,
+        },
+        {
+            "name": "Encoders/Load",
+            "dtype": "int32",
+            "samples": 500,
+            "group": "Encoders",
+            "unit": "counts",
+            "rate_hz": 1000.0,
+        },
         {"name": "Torque/Shaft", "dtype": "float64", "samples": 50, "group": "Torque", "unit": "Nm", "rate_hz": 100.0},
     ]
 
 
 def test_parquet_and_csv_columns_with_types_and_rows(capsys, tmp_path):
     path = tmp_path / "lake.parquet"
-    schema = pa.schema([pa.field("time_s", pa.float64()), pa.field("motor_counts", pa.int64(), metadata={"unit": "counts"}), pa.field("note", pa.string())])
-    pq.write_table(pa.table([np.arange(30) * 1e-3, np.arange(30), [str(i) for i in range(30)]], schema=schema), path, row_group_size=7)
+    schema = pa.schema(
+        [
+            pa.field("time_s", pa.float64()),
+            pa.field("motor_counts", pa.int64(), metadata={"unit": "counts"}),
+            pa.field("note", pa.string()),
+        ]
+    )
+    pq.write_table(
+        pa.table([np.arange(30) * 1e-3, np.arange(30), [str(i) for i in range(30)]], schema=schema),
+        path,
+        row_group_size=7,
+    )
     out = inspect_json(capsys, str(path))
     assert out["kind"] == "parquet"
     assert [(c["name"], c["dtype"], c["samples"], c["unit"]) for c in out["channels"]] == [
@@ -119,19 +160,25 @@ def test_can_log_ids_with_counts_rates_and_dbc_names(capsys, tmp_path):
     dbc = tmp_path / "rig.dbc"
     dbc.write_text(
         'VERSION ""\n\nBS_:\n\nBU_: Rig\n\n'
-        "BO_ 256 MotorPos: 8 Rig\n SG_ Count : 0|32@1+ (1,0) [0|0] \"counts\" Rig\n\n"
-        "BO_ 2147484160 LoadPos: 8 Rig\n SG_ Count : 0|32@1+ (1,0) [0|0] \"counts\" Rig\n"
+        'BO_ 256 MotorPos: 8 Rig\n SG_ Count : 0|32@1+ (1,0) [0|0] "counts" Rig\n\n'
+        'BO_ 2147484160 LoadPos: 8 Rig\n SG_ Count : 0|32@1+ (1,0) [0|0] "counts" Rig\n'
     )
     database = cantools.database.load_file(str(dbc))
     assert database.get_message_by_name("LoadPos").is_extended_frame
     path = tmp_path / "bus.asc"
     with can.Logger(str(path)) as writer:
         for i in range(100):
-            writer.on_message_received(can.Message(arbitration_id=0x100, is_extended_id=False, data=bytes(8), timestamp=i * 1e-3))
+            writer.on_message_received(
+                can.Message(arbitration_id=0x100, is_extended_id=False, data=bytes(8), timestamp=i * 1e-3)
+            )
             if i % 2 == 0:
-                writer.on_message_received(can.Message(arbitration_id=0x200, is_extended_id=True, data=bytes(8), timestamp=i * 1e-3))
+                writer.on_message_received(
+                    can.Message(arbitration_id=0x200, is_extended_id=True, data=bytes(8), timestamp=i * 1e-3)
+                )
             if i % 10 == 0:
-                writer.on_message_received(can.Message(arbitration_id=0x7FF, is_extended_id=False, data=bytes(2), timestamp=i * 1e-3))
+                writer.on_message_received(
+                    can.Message(arbitration_id=0x7FF, is_extended_id=False, data=bytes(2), timestamp=i * 1e-3)
+                )
     out = inspect_json(capsys, str(path), "--dbc", str(dbc))
     assert out["kind"] == "can" and out["frames"] == 160
     assert [(i["id"], i["frames"], i["rate_hz"], i["message"]) for i in out["can_ids"]] == [
@@ -180,22 +227,39 @@ def test_files_cut_short_say_so_in_their_own_terms(capsys, tmp_path, many_channe
     n = 4000
     tdms = tmp_path / "bench.tdms"
     with TdmsWriter(tdms) as writer:  # one segment, as one write of LabVIEW's
-        writer.write_segment([ChannelObject("Enc", name, np.arange(n, dtype=float), properties={"wf_increment": 1e-3}) for name in ("Motor", "Load")])
+        writer.write_segment(
+            [
+                ChannelObject("Enc", name, np.arange(n, dtype=float), properties={"wf_increment": 1e-3})
+                for name in ("Motor", "Load")
+            ]
+        )
     code, out, err = run(capsys, str(_cut(tdms)))
     samples = {c["name"]: c["samples"] for c in json.loads(run(capsys, str(_cut(tdms)), "--json")[1])["channels"]}
     assert code == 0 and "[nptdms" not in err and "Enc/Motor" in out
-    assert err.startswith(f"warning: {_cut(tdms)}: truncated: the file ends inside its last segment (readable values: Enc/Motor")
+    assert err.startswith(
+        f"warning: {_cut(tdms)}: truncated: the file ends inside its last segment (readable values: Enc/Motor"
+    )
     assert 0 < samples["Enc/Motor"] < n and samples["Enc/Load"] < n
     blf = tmp_path / "bus.blf"
     with can.BLFWriter(str(blf)) as writer:
         for i in range(n):
-            writer.on_message_received(can.Message(timestamp=1.7e9 + i * 1e-3, arbitration_id=0x101, data=i.to_bytes(4, "little")))
+            writer.on_message_received(
+                can.Message(timestamp=1.7e9 + i * 1e-3, arbitration_id=0x101, data=i.to_bytes(4, "little"))
+            )
     summary = inspect_json(capsys, str(_cut(blf)))
-    assert 0 < summary["frames"] < n and summary["truncated"].startswith("truncated: ") and "bytes its header announces" in summary["truncated"]
+    assert (
+        0 < summary["frames"] < n
+        and summary["truncated"].startswith("truncated: ")
+        and "bytes its header announces" in summary["truncated"]
+    )
     assert inspect_json(capsys, str(blf))["truncated"] is None
     code, _, err = run(capsys, str(_cut(many_channels)))
-    assert code == 1 and err == f"error: {_cut(many_channels)}: truncated or damaged MDF file: a block it links to runs past its end " \
+    assert (
+        code == 1
+        and err
+        == f"error: {_cut(many_channels)}: truncated or damaged MDF file: a block it links to runs past its end "
         f"({_cut(many_channels).stat().st_size} bytes)\n"
+    )
     table = tmp_path / "lake.parquet"
     pq.write_table(pa.table({"time": np.arange(n) * 1e-3, "motor": np.zeros(n), "load": np.zeros(n)}), table)
     code, _, err = run(capsys, str(_cut(table)))

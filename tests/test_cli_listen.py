@@ -21,8 +21,17 @@ from online_backlash.simulation.rig import simulate_rig
 from online_backlash.simulation.rig_logs import rig_can_frames, rig_serial_records
 
 ESTIMATE_KEYS = {
-    "backlash_deg", "backlash_arcmin", "c_left_deg", "c_right_deg", "m_left", "m_right",
-    "samples", "residual_rms_deg", "method", "backlash_std_deg", "n_reversals",
+    "backlash_deg",
+    "backlash_arcmin",
+    "c_left_deg",
+    "c_right_deg",
+    "m_left",
+    "m_right",
+    "samples",
+    "residual_rms_deg",
+    "method",
+    "backlash_std_deg",
+    "n_reversals",
 }
 COUNTERS = {"frames", "samples", "corrupt", "skipped", "gaps"}
 
@@ -35,8 +44,25 @@ def rec():
 def test_listen_can_until_ctrl_c_then_estimate_the_raw_log(tmp_path, capsys, rec):
     frames = list(rig_can_frames(rec, DbcDecoder(RIG_DBC, "MotorAngle.Count", "LoadAngle.Count"), 1.7e9, skew_s=1e-4))
     frames[777].data[0] ^= 0x40  # one corrupt frame
-    argv = ["listen", "can", "--interface", "virtual", "--channel", "cli-can", "--dbc", "rig", "--motor-signal", "MotorAngle.Count",
-            "--load-signal", "LoadAngle.Count", "--ratio", "30", "--raw-log", str(tmp_path / "raw"), "--json"]
+    argv = [
+        "listen",
+        "can",
+        "--interface",
+        "virtual",
+        "--channel",
+        "cli-can",
+        "--dbc",
+        "rig",
+        "--motor-signal",
+        "MotorAngle.Count",
+        "--load-signal",
+        "LoadAngle.Count",
+        "--ratio",
+        "30",
+        "--raw-log",
+        str(tmp_path / "raw"),
+        "--json",
+    ]
     # Ctrl-C right after the last frame is sent: the frames still waiting on the bus are learned too
     assert run_live(argv, lambda _: send_frames("cli-can", frames)) == 0
     out = capsys.readouterr()
@@ -50,8 +76,24 @@ def test_listen_can_until_ctrl_c_then_estimate_the_raw_log(tmp_path, capsys, rec
     assert f"{live['samples']} samples," in out.err and "samples/s" in out.err  # the status line
 
     assert len(list((tmp_path / "raw").iterdir())) == 1
-    assert main(["estimate", str(tmp_path / "raw"), "--dbc", "rig", "--motor-signal", "MotorAngle.Count", "--load-signal", "LoadAngle.Count",
-                 "--ratio", "30", "--json"]) == 0
+    assert (
+        main(
+            [
+                "estimate",
+                str(tmp_path / "raw"),
+                "--dbc",
+                "rig",
+                "--motor-signal",
+                "MotorAngle.Count",
+                "--load-signal",
+                "LoadAngle.Count",
+                "--ratio",
+                "30",
+                "--json",
+            ]
+        )
+        == 0
+    )
     replayed = json.loads(capsys.readouterr().out)
     assert {k: replayed[k] for k in ESTIMATE_KEYS} == {k: live[k] for k in ESTIMATE_KEYS}
 
@@ -74,8 +116,22 @@ def test_listen_serial_on_a_pty_then_estimate_the_capture(tmp_path, capsys, rec,
         # is captured, then parsed and learned before the run looks for a Ctrl-C)
         wait_until(lambda: captured() == len(payload), "every byte captured")
 
-    argv = ["listen", "serial", "--port", os.ttyname(slave), "--baud", "115200", "--format", fmt, "--ratio", "30",
-            "--raw-log", str(tmp_path / "raw"), "--json", *cpr]
+    argv = [
+        "listen",
+        "serial",
+        "--port",
+        os.ttyname(slave),
+        "--baud",
+        "115200",
+        "--format",
+        fmt,
+        "--ratio",
+        "30",
+        "--raw-log",
+        str(tmp_path / "raw"),
+        "--json",
+        *cpr,
+    ]
     try:
         assert run_live(argv, write) == 0
     finally:
@@ -92,14 +148,43 @@ def test_listen_serial_on_a_pty_then_estimate_the_capture(tmp_path, capsys, rec,
 
 
 def test_listen_serial_duration_and_no_data_is_a_clear_error(tmp_path, capsys):
-    argv = ["listen", "serial", "--port", "loop://", "--format", "ascii", "--ratio", "30", "--raw-log", str(tmp_path), "--duration", "0.3"]
+    argv = [
+        "listen",
+        "serial",
+        "--port",
+        "loop://",
+        "--format",
+        "ascii",
+        "--ratio",
+        "30",
+        "--raw-log",
+        str(tmp_path),
+        "--duration",
+        "0.3",
+    ]
     assert main(argv) == 1
     assert "error: serial loop://: no samples received (frames 0" in capsys.readouterr().err
 
 
 def test_listen_can_bad_interface_is_a_clear_error(tmp_path, capsys):
-    argv = ["listen", "can", "--interface", "nonexistent", "--channel", "x", "--dbc", "rig", "--motor-signal", "RigAngles.Motor",
-            "--load-signal", "RigAngles.Load", "--ratio", "30", "--raw-log", str(tmp_path)]
+    argv = [
+        "listen",
+        "can",
+        "--interface",
+        "nonexistent",
+        "--channel",
+        "x",
+        "--dbc",
+        "rig",
+        "--motor-signal",
+        "RigAngles.Motor",
+        "--load-signal",
+        "RigAngles.Load",
+        "--ratio",
+        "30",
+        "--raw-log",
+        str(tmp_path),
+    ]
     assert main(argv) == 1
     assert "error: cannot open CAN interface 'nonexistent'" in capsys.readouterr().err
 

@@ -39,7 +39,12 @@ def test_a_command_that_writes_a_file_says_where(capsys, loaded, tmp_path):
     assert lines[-2:] == [f"plot:           {plot}", f"trace:          {trace}"] and plot.is_file() and trace.is_file()
     assert main(["estimate", str(loaded), "--ratio", "30", "--plot", str(plot), "--json"]) == 0
     assert "plot" not in json.loads(capsys.readouterr().out)  # JSON stays the report: its reader gave the path
-    assert main(["diagnose", str(loaded), "--ratio", "30", "--plot", str(plot), "--report", str(report), "--max-terms", "1"]) == 0
+    assert (
+        main(
+            ["diagnose", str(loaded), "--ratio", "30", "--plot", str(plot), "--report", str(report), "--max-terms", "1"]
+        )
+        == 0
+    )
     assert capsys.readouterr().out.splitlines()[-2:] == [f"plot:           {plot}", f"report:         {report}"]
 
 
@@ -50,11 +55,33 @@ def test_the_lost_motion_printed_is_the_one_plotted(capsys, loaded, tmp_path, mo
     import online_backlash.plotting as plotting
 
     drawn = []
-    monkeypatch.setattr(plotting, "plot_hysteresis", lambda curve, *args, **kwargs: drawn.append(curve.lost_motion_arcmin))
+    monkeypatch.setattr(
+        plotting, "plot_hysteresis", lambda curve, *args, **kwargs: drawn.append(curve.lost_motion_arcmin)
+    )
     plot = tmp_path / "curve.png"
-    assert main(["estimate", str(loaded), "--ratio", "30", "--rated-torque", "2", "--method", method, "--plot", str(plot)]) == 0
+    assert (
+        main(["estimate", str(loaded), "--ratio", "30", "--rated-torque", "2", "--method", method, "--plot", str(plot)])
+        == 0
+    )
     text = capsys.readouterr().out
     printed = float(re.search(r"lost motion:\s+([\d.]+) arcmin", text).group(1))
     assert len(drawn) == 1 and printed == round(drawn[0], 3)
-    assert main(["estimate", str(loaded), "--ratio", "30", "--rated-torque", "2", "--method", method, "--plot", str(plot), "--json"]) == 0
+    assert (
+        main(
+            [
+                "estimate",
+                str(loaded),
+                "--ratio",
+                "30",
+                "--rated-torque",
+                "2",
+                "--method",
+                method,
+                "--plot",
+                str(plot),
+                "--json",
+            ]
+        )
+        == 0
+    )
     assert json.loads(capsys.readouterr().out)["lost_motion_arcmin"] == drawn[1]

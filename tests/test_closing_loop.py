@@ -133,12 +133,16 @@ def test_no_drift_when_time_is_collinear_with_the_net_rotation():
     assert det is not None and det.rivals == ("net_rotation",)  # reported as not separable, never as a drift
     # while a real drift is still found where the motion does not creep one way
     t, u = rig_motion(120.0, seed=4, forward_bias=1.0)
-    drifting = DetectionData(u, t, np.full(u.size, np.nan), 0.05 * np.sin(t / 20.0) + rng.normal(0, 0.002, u.size), 30.0, 1e-3)
+    drifting = DetectionData(
+        u, t, np.full(u.size, np.nan), 0.05 * np.sin(t / 20.0) + rng.normal(0, 0.002, u.size), 30.0, 1e-3
+    )
     found = Drift.detect(drifting)
     assert found is not None and found.score.significant() and found.rivals == ()
     # and on the creeping motion too, when the residual follows time and not the angle
     t, u = rig_motion(120.0, seed=4, forward_bias=4.0)
-    creeping = DetectionData(u, t, np.full(u.size, np.nan), 0.05 * np.sin(t / 20.0) + rng.normal(0, 0.002, u.size), 30.0, 1e-3)
+    creeping = DetectionData(
+        u, t, np.full(u.size, np.nan), 0.05 * np.sin(t / 20.0) + rng.normal(0, 0.002, u.size), 30.0, 1e-3
+    )
     found = Drift.detect(creeping)
     assert found is not None and found.score.significant() and found.rivals == ()
 

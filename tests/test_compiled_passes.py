@@ -22,7 +22,13 @@ from online_backlash.diagnostics.joint import (
     fit_joint,
     play_sensitivity,
 )
-from online_backlash.model import BacklashParams, backlash_sensitivity, backlash_sensitivity_spans, simulate_backlash, simulate_switching
+from online_backlash.model import (
+    BacklashParams,
+    backlash_sensitivity,
+    backlash_sensitivity_spans,
+    simulate_backlash,
+    simulate_switching,
+)
 
 PARAMS = BacklashParams(1.03, 0.21, 0.97, 0.27)
 
@@ -104,4 +110,6 @@ def test_play_guard_figures_equal_those_of_the_full_length_directions():
     joint = left_sum_of_squares(Projector(cols).left_gram(basis))
     np.testing.assert_allclose(fit.play_inflation, (base / g2) / (joint / g2), rtol=1e-8)
     left = fit.residual_deg
-    np.testing.assert_allclose(fit.play_std_deg, np.sqrt(float(left @ left) / effective_samples(left) / joint), rtol=1e-8)
+    np.testing.assert_allclose(
+        fit.play_std_deg, np.sqrt(float(left @ left) / effective_samples(left) / joint), rtol=1e-8
+    )

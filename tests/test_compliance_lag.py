@@ -40,7 +40,10 @@ def test_the_torque_average_has_the_grid_neighbours(w, near):
     assert all(e.proxy == "torque" and e.deadband_Nm == 0.02 for e in found)
 
 
-@pytest.mark.parametrize(("proxy", "w", "near"), [("acceleration", 61, [41, 81]), ("motion", 11, [15]), ("acceleration", 161, [121]), ("motion", 50, [41, 61])])
+@pytest.mark.parametrize(
+    ("proxy", "w", "near"),
+    [("acceleration", 61, [41, 81]), ("motion", 11, [15]), ("acceleration", 161, [121]), ("motion", 50, [41, 61])],
+)
 def test_the_motion_proxies_walk_their_differentiator_window(proxy, w, near):
     """Without a torque column the setting the joint refit walks is the Savitzky-Golay window (the trade
     between the encoder's steps and the motion's curvature), from ``Compliance.WINDOW_GRID``."""
@@ -74,13 +77,23 @@ def test_the_walk_moves_to_the_setting_the_refit_prefers_and_keeps_the_others():
 
 def test_only_the_terms_asked_for_are_tuned():
     terms = [Compliance("torque", smooth_samples=6), Compliance("torque", smooth_samples=6)]
-    tuned, fit = walk_settings(terms, SimpleNamespace(rms_deg=12.0), lambda ts: SimpleNamespace(rms_deg=float(sum(e.smooth_samples for e in ts))), [1])
+    tuned, fit = walk_settings(
+        terms,
+        SimpleNamespace(rms_deg=12.0),
+        lambda ts: SimpleNamespace(rms_deg=float(sum(e.smooth_samples for e in ts))),
+        [1],
+    )
     assert tuned[0] is terms[0] and tuned[1].smooth_samples == 1 and fit.rms_deg == 7.0
 
 
 def test_the_walk_stays_where_no_neighbour_is_better():
     effect = Compliance("torque", smooth_samples=5)
-    terms, fit = walk_settings([effect], SimpleNamespace(rms_deg=1.0), lambda terms: SimpleNamespace(rms_deg=1.0 + abs(terms[0].smooth_samples - 5)), [0])
+    terms, fit = walk_settings(
+        [effect],
+        SimpleNamespace(rms_deg=1.0),
+        lambda terms: SimpleNamespace(rms_deg=1.0 + abs(terms[0].smooth_samples - 5)),
+        [0],
+    )
     assert terms[0] is effect and fit.rms_deg == 1.0
 
 
@@ -154,19 +167,26 @@ def test_a_retuned_term_reports_the_evidence_of_its_final_setting():
     """When a later term moves the compliance's torque average, its evidence is scored again with
     the final setting (on the residual of the step it came in at): the statistics describe the
     setting its parameters report (before, they kept the setting it came in with)."""
-    rec = simulate_two_mass(duration_s=60.0, motion="rig", coulomb_nm=0.05, seed=1)  # retunes: compliance, then dead band motion
+    rec = simulate_two_mass(
+        duration_s=60.0, motion="rig", coulomb_nm=0.05, seed=1
+    )  # retunes: compliance, then dead band motion
     d = diagnose_arrays(rec.time_s, rec.motor_deg, rec.load_deg, 30.0, torque_Nm=rec.torque_Nm)
     step = d.steps[0]
     assert step.effect.name == "compliance" and step.retuned and not d.steps[1].retuned
     w = step.effect.smooth_samples
     assert step.detection.effect.smooth_samples == w == step.parameters["torque_smoothing_samples"]
     evidence = step.as_dict()["evidence"]
-    assert evidence["retuned_by_later_terms"] is True and d.as_dict()["effects"][1]["evidence"]["retuned_by_later_terms"] is False
+    assert (
+        evidence["retuned_by_later_terms"] is True
+        and d.as_dict()["effects"][1]["evidence"]["retuned_by_later_terms"] is False
+    )
     # the same statistics as the final setting scored afresh on the residual before the term, not another setting's
     before, done = step.scored_on
     u = rec.motor_deg / 30.0
     built = TermColumns(u, rec.time_s, rec.torque_Nm)
-    data = detection_data(u, rec.time_s, rec.torque_Nm, u - d.base.u_ref_, before, list(done), 30.0, 0.001, cycle_folds(u), built)
+    data = detection_data(
+        u, rec.time_s, rec.torque_Nm, u - d.base.u_ref_, before, list(done), 30.0, 0.001, cycle_folds(u), built
+    )
     again = step.effect.detection(data).score
     assert evidence["delta_bic_eff"] == pytest.approx(again.delta_bic, rel=1e-9)
     assert evidence["heldout_gain"] == pytest.approx(again.heldout_gain, rel=1e-9)

@@ -53,7 +53,9 @@ def test_the_load_twists_by_the_analytic_acceleration_on_an_engaged_flank(motion
     y = load + 321.0  # the simulator's load-encoder zero
     twisted = u - J_OVER_K * a
     right, left = np.abs(y - (twisted - 0.25)) < 1e-6, np.abs(y - (twisted + 0.25)) < 1e-6
-    assert right.mean() > 0.15 and left.mean() > 0.15 and (right | left).mean() > 0.5  # a flank carries the load most of the time
+    assert (
+        right.mean() > 0.15 and left.mean() > 0.15 and (right | left).mean() > 0.5
+    )  # a flank carries the load most of the time
     assert np.max(np.abs(J_OVER_K * a[right | left])) > 0.01  # the twist is there, tens of microradians and more
     np.testing.assert_allclose((motor - 1234.5) / 30.0, u, atol=1e-6)
     _, _, coarse, _ = synthetic.inertial_twist(seed=1, duration_s=20.0, motion=motion, motor_bits=14, load_bits=40)
@@ -122,9 +124,13 @@ def test_the_motion_proxy_streams_in_pieces_as_whole(proxy):
     whole = effect.clone().terms(u, t, q)
     e = effect.clone()
     cuts = [0, 1, 3, 9, 20, 21, 400, 1500, u.size]
-    np.testing.assert_allclose(np.vstack([e.terms(u[a:b], t[a:b], q[a:b]) for a, b in itertools.pairwise(cuts)]), whole, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(
+        np.vstack([e.terms(u[a:b], t[a:b], q[a:b]) for a, b in itertools.pairwise(cuts)]), whole, rtol=0, atol=1e-9
+    )
     e.reset()
-    np.testing.assert_allclose(np.vstack([e.terms(u[i : i + 1], t[i : i + 1], q[i : i + 1]) for i in range(60)]), whole[:60], rtol=0, atol=1e-9)
+    np.testing.assert_allclose(
+        np.vstack([e.terms(u[i : i + 1], t[i : i + 1], q[i : i + 1]) for i in range(60)]), whole[:60], rtol=0, atol=1e-9
+    )
     assert np.all(whole[: START_SAMPLES - 1] == 0.0) and np.all(whole[START_SAMPLES - 1 :, 0] != 0.0)
 
 
@@ -153,7 +159,12 @@ def test_a_tracker_with_the_motion_proxy_resumes_bit_for_bit(stop):
 def test_the_motion_proxies_act_on_the_input_side_the_torque_on_the_load():
     """A load at rest in the dead band stays where the flank left it, twist and all: the motion proxies are
     held through the dead band (eq. 7) as an input-side term; the measured torque is zero there by its sign."""
-    assert held_mask([Compliance("acceleration"), Compliance("motion"), Compliance("torque")]).tolist() == [True, True, True, False]
+    assert held_mask([Compliance("acceleration"), Compliance("motion"), Compliance("torque")]).tolist() == [
+        True,
+        True,
+        True,
+        False,
+    ]
 
 
 # --- the loop ------------------------------------------------------------------------------------------
@@ -187,7 +198,10 @@ def test_an_inertial_twist_without_torque_is_named_compliance(issue_case):
 @pytest.mark.parametrize(
     ("kwargs", "within"),
     [
-        (dict(motion="point_to_point", seed=3, inertia_over_stiffness_s2=4e-5), 0.05),  # another stiffness, motion and seed
+        (
+            dict(motion="point_to_point", seed=3, inertia_over_stiffness_s2=4e-5),
+            0.05,
+        ),  # another stiffness, motion and seed
         (dict(seed=5, motor_bits=20, load_bits=20), 0.01),  # 20-bit encoders
         (dict(motion="point_to_point", seed=3, inertia_over_stiffness_s2=4e-5, motor_bits=20, load_bits=20), 0.03),
     ],
@@ -200,5 +214,7 @@ def test_at_settings_not_tuned_on(kwargs, within):
     assert "drift" not in _names(d)
     first = d["effects"][0]
     assert first["name"] == "compliance" and first["parameters"]["proxy"].startswith("load-side acceleration")
-    assert first["parameters"]["deflection_per_acceleration_s2"] == pytest.approx(-kwargs.get("inertia_over_stiffness_s2", J_OVER_K), rel=within)
+    assert first["parameters"]["deflection_per_acceleration_s2"] == pytest.approx(
+        -kwargs.get("inertia_over_stiffness_s2", J_OVER_K), rel=within
+    )
     assert d["backlash_after_deg"] == pytest.approx(0.5, rel=0.005)

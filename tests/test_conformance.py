@@ -89,7 +89,8 @@ def _torque_case() -> Case:
 CASES = {
     "BacklashRLS": lambda: _rig_case(lambda: BacklashRLS(warm_start_samples=3000, memory_s=2.0), 3000),
     "BacklashRLS+effects": lambda: _rig_case(
-        lambda: BacklashRLS(warm_start_samples=3000, memory_s=2.0, effects=[Delay(lag_step_samples=3), Drift(1, 30.0)]), 3000
+        lambda: BacklashRLS(warm_start_samples=3000, memory_s=2.0, effects=[Delay(lag_step_samples=3), Drift(1, 30.0)]),
+        3000,
     ),
     "BacklashRLS+full_engagement": _two_gap_case,
     "CascadeRLS": _cascade_case,
@@ -109,7 +110,13 @@ def _snapshot(est: RecursiveEstimator) -> np.ndarray:
 
 
 def _learn_many(est: RecursiveEstimator, case: Case, lo: int, hi: int, gap: np.ndarray | None = None) -> None:
-    est.learn_many(case.u[lo:hi], case.y[lo:hi], None if gap is None else gap[lo:hi], time_s=case.time_s[lo:hi], torque_Nm=case.q(lo, hi))
+    est.learn_many(
+        case.u[lo:hi],
+        case.y[lo:hi],
+        None if gap is None else gap[lo:hi],
+        time_s=case.time_s[lo:hi],
+        torque_Nm=case.q(lo, hi),
+    )
 
 
 def _edges(n: int, warm: int) -> list[int]:
@@ -144,7 +151,20 @@ def test_snapshots_inside_one_call_equal_cutting_the_block_at_them(case):
     n = case.u.size
     gap = np.zeros(n, dtype=bool)
     gap[[case.warm // 3, case.warm + 500, n - 200]] = True
-    marks = [1, case.warm // 2, case.warm - 1, case.warm, case.warm + 1, case.warm + 499, case.warm + 500, n // 2, n - 201, n - 200, n - 1, n]
+    marks = [
+        1,
+        case.warm // 2,
+        case.warm - 1,
+        case.warm,
+        case.warm + 1,
+        case.warm + 499,
+        case.warm + 500,
+        n // 2,
+        n - 201,
+        n - 200,
+        n - 1,
+        n,
+    ]
     cut = case.make()
     want = []
     for lo, hi in itertools.pairwise([0, *marks]):
@@ -155,8 +175,13 @@ def test_snapshots_inside_one_call_equal_cutting_the_block_at_them(case):
     assert [a.started for a in want] == [a.started for a in got] and sum(a.started for a in got) >= 4
     assert repr(got) == repr(want)  # bit for bit (NaN before the start compared as text)
     assert _state(whole) == _state(cut)
-    more = whole.learn_many(case.u[:5], case.y[:5], time_s=case.time_s[:5] + 100.0, torque_Nm=case.q(0, 5), snapshot_at=[])
-    assert more == [] and cut.learn_many(case.u[:5], case.y[:5], time_s=case.time_s[:5] + 100.0, torque_Nm=case.q(0, 5)) is None
+    more = whole.learn_many(
+        case.u[:5], case.y[:5], time_s=case.time_s[:5] + 100.0, torque_Nm=case.q(0, 5), snapshot_at=[]
+    )
+    assert (
+        more == []
+        and cut.learn_many(case.u[:5], case.y[:5], time_s=case.time_s[:5] + 100.0, torque_Nm=case.q(0, 5)) is None
+    )
     assert _state(whole) == _state(cut)
 
 
@@ -164,7 +189,9 @@ def test_snapshots_inside_one_call_equal_cutting_the_block_at_them(case):
 def test_snapshot_marks_outside_the_block_are_refused(case, marks):
     est = case.make()
     with pytest.raises(InvalidParameterError, match="snapshot_at"):
-        est.learn_many(case.u[:100], case.y[:100], time_s=case.time_s[:100], torque_Nm=case.q(0, 100), snapshot_at=marks)
+        est.learn_many(
+            case.u[:100], case.y[:100], time_s=case.time_s[:100], torque_Nm=case.q(0, 100), snapshot_at=marks
+        )
 
 
 def test_clone_is_a_fresh_estimator_with_the_same_parameters(case):
@@ -213,7 +240,13 @@ def test_a_gap_is_not_read_as_motion(case):
     assert not np.array_equal(blind.theta_, est.theta_)  # read as motion, the jump is learned
     before = est.theta_
     flagged = type(est).from_state(_state(est))
-    flagged.learn_many(np.array([far_u]), np.array([far_y]), np.array([True]), time_s=case.time_s[k : k + 1], torque_Nm=case.q(k, k + 1))
+    flagged.learn_many(
+        np.array([far_u]),
+        np.array([far_y]),
+        np.array([True]),
+        time_s=case.time_s[k : k + 1],
+        torque_Nm=case.q(k, k + 1),
+    )
     est.mark_gap()
     est.learn_one(far_u, far_y, time_s=case.time_s[k], torque_Nm=case.q1(k))
     np.testing.assert_array_equal(est.theta_, before)

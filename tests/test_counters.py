@@ -21,7 +21,15 @@ from online_backlash.rows import COUNTER_KEYS, FIELDS, GAP_KEYS, describe_counts
 from online_backlash.simulation.rig import simulate_rig
 from online_backlash.simulation.rig_logs import rig_can_frames, write_rig_serial_capture
 
-CAN_OPTIONS = ["--dbc", "rig", "--motor-signal", "MotorAngle.Count", "--load-signal", "LoadAngle.Count", "--skip-bad-rows"]
+CAN_OPTIONS = [
+    "--dbc",
+    "rig",
+    "--motor-signal",
+    "MotorAngle.Count",
+    "--load-signal",
+    "LoadAngle.Count",
+    "--skip-bad-rows",
+]
 BAD_ROWS = (100, 2000, 7001)  # data rows (0-based) made unparsable
 DROPPED = range(5000, 5004)  # data rows removed: one gap of 5 periods at 1 kHz
 
@@ -52,11 +60,18 @@ def bad_csv(tmp_path_factory):
 @pytest.fixture(scope="module")
 def damaged_can(tmp_path_factory):
     """A 20 s rig BLF (two messages per sample) with 10 frames damaged, 5 foreign frames and one load frame lost."""
-    frames = list(rig_can_frames(simulate_rig(duration_s=20.0, seed=4), DbcDecoder(RIG_DBC, "MotorAngle.Count", "LoadAngle.Count")))
+    frames = list(
+        rig_can_frames(
+            simulate_rig(duration_s=20.0, seed=4), DbcDecoder(RIG_DBC, "MotorAngle.Count", "LoadAngle.Count")
+        )
+    )
     for i in range(1000, 1010):
         frames[2 * i].data[1] ^= 0xFF  # the CRC no longer matches
     del frames[2 * 3000 + 1]  # the load frame of sample 3000
-    foreign = [can.Message(timestamp=frames[i].timestamp, arbitration_id=0x300, data=b"\x01\x02", is_extended_id=False) for i in range(10, 15)]
+    foreign = [
+        can.Message(timestamp=frames[i].timestamp, arbitration_id=0x300, data=b"\x01\x02", is_extended_id=False)
+        for i in range(10, 15)
+    ]
     frames = sorted(frames + foreign, key=lambda m: m.timestamp)
     path = tmp_path_factory.mktemp("counters") / "damaged.blf"
     with can.Logger(str(path)) as writer:
@@ -95,7 +110,12 @@ def test_the_new_keys_are_declared_in_rows():
     for key in (*COUNTER_KEYS, *GAP_KEYS):
         assert key in FIELDS and FIELDS[key].doc
     assert source_counts({"frames": 3, "samples": 2, "corrupt": 1}) == {
-        "frames": 3, "samples": 2, "corrupt": 1, "skipped": 0, "gaps": 0, "unpaired": 0,
+        "frames": 3,
+        "samples": 2,
+        "corrupt": 1,
+        "skipped": 0,
+        "gaps": 0,
+        "unpaired": 0,
     }
     assert describe_counts({"frames": 3, "samples": 3, "gaps": 0}) == "frames 3, samples 3"
 
@@ -104,7 +124,14 @@ def test_the_new_keys_are_declared_in_rows():
 def test_estimate_of_a_csv_counts_rows_bad_rows_and_the_gap(capsys, bad_csv, method):
     path, n_rows = bad_csv
     out = _json(capsys, "estimate", str(path), "--ratio", "30", "--skip-bad-rows", "--method", method)
-    expected = {"frames": n_rows, "samples": n_rows - len(BAD_ROWS), "corrupt": len(BAD_ROWS), "skipped": 0, "gaps": 1, "unpaired": 0}
+    expected = {
+        "frames": n_rows,
+        "samples": n_rows - len(BAD_ROWS),
+        "corrupt": len(BAD_ROWS),
+        "skipped": 0,
+        "gaps": 1,
+        "unpaired": 0,
+    }
     assert _counters_of(path, skip_bad=True) == expected
     _check_result(out, expected)
     assert out["gap_longest_s"] == pytest.approx(0.005, abs=1e-6)  # 4 rows missing: a step of 5 ms
@@ -118,12 +145,18 @@ def test_estimate_of_a_csv_counts_rows_bad_rows_and_the_gap(capsys, bad_csv, met
 def test_estimate_of_a_can_log_counts_corrupt_foreign_and_unpaired_frames(capsys, damaged_can):
     path, n_frames = damaged_can
     out = _json(capsys, "estimate", str(path), "--ratio", "30", *CAN_OPTIONS)
-    expected = _counters_of(path, dbc=RIG_DBC, motor_signal="MotorAngle.Count", load_signal="LoadAngle.Count", skip_bad=True)
+    expected = _counters_of(
+        path, dbc=RIG_DBC, motor_signal="MotorAngle.Count", load_signal="LoadAngle.Count", skip_bad=True
+    )
     _check_result(out, expected)
     assert (out["frames"], out["corrupt"], out["skipped"]) == (n_frames, 10, 5)
     assert out["unpaired"] >= 1 and out["gaps"] >= 2  # the lost load frame; the damaged samples are missing
     assert out["frames"] == out["skipped"] + out["corrupt"] + out["unpaired"] + 2 * out["samples"]
-    line = next(s for s in _text(capsys, "estimate", str(path), "--ratio", "30", *CAN_OPTIONS).splitlines() if s.startswith("source:"))
+    line = next(
+        s
+        for s in _text(capsys, "estimate", str(path), "--ratio", "30", *CAN_OPTIONS).splitlines()
+        if s.startswith("source:")
+    )
     assert "corrupt 10" in line and "skipped 5" in line and f"unpaired {out['unpaired']}" in line
 
 
@@ -143,6 +176,7 @@ def test_diagnose_carries_the_counters(capsys, bad_csv):
 
 def test_track_carries_the_counters(capsys, bad_csv, tmp_path):
     path, _ = bad_csv
+
     def argv(db: str) -> list[str]:
         return ["track", str(path), "--ratio", "30", "--db", str(tmp_path / db), "--gearbox", "g", "--skip-bad-rows"]
 

@@ -26,7 +26,9 @@ from online_backlash.model import BacklashParams
 from online_backlash.simulation.two_mass_rig import simulate_two_mass
 
 
-def _stroke(speed_deg_s: float, ramp_s: float, dwell_s: float = 0.08, amplitude_deg: float = 20.0) -> Callable[[float, float], tuple[np.ndarray, np.ndarray]]:
+def _stroke(
+    speed_deg_s: float, ramp_s: float, dwell_s: float = 0.08, amplitude_deg: float = 20.0
+) -> Callable[[float, float], tuple[np.ndarray, np.ndarray]]:
     """Strokes of ``2 amplitude_deg`` at ``speed_deg_s`` with a dwell of ``dwell_s`` at each end, the
     speed's steps smoothed over ``ramp_s`` (raised cosine): time (s) and load-side angle (deg)."""
 
@@ -34,7 +36,9 @@ def _stroke(speed_deg_s: float, ramp_s: float, dwell_s: float = 0.08, amplitude_
         t = np.arange(round(duration_s * rate_hz)) / rate_hz
         run = 2.0 * amplitude_deg / speed_deg_s
         phase = t % (2.0 * (run + dwell_s))
-        v = np.select([phase < run, phase < run + dwell_s, phase < 2.0 * run + dwell_s], [speed_deg_s, 0.0, -speed_deg_s], 0.0)
+        v = np.select(
+            [phase < run, phase < run + dwell_s, phase < 2.0 * run + dwell_s], [speed_deg_s, 0.0, -speed_deg_s], 0.0
+        )
         k = max(3, int(ramp_s * rate_hz) | 1)
         kernel = 0.5 - 0.5 * np.cos(2.0 * np.pi * np.arange(k) / (k - 1))
         smooth = np.convolve(np.pad(v, (k // 2, k // 2), mode="edge"), kernel / kernel.sum(), mode="valid")
@@ -45,7 +49,13 @@ def _stroke(speed_deg_s: float, ramp_s: float, dwell_s: float = 0.08, amplitude_
 
 def _record(ramp_s: float, seed: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
     rec = simulate_two_mass(
-        duration_s=30.0, seed=seed, motion=_stroke(60.0, ramp_s), play_deg=0.5, stiffness_nm_per_arcmin=10.0, substeps=40, coulomb_nm=0.05
+        duration_s=30.0,
+        seed=seed,
+        motion=_stroke(60.0, ramp_s),
+        play_deg=0.5,
+        stiffness_nm_per_arcmin=10.0,
+        substeps=40,
+        coulomb_nm=0.05,
     )
     return rec.time_s, rec.motor_deg, rec.load_deg, rec.ratio
 
@@ -112,7 +122,9 @@ def test_the_creep_reported_is_what_its_rests_reach():
 def test_a_refit_that_leaves_the_creep_unphysical_is_refused(monkeypatch):
     # the loop's guard, as the play guard holds the play: a candidate whose joint refit gives a term a figure no
     # drive can have is refused and the others are tried (here every refit with the velocity function is called so)
-    monkeypatch.setattr(_search_round, "all_physical", lambda terms, *args: not any(isinstance(e, VelocityFunction) for e in terms))
+    monkeypatch.setattr(
+        _search_round, "all_physical", lambda terms, *args: not any(isinstance(e, VelocityFunction) for e in terms)
+    )
     d = diagnose_arrays(*_record(0.02)).as_dict()
     assert _creep(d) is not None
     assert "velocity_function" not in [e["name"] for e in d["effects"] + d["unexplained"]]
@@ -159,7 +171,9 @@ def test_a_motor_that_rests_after_a_gentle_stop_gets_no_creep():
 
 
 def test_the_creep_columns_rise_while_the_output_rests_in_the_direction_it_last_moved():
-    effect = DeadBandMotion(1.0, 0.25, 1.0, 0.25, exit_time_constants_s=(), entry_knots_s=(), rest_time_constants_s=(0.01,))
+    effect = DeadBandMotion(
+        1.0, 0.25, 1.0, 0.25, exit_time_constants_s=(), entry_knots_s=(), rest_time_constants_s=(0.01,)
+    )
     t = np.arange(400) * 1e-3
     u = np.concatenate((np.linspace(0.0, 1.0, 100), np.full(100, 1.0), np.linspace(1.0, 0.0, 100), np.full(100, 0.0)))
     cols = effect.terms(u, t, np.zeros_like(t))
@@ -176,8 +190,9 @@ def test_the_creep_columns_rise_while_the_output_rests_in_the_direction_it_last_
     with pytest.raises(InvalidParameterError, match="rest_time_constants_s"):
         DeadBandMotion(rest_time_constants_s=(0.0,))
     # the step: the lead the load already has when the output stops, 1 at once; and the creep of one direction alone
-    stepped = DeadBandMotion(1.0, 0.25, 1.0, 0.25, (), (), rest_time_constants_s=(0.01,), creep_step=True,
-                             creep_directions=(-1,))
+    stepped = DeadBandMotion(
+        1.0, 0.25, 1.0, 0.25, (), (), rest_time_constants_s=(0.01,), creep_step=True, creep_directions=(-1,)
+    )
     steps = stepped.terms(u, t, np.zeros_like(t))
     assert steps.shape == (400, 2)
     np.testing.assert_array_equal(steps[:300], 0.0)  # resting after moving up: not this direction's

@@ -18,7 +18,13 @@ import numpy as np
 import pytest
 
 from online_backlash.errors import InvalidParameterError
-from online_backlash.estimators.cycle_plays import CyclePlays, MotionFlanks, OutputNoise, kinematic_offsets, kinematic_update
+from online_backlash.estimators.cycle_plays import (
+    CyclePlays,
+    MotionFlanks,
+    OutputNoise,
+    kinematic_offsets,
+    kinematic_update,
+)
 from online_backlash.estimators.uncertainty import KinematicPlayScatter
 
 
@@ -105,7 +111,9 @@ class RefCyclePlays:
 
     @property
     def plays_deg(self) -> np.ndarray:
-        return np.asarray([(a.total / a.count - b.total / b.count) * (1 if a.side < 0 else -1) for a, b in self.pairs()], dtype=float)
+        return np.asarray(
+            [(a.total / a.count - b.total / b.count) * (1 if a.side < 0 else -1) for a, b in self.pairs()], dtype=float
+        )
 
     @property
     def noise_var_deg2(self) -> np.ndarray:

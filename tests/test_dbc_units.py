@@ -37,7 +37,14 @@ def frame(db, name: str, values: dict, t: float = T0, **flags) -> can.Message:
     """A frame of message ``name`` holding physical ``values``, encoded by cantools."""
     message = db.get_message_by_name(name)
     data = db.encode_message(name, values)
-    return can.Message(timestamp=t, arbitration_id=message.frame_id, is_extended_id=message.is_extended_frame, is_fd=message.is_fd, data=data, **flags)
+    return can.Message(
+        timestamp=t,
+        arbitration_id=message.frame_id,
+        is_extended_id=message.is_extended_frame,
+        is_fd=message.is_fd,
+        data=data,
+        **flags,
+    )
 
 
 def decode_all(decoder: DbcDecoder, frames: list[can.Message], **options) -> list:
@@ -50,7 +57,9 @@ def decode_all(decoder: DbcDecoder, frames: list[can.Message], **options) -> lis
 # -- the unit decides -------------------------------------------------------------------------
 @pytest.mark.parametrize("unit", ["deg", "°", "Degree", "DEG", "rad", "Rad", "rev", "turn", "arcmin", "ArcMin"])
 def test_an_angle_unit_gives_degrees_from_the_scaled_physical_value(unit):
-    db = one_message(f'0|32@1- (0.001,2.5) [-2000000|2000000] "{unit}"', f'32|32@1- (0.0005,-1) [-1000000|1000000] "{unit}"')
+    db = one_message(
+        f'0|32@1- (0.001,2.5) [-2000000|2000000] "{unit}"', f'32|32@1- (0.0005,-1) [-1000000|1000000] "{unit}"'
+    )
     deg_per_unit = ANGLE_UNITS[unit.lower()]
     physical = [(3.25, -7.0), (1234.567, 0.5), (-1999.0, 999.9995)]
     frames = [frame(db, "Angles", {"Motor": m, "Load": y}, T0 + i * 1e-3) for i, (m, y) in enumerate(physical)]
@@ -61,7 +70,9 @@ def test_an_angle_unit_gives_degrees_from_the_scaled_physical_value(unit):
 
 def test_the_issue_signal_reads_its_play_not_zero():
     """``SG_ ShaftPos : 8|24@1+ (0.01,0) [0|167772.15] "deg"``: multi-turn degrees, not single-turn counts."""
-    db = dbc('BO_ 300 Shaft: 4 RIG\n SG_ ShaftPos : 8|24@1+ (0.01,0) [0|167772.15] "deg" RIG\n SG_ Seq : 0|8@1+ (1,0) [0|255] "" RIG\n')
+    db = dbc(
+        'BO_ 300 Shaft: 4 RIG\n SG_ ShaftPos : 8|24@1+ (0.01,0) [0|167772.15] "deg" RIG\n SG_ Seq : 0|8@1+ (1,0) [0|255] "" RIG\n'
+    )
     angles = [100.0, 100.25, 120000.5, 167772.15, 0.0]
     frames = [frame(db, "Shaft", {"ShaftPos": a, "Seq": 0}, T0 + i) for i, a in enumerate(angles)]
     samples = decode_all(DbcDecoder(db, "ShaftPos", "ShaftPos", counter_signal=None, checksum_signal=None), frames)
@@ -86,12 +97,19 @@ def test_a_signed_count_wraps_over_its_signed_range_and_an_empty_range_means_the
     assert (decoder.motor.counts_per_rev, decoder.load.counts_per_rev) == (4096, 1024)
     counts = [2046, 2047, -2048, -2047, 2047]
     frames = [frame(db, "Angles", {"Motor": c, "Load": 1023}, T0 + i * 1e-3) for i, c in enumerate(counts)]
-    assert [s.motor_deg for s in decode_all(decoder, frames)] == pytest.approx([c * 360 / 4096 for c in (2046, 2047, 2048, 2049, 2047)])
+    assert [s.motor_deg for s in decode_all(decoder, frames)] == pytest.approx(
+        [c * 360 / 4096 for c in (2046, 2047, 2048, 2049, 2047)]
+    )
 
 
 @pytest.mark.parametrize(
     "unit, scale, message",
-    [("mm", 1, "unit 'mm'"), ("counts/s", 1, "unit 'counts/s'"), ("", 0.01, "unit '' with scale 0.01"), ("counts", 0.5, "unit 'counts' with scale 0.5")],
+    [
+        ("mm", 1, "unit 'mm'"),
+        ("counts/s", 1, "unit 'counts/s'"),
+        ("", 0.01, "unit '' with scale 0.01"),
+        ("counts", 0.5, "unit 'counts' with scale 0.5"),
+    ],
 )
 def test_a_unit_the_tool_cannot_read_stops_naming_signal_and_unit(unit, scale, message):
     db = one_message(f'0|16@1+ ({scale},0) [0|0] "{unit}"', '16|16@1+ (1,0) [0|65535] "counts"')
@@ -102,7 +120,9 @@ def test_a_unit_the_tool_cannot_read_stops_naming_signal_and_unit(unit, scale, m
 def test_units_overrides_the_dbc_unit():
     db = one_message('0|16@1+ (0.01,0) [0|655.35] "mm"', '16|16@1+ (0.01,0) [0|655.35] "mm"')
     f = frame(db, "Angles", {"Motor": 1.5, "Load": 2.0})
-    assert decode_all(DbcDecoder(db, "Motor", "Load", units="rad"), [f])[0].motor_deg == pytest.approx(math.degrees(1.5))
+    assert decode_all(DbcDecoder(db, "Motor", "Load", units="rad"), [f])[0].motor_deg == pytest.approx(
+        math.degrees(1.5)
+    )
     counts = DbcDecoder(db, "Motor", "Load", units="counts", motor_cpr=1000, load_cpr=1000)
     assert decode_all(counts, [f])[0].motor_deg == pytest.approx(150 * 0.36)  # raw 150 counts of 1000 per rev
 
@@ -142,7 +162,9 @@ def test_extended_29_bit_ids():
     message = db.get_message_by_name("Ext")
     assert message.is_extended_frame and message.frame_id > 0x7FF
     good = frame(db, "Ext", {"Motor": 12.5, "Load": -3.25})
-    standard = can.Message(timestamp=T0, arbitration_id=message.frame_id & 0x7FF, data=good.data)  # another frame: not ours
+    standard = can.Message(
+        timestamp=T0, arbitration_id=message.frame_id & 0x7FF, data=good.data
+    )  # another frame: not ours
     pipe = FramePipeline(DbcDecoder(db, "Motor", "Load"))
     assert pipe.feed(standard) is None and pipe.counters.skipped == 1
     sample = pipe.feed(good)
@@ -153,12 +175,17 @@ def test_can_fd_frames_take_the_per_frame_path():
     db = dbc(
         'BO_ 400 Fd: 64 RIG\n SG_ Motor : 0|32@1- (0.001,0) [-2000|2000] "deg" RIG\n'
         ' SG_ Load : 400|32@1- (0.001,0) [-2000|2000] "deg" RIG\n SG_ Counter : 504|4@1+ (1,0) [0|15] "" RIG\n'
-        'BA_DEF_ BO_ "VFrameFormat" ENUM "StandardCAN","ExtendedCAN",' + '"reserved",' * 12 + '"StandardCAN_FD","ExtendedCAN_FD";\n'
+        'BA_DEF_ BO_ "VFrameFormat" ENUM "StandardCAN","ExtendedCAN",'
+        + '"reserved",'
+        * 12
+        + '"StandardCAN_FD","ExtendedCAN_FD";\n'
         'BA_DEF_DEF_ "VFrameFormat" "StandardCAN";\nBA_ "VFrameFormat" BO_ 400 14;\n'
     )
     assert db.get_message_by_name("Fd").is_fd
     decoder = DbcDecoder(db, "Motor", "Load")
-    frames = [frame(db, "Fd", {"Motor": 0.1 * i, "Load": -0.2 * i, "Counter": i % 16}, T0 + i * 1e-3) for i in range(40)]
+    frames = [
+        frame(db, "Fd", {"Motor": 0.1 * i, "Load": -0.2 * i, "Counter": i % 16}, T0 + i * 1e-3) for i in range(40)
+    ]
     assert all(f.is_fd and len(f.data) == 64 for f in frames)
     pipe = make_pipeline(decoder)
     assert isinstance(pipe, FramePipeline)
@@ -170,7 +197,7 @@ def test_can_fd_frames_take_the_per_frame_path():
 
 def test_multiplexed_message_reads_the_frames_that_carry_the_signals():
     db = dbc(
-        "BO_ 500 Mux: 8 RIG\n SG_ Page M : 0|8@1+ (1,0) [0|255] \"\" RIG\n"
+        'BO_ 500 Mux: 8 RIG\n SG_ Page M : 0|8@1+ (1,0) [0|255] "" RIG\n'
         ' SG_ Motor m1 : 8|24@1- (0.01,0) [-80000|80000] "deg" RIG\n SG_ Load m1 : 32|24@1- (0.01,0) [-80000|80000] "deg" RIG\n'
         ' SG_ Temp m2 : 8|16@1+ (0.1,0) [0|6553.5] "degC" RIG\n'
     )
@@ -198,7 +225,10 @@ def test_big_endian_signed_signals_on_both_paths():
     rng = np.random.default_rng(5)
     motor = np.round(rng.uniform(-80000, 80000, 300), 2)
     load_rev = np.round(rng.uniform(-100, 100, 300) * 4096) / 4096
-    frames = [frame(db, "Angles", {"Motor": m, "Load": y, "Counter": i % 16}, T0 + i * 1e-3) for i, (m, y) in enumerate(zip(motor, load_rev))]
+    frames = [
+        frame(db, "Angles", {"Motor": m, "Load": y, "Counter": i % 16}, T0 + i * 1e-3)
+        for i, (m, y) in enumerate(zip(motor, load_rev))
+    ]
     decoder = DbcDecoder(db, "Motor", "Load")
     per_frame = decode_all(decoder, frames)
     np.testing.assert_allclose([s.motor_deg for s in per_frame], motor, atol=1e-6)
@@ -226,7 +256,9 @@ def test_two_signals_from_two_messages_pair_by_counter_on_both_paths():
     np.testing.assert_allclose([s.load_deg for s in per_frame[:150]], 0.5 * np.arange(150), atol=1e-9)
     blocks = make_pipeline(decoder)
     assert isinstance(blocks, BlockPipeline)
-    assert [s for i in range(0, len(frames), 100) for s in blocks.feed_frames(frames[i : i + 100]).samples()] == per_frame
+    assert [
+        s for i in range(0, len(frames), 100) for s in blocks.feed_frames(frames[i : i + 100]).samples()
+    ] == per_frame
     blocks.flush()
     assert blocks.counters.unpaired == 1
 
@@ -284,7 +316,9 @@ def test_estimate_stops_on_a_unit_it_cannot_read_and_units_overrides_it(drive_lo
 
 
 def test_estimate_wrap_deg_unwraps_a_single_turn_angle(drive_log, capsys):
-    code, out = estimate(capsys, drive_log, MINE_DBC, "--wrap-deg", "360")  # the same motion, read modulo 360 deg and unwrapped
+    code, out = estimate(
+        capsys, drive_log, MINE_DBC, "--wrap-deg", "360"
+    )  # the same motion, read modulo 360 deg and unwrapped
     assert code == 0 and out["backlash_deg"] == pytest.approx(0.5, rel=0.02)
     code, err = estimate(capsys, drive_log, MINE_DBC, "--wrap-deg", "360.005")
     assert code != 0 and "not a whole number of raw steps" in err

@@ -153,7 +153,9 @@ def _check_final_heldout_gains(d) -> None:
         mine = hold_columns(stacked_columns([s.effect], fresh, x), held_mask([s.effect]), index)
         restored = final.residual_deg + mine @ final.coef[start : start + n]
         others = [*terms[:i], *terms[i + 1 :]]
-        data = detection_data(u, t, q, uc, replace(final, residual_deg=restored), others, d.ratio, period, folds, TermColumns(u, t, q))
+        data = detection_data(
+            u, t, q, uc, replace(final, residual_deg=restored), others, d.ratio, period, folds, TermColumns(u, t, q)
+        )
         assert s.heldout_gain_final == pytest.approx(data.score(False, mine).heldout_gain, rel=1e-9, abs=1e-12)
         assert np.isfinite(s.heldout_gain_final)
         start += n

@@ -11,7 +11,14 @@ from online_backlash.diagnostics._harmonics import harmonic_columns, harmonic_st
 from online_backlash.diagnostics._normal_equations import nonzero_rows
 from online_backlash.diagnostics._record_cache import RecordCache
 from online_backlash.diagnostics._scoring import DetectionData
-from online_backlash.diagnostics._speed import cardinal_splines, held_spline_columns, record_speed_knots, record_velocity, speed_knots, zero_knot
+from online_backlash.diagnostics._speed import (
+    cardinal_splines,
+    held_spline_columns,
+    record_speed_knots,
+    record_velocity,
+    speed_knots,
+    zero_knot,
+)
 from online_backlash.diagnostics._term_columns import TermColumns
 from online_backlash.diagnostics.dead_band import ENTRY_KNOTS, EXIT_TIME_CONSTANTS, DeadBandMotion, _at_period
 from online_backlash.diagnostics.effects import Drift
@@ -144,7 +151,9 @@ def test_subsets_scored_from_one_set_of_cross_products_score_as_each_alone(scree
     folds = cycle_folds(u)
     folds = folds.screen(cycles=10, factor=1, min_samples=0) if screened else folds
     assert folds.screened == screened
-    data = DetectionData.stacked([np.ones_like(u), u / 40.0], r, u_deg=u, time_s=t, torque_Nm=q, ratio=30.0, sample_period_s=1e-3, folds=folds)
+    data = DetectionData.stacked(
+        [np.ones_like(u), u / 40.0], r, u_deg=u, time_s=t, torque_Nm=q, ratio=30.0, sample_period_s=1e-3, folds=folds
+    )
     x = np.column_stack((harmonic_columns(u, [5, 2]), np.cos(0.004 * np.arange(u.size)), rng.normal(0, 1, u.size)))
     subsets = [[0, 1], [2], [0, 1, 2], [1, 3], [3]]
     for subset, got in zip(subsets, data.score_subsets(x, subsets)):
@@ -167,7 +176,9 @@ def test_columns_zero_on_most_rows_score_on_their_support_as_on_every_row(screen
     r = 0.01 * np.sin(np.radians(5 * u)) + rng.normal(0, 1e-3, u.size)
     folds = cycle_folds(u)
     folds = folds.screen(cycles=10, factor=1, min_samples=0) if screened else folds
-    data = DetectionData.stacked([np.ones_like(u), u / 40.0], r, u_deg=u, time_s=t, torque_Nm=q, ratio=30.0, sample_period_s=1e-3, folds=folds)
+    data = DetectionData.stacked(
+        [np.ones_like(u), u / 40.0], r, u_deg=u, time_s=t, torque_Nm=q, ratio=30.0, sample_period_s=1e-3, folds=folds
+    )
     m = folds.rows
     x = np.zeros((m, 3))
     rows = np.sort(rng.choice(m, m // 30, replace=False))

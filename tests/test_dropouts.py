@@ -67,7 +67,9 @@ def test_a_4_row_dropout_every_5_s_is_bridged(dropout_csv, capsys):
     assert est.warm_start_["method"] == "batch" and "warm_start" not in report.extra
     assert report.backlash_deg == pytest.approx(PLAY_DEG, abs=2e-3)
     assert report.backlash_deg == pytest.approx(batch.backlash_deg, abs=2e-3)
-    assert rows[0].time_s <= 12.0 and rows[0].backlash_deg == pytest.approx(PLAY_DEG, abs=0.01)  # not 41 s, not 0.026 deg
+    assert rows[0].time_s <= 12.0 and rows[0].backlash_deg == pytest.approx(
+        PLAY_DEG, abs=0.01
+    )  # not 41 s, not 0.026 deg
     assert report.extra["gaps_bridged"] == 12 and report.extra["gap_total_s"] == pytest.approx(12 * 0.005, abs=1e-6)
     assert main(["estimate", str(dropout_csv), "--ratio", "30", "--json"]) == 0
     out = json.loads(capsys.readouterr().out)
@@ -96,7 +98,13 @@ def test_only_a_long_gap_or_a_jump_restarts_the_estimator(lost_s, jump_deg, rest
     after_gap[cut] = True
     load = rec.load_deg[keep] + np.where(np.arange(keep.size) >= cut, jump_deg, 0.0)
     chunk = dataclasses.replace(
-        rec, time_s=rec.time_s[keep], motor_deg=rec.motor_deg[keep], load_deg=load, torque_Nm=rec.torque_Nm[keep], after_gap=after_gap, seq=None
+        rec,
+        time_s=rec.time_s[keep],
+        motor_deg=rec.motor_deg[keep],
+        load_deg=load,
+        torque_Nm=rec.torque_Nm[keep],
+        after_gap=after_gap,
+        seq=None,
     )
     est = BacklashRLS(warm_start_samples=20_000)  # still buffering at the end: its buffer shows the restarts
     pipe = Pipeline(est, 30.0, every_s=None)

@@ -250,7 +250,9 @@ def test_dead_band_motion_hands_on_its_columns_on_every_sample_only():
     det = DeadBandMotion.detect(data)
     assert det is not None and det.columns is not None
     np.testing.assert_array_equal(det.columns, det.effect.clone().terms(u, t, q))
-    assert det.nonzero_rows is not None and np.array_equal(det.nonzero_rows, nonzero_rows(det.columns))  # noted by the pass
+    assert det.nonzero_rows is not None and np.array_equal(
+        det.nonzero_rows, nonzero_rows(det.columns)
+    )  # noted by the pass
     from online_backlash.simulation.rig import simulate_rig
 
     rec = simulate_rig(duration_s=85.0, reversal_s=(0.4, 1.0), seed=5)  # 49 reversal cycles: a screen of 15
@@ -258,7 +260,9 @@ def test_dead_band_motion_hands_on_its_columns_on_every_sample_only():
     folds = cycle_folds(u).screen(min_samples=0)  # a unit test's record: the screen's sample minimum lifted
     assert folds.screened
     r = np.random.default_rng(8).normal(0, 0.005, u.size)
-    screened = DetectionData(u, t, np.full(u.size, np.nan), r, 30.0, 1e-3, backlash_params=BacklashParams(1.0, 0.25, 1.0, 0.25), folds=folds)
+    screened = DetectionData(
+        u, t, np.full(u.size, np.nan), r, 30.0, 1e-3, backlash_params=BacklashParams(1.0, 0.25, 1.0, 0.25), folds=folds
+    )
     det = DeadBandMotion.detect(screened)
     assert det is not None and det.columns is None
 
@@ -301,7 +305,9 @@ def test_velocity_function_knots_sit_where_the_speeds_are():
     knots = speed_knots(v, 3)
     assert len(knots) == 9 and knots[4] == 0.0 and np.all(np.diff(knots) > 0)
     # each direction up to its own speeds
-    assert knots[-1] == pytest.approx(np.percentile(v[v > 0], 99.5)) and knots[0] == pytest.approx(-np.percentile(-v[v < 0], 99.5))
+    assert knots[-1] == pytest.approx(np.percentile(v[v > 0], 99.5)) and knots[0] == pytest.approx(
+        -np.percentile(-v[v < 0], 99.5)
+    )
     assert speed_knots(np.r_[np.full(100, -20.0), np.full(100, 30.0)], 1) == (-20.0, -10.0, 0.0, 15.0, 30.0)
     assert speed_knots(np.full(100, 12.0), 2) == (0.0, 4.0, 8.0, 12.0)  # one direction only
     # the values at the knots are the function's (cardinal splines), 0 at rest

@@ -36,8 +36,16 @@ def _spot(angle_deg: np.ndarray) -> np.ndarray:
 
 def _tight_spot_rig(seed: int, spot: bool = True):
     return simulate_two_mass(
-        duration_s=20.0, play_deg=0.5, stiffness_nm_per_arcmin=STIFFNESS_NM_PER_ARCMIN, viscous_nms_per_rad=0.01,
-        coulomb_nm=COULOMB_NM, coulomb_profile=_spot if spot else None, motion="sine", amplitude_deg=30.0, frequency_hz=0.5, seed=seed,
+        duration_s=20.0,
+        play_deg=0.5,
+        stiffness_nm_per_arcmin=STIFFNESS_NM_PER_ARCMIN,
+        viscous_nms_per_rad=0.01,
+        coulomb_nm=COULOMB_NM,
+        coulomb_profile=_spot if spot else None,
+        motion="sine",
+        amplitude_deg=30.0,
+        frequency_hz=0.5,
+        seed=seed,
     )
 
 
@@ -86,7 +94,13 @@ def test_registered_and_saved_by_name():
 
 @pytest.mark.parametrize(
     "kwargs",
-    [dict(knots_deg=(0.0, 1.0)), dict(knots_deg=(0.0, 2.0, 1.0)), dict(knots_deg=(0.0, np.nan, 2.0)), dict(window_samples=0), dict(deadzone_deg=-1.0)],
+    [
+        dict(knots_deg=(0.0, 1.0)),
+        dict(knots_deg=(0.0, 2.0, 1.0)),
+        dict(knots_deg=(0.0, np.nan, 2.0)),
+        dict(window_samples=0),
+        dict(deadzone_deg=-1.0),
+    ],
 )
 def test_invalid_settings(kwargs):
     with pytest.raises(InvalidParameterError):
@@ -98,7 +112,9 @@ def test_not_found_on_white_noise():
     u = 30.0 * np.sin(2 * np.pi * 0.5 * t) + 41.0
     for seed in range(3):
         r = np.random.default_rng(300 + seed).normal(0.0, 0.005, t.size)
-        data = DetectionData(u, t, np.full(t.size, np.nan), r, 30.0, 1e-3, backlash_params=BacklashParams(1.0, 0.25, 1.0, 0.25))
+        data = DetectionData(
+            u, t, np.full(t.size, np.nan), r, 30.0, 1e-3, backlash_params=BacklashParams(1.0, 0.25, 1.0, 0.25)
+        )
         assert FlankProfile.detect(data) is None
 
 
@@ -140,7 +156,9 @@ def test_the_residual_on_the_flanks_is_closed_to_the_floor(tight_spot):
     load encoder's noise floor (the impacts themselves are the compliant gear's ring-down)."""
     _, diagnosis = tight_spot
     p = diagnosis.final.params
-    clock = DeadBandMotion(p.m_left, p.c_left, p.m_right, p.c_right).switch_clock(diagnosis.u_deg - diagnosis.base.u_ref_, diagnosis.time_s)
+    clock = DeadBandMotion(p.m_left, p.c_left, p.m_right, p.c_right).switch_clock(
+        diagnosis.u_deg - diagnosis.base.u_ref_, diagnosis.time_s
+    )
     settled = clock >= 0.25  # the clock is clipped at 0.25 s
     assert settled.mean() > 0.5
     left = float(np.sqrt(np.mean(diagnosis.residual_after_deg[settled] ** 2)))

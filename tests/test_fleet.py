@@ -40,7 +40,10 @@ def store_contents(db):
         out = {}
         for gearbox_id in store.gearbox_ids():
             runs = {r.id: r.source for r in store.runs(gearbox_id)}
-            run_rows = [(r.source, r.log_sha256, r.status, r.started_unix_s, r.ended_unix_s, r.samples_done, r.samples, r.gaps) for r in store.runs(gearbox_id)]
+            run_rows = [
+                (r.source, r.log_sha256, r.status, r.started_unix_s, r.ended_unix_s, r.samples_done, r.samples, r.gaps)
+                for r in store.runs(gearbox_id)
+            ]
             estimates = [{**dataclasses.asdict(e), "run_id": runs[e.run_id]} for e in store.estimates(gearbox_id)]
             checkpoint = dict(store.gearbox(gearbox_id).checkpoint)
             checkpoint.pop("run_id")
@@ -78,14 +81,16 @@ def test_manifest_errors_name_the_file_the_gearbox_and_the_key(tmp_path, capsys)
     assert "bad.toml: [[gearbox]] #1 (id 'GB-0'): argument --units: invalid choice: 'furlongs'" in err
     err = manifest_error(tmp_path, capsys, '[[gearbox]]\nid = "GB-0"\nlogs = "gb0/*.csv"\n')  # no ratio
     assert "(id 'GB-0'): give --gearbox ID and --ratio R" in err
-    err = manifest_error(tmp_path, capsys, '[defaults]\nratio = 30\nevry = 5\n' + ok)
+    err = manifest_error(tmp_path, capsys, "[defaults]\nratio = 30\nevry = 5\n" + ok)
     assert "bad.toml: [defaults]: unknown key 'evry'; did you mean 'every'?" in err
-    assert "bad.toml:3: not valid TOML" in manifest_error(tmp_path, capsys, '[defaults]\nratio = 30\nevery = = 5\n')
+    assert "bad.toml:3: not valid TOML" in manifest_error(tmp_path, capsys, "[defaults]\nratio = 30\nevery = = 5\n")
     assert "'db' is not a per-gearbox option" in manifest_error(tmp_path, capsys, ok + 'db = "other.db"\n')
     assert "nothing matches 'gb9/*.csv'" in manifest_error(tmp_path, capsys, ok.replace("gb0", "gb9"))
     assert "the id 'GB-0' is given twice" in manifest_error(tmp_path, capsys, ok + ok)
     assert "no [[gearbox]] tables" in manifest_error(tmp_path, capsys, "[defaults]\nratio = 30\n")
-    assert "--every: with --manifest, per-gearbox options go into the manifest" in manifest_error(tmp_path, capsys, ok, "--every", "5")
+    assert "--every: with --manifest, per-gearbox options go into the manifest" in manifest_error(
+        tmp_path, capsys, ok, "--every", "5"
+    )
     assert "not both" in manifest_error(tmp_path, capsys, ok, "--scheduler", "tcp://127.0.0.1:1")  # with --workers 0
 
 
@@ -101,7 +106,18 @@ def test_a_gearbox_that_fails_stops_alone(tmp_path, capsys):
 
 
 def test_fleet_options_need_a_manifest(tmp_path, capsys, two_days):
-    argv = ["track", str(two_days[0]), "--db", str(tmp_path / "w.db"), "--gearbox", "g1", "--ratio", "30", "--workers", "2"]
+    argv = [
+        "track",
+        str(two_days[0]),
+        "--db",
+        str(tmp_path / "w.db"),
+        "--gearbox",
+        "g1",
+        "--ratio",
+        "30",
+        "--workers",
+        "2",
+    ]
     assert main(argv) == 1
     assert capsys.readouterr().err == "error: --workers and --scheduler run a fleet: give them with --manifest\n"
 
@@ -131,7 +147,12 @@ def test_manifest_keys_are_track_options_with_underscores(tmp_path):
         seen.append(argv)
         return argv
 
-    (job,) = load_manifest(path, "w.db", parse, {"ratio", "skip_bad_rows", "diagnose", "columns", "warn_arcmin", "limit_arcmin", "memory_reversals"})
+    (job,) = load_manifest(
+        path,
+        "w.db",
+        parse,
+        {"ratio", "skip_bad_rows", "diagnose", "columns", "warn_arcmin", "limit_arcmin", "memory_reversals"},
+    )
     assert job.id == "GB-0" and job.logs == (str(tmp_path / "gb0" / "day01.csv"), str(tmp_path / "gb0" / "day00.csv"))
     assert seen == [list(job.argv)]
     assert job.argv == (
@@ -156,7 +177,9 @@ def test_two_dask_workers_give_the_rows_of_serial_tracking(tmp_path, capsys):
     reports = json_objects(out.out)
     assert len(reports) == 6 and {r["gearbox_id"] for r in reports} == {"GB-0", "GB-1", "GB-2"}
     assert store_contents(parallel) == store_contents(serial)
-    assert all({e["run_id"] for e in rows[1]} == {r[0] for r in rows[0]} for rows in store_contents(serial).values())  # estimates from every log
+    assert all(
+        {e["run_id"] for e in rows[1]} == {r[0] for r in rows[0]} for rows in store_contents(serial).values()
+    )  # estimates from every log
     # run again: every log is already imported, nothing changes
     assert main(["track", "--manifest", str(manifest), "--db", str(parallel), "--workers", "2"]) == 0
     assert capsys.readouterr().out.count("already imported") == 6
@@ -174,7 +197,11 @@ def test_a_dask_scheduler_and_two_dask_workers_give_the_rows_of_serial_tracking(
     assert main(["track", "--manifest", str(manifest), "--db", str(serial), "--workers", "0"]) == 0
     dask = [sys.executable, "-m", "dask"]
     scheduler_file = tmp_path / "scheduler.json"
-    quiet = {"stdout": subprocess.DEVNULL, "stderr": subprocess.DEVNULL, "cwd": tmp_path}  # the installed package, not src/
+    quiet = {
+        "stdout": subprocess.DEVNULL,
+        "stderr": subprocess.DEVNULL,
+        "cwd": tmp_path,
+    }  # the installed package, not src/
     processes = [subprocess.Popen([*dask, "scheduler", "--host", "127.0.0.1", "--port", "0", "--no-dashboard",
                                    "--scheduler-file", str(scheduler_file)], **quiet)]  # fmt: skip
     try:
@@ -244,7 +271,10 @@ def test_a_worker_killed_mid_log_loses_nothing(tmp_path, postgres_db):
     with HistoryStore(postgres_db, create=True):
         pass
     killed = []
-    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=":0") as cluster, Client(cluster) as client:
+    with (
+        LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=":0") as cluster,
+        Client(cluster) as client,
+    ):
         pids = client.run(os.getpid)
 
         def kill_when_mid_log():
@@ -270,7 +300,9 @@ def test_a_worker_killed_mid_log_loses_nothing(tmp_path, postgres_db):
     assert killed, "the worker was not killed mid-log"
     gb0 = outcomes[0]
     (resumed,) = [r for r in gb0.results if r.source == killed[0][0]]
-    assert gb0.error is None and resumed.resumed_from >= killed[0][1] > 0  # the retried task resumed from its checkpoint
+    assert (
+        gb0.error is None and resumed.resumed_from >= killed[0][1] > 0
+    )  # the retried task resumed from its checkpoint
     assert str(gb0.worker) != "" and all(o.error is None for o in outcomes)
     assert store_contents(postgres_db) == store_contents(serial)
 
@@ -319,13 +351,18 @@ def test_an_overlapping_or_older_log_is_refused_naming_the_run(tmp_path, two_day
     with HistoryStore(tmp_path / "w.db", create=True) as store:
         tracker(store).track_log(two_days[1])
         before = store.estimates("g1")
-        with pytest.raises(HistoryError, match=r"day0.csv: starts 2023-11-14 22:13:20 UTC by the UNIX time column, before run 1 \(.*day1.csv"):
+        with pytest.raises(
+            HistoryError,
+            match=r"day0.csv: starts 2023-11-14 22:13:20 UTC by the UNIX time column, before run 1 \(.*day1.csv",
+        ):
             tracker(store).track_log(two_days[0])
         with pytest.raises(HistoryError, match=r"early_changed.csv: starts .*, before run 1"):
             tracker(store).track_log(early)
     with HistoryStore(tmp_path / "v.db", create=True) as store:
         tracker(store).track_log(two_days[0])
-        with pytest.raises(HistoryError, match=r"early_changed.csv: starts .* inside run 1 \(.*day0.csv.*\) already tracked"):
+        with pytest.raises(
+            HistoryError, match=r"early_changed.csv: starts .* inside run 1 \(.*day0.csv.*\) already tracked"
+        ):
             tracker(store).track_log(early)
         assert len(store.runs("g1")) == 1
     assert before  # nothing was added by the refused logs (checked by the run count above)
@@ -366,7 +403,16 @@ def test_track_sorts_the_logs_of_one_call_by_their_first_sample(tmp_path, capsys
 def test_track_takes_the_raw_log_folder_listen_wrote(tmp_path, capsys):
     rec = simulate_rig(duration_s=16.0, rate_hz=1000.0, seed=12)
     frames = list(rig_can_frames(rec, DbcDecoder(RIG_DBC, "MotorAngle.Count", "LoadAngle.Count"), T0))
-    can_opts = ["--dbc", "rig", "--motor-signal", "MotorAngle.Count", "--load-signal", "LoadAngle.Count", "--ratio", "30"]
+    can_opts = [
+        "--dbc",
+        "rig",
+        "--motor-signal",
+        "MotorAngle.Count",
+        "--load-signal",
+        "LoadAngle.Count",
+        "--ratio",
+        "30",
+    ]
 
     raw = tmp_path / "raw"
     argv = ["listen", "can", "--interface", "virtual", "--channel", "fleet-raw", *can_opts, "--raw-log", raw, "--json"]
@@ -399,7 +445,9 @@ def test_runs_of_an_older_store_keyed_by_the_files_bytes_are_found(tmp_path, two
     def legacy_track(store, path, progress=None):
         with open_log(path) as reader:
             clock = lambda first: log_clock(path, first)  # noqa: E731
-            return tracker(store).track_chunks(reader.iter_chunks(), str(path), key=file_sha256(path), clock_offset=clock, progress=progress)
+            return tracker(store).track_chunks(
+                reader.iter_chunks(), str(path), key=file_sha256(path), clock_offset=clock, progress=progress
+            )
 
     with HistoryStore(tmp_path / "w.db", create=True) as store:
         legacy_track(store, two_days[0])

@@ -69,11 +69,15 @@ def test_a_format_is_one_object_and_one_registry_line(toy_log, capsys):
     report = json.loads(capsys.readouterr().out)
     assert report["backlash_deg"] == pytest.approx(0.5, abs=0.02)
     assert report["samples"] == 20000
-    main(["estimate", toy_log, "--ratio", "30", "--json"])  # --units reached the reader: without it, radians read as deg
+    main(
+        ["estimate", toy_log, "--ratio", "30", "--json"]
+    )  # --units reached the reader: without it, radians read as deg
     assert (json.loads(capsys.readouterr().out)["backlash_deg"] or 0.0) < 0.05
     assert main(["inspect", toy_log]) == 0
     assert capsys.readouterr().out.splitlines()[:3] == [
-        f"{toy_log}: toy, 3 columns", "name   group  unit  type     samples  rate_hz", "time                float64  20000",
+        f"{toy_log}: toy, 3 columns",
+        "name   group  unit  type     samples  rate_hz",
+        "time                float64  20000",
     ]
 
 
@@ -109,5 +113,14 @@ def test_every_option_a_reader_takes_is_declared_with_one_type():
     declared: dict[str, set[object]] = {}
     for where, action in _options_of(build_parser()):
         declared.setdefault(where.split()[-1], set()).add(action.type)
-    for flag in ("--motor-cpr", "--load-cpr", "--columns", "--delimiter", "--encoding", "--dbc", "--max-skew", "--wrap-deg"):
+    for flag in (
+        "--motor-cpr",
+        "--load-cpr",
+        "--columns",
+        "--delimiter",
+        "--encoding",
+        "--dbc",
+        "--max-skew",
+        "--wrap-deg",
+    ):
         assert len(declared[flag]) == 1, (flag, declared[flag])

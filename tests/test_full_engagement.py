@@ -45,7 +45,9 @@ def angles_only(chunk: SampleChunk) -> SampleChunk:
 
 def tracked(tmp_path, chunk: SampleChunk) -> dict:
     with HistoryStore(tmp_path / "w.db", create=True) as store:
-        GearboxTracker(store, "g", 30.0, every_s=10.0).track_chunks([chunk], "log", key="k" * 64, clock_offset=lambda first: T0)
+        GearboxTracker(store, "g", 30.0, every_s=10.0).track_chunks(
+            [chunk], "log", key="k" * 64, clock_offset=lambda first: T0
+        )
         return vars(store.estimates("g")[-1])
 
 

@@ -123,7 +123,9 @@ def test_random_frames(signals, msgs):
 @pytest.fixture(scope="module")
 def logs(tmp_path_factory):
     rec = simulate_rig(duration_s=0.1, rate_hz=1000.0, seed=1)
-    frames = list(rig_can_frames(rec, DbcDecoder(RIG_DBC, SPLIT["motor_signal"], SPLIT["load_signal"]), 1_700_000_000.0))
+    frames = list(
+        rig_can_frames(rec, DbcDecoder(RIG_DBC, SPLIT["motor_signal"], SPLIT["load_signal"]), 1_700_000_000.0)
+    )
     out = {}
     for suffix in (".asc", ".blf", ".log", ".trc"):
         path = tmp_path_factory.mktemp("logs") / f"good{suffix}"

@@ -78,7 +78,9 @@ def test_the_pipeline_gives_what_learn_many_gives(dropouts):
 
 @pytest.mark.parametrize("started", [False, True])
 def test_a_checkpoint_just_before_a_short_gap_resumes_and_bridges_it(dropouts, started):
-    gap_at = int(np.flatnonzero(dropouts.after_gap)[2 if started else 0])  # 10.996 s: after the warm start; 0.996 s: during
+    gap_at = int(
+        np.flatnonzero(dropouts.after_gap)[2 if started else 0]
+    )  # 10.996 s: after the warm start; 0.996 s: during
     whole = BacklashRLS()
     _learn_in_blocks(whole, dropouts)
     part = BacklashRLS()
@@ -162,10 +164,26 @@ def test_learn_one_and_learn_many_decide_the_same(name):
     q = chunk.torque_Nm if torque else None
     one = make()
     for i in range(len(chunk)):
-        one.learn_one(u[i], y[i], time_s=chunk.time_s[i], torque_Nm=None if q is None else q[i], after_gap=bool(chunk.after_gap[i]))
+        one.learn_one(
+            u[i],
+            y[i],
+            time_s=chunk.time_s[i],
+            torque_Nm=None if q is None else q[i],
+            after_gap=bool(chunk.after_gap[i]),
+        )
     many = make()
-    for lo, hi in ((0, 7), (7, len(chunk) // 10 + 1), (len(chunk) // 10 + 1, len(chunk))):  # a gap at a block's first sample
-        many.learn_many(u[lo:hi], y[lo:hi], chunk.after_gap[lo:hi], time_s=chunk.time_s[lo:hi], torque_Nm=None if q is None else q[lo:hi])
+    for lo, hi in (
+        (0, 7),
+        (7, len(chunk) // 10 + 1),
+        (len(chunk) // 10 + 1, len(chunk)),
+    ):  # a gap at a block's first sample
+        many.learn_many(
+            u[lo:hi],
+            y[lo:hi],
+            chunk.after_gap[lo:hi],
+            time_s=chunk.time_s[lo:hi],
+            torque_Nm=None if q is None else q[lo:hi],
+        )
     assert _state(one) == _state(many) and (many.gaps_.gaps, many.gaps_.bridged) == (3, 1) and one.gaps_ == many.gaps_
     marked = make(gap_policy=NO_BRIDGE)  # with nothing bridged, a flag is mark_gap()
     for i in range(len(chunk)):

@@ -9,7 +9,19 @@ import json
 import numpy as np
 import pytest
 from matplotlib.figure import Figure
-from sqlalchemy import BigInteger, Column, Double, ForeignKey, Integer, MetaData, String, Table, UniqueConstraint, create_engine, text
+from sqlalchemy import (
+    BigInteger,
+    Column,
+    Double,
+    ForeignKey,
+    Integer,
+    MetaData,
+    String,
+    Table,
+    UniqueConstraint,
+    create_engine,
+    text,
+)
 
 from online_backlash.cli import main
 from online_backlash.history.condition import LoadCondition
@@ -27,10 +39,24 @@ RATE = 0.002  # deg per operating hour, the true wear
 def row(i: int, play: float | None, observable: bool = True, **changes) -> dict:
     """Estimate ``i`` (one per day, 8 operating hours a day)."""
     values = dict(
-        sample_index=1000 * (i + 1), time_unix_s=T0 + 86400.0 * i, backlash_deg=play, backlash_std_deg=0.002,
-        c_left_deg=None, c_right_deg=None, m_left=None, m_right=None, residual_rms_deg=0.001, n_samples=1000 * (i + 1),
-        operating_hours=8.0 * (i + 1), load_revolutions=100.0 * (i + 1), reversals=50 * (i + 1), play_observable=observable,
-        torque_mean_nm=None, torque_rms_nm=None, torque_reversals=None, stiffness_nm_per_arcmin=None,
+        sample_index=1000 * (i + 1),
+        time_unix_s=T0 + 86400.0 * i,
+        backlash_deg=play,
+        backlash_std_deg=0.002,
+        c_left_deg=None,
+        c_right_deg=None,
+        m_left=None,
+        m_right=None,
+        residual_rms_deg=0.001,
+        n_samples=1000 * (i + 1),
+        operating_hours=8.0 * (i + 1),
+        load_revolutions=100.0 * (i + 1),
+        reversals=50 * (i + 1),
+        play_observable=observable,
+        torque_mean_nm=None,
+        torque_rms_nm=None,
+        torque_reversals=None,
+        stiffness_nm_per_arcmin=None,
     )
     values.update(changes)
     return values
@@ -43,18 +69,35 @@ def month(rng: np.random.Generator) -> list[dict]:
     for i in range(30):
         true = 0.40 + RATE * 8.0 * (i + 1)
         if i % 3 == 2:
-            rows.append(row(i, 0.05 * true, observable=False, torque_mean_nm=0.8, torque_rms_nm=0.81, torque_reversals=0))
+            rows.append(
+                row(i, 0.05 * true, observable=False, torque_mean_nm=0.8, torque_rms_nm=0.81, torque_reversals=0)
+            )
         else:
             load = rng.uniform(0.0, 0.3)
-            rows.append(row(i, true + rng.normal(0, 0.001), torque_mean_nm=load, torque_rms_nm=0.5 + load, torque_reversals=40,
-                            stiffness_nm_per_arcmin=0.1))
+            rows.append(
+                row(
+                    i,
+                    true + rng.normal(0, 0.001),
+                    torque_mean_nm=load,
+                    torque_rms_nm=0.5 + load,
+                    torque_reversals=40,
+                    stiffness_nm_per_arcmin=0.1,
+                )
+            )
     return rows
 
 
 def fill(db, rows: list[dict], limit_arcmin: float | None = 60.0) -> None:
     with HistoryStore(db, create=True) as store:
         gearbox, run = store.begin_run("gb", 30.0, "month", "k" * 64, T0, limit_arcmin=limit_arcmin)
-        store.commit(gearbox, run, len(rows), {"format": 1}, rows, counters=dict.fromkeys(("frames", "samples", "corrupt", "skipped", "gaps"), 0))
+        store.commit(
+            gearbox,
+            run,
+            len(rows),
+            {"format": 1},
+            rows,
+            counters=dict.fromkeys(("frames", "samples", "corrupt", "skipped", "gaps"), 0),
+        )
 
 
 def test_the_store_keeps_the_load_condition_and_a_play_that_was_not_observed(store_db):
@@ -146,10 +189,19 @@ def test_history_cli_counts_and_carries_the_load_condition(tmp_path, capsys):
 
 #: The estimates table of schema 2, as online-backlash 0.x created it.
 V2_COLUMNS = (
-    ("sample_index", BigInteger, False), ("time_unix_s", Double, False), ("backlash_deg", Double, False),
-    ("backlash_std_deg", Double, True), ("c_left_deg", Double, True), ("c_right_deg", Double, True), ("m_left", Double, True),
-    ("m_right", Double, True), ("residual_rms_deg", Double, True), ("n_samples", BigInteger, False),
-    ("operating_hours", Double, False), ("load_revolutions", Double, False), ("reversals", BigInteger, False),
+    ("sample_index", BigInteger, False),
+    ("time_unix_s", Double, False),
+    ("backlash_deg", Double, False),
+    ("backlash_std_deg", Double, True),
+    ("c_left_deg", Double, True),
+    ("c_right_deg", Double, True),
+    ("m_left", Double, True),
+    ("m_right", Double, True),
+    ("residual_rms_deg", Double, True),
+    ("n_samples", BigInteger, False),
+    ("operating_hours", Double, False),
+    ("load_revolutions", Double, False),
+    ("reversals", BigInteger, False),
 )
 
 
@@ -163,7 +215,9 @@ def make_v2(db, plays: tuple[tuple[float, float], ...] = ((0.30, 0.002), (0.31, 
     Table("gearboxes", md, Column("id", String(200), primary_key=True))
     Table("runs", md, Column("id", Integer, primary_key=True))
     v2 = Table(
-        "estimates", md, Column("id", Integer, primary_key=True, autoincrement=True),
+        "estimates",
+        md,
+        Column("id", Integer, primary_key=True, autoincrement=True),
         Column("gearbox_id", String(200), ForeignKey("gearboxes.id"), nullable=False, index=True),
         Column("run_id", Integer, ForeignKey("runs.id"), nullable=False),
         *(Column(name, kind, nullable=nullable) for name, kind, nullable in V2_COLUMNS),
@@ -232,11 +286,18 @@ def track_month(db, load_of_day, method: str = "theil-sen") -> tuple[dict, float
     tracked with the torque column. Returns the report (trend by ``method``), the true trend (deg
     per operating hour, from the stored use) and the true play at the last estimate."""
     with HistoryStore(db, create=True) as store:
-        tracker = GearboxTracker(store, "gb", 30.0, every_s=10.0, limit_arcmin=30.0, estimator_params={"memory_reversals": 10.0})
+        tracker = GearboxTracker(
+            store, "gb", 30.0, every_s=10.0, limit_arcmin=30.0, estimator_params={"memory_reversals": 10.0}
+        )
         for day in range(30):
-            rec = simulate_two_mass(duration_s=20.0, play_deg=0.40 + 0.002 * day, external_torque_nm=load_of_day(day), seed=day)
+            rec = simulate_two_mass(
+                duration_s=20.0, play_deg=0.40 + 0.002 * day, external_torque_nm=load_of_day(day), seed=day
+            )
             tracker.track_chunks(
-                [rec.to_chunk()], f"day{day:02d}", key=f"{day:064d}", clock_offset=lambda first, day=day: T0 + day * DAY_S - first
+                [rec.to_chunk()],
+                f"day{day:02d}",
+                key=f"{day:064d}",
+                clock_offset=lambda first, day=day: T0 + day * DAY_S - first,
             )
         report = wear_report(store, "gb", now_unix_s=T0 + 30 * DAY_S, method=method)
     hours = report.column("operating_hours")
@@ -246,7 +307,9 @@ def track_month(db, load_of_day, method: str = "theil-sen") -> tuple[dict, float
 
 @pytest.mark.parametrize("method", ["theil-sen", "kalman"])
 def test_a_month_of_changing_load_gives_the_trend_of_a_constant_load(tmp_path, method):
-    changing, truth, last_play = track_month(tmp_path / "changing.db", lambda day: 1.0 if day % 5 == 4 else LOADS[day % 7], method)
+    changing, truth, last_play = track_month(
+        tmp_path / "changing.db", lambda day: 1.0 if day % 5 == 4 else LOADS[day % 7], method
+    )
     constant, truth_c, _ = track_month(tmp_path / "constant.db", lambda day: 0.1, method)
     assert changing["n_not_observable"] >= 6 and constant["n_not_observable"] == 0  # the preloaded days, greyed
     assert changing["trend_deg_per_hour"] == pytest.approx(truth, rel=0.10)

@@ -41,7 +41,10 @@ def snapshot(db: str) -> dict:
     try:
         with engine.connect() as conn:
             names = sorted(inspect(conn).get_table_names())
-            return {name: sorted(map(tuple, conn.execute(text(f'SELECT * FROM "{name}"')).all()), key=repr) for name in names}
+            return {
+                name: sorted(map(tuple, conn.execute(text(f'SELECT * FROM "{name}"')).all()), key=repr)
+                for name in names
+            }
     finally:
         engine.dispose()
 
@@ -62,7 +65,14 @@ def filled(store_db):
     with HistoryStore(store_db, create=True) as store:
         gearbox, run = store.begin_run("g1", 30.0, "day1.csv", "a" * 64, 1.7e9, limit_arcmin=21.0)
         gearbox, run = store.commit(gearbox, run, 3000, {"state": 1}, [estimate_row(i) for i in (1000, 2000, 3000)])
-        store.commit(gearbox, run, 3500, {"state": 2}, counters=dict(frames=3500, samples=3500, corrupt=0, skipped=0, gaps=1), ended_unix_s=1.7e9 + 3.5)
+        store.commit(
+            gearbox,
+            run,
+            3500,
+            {"state": 2},
+            counters=dict(frames=3500, samples=3500, corrupt=0, skipped=0, gaps=1),
+            ended_unix_s=1.7e9 + 3.5,
+        )
     return store_db
 
 
@@ -73,7 +83,9 @@ def test_create_register_commit_read(store_db):
         gearbox, run = store.begin_run("g1", -30.0, "day1.csv", "a" * 64, 1.7e9)
         assert (gearbox.id, gearbox.ratio, gearbox.checkpoint, gearbox.revision) == ("g1", -30.0, None, 0)
         assert (run.status, run.samples_done, run.started_unix_s) == ("running", 0, 1.7e9)
-        gearbox, run = store.commit(gearbox, run, 2000, {"theta": [0.1, 1 / 3]}, [estimate_row(1000), estimate_row(2000)])
+        gearbox, run = store.commit(
+            gearbox, run, 2000, {"theta": [0.1, 1 / 3]}, [estimate_row(1000), estimate_row(2000)]
+        )
         assert gearbox.checkpoint == {"theta": [0.1, 1 / 3]}  # floats round-trip exactly
         assert (gearbox.revision, run.samples_done) == (1, 2000)
     with HistoryStore(store_db) as store:  # reopened without create
@@ -245,7 +257,9 @@ def test_schema_matches_the_table_definitions(filled):
             found = inspect(conn)
             for table in metadata.sorted_tables:
                 assert {c["name"] for c in found.get_columns(table.name)} == set(table.columns.keys())
-            assert conn.execute(select(text("value")).select_from(text("meta")).where(text("key = 'schema_version'"))).scalar() == str(SCHEMA_VERSION)
+            assert conn.execute(
+                select(text("value")).select_from(text("meta")).where(text("key = 'schema_version'"))
+            ).scalar() == str(SCHEMA_VERSION)
     finally:
         engine.dispose()
     assert isinstance(metadata.tables["estimates"].c.backlash_deg.type, Double)
@@ -272,4 +286,7 @@ def test_concurrent_creation_makes_one_store(store_db):
     assert len(errors) <= 3 and all("creating the history store" in str(e) for e in errors)
     if "://" not in store_db:
         assert errors == []
-    assert sorted(snapshot(store_db)["meta"]) == [("application", "online-backlash"), ("schema_version", str(SCHEMA_VERSION))]
+    assert sorted(snapshot(store_db)["meta"]) == [
+        ("application", "online-backlash"),
+        ("schema_version", str(SCHEMA_VERSION)),
+    ]

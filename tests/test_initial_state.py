@@ -75,7 +75,9 @@ def test_a_coasting_start_is_estimated_and_taken_out_of_the_residual(coasting_st
     assert d.rms_after_deg < 1.3 * floor
     # the residual before is the simulation residual with the start's path
     uc, yc = d.u_deg - d.base.u_ref_, d.load_deg - d.base.y_ref_
-    np.testing.assert_allclose(d.residual_before_deg, simulation_residual(d.base.params_, uc, yc, d.initial_state.path_deg))
+    np.testing.assert_allclose(
+        d.residual_before_deg, simulation_residual(d.base.params_, uc, yc, d.initial_state.path_deg)
+    )
     # a nuisance, never an effect
     assert d.as_dict()["effects"] == [] and d.as_dict()["unexplained"] == []
 
@@ -88,7 +90,9 @@ def test_the_start_is_what_kept_the_clean_rig_above_the_floor(coasting_start, co
     assert coasting_diagnosis.rms_after_deg < 0.8 * before.rms_after_deg
     # past the start, the two are the same residual
     past = coasting_diagnosis.time_s >= 0.2
-    np.testing.assert_allclose(coasting_diagnosis.residual_after_deg[past], before.residual_after_deg[past], atol=0.2 * floor)
+    np.testing.assert_allclose(
+        coasting_diagnosis.residual_after_deg[past], before.residual_after_deg[past], atol=0.2 * floor
+    )
 
 
 def test_a_start_in_the_other_direction_gets_a_negative_velocity(coasting_start):
@@ -111,7 +115,13 @@ def test_a_log_that_starts_at_rest_gets_no_correction_and_the_same_results(monke
 def test_a_log_that_starts_engaged_gets_no_correction_and_the_same_results(monkeypatch):
     # a load torque holds the output on a flank from the first sample (the rig starts wound up on it)
     rec = simulate_two_mass(
-        duration_s=20.0, seed=2, motion="rig", coulomb_nm=0.05, play_deg=0.5, stiffness_nm_per_arcmin=10.0, substeps=40,
+        duration_s=20.0,
+        seed=2,
+        motion="rig",
+        coulomb_nm=0.05,
+        play_deg=0.5,
+        stiffness_nm_per_arcmin=10.0,
+        substeps=40,
         external_torque_nm=0.1,
     )
     t, m, y = rec.time_s, rec.motor_deg, rec.load_deg
@@ -147,7 +157,9 @@ def test_the_model_follows_the_path_until_a_flank_catches_the_load():
 
 
 def test_diagnose_reports_the_start_in_json_and_text(tmp_path, capsys):
-    rec = simulate_two_mass(duration_s=20.0, seed=4, stiffness_nm_per_arcmin=10.0, substeps=40, **synthetic.TWO_MASS_RIG)
+    rec = simulate_two_mass(
+        duration_s=20.0, seed=4, stiffness_nm_per_arcmin=10.0, substeps=40, **synthetic.TWO_MASS_RIG
+    )
     path = tmp_path / "rig.csv"
     rec.write_csv(path)
     assert main(["diagnose", str(path), "--ratio", "30", "--json"]) == 0
@@ -155,7 +167,9 @@ def test_diagnose_reports_the_start_in_json_and_text(tmp_path, capsys):
     state = out["initial_state"]
     assert {"estimated", "samples", "offset_deg", "velocity_deg_s", "time_constant_s"} <= set(state)
     assert state["estimated"] and state["samples"] > 0
-    assert state["velocity_deg_s"] == pytest.approx(np.mean(np.diff(rec.u_true_deg[:6])) / (rec.time_s[1] - rec.time_s[0]), rel=0.15)
+    assert state["velocity_deg_s"] == pytest.approx(
+        np.mean(np.diff(rec.u_true_deg[:6])) / (rec.time_s[1] - rec.time_s[0]), rel=0.15
+    )
     assert out["effects"] == [] and out["rms_after_deg"] < 1.3 * out["noise_floor_deg"]
     assert main(["diagnose", str(path), "--ratio", "30"]) == 0
     assert "Record start: the load was moving in the dead band" in capsys.readouterr().out
@@ -170,7 +184,9 @@ def test_a_load_that_runs_on_with_the_motor_is_not_taken_for_a_coast():
     y = np.minimum(u, u[2000])
     y = np.where(u >= y + 0.25, u - 0.25, y)
     state = estimate_initial_state(p, u, y, t)
-    assert state.samples <= 4 * 9 + 64  # at most MAX_STRETCH times the rest model's engagement (9 samples), plus MIN_EXTRA
+    assert (
+        state.samples <= 4 * 9 + 64
+    )  # at most MAX_STRETCH times the rest model's engagement (9 samples), plus MIN_EXTRA
 
 
 #: the kicked rig's record starts 2 ms before the top of its 0.5 Hz sine (motor at rest), and a
@@ -182,12 +198,20 @@ def _kicked_from_rest(duration_s: float = 20.0) -> tuple[np.ndarray, ...]:
     """The stiff two-mass rig (play 1.75 deg, as the measured tool), logged from the top of a
     stroke, where the load rests on a flank, with a kick that throws it 0.5 deg into the gap:
     it stops there and waits until the other flank catches it (as the measured run49 starts)."""
+
     def kick(s: np.ndarray) -> np.ndarray:  # N m, pushing the load up the gap
         return np.where((s >= _KICK_S) & (s < _KICK_S + 0.003), -1.2, 0.0)
 
     rec = simulate_two_mass(
-        duration_s=duration_s + _TOP_S, seed=0, play_deg=1.75, stiffness_nm_per_arcmin=10.0, substeps=40, coulomb_nm=0.05,
-        external_torque_nm=kick, frequency_hz=0.5, amplitude_deg=30.0,
+        duration_s=duration_s + _TOP_S,
+        seed=0,
+        play_deg=1.75,
+        stiffness_nm_per_arcmin=10.0,
+        substeps=40,
+        coulomb_nm=0.05,
+        external_torque_nm=kick,
+        frequency_hz=0.5,
+        amplitude_deg=30.0,
     )
     keep = rec.time_s >= _TOP_S - 0.002
     return rec.time_s[keep] - rec.time_s[keep][0], rec.motor_deg[keep], rec.load_deg[keep], rec.torque_Nm[keep]
@@ -222,7 +246,21 @@ def test_the_measured_run49_start_is_a_kick_from_rest_that_waits_in_the_gap(caps
     data = Path(__file__).resolve().parents[2] / "shared" / "data" / "davinci_tool_gearhead_backlash"
     path = next(data.glob("tool4_L_run49_*.csv"))
     columns = "time=time_s,motor=motor_counts,load=spindle_counts,torque=backend_torque_Nm"
-    args = ["diagnose", str(path), "--ratio", "-35", "--units", "counts", "--motor-cpr", "4096", "--load-cpr", "8192", "--columns", columns, "--json"]
+    args = [
+        "diagnose",
+        str(path),
+        "--ratio",
+        "-35",
+        "--units",
+        "counts",
+        "--motor-cpr",
+        "4096",
+        "--load-cpr",
+        "8192",
+        "--columns",
+        columns,
+        "--json",
+    ]
     assert main(args) == 0
     out = json.loads(capsys.readouterr().out)
     state = out["initial_state"]

@@ -125,15 +125,33 @@ def test_history_trend_kalman_from_the_command_line(capsys, tmp_path):
     x, z, std = ramp(6, n=30, span=30.0)
     with HistoryStore(db, create=True) as store:
         gearbox, run = store.begin_run("g1", 30.0, "a.csv", "a" * 64, 1.7e9, limit_arcmin=21.0)
-        rows = [dict(sample_index=i + 1, time_unix_s=1.7e9 + i * 86400.0, backlash_deg=zi, backlash_std_deg=si, c_left_deg=None,
-                     c_right_deg=None, m_left=None, m_right=None, residual_rms_deg=None, n_samples=i + 1, operating_hours=xi,
-                     load_revolutions=10.0 * xi, reversals=100 * (i + 1)) for i, (xi, zi, si) in enumerate(zip(x, z, std))]
+        rows = [
+            dict(
+                sample_index=i + 1,
+                time_unix_s=1.7e9 + i * 86400.0,
+                backlash_deg=zi,
+                backlash_std_deg=si,
+                c_left_deg=None,
+                c_right_deg=None,
+                m_left=None,
+                m_right=None,
+                residual_rms_deg=None,
+                n_samples=i + 1,
+                operating_hours=xi,
+                load_revolutions=10.0 * xi,
+                reversals=100 * (i + 1),
+            )
+            for i, (xi, zi, si) in enumerate(zip(x, z, std))
+        ]
         store.commit(gearbox, run, len(rows), {"format": 1}, rows)
     assert main(["history", "--db", str(db), "--gearbox", "g1", "--trend", "kalman", "--json"]) == 0
     d = json.loads(capsys.readouterr().out)
     assert d["trend_method"] == "kalman" and d["trend_deg_per_hour"] == pytest.approx(RATE, rel=0.3)
     assert d["trend_per_hour"]["n_points"] == 30 and d["state"] == "unknown"  # 2023: not recent
-    assert main(["history", "--db", str(db), "--gearbox", "g1", "--trend", "kalman", "--plot", str(tmp_path / "k.png")]) == 0
+    assert (
+        main(["history", "--db", str(db), "--gearbox", "g1", "--trend", "kalman", "--plot", str(tmp_path / "k.png")])
+        == 0
+    )
     out = capsys.readouterr().out
     assert "(95%, Kalman local linear trend, lag-corrected, 30 estimates)" in out
     assert (tmp_path / "k.png").stat().st_size > 10_000

@@ -21,7 +21,15 @@ from online_backlash.cli import main
 from online_backlash.cli._common import EXIT_NO_PLAY
 from online_backlash.errors import InvalidParameterError
 from online_backlash.fitting import fit_batch, fit_recursive
-from online_backlash.load_aware import DwellTracker, TorqueBacklash, TorqueBacklashRLS, count_torque_reversals, engaged_flank, torque_deadband, torque_noise_std
+from online_backlash.load_aware import (
+    DwellTracker,
+    TorqueBacklash,
+    TorqueBacklashRLS,
+    count_torque_reversals,
+    engaged_flank,
+    torque_deadband,
+    torque_noise_std,
+)
 from online_backlash.load_aware.engagement import either_flank_engaged, torque_orientation
 from online_backlash.simulation.two_mass_rig import simulate_two_mass
 
@@ -110,7 +118,9 @@ def test_play_and_stiffness_wherever_the_torque_reverses_and_not_observable_else
             assert d["lost_motion_arcmin"] > d["backlash_arcmin"]  # the width at a torque includes the wind-up
         else:
             assert math.isnan(d["backlash_deg"]) and d["lost_motion_arcmin"] is None
-            assert d["stiffness_right_nm_per_arcmin"] == pytest.approx(STIFFNESS, rel=0.10)  # one flank still has a stiffness
+            assert d["stiffness_right_nm_per_arcmin"] == pytest.approx(
+                STIFFNESS, rel=0.10
+            )  # one flank still has a stiffness
 
 
 def test_the_kinematic_estimator_says_when_the_load_never_holds_still():
@@ -132,7 +142,9 @@ def test_the_kinematic_estimator_says_when_the_load_never_holds_still():
 def test_the_recursive_estimator_does_not_learn_the_play_without_a_torque_reversal():
     """Preloaded for 8 s (the flank not engaged keeps its prior, the play stays unknown however
     long), then the load is removed: the torque reverses and the play appears."""
-    rec = simulate_two_mass(duration_s=16.0, play_deg=PLAY, external_torque_nm=lambda t: np.where(t < 8.0, 1.0, 0.0), seed=5)
+    rec = simulate_two_mass(
+        duration_s=16.0, play_deg=PLAY, external_torque_nm=lambda t: np.where(t < 8.0, 1.0, 0.0), seed=5
+    )
     u = rec.motor_deg / rec.ratio
     half = 8000
     est = TorqueBacklashRLS()
@@ -148,11 +160,15 @@ def test_lost_motion_at_the_rated_torque_is_the_play_plus_both_wind_ups():
     rated = 4.0  # N m: lost motion at +-0.12 N m
     report, _ = fit_batch(rec.to_chunk(), rec.ratio, rated_torque_Nm=rated)
     windup_arcmin = 2 * 0.03 * rated / STIFFNESS  # N m / (N m/arcmin) at each flank
-    assert report.extra["lost_motion_basis"] == "rated torque" and report.extra["lost_motion_torque_Nm"] == pytest.approx(0.12)
+    assert report.extra["lost_motion_basis"] == "rated torque" and report.extra[
+        "lost_motion_torque_Nm"
+    ] == pytest.approx(0.12)
     assert report.lost_motion_arcmin == pytest.approx(PLAY * 60 + windup_arcmin, rel=0.02)
     assert report.hysteresis_loss_arcmin == pytest.approx(PLAY * 60, rel=0.02)  # no friction in a flank: the play
     plain, _ = fit_batch(rec.to_chunk(), rec.ratio)  # without a rated torque: at the smaller peak torque
-    assert plain.extra["lost_motion_torque_Nm"] == pytest.approx(min(plain.extra["torque_peak_left_Nm"], plain.extra["torque_peak_right_Nm"]))
+    assert plain.extra["lost_motion_torque_Nm"] == pytest.approx(
+        min(plain.extra["torque_peak_left_Nm"], plain.extra["torque_peak_right_Nm"])
+    )
 
 
 # -- the CLI: keys, the preloaded drive, the plot, files written by other libraries -------------------
@@ -174,9 +190,13 @@ def test_a_preloaded_drive_reports_no_play(capsys, logs):
         d = _estimate(capsys, out / "preloaded.csv", "--ratio", "30", "--method", method)
         assert d["play_observable"] is False and d["backlash_deg"] is None and d["torque_reversals"] == 0
         assert d["lost_motion_arcmin"] is None and d["stiffness_nm_per_arcmin"] == pytest.approx(STIFFNESS, rel=0.1)
-    assert main(["estimate", str(out / "preloaded.csv"), "--ratio", "30"]) == EXIT_NO_PLAY  # never exit 0 without a play
+    assert (
+        main(["estimate", str(out / "preloaded.csv"), "--ratio", "30"]) == EXIT_NO_PLAY
+    )  # never exit 0 without a play
     text, err = capsys.readouterr()
-    assert err.startswith(f"error: {out / 'preloaded.csv'}: no play: not observable: the transmitted torque never reversed")
+    assert err.startswith(
+        f"error: {out / 'preloaded.csv'}: no play: not observable: the transmitted torque never reversed"
+    )
     assert "backlash:       not reported (see play:)" in text
     assert sum("not observable" in line for line in text.splitlines()) == 1
     assert "torque never reversed" in text

@@ -52,7 +52,9 @@ def write(path, motor, load, compression=0, invalid=False, conversion=None):
 def read(path, fragment_bytes):
     with MdfLog(path, columns={"motor": "M", "load": "L"}, fragment_bytes=fragment_bytes) as log:
         chunks = list(log.iter_chunks())
-        return [np.concatenate([getattr(c, f) for c in chunks]) for f in ("time_s", "motor_deg", "load_deg")], log.counters
+        return [
+            np.concatenate([getattr(c, f) for c in chunks]) for f in ("time_s", "motor_deg", "load_deg")
+        ], log.counters
 
 
 def bulk(path):
@@ -60,7 +62,11 @@ def bulk(path):
     with MDF(path) as mdf:
         motor, load = mdf.get("M"), mdf.get("L")
         assert np.isin(motor.timestamps, load.timestamps).all()
-        return [motor.timestamps.astype(float), motor.samples.astype(float), np.interp(motor.timestamps, load.timestamps, load.samples.astype(float))]
+        return [
+            motor.timestamps.astype(float),
+            motor.samples.astype(float),
+            np.interp(motor.timestamps, load.timestamps, load.samples.astype(float)),
+        ]
 
 
 @pytest.mark.parametrize("dtype", DTYPES)

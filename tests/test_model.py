@@ -180,7 +180,10 @@ def test_sensitivity_matches_finite_differences(s):
     h = 1e-7
     for k in range(4):
         step = np.eye(4)[k] * h
-        fd = (simulate_backlash(u, BacklashParams(*(v + step)), 0.1) - simulate_backlash(u, BacklashParams(*(v - step)), 0.1)) / (2 * h)
+        fd = (
+            simulate_backlash(u, BacklashParams(*(v + step)), 0.1)
+            - simulate_backlash(u, BacklashParams(*(v - step)), 0.1)
+        ) / (2 * h)
         assert np.allclose(dx[:, k], fd, atol=1e-6), k
 
 
@@ -189,7 +192,11 @@ def test_paper_example_data_have_the_stated_snr(number):
     ex = PAPER_EXAMPLES[number]
     u, y = ex.generate(seed=11)
     assert u.shape == y.shape == (ex.samples,) and np.all(np.abs(u) < 1)
-    clean = simulate_cascade(u, ex.params, np.array(ex.a), np.array(ex.b))[0] if ex.cascade else simulate_backlash(u, ex.params)
+    clean = (
+        simulate_cascade(u, ex.params, np.array(ex.a), np.array(ex.b))[0]
+        if ex.cascade
+        else simulate_backlash(u, ex.params)
+    )
     snr = np.std(clean) / np.std(y - clean)
     assert snr == pytest.approx(ex.snr, rel=0.1)
     assert np.array_equal(ex.generate(seed=11)[1], y)

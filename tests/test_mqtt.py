@@ -37,7 +37,16 @@ from online_backlash.simulation.rig import simulate_rig
 from online_backlash.simulation.rig_logs import rig_can_frames
 
 T0 = 1.75e9  # the frames' clock: UNIX seconds
-CAN_OPTIONS = ["--interface", "virtual", "--dbc", "rig", "--motor-signal", "MotorAngle.Count", "--load-signal", "LoadAngle.Count"]
+CAN_OPTIONS = [
+    "--interface",
+    "virtual",
+    "--dbc",
+    "rig",
+    "--motor-signal",
+    "MotorAngle.Count",
+    "--load-signal",
+    "LoadAngle.Count",
+]
 #: The line ``listen --mqtt`` writes on stderr when the publisher has connected.
 CONNECTED = r"mqtt: 127\.0\.0\.1:\d+: connected$"
 MESSAGE_KEYS = set(REPORT_KEYS) | {"backlash_std_deg", "n_reversals", "time", "time_unix_s", "gearbox", "state"}
@@ -155,9 +164,30 @@ def test_listen_publishes_reconnects_after_a_broker_crash_and_counts_the_dropped
         seen["restarted"] = len(sub.on(estimate_topic))
         send_frames(channel, thirds[2])  # then Ctrl-C: the frames still waiting on the bus are learned too
 
-    argv = ["listen", "can", "--channel", channel, *CAN_OPTIONS[2:], "--interface", "virtual", "--ratio", 30,
-            "--raw-log", tmp_path / "raw", "--json", "--mqtt", mqtt_broker.url(prefix), "--gearbox", "GB-7",
-            "--every", 0.1, "--warn-arcmin", 10, "--limit-arcmin", 15]
+    argv = [
+        "listen",
+        "can",
+        "--channel",
+        channel,
+        *CAN_OPTIONS[2:],
+        "--interface",
+        "virtual",
+        "--ratio",
+        30,
+        "--raw-log",
+        tmp_path / "raw",
+        "--json",
+        "--mqtt",
+        mqtt_broker.url(prefix),
+        "--gearbox",
+        "GB-7",
+        "--every",
+        0.1,
+        "--warn-arcmin",
+        10,
+        "--limit-arcmin",
+        15,
+    ]
     try:
         code = run_live(argv, scenario)
         assert code == 0
@@ -170,7 +200,18 @@ def test_listen_publishes_reconnects_after_a_broker_crash_and_counts_the_dropped
     # the estimate and the raw capture went on: every frame arrived, and the raw log replays to the same estimate
     assert live["frames"] == len(frames) and live["corrupt"] == 0 and live["samples"] > 5000
     trace = tmp_path / "trace.csv"
-    argv = ["estimate", str(tmp_path / "raw"), *CAN_OPTIONS[2:], "--ratio", "30", "--json", "--trace", str(trace), "--every", "0.1"]
+    argv = [
+        "estimate",
+        str(tmp_path / "raw"),
+        *CAN_OPTIONS[2:],
+        "--ratio",
+        "30",
+        "--json",
+        "--trace",
+        str(trace),
+        "--every",
+        "0.1",
+    ]
     assert main(argv) == 0
     replayed = json.loads(capsys.readouterr().out)
     assert replayed["backlash_deg"] == live["backlash_deg"] and replayed["samples"] == live["samples"]
@@ -211,12 +252,57 @@ def test_track_listen_publishes_with_the_stored_levels(mqtt_broker, tmp_path, ca
     channel, prefix = "mqtt-track", "fleet"
     sub = Subscriber(mqtt_broker, prefix)
     db = tmp_path / "w.db"
-    assert main(["track", "--listen", "can", "--channel", channel, *CAN_OPTIONS, "--raw-log", str(tmp_path / "raw0"), "--ratio", "30",
-                 "--db", str(db), "--gearbox", "g1", "--warn-arcmin", "15", "--limit-arcmin", "25", "--duration", "0.2",
-                 "--timeout", "0.1"]) != 0  # nothing arrives: an error, but the levels are stored with the gearbox
+    assert (
+        main(
+            [
+                "track",
+                "--listen",
+                "can",
+                "--channel",
+                channel,
+                *CAN_OPTIONS,
+                "--raw-log",
+                str(tmp_path / "raw0"),
+                "--ratio",
+                "30",
+                "--db",
+                str(db),
+                "--gearbox",
+                "g1",
+                "--warn-arcmin",
+                "15",
+                "--limit-arcmin",
+                "25",
+                "--duration",
+                "0.2",
+                "--timeout",
+                "0.1",
+            ]
+        )
+        != 0
+    )  # nothing arrives: an error, but the levels are stored with the gearbox
     capsys.readouterr()
-    argv = ["track", "--listen", "can", "--channel", channel, *CAN_OPTIONS, "--raw-log", tmp_path / "raw", "--ratio", 30,
-            "--db", db, "--gearbox", "g1", "--every", 1, "--mqtt", mqtt_broker.url(prefix), "--json"]
+    argv = [
+        "track",
+        "--listen",
+        "can",
+        "--channel",
+        channel,
+        *CAN_OPTIONS,
+        "--raw-log",
+        tmp_path / "raw",
+        "--ratio",
+        30,
+        "--db",
+        db,
+        "--gearbox",
+        "g1",
+        "--every",
+        1,
+        "--mqtt",
+        mqtt_broker.url(prefix),
+        "--json",
+    ]
 
     def scenario(stderr):
         stderr.wait_for(CONNECTED)
@@ -240,17 +326,56 @@ def test_track_listen_publishes_with_the_stored_levels(mqtt_broker, tmp_path, ca
 
 
 def test_mqtt_needs_a_gearbox_and_a_well_formed_url(tmp_path, capsys):
-    base = ["listen", "serial", "--port", "loop://", "--format", "ascii", "--ratio", "30", "--raw-log", str(tmp_path), "--duration", "0.1"]
+    base = [
+        "listen",
+        "serial",
+        "--port",
+        "loop://",
+        "--format",
+        "ascii",
+        "--ratio",
+        "30",
+        "--raw-log",
+        str(tmp_path),
+        "--duration",
+        "0.1",
+    ]
     assert main([*base, "--mqtt", "mqtt://127.0.0.1:1883/p"]) == 1
     assert "give --gearbox ID" in capsys.readouterr().err
     assert main([*base, "--mqtt", "http://127.0.0.1/p", "--gearbox", "g"]) == 1
     assert "expected mqtt://HOST:PORT/PREFIX (or mqtts:// for TLS), got 'http://127.0.0.1/p'" in capsys.readouterr().err
-    assert main(["track", "log.csv", "--ratio", "30", "--db", str(tmp_path / "w.db"), "--gearbox", "g", "--mqtt", "mqtt://h/p"]) == 1
+    assert (
+        main(
+            [
+                "track",
+                "log.csv",
+                "--ratio",
+                "30",
+                "--db",
+                str(tmp_path / "w.db"),
+                "--gearbox",
+                "g",
+                "--mqtt",
+                "mqtt://h/p",
+            ]
+        )
+        == 1
+    )
     assert "use it with --listen" in capsys.readouterr().err
 
 
 @pytest.mark.parametrize(
-    "url", ["mqtt://host", "mqtt://host:0/p", "mqtt://:1883/p", "mqtx://host/p", "mqtt://u:secret@host/p", "mqtt://host/a/#", "mqtt://host:x/p", "mqtt://h/p?q=1"]
+    "url",
+    [
+        "mqtt://host",
+        "mqtt://host:0/p",
+        "mqtt://:1883/p",
+        "mqtx://host/p",
+        "mqtt://u:secret@host/p",
+        "mqtt://host/a/#",
+        "mqtt://host:x/p",
+        "mqtt://h/p?q=1",
+    ],
 )
 def test_bad_urls_are_refused(url):
     with pytest.raises(InvalidParameterError, match="--mqtt"):
@@ -287,7 +412,11 @@ def test_the_state_of_a_live_estimate(play_deg, std_deg, warn, limit, state):
 def test_the_message_has_the_estimate_keys_and_no_nan():
     message = estimate_message(row(0.3, float("nan")), "GB-7", "unknown", T0)
     assert set(message) == MESSAGE_KEYS and list(message)[: len(REPORT_KEYS)] == list(REPORT_KEYS)
-    assert message["backlash_arcmin"] == pytest.approx(18.0) and message["samples"] == 4000 and message["method"] == "recursive"
+    assert (
+        message["backlash_arcmin"] == pytest.approx(18.0)
+        and message["samples"] == 4000
+        and message["method"] == "recursive"
+    )
     assert message["backlash_std_deg"] is None and json.loads(json.dumps(message)) == message
     assert message["time"] == "2025-06-15T15:06:40+00:00"
 

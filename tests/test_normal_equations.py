@@ -82,12 +82,23 @@ def test_scores_left_out_equal_the_scores_of_data_made_without_each_group():
     data = DetectionData(u, t, np.full(n, np.nan), r, 30.0, 1e-3, nuisance=nuisance, n_backlash=3)
     shared = data.scores_left_out([np.array([3, 4]), np.array([5])], coefs)
     for mine, others, coef, got in ((a, b, coefs[0], shared[0]), (b, a, coefs[1], shared[1])):
-        case = DetectionData(u, t, np.full(n, np.nan), r + mine @ coef, 30.0, 1e-3, nuisance=np.column_stack((backlash, others)), n_backlash=3)
+        case = DetectionData(
+            u,
+            t,
+            np.full(n, np.nan),
+            r + mine @ coef,
+            30.0,
+            1e-3,
+            nuisance=np.column_stack((backlash, others)),
+            n_backlash=3,
+        )
         want = case.score(False, mine)
         assert got.heldout_folds == want.heldout_folds == 5
         for name in ("rss_before", "rss_after", "n_eff", "delta_bic", "own_share", "heldout_gain"):
             assert np.isclose(getattr(got, name), getattr(want, name), rtol=1e-8), name
-        np.testing.assert_allclose(got.coef, want.coef, rtol=1e-6)  # solved from a Gram formed otherwise: a nearly collinear basis
+        np.testing.assert_allclose(
+            got.coef, want.coef, rtol=1e-6
+        )  # solved from a Gram formed otherwise: a nearly collinear basis
 
 
 def test_scores_left_out_with_columns_read_on_their_support_equal_those_of_the_block():
@@ -104,9 +115,13 @@ def test_scores_left_out_with_columns_read_on_their_support_equal_those_of_the_b
     sparse[rows] = rng.normal(size=(rows.size, 2))
     r = sparse @ np.array([0.01, -0.02]) + 0.003 * a[:, 0] + rng.normal(0, 1e-3, n)
     coefs = [np.array([0.003]), np.array([0.01, -0.02])]
-    block = DetectionData(u, t, np.full(n, np.nan), r, 30.0, 1e-3, nuisance=np.column_stack((backlash, a, sparse)), n_backlash=3)
+    block = DetectionData(
+        u, t, np.full(n, np.nan), r, 30.0, 1e-3, nuisance=np.column_stack((backlash, a, sparse)), n_backlash=3
+    )
     want = block.scores_left_out([np.array([3]), np.array([4, 5])], coefs)
-    parted = DetectionData(u, t, np.full(n, np.nan), r, 30.0, 1e-3, nuisance=np.column_stack((backlash, a)), n_backlash=3)
+    parted = DetectionData(
+        u, t, np.full(n, np.nan), r, 30.0, 1e-3, nuisance=np.column_stack((backlash, a)), n_backlash=3
+    )
     got = parted.scores_left_out([np.array([3]), np.array([4, 5])], coefs, sparse[rows], rows)
     for g, w in zip(got, want):
         for name in ("rss_before", "rss_after", "n_eff", "delta_bic", "own_share", "heldout_gain"):
@@ -139,7 +154,9 @@ def test_joint_fit_equals_the_full_length_search():
     got = np.array([fit.params.m_left, fit.params.c_left, fit.params.m_right, fit.params.c_right])
     np.testing.assert_allclose(got, ref.x, rtol=1e-7, atol=1e-9)
     np.testing.assert_allclose(fit.residual_deg, residual(ref.x), atol=1e-8)
-    np.testing.assert_allclose(fit.coef, np.linalg.solve(rr, q.T @ (yc - simulate_backlash(uc, BacklashParams(*ref.x)))), rtol=1e-6)
+    np.testing.assert_allclose(
+        fit.coef, np.linalg.solve(rr, q.T @ (yc - simulate_backlash(uc, BacklashParams(*ref.x)))), rtol=1e-6
+    )
     assert abs(fit.params.play - true.play) < 0.01
 
 

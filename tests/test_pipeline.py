@@ -34,7 +34,9 @@ def rig30():
 def pieces(chunk: SampleChunk, cuts: list[int]) -> list[SampleChunk]:
     edges = [0, *cuts, len(chunk)]
     return [
-        SampleChunk(chunk.time_s[a:b], chunk.motor_deg[a:b], chunk.load_deg[a:b], chunk.torque_Nm[a:b], chunk.after_gap[a:b])
+        SampleChunk(
+            chunk.time_s[a:b], chunk.motor_deg[a:b], chunk.load_deg[a:b], chunk.torque_Nm[a:b], chunk.after_gap[a:b]
+        )
         for a, b in itertools.pairwise(edges)
     ]
 
@@ -82,8 +84,12 @@ def test_the_pipeline_refers_once_and_passes_time_torque_and_gaps_through(rig30)
         def learn_many(self, u, y, after_gap, *, time_s, torque_Nm):
             self.calls.append((u, y, after_gap, time_s, torque_Nm))
 
-    chunk = dataclasses.replace(rig30, torque_Nm=np.linspace(-1.0, 1.0, len(rig30)), after_gap=np.arange(len(rig30)) % 7000 == 0)
-    rec = Recorder()  # every flag reaches the estimator: which gaps are bridged is its decision (tests/test_gap_bridging.py)
+    chunk = dataclasses.replace(
+        rig30, torque_Nm=np.linspace(-1.0, 1.0, len(rig30)), after_gap=np.arange(len(rig30)) % 7000 == 0
+    )
+    rec = (
+        Recorder()
+    )  # every flag reaches the estimator: which gaps are bridged is its decision (tests/test_gap_bridging.py)
     steps = list(Pipeline(rec, -30.0, every_s=3.0).run(pieces(chunk, [4321, 17000])))
     u, y, gap, t, q = (np.concatenate(c) for c in zip(*rec.calls))
     np.testing.assert_array_equal(u, chunk.motor_deg / -30.0)
@@ -141,7 +147,15 @@ def test_every_output_is_a_selection_of_the_declared_fields():
 
 
 def test_the_contracts_keep_their_names_and_order():
-    assert TRACE_COLUMNS == ("time", "backlash_deg", "backlash_std_deg", "c_left_deg", "c_right_deg", "m_left", "m_right")
+    assert TRACE_COLUMNS == (
+        "time",
+        "backlash_deg",
+        "backlash_std_deg",
+        "c_left_deg",
+        "c_right_deg",
+        "m_left",
+        "m_right",
+    )
     assert REPORT_KEYS == (
         "backlash_deg", "backlash_arcmin", "c_left_deg", "c_right_deg", "m_left", "m_right", "samples", "residual_rms_deg", "method",
         "play_observable", "torque_reversals", "backlash_lower_bound_deg", "stiffness_nm_per_arcmin", "stiffness_left_nm_per_arcmin",

@@ -22,7 +22,9 @@ from online_backlash.simulation.rig import simulate_rig
 from online_backlash.stream import SampleChunk
 
 
-def reference_blocks(clock: DataClock, time_s: np.ndarray, after_gap: np.ndarray) -> list[tuple[int, int, bool, int, int | None]]:
+def reference_blocks(
+    clock: DataClock, time_s: np.ndarray, after_gap: np.ndarray
+) -> list[tuple[int, int, bool, int, int | None]]:
     """The numpy clock: ``(start, end, due, data_ns, next_due_ns)`` per block, ``clock`` advanced."""
     out = []
     if clock.next_due_ns is None and clock.every_ns is not None:
@@ -50,7 +52,9 @@ def reference_blocks(clock: DataClock, time_s: np.ndarray, after_gap: np.ndarray
 def test_the_compiled_clock_cuts_where_the_numpy_clock_cut(seed):
     rng = np.random.default_rng(seed)
     n = int(rng.integers(1, 20_000))
-    steps = rng.choice([1e-3, 1e-3, 1e-3, 0.0, -0.004, 0.25, 1e-3 / 3], size=n)  # repeats, a clock that went back, jumps
+    steps = rng.choice(
+        [1e-3, 1e-3, 1e-3, 0.0, -0.004, 0.25, 1e-3 / 3], size=n
+    )  # repeats, a clock that went back, jumps
     time_s = 1000.0 + np.cumsum(steps)
     after_gap = rng.random(n) < 0.01
     every_s = float(rng.choice([0.05, 0.7, 10.0]))
@@ -58,13 +62,23 @@ def test_the_compiled_clock_cuts_where_the_numpy_clock_cut(seed):
     if seed % 3 == 0:  # mark_gap and restored clocks
         ours.mark_gap()
         ref.mark_gap()
-    cuts = np.sort(rng.choice(np.arange(1, max(2, n)), size=min(5, max(0, n - 1)), replace=False)).tolist() if n > 1 else []
+    cuts = (
+        np.sort(rng.choice(np.arange(1, max(2, n)), size=min(5, max(0, n - 1)), replace=False)).tolist()
+        if n > 1
+        else []
+    )
     for a, b in zip([0, *cuts], [*cuts, n]):
-        got = [(a + s, a + e, due, ours.data_ns, ours.next_due_ns) for s, e, due in ours.blocks(time_s[a:b], after_gap[a:b])]
+        got = [
+            (a + s, a + e, due, ours.data_ns, ours.next_due_ns)
+            for s, e, due in ours.blocks(time_s[a:b], after_gap[a:b])
+        ]
         want = [(a + s, a + e, due, d, nd) for s, e, due, d, nd in reference_blocks(ref, time_s[a:b], after_gap[a:b])]
         assert got == want
         assert ours.state_dict() == ref.state_dict()
-    ticking, ref_ticks = DataClock(every_s), DataClock(every_s)  # DataClock.ticks: the due blocks' ends, the clock at the chunk's end
+    ticking, ref_ticks = (
+        DataClock(every_s),
+        DataClock(every_s),
+    )  # DataClock.ticks: the due blocks' ends, the clock at the chunk's end
     if seed % 3 == 0:
         ticking.mark_gap()
         ref_ticks.mark_gap()
@@ -73,19 +87,28 @@ def test_the_compiled_clock_cuts_where_the_numpy_clock_cut(seed):
         assert ticking.ticks(time_s[a:b], after_gap[a:b]) == want_ticks
         assert ticking.state_dict() == ref_ticks.state_dict()
     quiet, ref_quiet = DataClock(None), DataClock(None)  # no rows: one block per chunk, the clock still counts
-    assert [(s, e, d) for s, e, d in quiet.blocks(time_s, after_gap)] == [(s, e, d) for s, e, d, *_ in reference_blocks(ref_quiet, time_s, after_gap)]
+    assert [(s, e, d) for s, e, d in quiet.blocks(time_s, after_gap)] == [
+        (s, e, d) for s, e, d, *_ in reference_blocks(ref_quiet, time_s, after_gap)
+    ]
     assert quiet.state_dict() == ref_quiet.state_dict()
 
 
 def test_a_pipeline_without_rows_ticks_where_one_with_rows_does():
     chunk = simulate_rig(duration_s=40.0, ratio=30.0, play_deg=0.4, seed=2).to_chunk()
     parts = [chunk.slice(a, a + 6000) for a in range(0, len(chunk), 6000)]
-    with_rows, without = Pipeline(BacklashRLS(), 30.0, every_s=3.0), Pipeline(BacklashRLS(), 30.0, every_s=3.0, rows=False)
+    with_rows, without = (
+        Pipeline(BacklashRLS(), 30.0, every_s=3.0),
+        Pipeline(BacklashRLS(), 30.0, every_s=3.0, rows=False),
+    )
     a, b = list(with_rows.run(parts)), list(without.run(parts))
     ticks = [s.samples for s in a if s.due]
-    assert [s.samples - len(s.chunk) + t for s in b for t in s.ticks] == ticks  # whole chunks, the same ticks inside them
+    assert [
+        s.samples - len(s.chunk) + t for s in b for t in s.ticks
+    ] == ticks  # whole chunks, the same ticks inside them
     assert [s.samples for s in b] == [6000 * (k + 1) for k in range(len(parts) - 1)] + [len(chunk)]
-    assert all(s.row is None for s in b) and sum(s.row is not None for s in a) == len(ticks) - 3  # none before the 10 s warm start
+    assert (
+        all(s.row is None for s in b) and sum(s.row is not None for s in a) == len(ticks) - 3
+    )  # none before the 10 s warm start
     # the estimate at each tick, recorded inside the estimator's loop, is the row's
     at_ticks = [at for s in b for at in s.estimates]
     rows = {s.samples: s.row for s in a if s.due}
@@ -104,14 +127,19 @@ def test_the_std_does_not_depend_on_whether_rows_are_traced(monkeypatch, size, a
     Without a trace the ticks do not cut the chunks (the estimate is recorded at each inside the
     estimator's loop); with one they do: the per-cycle plays and the whole report are the same, bit for bit."""
     scatters: list[RecursivePlayScatter] = []
-    monkeypatch.setattr(fitting, "RecursivePlayScatter", lambda est: scatters.append(RecursivePlayScatter(est)) or scatters[-1])
+    monkeypatch.setattr(
+        fitting, "RecursivePlayScatter", lambda est: scatters.append(RecursivePlayScatter(est)) or scatters[-1]
+    )
     chunk = simulate_rig(duration_s=90.0, ratio=30.0, play_deg=0.5, seed=4).to_chunk()
     parts = [chunk] if size is None else [chunk.slice(a, min(a + size, len(chunk))) for a in range(0, len(chunk), size)]
     quiet, _ = fit_recursive(parts, 30.0, ahead=ahead)
     rows: list = []
     traced, _ = fit_recursive(parts, 30.0, every_s=SCATTER_EVERY_S, trace=rows.append, ahead=ahead)
     assert len(rows) > 5
-    assert quiet.extra["backlash_std_deg"] == traced.extra["backlash_std_deg"] and quiet.backlash_deg == traced.backlash_deg
+    assert (
+        quiet.extra["backlash_std_deg"] == traced.extra["backlash_std_deg"]
+        and quiet.backlash_deg == traced.backlash_deg
+    )
     assert repr(quiet.as_dict()) == repr(traced.as_dict())
     plays = [s.scatter.plays_deg for s in scatters]
     assert plays[0].size >= 10 and plays[0].tobytes() == plays[1].tobytes()
@@ -124,11 +152,16 @@ def test_a_non_finite_sample_stops_the_pipeline_before_the_estimator_sees_its_ch
     est = BacklashRLS()
     pipe = Pipeline(est, 30.0, every_s=1.0)
     first = chunk.slice(0, 12000)
-    bad = SampleChunk(*(getattr(chunk, k)[12000:].copy() for k in ("time_s", "motor_deg", "load_deg", "torque_Nm", "after_gap")))
+    bad = SampleChunk(
+        *(getattr(chunk, k)[12000:].copy() for k in ("time_s", "motor_deg", "load_deg", "torque_Nm", "after_gap"))
+    )
     getattr(bad, column)[4321] = math.inf if column == "motor_deg" else math.nan
     list(pipe.feed(first))
     seen = est.n_samples_seen_
-    with pytest.raises(InvalidParameterError, match=rf"^{'u' if column == 'motor_deg' else 'y'} .* first at index 4321 of the chunk \(time 16.321 s\)"):
+    with pytest.raises(
+        InvalidParameterError,
+        match=rf"^{'u' if column == 'motor_deg' else 'y'} .* first at index 4321 of the chunk \(time 16.321 s\)",
+    ):
         list(pipe.feed(bad))
     assert est.n_samples_seen_ == seen  # nothing of the chunk was learned
     with pytest.raises(InvalidParameterError, match="non-finite"):  # learn_many called directly keeps its own check
@@ -147,7 +180,9 @@ def test_with_a_reader_thread_the_chunks_are_referred_there_and_a_bad_one_stops_
         steps[ahead] = [(s.samples, s.due, s.ticks, s.u_deg.tobytes()) for s in pipe.run(pieces, "log", ahead)]
         assert pipe.estimator.n_samples_seen_ == len(chunk)
     assert steps[0] == steps[1]
-    bad = SampleChunk(*(getattr(pieces[2], k).copy() for k in ("time_s", "motor_deg", "load_deg", "torque_Nm", "after_gap")))
+    bad = SampleChunk(
+        *(getattr(pieces[2], k).copy() for k in ("time_s", "motor_deg", "load_deg", "torque_Nm", "after_gap"))
+    )
     bad.load_deg[17] = math.nan
     est = BacklashRLS()
     with pytest.raises(InvalidParameterError, match=r"^y .* first at index 17 of the chunk"):

@@ -298,7 +298,9 @@ def test_a_fit_whose_slopes_say_wrong_units_has_no_play():
     for fit, log in ((fit_batch, chunk), (fit_recursive, [chunk])):
         off = fit(log, 30.0)[0]
         assert math.isnan(off.backlash_deg) and off.play_observable is False
-        assert off.no_play_reason().startswith("not reported: fitted slope 8") and "--ratio 3.75" in off.no_play_reason()
+        assert (
+            off.no_play_reason().startswith("not reported: fitted slope 8") and "--ratio 3.75" in off.no_play_reason()
+        )
         right = fit(log, 3.75)[0]
         assert right.backlash_deg == pytest.approx(0.5, abs=0.02) and right.no_play_reason() is None
 

@@ -19,10 +19,25 @@ from online_backlash.cli import main
 from online_backlash.diagnostics import loop
 from online_backlash.model import BacklashParams
 
-RUN20 = Path(__file__).resolve().parents[2] / "shared" / "data" / "davinci_tool_gearhead_backlash" / "tool4_L_run20_0.3Hz_torque10pct.csv"
+RUN20 = (
+    Path(__file__).resolve().parents[2]
+    / "shared"
+    / "data"
+    / "davinci_tool_gearhead_backlash"
+    / "tool4_L_run20_0.3Hz_torque10pct.csv"
+)
 ARGS = [
-    "--ratio", "-35", "--units", "counts", "--motor-cpr", "4096", "--load-cpr", "8192",
-    "--columns", "time=time_s,motor=motor_counts,load=spindle_counts,torque=backend_torque_Nm", "--json",
+    "--ratio",
+    "-35",
+    "--units",
+    "counts",
+    "--motor-cpr",
+    "4096",
+    "--load-cpr",
+    "8192",
+    "--columns",
+    "time=time_s,motor=motor_counts,load=spindle_counts,torque=backend_torque_Nm",
+    "--json",
 ]
 
 

@@ -30,7 +30,9 @@ def rig60():
 
 
 def _snapshot(est) -> np.ndarray:
-    return np.concatenate((est.theta_, est.P_.ravel(), [est.backlash_, est.backlash_std_, est.noise_var_, est.n_reversals_]))
+    return np.concatenate(
+        (est.theta_, est.P_.ravel(), [est.backlash_, est.backlash_std_, est.noise_var_, est.n_reversals_])
+    )
 
 
 # -- accuracy on rig-like data ------------------------------------------------------------------
@@ -312,7 +314,11 @@ def _davinci(name: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 
 @pytest.mark.parametrize(
     "name",
-    ["tool4_L_run00_0.1Hz_torque10pct.csv", "tool4_L_run20_0.3Hz_torque10pct.csv", "tool4_L_run49_0.5Hz_torque100pct.csv"],
+    [
+        "tool4_L_run00_0.1Hz_torque10pct.csv",
+        "tool4_L_run20_0.3Hz_torque10pct.csv",
+        "tool4_L_run49_0.5Hz_torque100pct.csv",
+    ],
     ids=["run00", "run20", "run49"],
 )
 def test_measured_gearhead_play_agrees_with_the_batch_fit(name):

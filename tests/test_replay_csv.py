@@ -45,7 +45,12 @@ def test_reads_default_columns_in_degrees(tmp_path):
 
 def test_column_map_units_and_torque(tmp_path):
     path = write(tmp_path, "t_s,m,l,tq\n0,4096,8192,0.5\n0.001,-2048,0,-0.25\n")
-    opts = {"columns": {"time": "t_s", "motor": "m", "load": "l", "torque": "tq"}, "units": "counts", "motor_cpr": 4096, "load_cpr": 8192}
+    opts = {
+        "columns": {"time": "t_s", "motor": "m", "load": "l", "torque": "tq"},
+        "units": "counts",
+        "motor_cpr": 4096,
+        "load_cpr": 8192,
+    }
     samples = list(CsvLog(path, **opts))
     assert samples[0] == Sample(0.0, 360.0, 360.0, 0.5)
     assert samples[1] == Sample(0.001, -180.0, 0.0, -0.25)
@@ -105,7 +110,11 @@ def test_gap_is_reported_and_marks_next_sample(tmp_path):
 def test_the_gap_rule_is_the_frame_sources_rule(tmp_path):
     """The period is learnt from the first steps as for CAN and serial frames (a gap before it is
     known goes unseen), or given; the gaps are those of GapDetector.check, block size aside."""
-    rows = [f"{i * 0.001:.3f},{i},{i}" for i in range(10)] + [f"{0.05 + i * 0.001:.3f},{i},{i}" for i in range(40)] + ["0.5,0,0", "0.5004,0,0"]
+    rows = (
+        [f"{i * 0.001:.3f},{i},{i}" for i in range(10)]
+        + [f"{0.05 + i * 0.001:.3f},{i},{i}" for i in range(40)]
+        + ["0.5,0,0", "0.5004,0,0"]
+    )
     path = write(tmp_path, "time,motor,load\n" + "\n".join(rows) + "\n")
     times = [float(r.split(",")[0]) for r in rows]
     detector = GapDetector()
@@ -200,7 +209,10 @@ WRITERS = {
     # German Excel / pandas: ';' separator, decimal comma
     "pandas-sep;-decimal,": (lambda df, path: df.to_csv(path, sep=";", decimal=",", index=False), CsvDialect(";", ",")),
     "pandas-tab": (lambda df, path: df.to_csv(path, sep="\t", index=False), CsvDialect("\t", ".")),
-    "pandas-pipe-gz": (lambda df, path: df.to_csv(path, sep="|", index=False, compression="gzip"), CsvDialect("|", ".")),
+    "pandas-pipe-gz": (
+        lambda df, path: df.to_csv(path, sep="|", index=False, compression="gzip"),
+        CsvDialect("|", "."),
+    ),
     "csv-excel-crlf-bom": (_excel_writer(csv.QUOTE_MINIMAL, "utf-8-sig"), CsvDialect(",", ".")),
     "csv-quote-all-bom": (_excel_writer(csv.QUOTE_ALL, "utf-8-sig"), CsvDialect(",", ".")),
     "csv-quote-all-crlf": (_excel_writer(csv.QUOTE_ALL, "utf-8"), CsvDialect(",", ".")),
@@ -337,7 +349,9 @@ def test_measured_recordings_load_and_fit_sensibly(name):
 
     chunk = read_csv_arrays(SHARED / name, **DAVINCI)
     assert len(chunk) > 19_000 and not chunk.after_gap.any()
-    est = VorosBacklash(origin="first").fit(chunk.motor_deg / -35.0, chunk.load_deg)  # encoder zeros are arbitrary, as in the CLI
+    est = VorosBacklash(origin="first").fit(
+        chunk.motor_deg / -35.0, chunk.load_deg
+    )  # encoder zeros are arbitrary, as in the CLI
     # the data README measures 1.6-1.7 deg of total lost motion (gearhead, output side)
     assert 1.4 < est.backlash_ < 2.0
     assert 0.97 < est.m_left_ < 1.03 and 0.97 < est.m_right_ < 1.03
@@ -385,7 +399,9 @@ def _excel_unicode_text(path: Path, frame, codec: str = "utf-16") -> dict:
 def test_files_people_have_read_the_same_samples(tmp_path, name, writer):
     import pandas as pd
 
-    frame = pd.DataFrame({"time": np.arange(50) * 1e-3, "motor": np.sin(np.arange(50) / 7.0) * 30, "load": np.cos(np.arange(50) / 9.0)})
+    frame = pd.DataFrame(
+        {"time": np.arange(50) * 1e-3, "motor": np.sin(np.arange(50) / 7.0) * 30, "load": np.cos(np.arange(50) / 9.0)}
+    )
     options = writer(tmp_path / name, frame)
     chunk = read_log_arrays(tmp_path / name, **options)
     assert np.array_equal(chunk.time_s, frame["time"]) and np.array_equal(chunk.motor_deg, frame["motor"])
@@ -393,7 +409,11 @@ def test_files_people_have_read_the_same_samples(tmp_path, name, writer):
 
 
 def test_a_comment_character_skips_its_lines_anywhere_and_lines_keep_their_numbers(tmp_path):
-    path = write(tmp_path, "% exported 2026-11-22\ntime,motor,load\n0,1,2\n% pause\n0.001,1,2\n  % resumed\n0.002,x,2\n", "pct.csv")
+    path = write(
+        tmp_path,
+        "% exported 2026-11-22\ntime,motor,load\n0,1,2\n% pause\n0.001,1,2\n  % resumed\n0.002,x,2\n",
+        "pct.csv",
+    )
     with pytest.raises(LogFormatError, match=r"pct.csv:7: not a number"):
         read_csv_arrays(path, comment="%")
     with pytest.raises(LogFormatError, match=r"pct.csv:1: header has no column"):
@@ -419,5 +439,7 @@ def test_nul_bytes_are_refused_from_the_first_block_however_large_the_file(tmp_p
     path = tmp_path / "zeros.csv"
     with open(path, "wb") as f:
         f.truncate(2 << 30)
-    with pytest.raises(LogFormatError, match=r"zeros.csv:1: not a text CSV file: NUL bytes in its first 4096 bytes \(binary data"):
+    with pytest.raises(
+        LogFormatError, match=r"zeros.csv:1: not a text CSV file: NUL bytes in its first 4096 bytes \(binary data"
+    ):
         read_csv_arrays(path)

@@ -118,7 +118,9 @@ def test_a_truncated_blf_names_the_file_and_the_frame(tmp_path, frames):
     data = path.read_bytes()
     cut = tmp_path / "cut.blf"
     cut.write_bytes(data[: len(data) // 2])
-    with pytest.raises(LogFormatError, match=r"cut\.blf:\d+: truncated: \d+ of the \d+ bytes its header announces") as info:
+    with pytest.raises(
+        LogFormatError, match=r"cut\.blf:\d+: truncated: \d+ of the \d+ bytes its header announces"
+    ) as info:
         list(open_log(cut, **SPLIT))
     assert 0 < info.value.line < len(frames)
     log = open_log(cut, **SPLIT, skip_bad=True)
@@ -172,9 +174,27 @@ def test_estimate_max_skew_pairs_frames_further_apart_than_the_default(tmp_path,
     from online_backlash.cli import main
 
     rec = simulate_rig(duration_s=20.0, rate_hz=100.0, seed=3, reversal_s=(2.0, 4.0))
-    path = write_log(tmp_path / "skewed.blf", rig_can_frames(rec, DbcDecoder(RIG_DBC, SPLIT["motor_signal"], SPLIT["load_signal"]), T0, skew_s=3e-3))
-    argv = ["estimate", str(path), "--dbc", "rig", "--motor-signal", SPLIT["motor_signal"], "--load-signal", SPLIT["load_signal"],
-            "--counter-signal", "none", "--ratio", "30", "--json", "--method", "batch"]
+    path = write_log(
+        tmp_path / "skewed.blf",
+        rig_can_frames(rec, DbcDecoder(RIG_DBC, SPLIT["motor_signal"], SPLIT["load_signal"]), T0, skew_s=3e-3),
+    )
+    argv = [
+        "estimate",
+        str(path),
+        "--dbc",
+        "rig",
+        "--motor-signal",
+        SPLIT["motor_signal"],
+        "--load-signal",
+        SPLIT["load_signal"],
+        "--counter-signal",
+        "none",
+        "--ratio",
+        "30",
+        "--json",
+        "--method",
+        "batch",
+    ]
     assert main(argv) != 0  # every frame an orphan: no samples
     assert "error:" in capsys.readouterr().err
     assert main([*argv, "--max-skew", "0.004"]) == 0

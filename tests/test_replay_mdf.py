@@ -31,7 +31,15 @@ def write_mdf(path, groups):
 
 def rig_mdf(path, rec, motor_unit="deg", load_unit="deg"):
     t = rec.time_s
-    return write_mdf(path, [[Signal(rec.motor_deg, t, name="Motor", unit=motor_unit), Signal(rec.load_deg, t, name="Load", unit=load_unit)]])
+    return write_mdf(
+        path,
+        [
+            [
+                Signal(rec.motor_deg, t, name="Motor", unit=motor_unit),
+                Signal(rec.load_deg, t, name="Load", unit=load_unit),
+            ]
+        ],
+    )
 
 
 @pytest.fixture(scope="module")
@@ -78,7 +86,12 @@ def test_conversion_is_applied_and_units_convert_to_degrees(tmp_path):
     raw = np.arange(100, dtype=np.uint16)
     path = write_mdf(
         tmp_path / "conv.mf4",
-        [[Signal(raw, t, name="M", unit="rev", conversion={"a": 0.01, "b": 1.0}), Signal(np.full(100, np.pi), t, name="L", unit="RAD")]],
+        [
+            [
+                Signal(raw, t, name="M", unit="rev", conversion={"a": 0.01, "b": 1.0}),
+                Signal(np.full(100, np.pi), t, name="L", unit="RAD"),
+            ]
+        ],
     )
     values, counters = read_all(path, columns={"motor": "M", "load": "L"})
     np.testing.assert_allclose(values[:, 1], (raw * 0.01 + 1.0) * 360.0)
@@ -101,7 +114,10 @@ def test_groups_at_other_rates_are_put_on_the_motor_time_base(small):
 def test_a_load_channel_at_a_lower_rate_is_interpolated(tmp_path):
     t = np.arange(1000) * 1e-3
     slow = np.arange(200) * 5e-3
-    path = write_mdf(tmp_path / "rates.mf4", [[Signal(t * 10, t, name="Motor", unit="deg")], [Signal(slow * 2, slow, name="Load", unit="deg")]])
+    path = write_mdf(
+        tmp_path / "rates.mf4",
+        [[Signal(t * 10, t, name="Motor", unit="deg")], [Signal(slow * 2, slow, name="Load", unit="deg")]],
+    )
     values, counters = read_all(path, columns=MAP)
     np.testing.assert_allclose(values[:, 2], 2 * values[:, 0], atol=1e-12)
     assert counters.samples + counters.skipped == 1000
@@ -120,10 +136,17 @@ def test_a_missing_channel_names_the_closest(small):
 
 def test_unknown_unit_and_counts_without_cpr_name_the_channel(tmp_path):
     t = np.arange(10) * 1e-3
-    volts = write_mdf(tmp_path / "v.mf4", [[Signal(t, t, name="Motor", unit="V"), Signal(t, t, name="Load", unit="deg")]])
-    with pytest.raises(LogFormatError, match=r"v\.mf4: motor channel 'Motor' has unit 'V', not an angle.*load channel 'Load' has unit 'deg'"):
+    volts = write_mdf(
+        tmp_path / "v.mf4", [[Signal(t, t, name="Motor", unit="V"), Signal(t, t, name="Load", unit="deg")]]
+    )
+    with pytest.raises(
+        LogFormatError,
+        match=r"v\.mf4: motor channel 'Motor' has unit 'V', not an angle.*load channel 'Load' has unit 'deg'",
+    ):
         read_all(volts, columns=MAP)
-    counts = write_mdf(tmp_path / "c.mf4", [[Signal(t, t, name="Motor", unit="deg"), Signal(t, t, name="Load", unit="")]])
+    counts = write_mdf(
+        tmp_path / "c.mf4", [[Signal(t, t, name="Motor", unit="deg"), Signal(t, t, name="Load", unit="")]]
+    )
     with pytest.raises(LogFormatError, match=r"load channel 'Load' is in encoder counts.*load_cpr"):
         read_all(counts, columns=MAP)
     with pytest.raises(InvalidParameterError, match="unknown column roles"):
@@ -135,7 +158,9 @@ def test_non_finite_samples_raise_or_are_counted(tmp_path, bad):
     t = np.arange(50) * 1e-3
     load = np.sin(t)
     load[17] = bad
-    path = write_mdf(tmp_path / "nan.mf4", [[Signal(t, t, name="Motor", unit="deg"), Signal(load, t, name="Load", unit="deg")]])
+    path = write_mdf(
+        tmp_path / "nan.mf4", [[Signal(t, t, name="Motor", unit="deg"), Signal(load, t, name="Load", unit="deg")]]
+    )
     with pytest.raises(LogFormatError, match=r"nan\.mf4:17: non-finite value in load 'Load'"):
         read_all(path, columns=MAP)
     values, counters = read_all(path, columns=MAP, skip_bad=True)
@@ -145,7 +170,9 @@ def test_non_finite_samples_raise_or_are_counted(tmp_path, bad):
 def test_time_going_backwards_raises_or_is_counted(tmp_path):
     t = np.arange(50) * 1e-3
     t[30] = 0.0
-    path = write_mdf(tmp_path / "back.mf4", [[Signal(t, t, name="Motor", unit="deg"), Signal(t, t, name="Load", unit="deg")]])
+    path = write_mdf(
+        tmp_path / "back.mf4", [[Signal(t, t, name="Motor", unit="deg"), Signal(t, t, name="Load", unit="deg")]]
+    )
     with pytest.raises(LogFormatError, match=r"back\.mf4:30: time goes backwards"):
         read_all(path, columns=MAP)
     values, counters = read_all(path, columns=MAP, skip_bad=True)

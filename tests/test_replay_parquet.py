@@ -68,7 +68,9 @@ def test_timestamp_time_integer_counts_and_unit_metadata(tmp_path):
             pa.field("enc_l", pa.float32(), metadata={"unit": "rad"}),
         ]
     )
-    table = pa.table([stamps, pa.array(np.arange(n, dtype=np.int32)), pa.array(np.full(n, np.pi / 2, np.float32))], schema=schema)
+    table = pa.table(
+        [stamps, pa.array(np.arange(n, dtype=np.int32)), pa.array(np.full(n, np.pi / 2, np.float32))], schema=schema
+    )
     path = tmp_path / "typed.parquet"
     pq.write_table(table, path)
     values, _ = read_all(path, columns={"time": "ts", "motor": "enc_m", "load": "enc_l"}, motor_cpr=360)
@@ -140,9 +142,25 @@ def test_track_and_diagnose_read_a_parquet_log(capsys, tmp_path):
     assert main(["diagnose", str(path), "--ratio", "30", *mapping, "--json"]) == 0, capsys.readouterr().err
     diagnosis = json.loads(capsys.readouterr().out)
     assert diagnosis["samples"] == rec.time_s.size and abs(diagnosis["backlash_before_deg"] - 0.5) < 0.02
-    argv = ["track", str(path), "--ratio", "30", "--db", str(tmp_path / "wear.db"), "--gearbox", "gb1", "--every", "5", "--quiet", *mapping]
+    argv = [
+        "track",
+        str(path),
+        "--ratio",
+        "30",
+        "--db",
+        str(tmp_path / "wear.db"),
+        "--gearbox",
+        "gb1",
+        "--every",
+        "5",
+        "--quiet",
+        *mapping,
+    ]
     assert main(argv) == 0, capsys.readouterr().err
-    assert re.match(rf"gb1: {re.escape(str(path))}: {rec.time_s.size} samples, [1-9][0-9]* estimates added; backlash 0\.(49|50)", capsys.readouterr().out)
+    assert re.match(
+        rf"gb1: {re.escape(str(path))}: {rec.time_s.size} samples, [1-9][0-9]* estimates added; backlash 0\.(49|50)",
+        capsys.readouterr().out,
+    )
 
 
 @pytest.mark.parametrize("kind", ["float64", "float32", "int32", "uint16", "int64"])
@@ -162,15 +180,27 @@ def test_a_time_that_never_advances_is_an_error_and_repeated_times_warn(tmp_path
 
     n = 100
     frozen = tmp_path / "frozen.parquet"
-    pq.write_table(pa.table({"t": np.zeros(n), "m": np.arange(n, dtype=float), "l": np.arange(n, dtype=float)}), frozen, row_group_size=30)
-    with ParquetLog(frozen, columns=MAP, block_rows=16) as log, pytest.raises(LogFormatError, match="never advances") as err:
+    pq.write_table(
+        pa.table({"t": np.zeros(n), "m": np.arange(n, dtype=float), "l": np.arange(n, dtype=float)}),
+        frozen,
+        row_group_size=30,
+    )
+    with (
+        ParquetLog(frozen, columns=MAP, block_rows=16) as log,
+        pytest.raises(LogFormatError, match="never advances") as err,
+    ):
         list(log.iter_chunks())
     assert "frozen.parquet" in str(err.value)
     t = np.arange(n) * 1e-3
     t[10], t[50], t[51] = t[9], t[49], t[49]  # three samples repeat the previous time
     repeated = tmp_path / "repeated.parquet"
-    pq.write_table(pa.table({"t": t, "m": np.arange(n, dtype=float), "l": np.arange(n, dtype=float)}), repeated, row_group_size=30)
-    with ParquetLog(repeated, columns=MAP, block_rows=16) as log, pytest.warns(BacklashWarning, match="3 of 100 samples repeat"):
+    pq.write_table(
+        pa.table({"t": t, "m": np.arange(n, dtype=float), "l": np.arange(n, dtype=float)}), repeated, row_group_size=30
+    )
+    with (
+        ParquetLog(repeated, columns=MAP, block_rows=16) as log,
+        pytest.warns(BacklashWarning, match="3 of 100 samples repeat"),
+    ):
         assert sum(len(c) for c in log.iter_chunks()) == n
 
 
@@ -232,7 +262,11 @@ def test_an_arrow_file_streams_with_flat_memory(tmp_path):
     reading 96 MB of samples leaves the resident memory within a few batches of where it started."""
     n = 4_000_000
     path = tmp_path / "big.arrow"
-    feather.write_feather(pa.table({"time": np.arange(n) * 1e-3, "motor": np.zeros(n), "load": np.zeros(n)}), path, compression="uncompressed")
+    feather.write_feather(
+        pa.table({"time": np.arange(n) * 1e-3, "motor": np.zeros(n), "load": np.zeros(n)}),
+        path,
+        compression="uncompressed",
+    )
 
     def resident_mb() -> float:
         with open("/proc/self/statm") as statm:
@@ -261,5 +295,7 @@ def test_an_arrow_files_blocks_do_not_hold_its_record_batches(tmp_path):
         blocks = list(log.iter_chunks())
         held = pa.total_allocated_bytes() - before
     assert sum(len(block) for block in blocks) == n
-    np.testing.assert_array_equal(np.concatenate([block.motor_deg for block in blocks]), table.column("motor").to_numpy())
+    np.testing.assert_array_equal(
+        np.concatenate([block.motor_deg for block in blocks]), table.column("motor").to_numpy()
+    )
     assert held < 1 << 20, f"the blocks hold {held / 2**20:.1f} MB of pyarrow's record batches"

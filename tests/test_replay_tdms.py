@@ -37,14 +37,22 @@ def small(tmp_path):
     t = np.arange(200) * 1e-3
     return write_tdms(
         tmp_path / "small.tdms",
-        [("Rig", "Motor", 30 * np.sin(t), wave()), ("Rig", "Load", np.sin(t), wave()), ("Slow", "Torque", 2.0 + np.arange(20) * 1e-2, wave(1e-2, unit="Nm"))],
+        [
+            ("Rig", "Motor", 30 * np.sin(t), wave()),
+            ("Rig", "Load", np.sin(t), wave()),
+            ("Slow", "Torque", 2.0 + np.arange(20) * 1e-2, wave(1e-2, unit="Nm")),
+        ],
         segments=3,
     )
 
 
 def test_estimate_of_a_tdms_equals_the_csv_of_the_same_recording(capsys, tmp_path):
     rec = rig_recording()
-    path = write_tdms(tmp_path / "rig.tdms", [("Rig", "Motor", rec.motor_deg, wave()), ("Rig", "Load", rec.load_deg, wave())], segments=4)
+    path = write_tdms(
+        tmp_path / "rig.tdms",
+        [("Rig", "Motor", rec.motor_deg, wave()), ("Rig", "Load", rec.load_deg, wave())],
+        segments=4,
+    )
     assert_same_estimate_as_csv(capsys, tmp_path, rec, path, "--columns", "motor=Rig/Motor,load=Load")
 
 
@@ -82,17 +90,28 @@ def test_start_offset_and_block_size(small):
 def test_missing_channel_lists_the_closest_and_ambiguous_names_are_refused(small, tmp_path):
     with pytest.raises(LogFormatError, match=r"small\.tdms: no channel 'Rig/Motr' for motor \(closest: \['Rig/Motor'"):
         read_all(small, columns={"motor": "Rig/Motr", "load": "Rig/Load"})
-    two = write_tdms(tmp_path / "two.tdms", [("A", "Motor", np.zeros(5), wave()), ("B", "Motor", np.zeros(5), wave()), ("A", "Load", np.zeros(5), wave())])
+    two = write_tdms(
+        tmp_path / "two.tdms",
+        [("A", "Motor", np.zeros(5), wave()), ("B", "Motor", np.zeros(5), wave()), ("A", "Load", np.zeros(5), wave())],
+    )
     with pytest.raises(LogFormatError, match=r"'Motor' for motor is in several groups"):
         read_all(two, columns={"motor": "Motor", "load": "Load"})
 
 
 def test_no_time_and_a_unit_mismatch_are_errors(tmp_path):
-    path = write_tdms(tmp_path / "notime.tdms", [("G", "Motor", np.zeros(5), {"unit_string": "deg"}), ("G", "Load", np.zeros(5), {"unit_string": "deg"})])
+    path = write_tdms(
+        tmp_path / "notime.tdms",
+        [("G", "Motor", np.zeros(5), {"unit_string": "deg"}), ("G", "Load", np.zeros(5), {"unit_string": "deg"})],
+    )
     with pytest.raises(LogFormatError, match=r"notime\.tdms: motor channel 'G/Motor' has no wf_increment"):
         read_all(path, columns={"motor": "G/Motor", "load": "G/Load"})
-    path = write_tdms(tmp_path / "mismatch.tdms", [("G", "Motor", np.zeros(5), wave()), ("G", "Load", np.zeros(5), wave(unit="Nm"))])
-    with pytest.raises(LogFormatError, match=r"load channel 'G/Load' has unit 'Nm', not an angle.*motor channel 'G/Motor' has unit 'deg'"):
+    path = write_tdms(
+        tmp_path / "mismatch.tdms", [("G", "Motor", np.zeros(5), wave()), ("G", "Load", np.zeros(5), wave(unit="Nm"))]
+    )
+    with pytest.raises(
+        LogFormatError,
+        match=r"load channel 'G/Load' has unit 'Nm', not an angle.*motor channel 'G/Motor' has unit 'deg'",
+    ):
         read_all(path, columns={"motor": "G/Motor", "load": "G/Load"})
 
 
@@ -101,7 +120,9 @@ def test_non_finite_and_backward_time_raise_or_are_counted(tmp_path):
     t[40] = 0.01
     motor = np.sin(t)
     motor[7] = np.nan
-    path = write_tdms(tmp_path / "bad.tdms", [("G", "t", t, {}), ("G", "Motor", motor, {}), ("G", "Load", np.cos(t), {})])
+    path = write_tdms(
+        tmp_path / "bad.tdms", [("G", "t", t, {}), ("G", "Motor", motor, {}), ("G", "Load", np.cos(t), {})]
+    )
     columns = {"time": "G/t", "motor": "G/Motor", "load": "G/Load"}
     with pytest.raises(LogFormatError, match=r"bad\.tdms:7: non-finite value in motor 'G/Motor'"):
         read_all(path, columns=columns)
@@ -123,7 +144,10 @@ def test_a_truncated_file_raises_or_gives_its_complete_part(small, tmp_path):
     for cut in (len(data) // 2, len(data) - 7):
         path = tmp_path / f"cut{cut}.tdms"
         path.write_bytes(data[:cut])
-        with pytest.raises(LogFormatError, match=rf"cut{cut}.tdms: truncated: the file ends inside its last segment \(readable values: Rig/Motor"):
+        with pytest.raises(
+            LogFormatError,
+            match=rf"cut{cut}.tdms: truncated: the file ends inside its last segment \(readable values: Rig/Motor",
+        ):
             read_all(path, columns=MAP)
         values, counters = read_all(path, columns=MAP, skip_bad=True)
         assert 0 < values.shape[0] <= 200 and counters.frames == counters.samples + counters.skipped + counters.corrupt

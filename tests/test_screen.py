@@ -18,7 +18,13 @@ from same_answer import assert_same_answer
 from online_backlash.cli import main as cli
 from online_backlash.diagnostics import _folds
 from online_backlash.diagnostics._folds import N_FOLDS, SCREEN_CYCLES, SCREEN_FACTOR, SCREEN_STRIDE, cycle_folds
-from online_backlash.diagnostics._harmonics import harmonic_at_sources, harmonic_columns, held_harmonic, held_per_flank, shaft_harmonic
+from online_backlash.diagnostics._harmonics import (
+    harmonic_at_sources,
+    harmonic_columns,
+    held_harmonic,
+    held_per_flank,
+    shaft_harmonic,
+)
 from online_backlash.diagnostics._record_cache import RecordCache
 from online_backlash.diagnostics._scoring import DetectionData
 from online_backlash.diagnostics._speed import held_spline_columns, record_velocity, speed_knots
@@ -56,8 +62,12 @@ def test_the_screen_keeps_whole_cycles_one_of_each_fold_spread_over_the_record()
     kept = screen.kept
     assert kept is not None and len(kept) == SCREEN_CYCLES
     groups = [kept[i : i + N_FOLDS] for i in range(0, len(kept), N_FOLDS)]
-    assert all(list(g) == list(range(g[0], g[0] + N_FOLDS)) and g[0] % N_FOLDS == 0 for g in groups)  # one cycle of each fold
-    assert groups[0][0] == 0 and groups[-1][0] == N_FOLDS * (folds.n_cycles // N_FOLDS - 1)  # the first and the last group
+    assert all(
+        list(g) == list(range(g[0], g[0] + N_FOLDS)) and g[0] % N_FOLDS == 0 for g in groups
+    )  # one cycle of each fold
+    assert groups[0][0] == 0 and groups[-1][0] == N_FOLDS * (
+        folds.n_cycles // N_FOLDS - 1
+    )  # the first and the last group
     assert [f for f, _, _ in screen.segments] == [c % N_FOLDS for c in kept]
     assert screen.segments == [folds.segments[c] for c in kept]
     every = np.concatenate([np.arange(a, b) for _, a, b in screen.segments])
@@ -67,7 +77,9 @@ def test_the_screen_keeps_whole_cycles_one_of_each_fold_spread_over_the_record()
     rows = np.concatenate([np.arange(a, b)[::SCREEN_STRIDE] for _, a, b in screen.segments])
     np.testing.assert_array_equal(screen.row_index, rows)
     assert screen.rows == rows.size < every.size < u.size
-    assert [b - a for _, a, b in screen.compact_segments] == [len(range(a, b, SCREEN_STRIDE)) for _, a, b in screen.segments]
+    assert [b - a for _, a, b in screen.compact_segments] == [
+        len(range(a, b, SCREEN_STRIDE)) for _, a, b in screen.segments
+    ]
     assert [k for k, _, _ in screen.compact_segments] == [k for k, _, _ in screen.segments]
     assert all(s[2] == t[1] for s, t in zip(screen.compact_segments, screen.compact_segments[1:]))  # side by side
     assert screen.compact_segments[0][1] == 0 and screen.compact_segments[-1][2] == rows.size
@@ -87,7 +99,9 @@ def test_a_record_of_few_cycles_is_not_screened(cycles):
     assert few.screen(cycles=3) is few  # asked for so few that two groups of five would be every cycle
 
 
-def _screened_data(cycles: int = 64, index: bool = True, cache: RecordCache | None = None) -> tuple[DetectionData, DetectionData]:
+def _screened_data(
+    cycles: int = 64, index: bool = True, cache: RecordCache | None = None
+) -> tuple[DetectionData, DetectionData]:
     """The same record and residual scored over every cycle and over a screen."""
     u, t = _reversing(cycles)
     rng = np.random.default_rng(1)
@@ -95,7 +109,14 @@ def _screened_data(cycles: int = 64, index: bool = True, cache: RecordCache | No
     idx = np.maximum.accumulate(np.where(rng.random(u.size) < 0.8, np.arange(u.size), 0)) if index else None
     folds = cycle_folds(u)
     nuisance = [np.ones_like(u), u / 20.0]
-    fields = {"u_deg": u, "time_s": t, "torque_Nm": np.full(u.size, np.nan), "ratio": 30.0, "sample_period_s": 1e-3, "engaged_index": idx}
+    fields = {
+        "u_deg": u,
+        "time_s": t,
+        "torque_Nm": np.full(u.size, np.nan),
+        "ratio": 30.0,
+        "sample_period_s": 1e-3,
+        "engaged_index": idx,
+    }
     full = DetectionData.stacked(nuisance, r, folds=folds, cache=cache, **fields)
     return full, DetectionData.stacked(nuisance, r, folds=folds.screen(), cache=cache, **fields)
 
@@ -169,7 +190,9 @@ def test_a_screen_holds_harmonics_from_the_stack_at_the_rows_its_scores_read(bud
     # every sample scored: the record's stack and the engaged index
     columns, positions, rows = harmonic_at_sources(full, "load", u, 5, 24)
     assert rows is None and np.array_equal(positions, full.engaged_index)
-    np.testing.assert_array_equal(held_harmonic(full, "load", u, 5, 24), full.hold(shaft_harmonic(full, "load", u, 5, 24)))
+    np.testing.assert_array_equal(
+        held_harmonic(full, "load", u, 5, 24), full.hold(shaft_harmonic(full, "load", u, 5, 24))
+    )
 
 
 def test_a_joint_fit_over_rows_is_the_least_squares_of_those_rows_and_reports_the_whole_residual():
@@ -181,6 +204,7 @@ def test_a_joint_fit_over_rows_is_the_least_squares_of_those_rows_and_reports_th
     cols = harmonic_columns(u, [2])
     every = fit_guarded(uc, yc, cols, base.params_)
     same = fit_guarded(uc, yc, cols, base.params_, rows=np.arange(u.size))
+
     def p(fit):
         return [fit.params.m_left, fit.params.c_left, fit.params.m_right, fit.params.c_right]
 
@@ -213,8 +237,13 @@ def test_the_loop_on_a_screen_finds_what_it_finds_on_every_cycle():
     assert screened.screened_cycles == SCREEN_CYCLES and plain.screened_cycles is None
     a, b = screened.as_dict(), plain.as_dict()
     assert [e["name"] for e in a["effects"]] == [e["name"] for e in b["effects"]] == ["transmission_error"]
-    assert a["effects"][0]["parameters"]["harmonics"][0]["order_per_rev"] == b["effects"][0]["parameters"]["harmonics"][0]["order_per_rev"]
-    assert a["effects"][0]["evidence"]["delta_bic_eff"] == b["effects"][0]["evidence"]["delta_bic_eff"]  # scored on every cycle, bit for bit
+    assert (
+        a["effects"][0]["parameters"]["harmonics"][0]["order_per_rev"]
+        == b["effects"][0]["parameters"]["harmonics"][0]["order_per_rev"]
+    )
+    assert (
+        a["effects"][0]["evidence"]["delta_bic_eff"] == b["effects"][0]["evidence"]["delta_bic_eff"]
+    )  # scored on every cycle, bit for bit
     assert a.pop("screened_cycles") == SCREEN_CYCLES and b.pop("screened_cycles") is None
     # the same orders, amplitudes and phases, evidence, RMS and play: the fit on every sample starts at the
     # screen's, so it ends at the same least squares to the search's tolerance

@@ -29,7 +29,9 @@ def test_a_record_of_short_cycles_is_screened_on_as_many_as_hold_the_minimum_of_
     screen = folds.screen()
     assert screen.screened
     kept = screen.cycle_rows.size
-    assert SCREEN_MIN_SAMPLES <= kept < SCREEN_MIN_SAMPLES + 5 * 1000  # whole groups of five cycles: at most one group more
+    assert (
+        SCREEN_MIN_SAMPLES <= kept < SCREEN_MIN_SAMPLES + 5 * 1000
+    )  # whole groups of five cycles: at most one group more
     assert len(screen.segments) > SCREEN_CYCLES
 
 

@@ -45,7 +45,11 @@ def test_records_split_anywhere_give_the_same_samples(rec, fmt):
     pieces = [stream[a:b] for a, b in zip(np.r_[0, np.sort(cuts)], np.r_[np.sort(cuts), len(stream)])]
     split = [s for p in pieces for s in bits.feed(p)]
     assert split == whole and len(whole) == rec.time_s.size
-    assert np.array_equal([s.load_deg for s in whole], rec.load_deg) if fmt == "binary" else np.allclose([s.load_deg for s in whole], rec.load_deg, atol=1e-9)
+    assert (
+        np.array_equal([s.load_deg for s in whole], rec.load_deg)
+        if fmt == "binary"
+        else np.allclose([s.load_deg for s in whole], rec.load_deg, atol=1e-9)
+    )
     assert reconciles(bits.counters) and bits.counters.corrupt == 0
 
 
@@ -130,7 +134,9 @@ def fit(samples, ratio):
     return VorosBacklash().fit(u, np.array([s.load_deg for s in samples]))
 
 
-@pytest.mark.parametrize(("fmt", "port"), [("ascii", "loop://"), ("binary", "loop://"), ("binary", "pty"), ("ascii", "pty")])
+@pytest.mark.parametrize(
+    ("fmt", "port"), [("ascii", "loop://"), ("binary", "loop://"), ("binary", "pty"), ("ascii", "pty")]
+)
 def test_live_estimates_equal_the_replayed_capture_bit_for_bit(tmp_path, rec, fmt, port):
     payload = faulty_stream(rec, fmt)
     if port == "pty":

@@ -87,8 +87,9 @@ def server(fleet_db):
 def browser(tmp_path):
     """Debian's chromium, headless, through selenium and chromedriver. Missing: a failure, not a skip."""
     if not (CHROMIUM.exists() and CHROMEDRIVER.exists()):
-        pytest.fail("chromium and chromedriver are needed: apt-get install chromium chromium-driver "
-                    "(scripts/test does)")
+        pytest.fail(
+            "chromium and chromedriver are needed: apt-get install chromium chromium-driver (scripts/test does)"
+        )
     from selenium import webdriver
     from selenium.webdriver.chrome.service import Service
 
@@ -173,7 +174,9 @@ def test_the_store_is_opened_read_only(store_db):
     _fill_fleet(store_db)
     with open_read_only(store_db) as store:
         assert store.gearbox_ids() == ["GB-1", "GB-2"]
-        with pytest.raises(DBAPIError, match=r"readonly database|read-only transaction"):  # refused by the database itself
+        with pytest.raises(
+            DBAPIError, match=r"readonly database|read-only transaction"
+        ):  # refused by the database itself
             store.set_alarm_levels("GB-3", 30.0, limit_arcmin=21.0)
     with HistoryStore(store_db) as store:
         assert store.gearbox_ids() == ["GB-1", "GB-2"] and store.gearbox("GB-1").revision == 2
@@ -192,7 +195,10 @@ def _history_json(db, gearbox_id: str) -> dict:
     code = "import sys; from online_backlash.cli import main; sys.exit(main())"
     done = subprocess.run(
         [sys.executable, "-c", code, "history", "--db", str(db), "--gearbox", gearbox_id, "--json"],
-        capture_output=True, text=True, timeout=120, check=True,
+        capture_output=True,
+        text=True,
+        timeout=120,
+        check=True,
     )
     return json.loads(done.stdout)
 

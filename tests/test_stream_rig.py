@@ -16,7 +16,16 @@ from online_backlash.replay import LOG_READERS, CsvLog, open_log, read_csv_array
 from online_backlash.replay.canlog import CanLog
 from online_backlash.replay.serialcapture import SerialCapture
 from online_backlash.simulation.rig import quantise, simulate_rig
-from online_backlash.stream import Gap, Sample, SampleSource, StreamCounters, chunked, concat_chunks, rechunk, refer_to_load
+from online_backlash.stream import (
+    Gap,
+    Sample,
+    SampleSource,
+    StreamCounters,
+    chunked,
+    concat_chunks,
+    rechunk,
+    refer_to_load,
+)
 
 
 def test_sample_is_frozen_and_checks_finiteness():
@@ -63,7 +72,9 @@ def test_rechunk_gives_blocks_of_exactly_max_samples_in_order():
 SOURCES = [CsvLog, CanLog, SerialCapture, LiveSource, CanSource, SerialSource]
 
 
-@pytest.mark.parametrize("cls", SOURCES + sorted({r for r in LOG_READERS.values() if isinstance(r, type)} - set(SOURCES), key=str))
+@pytest.mark.parametrize(
+    "cls", SOURCES + sorted({r for r in LOG_READERS.values() if isinstance(r, type)} - set(SOURCES), key=str)
+)
 def test_every_source_keeps_the_one_contract(cls):
     """One ``iter_chunks(max_samples=None)`` signature; iteration and the context manager come from SampleSource."""
     assert issubclass(cls, SampleSource)

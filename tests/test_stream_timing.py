@@ -43,7 +43,9 @@ RIG_SIGNALS = ["--dbc", "rig", "--motor-signal", "MotorAngle.Count", "--load-sig
 
 def chunk_of(values: np.ndarray) -> SampleChunk:
     n = values.size
-    return SampleChunk(values.astype(float), values.astype(float), values.astype(float), np.full(n, np.nan), np.zeros(n, bool))
+    return SampleChunk(
+        values.astype(float), values.astype(float), values.astype(float), np.full(n, np.nan), np.zeros(n, bool)
+    )
 
 
 # -- reading ahead ------------------------------------------------------------------------------
@@ -102,7 +104,16 @@ def test_the_compiled_estimator_loops_count_no_references():
 
     vec, flags = types.float64[::1], types.boolean[::1]
     signatures = {
-        _rls_kernels.backlash_run: (vec, vec, vec, vec, flags, types.int8[::1], types.int64[::1], types.float64[:, ::1]),
+        _rls_kernels.backlash_run: (
+            vec,
+            vec,
+            vec,
+            vec,
+            flags,
+            types.int8[::1],
+            types.int64[::1],
+            types.float64[:, ::1],
+        ),
         _rls_kernels.cascade_run: (vec, vec, vec, vec, flags, vec, vec),
     }
     for loop, signature in signatures.items():
@@ -123,9 +134,16 @@ def measurement_files(tmp_path_factory):
     rec = simulate_rig(duration_s=60.0, ratio=30.0, play_deg=0.5, seed=21)
     folder = tmp_path_factory.mktemp("ahead")
     parquet, mf4 = folder / "rig.parquet", folder / "rig.mf4"
-    pq.write_table(pa.table({"time": rec.time_s, "motor": rec.motor_deg, "load": rec.load_deg}), parquet, row_group_size=7000)
+    pq.write_table(
+        pa.table({"time": rec.time_s, "motor": rec.motor_deg, "load": rec.load_deg}), parquet, row_group_size=7000
+    )
     mdf = MDF(version="4.10")
-    mdf.append([Signal(rec.motor_deg, rec.time_s, name="Motor", unit="deg"), Signal(rec.load_deg, rec.time_s, name="Load", unit="deg")])
+    mdf.append(
+        [
+            Signal(rec.motor_deg, rec.time_s, name="Motor", unit="deg"),
+            Signal(rec.load_deg, rec.time_s, name="Load", unit="deg"),
+        ]
+    )
     mdf.save(mf4, overwrite=True)
     mdf.close()
     return {
@@ -212,8 +230,14 @@ def rig_frames():
 def stamped(frames, times):
     out = []
     for i, msg in enumerate(frames):
-        out.append(can.Message(timestamp=T0 + times[i // 2] + (i % 2) * 1e-5, arbitration_id=msg.arbitration_id, data=msg.data,
-                               is_extended_id=msg.is_extended_id))
+        out.append(
+            can.Message(
+                timestamp=T0 + times[i // 2] + (i % 2) * 1e-5,
+                arbitration_id=msg.arbitration_id,
+                data=msg.data,
+                is_extended_id=msg.is_extended_id,
+            )
+        )
     return out
 
 
@@ -242,7 +266,24 @@ def test_the_per_frame_and_block_paths_give_the_counter_time(rig_frames):
 
 def trace_rows(tmp_path, capsys, log, *extra):
     trace = tmp_path / f"{log.stem}-{len(extra)}.csv"
-    assert main(["estimate", str(log), "--ratio", "30", "--json", "--every", "1", "--trace", str(trace), *RIG_SIGNALS, *extra]) == 0
+    assert (
+        main(
+            [
+                "estimate",
+                str(log),
+                "--ratio",
+                "30",
+                "--json",
+                "--every",
+                "1",
+                "--trace",
+                str(trace),
+                *RIG_SIGNALS,
+                *extra,
+            ]
+        )
+        == 0
+    )
     out = json.loads(capsys.readouterr().out)
     with open(trace, newline="") as f:
         return out, list(csv.DictReader(f))
@@ -263,14 +304,40 @@ def test_listen_can_with_bursts_and_period_replays_to_the_same_estimate(tmp_path
     rec = simulate_rig(duration_s=4.0, ratio=30.0, play_deg=0.5, seed=9, reversal_s=(0.4, 0.8))
     frames = list(rig_can_frames(rec, DbcDecoder(RIG_DBC, "MotorAngle.Count", "LoadAngle.Count")))
     messages = stamped(frames, burst_times(rec.time_s.size, np.random.default_rng(5)))
-    argv = ["listen", "can", "--interface", "virtual", "--channel", "burst-can", *RIG_SIGNALS, "--ratio", "30", "--period", "0.001",
-            "--every", "0.5", "--raw-log", str(tmp_path / "raw"), "--json"]
+    argv = [
+        "listen",
+        "can",
+        "--interface",
+        "virtual",
+        "--channel",
+        "burst-can",
+        *RIG_SIGNALS,
+        "--ratio",
+        "30",
+        "--period",
+        "0.001",
+        "--every",
+        "0.5",
+        "--raw-log",
+        str(tmp_path / "raw"),
+        "--json",
+    ]
     assert run_live(argv, lambda _: send_frames("burst-can", messages)) == 0
     live = json.loads(capsys.readouterr().out)
     assert live["samples"] == 4000 and live["gaps"] == 0
     assert main(["estimate", str(tmp_path / "raw"), *RIG_SIGNALS, "--ratio", "30", "--period", "0.001", "--json"]) == 0
     replayed = json.loads(capsys.readouterr().out)
-    keys = ("backlash_deg", "c_left_deg", "c_right_deg", "m_left", "m_right", "residual_rms_deg", "samples", "gaps", "n_reversals")
+    keys = (
+        "backlash_deg",
+        "c_left_deg",
+        "c_right_deg",
+        "m_left",
+        "m_right",
+        "residual_rms_deg",
+        "samples",
+        "gaps",
+        "n_reversals",
+    )
     assert {k: replayed[k] for k in keys} == {k: live[k] for k in keys}
 
 
@@ -292,8 +359,10 @@ SHAFTS = 'BO_ 256 Angles: 8 RIG\n SG_ Motor : 0|32@1- (0.001,0) [-2000000|200000
 
 def shaft_frames(db, rec):
     """The motor multi-turn, the load as a single-turn angle in [0, 360)."""
-    return [frame(db, "Angles", {"Motor": round(m, 3), "Load": round(y % 360.0, 2)}, T0 + t)
-            for t, m, y in zip(rec.time_s.tolist(), rec.motor_deg.tolist(), rec.load_deg.tolist())]
+    return [
+        frame(db, "Angles", {"Motor": round(m, 3), "Load": round(y % 360.0, 2)}, T0 + t)
+        for t, m, y in zip(rec.time_s.tolist(), rec.motor_deg.tolist(), rec.load_deg.tolist())
+    ]
 
 
 def test_a_wrap_for_the_load_signal_alone_unwraps_it_and_leaves_the_motor_multi_turn():
@@ -314,9 +383,31 @@ def test_listen_can_units_overrides_the_dbc_unit_and_wrap_deg_per_signal(tmp_pat
     (tmp_path / "shafts.dbc").write_text('VERSION ""\nBU_: RIG\n' + SHAFTS.format(unit="mil"))
     db = dbc(SHAFTS.format(unit="mil"))
     messages = shaft_frames(db, rec)
-    base = ["listen", "can", "--interface", "virtual", "--channel", "units-can", "--dbc", str(tmp_path / "shafts.dbc"),
-            "--motor-signal", "Motor", "--load-signal", "Load", "--counter-signal", "none", "--checksum-signal", "none",
-            "--ratio", "30", "--json", "--wrap-deg", "motor=none,load=360", "--raw-log", str(tmp_path / "raw")]
+    base = [
+        "listen",
+        "can",
+        "--interface",
+        "virtual",
+        "--channel",
+        "units-can",
+        "--dbc",
+        str(tmp_path / "shafts.dbc"),
+        "--motor-signal",
+        "Motor",
+        "--load-signal",
+        "Load",
+        "--counter-signal",
+        "none",
+        "--checksum-signal",
+        "none",
+        "--ratio",
+        "30",
+        "--json",
+        "--wrap-deg",
+        "motor=none,load=360",
+        "--raw-log",
+        str(tmp_path / "raw"),
+    ]
     assert main([*base, "--duration", "0.1"]) != 0  # a unit it cannot read, named
     assert "mil" in capsys.readouterr().err
     assert run_live([*base, "--units", "deg"], lambda _: send_frames("units-can", messages)) == 0

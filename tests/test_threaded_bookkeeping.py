@@ -44,7 +44,9 @@ def _gapped_chunks(seed: int = 4, size: int = 2_777) -> list[SampleChunk]:
     time_s[70_000] = time_s[69_999]  # a repeated timestamp
     after_gap = np.zeros(n, dtype=bool)
     after_gap[20_003] = after_gap[50_000] = True
-    whole = SampleChunk(time_s[keep], rec.motor_deg[keep], rec.load_deg[keep], np.full(keep.sum(), np.nan), after_gap[keep])
+    whole = SampleChunk(
+        time_s[keep], rec.motor_deg[keep], rec.load_deg[keep], np.full(keep.sum(), np.nan), after_gap[keep]
+    )
     return [whole.slice(i, min(i + size, len(whole))) for i in range(0, len(whole), size)]
 
 
@@ -105,7 +107,10 @@ def test_a_worker_far_behind_the_estimator_still_reads_the_estimate_of_its_tick(
     assert _fit(chunks, 1) == expected
     assert threads == {"online-backlash-bookkeeping"}  # not the caller's thread: the threaded path ran
     inline, threaded = scatters
-    assert inline.scatter.plays_deg.size >= 10 and inline.scatter.plays_deg.tobytes() == threaded.scatter.plays_deg.tobytes()
+    assert (
+        inline.scatter.plays_deg.size >= 10
+        and inline.scatter.plays_deg.tobytes() == threaded.scatter.plays_deg.tobytes()
+    )
     assert inline.scatter.noise_var_deg2.tobytes() == threaded.scatter.noise_var_deg2.tobytes()
 
 

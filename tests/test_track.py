@@ -30,7 +30,9 @@ def write_wear_logs(folder, days, duration_s, play_at_hours, seed=0, every_days=
     paths, recordings = [], []
     for k in range(days):
         hours_before = k * duration_s / 3600.0
-        rec = simulate_rig(duration_s=duration_s, play_deg=lambda t, h=hours_before: play_at_hours(h + t / 3600.0), seed=seed + k)
+        rec = simulate_rig(
+            duration_s=duration_s, play_deg=lambda t, h=hours_before: play_at_hours(h + t / 3600.0), seed=seed + k
+        )
         rec.time_s = rec.time_s + T0 + k * every_days * DAY
         path = folder / f"day{k:02d}.csv"
         rec.write_csv(path)
@@ -96,7 +98,9 @@ def snapshot(db):
     counts transactions: a replay commits the estimates it makes within tracking.COMMIT_EVERY_S together)."""
     with sqlite3.connect(db) as conn:
         return {
-            "gearboxes": conn.execute("SELECT id, ratio, limit_arcmin, checkpoint FROM gearboxes ORDER BY id").fetchall(),
+            "gearboxes": conn.execute(
+                "SELECT id, ratio, limit_arcmin, checkpoint FROM gearboxes ORDER BY id"
+            ).fetchall(),
             "runs": conn.execute(
                 "SELECT id, gearbox_id, source, log_sha256, status, started_unix_s, ended_unix_s, samples_done, "
                 "frames, samples, corrupt, skipped, gaps FROM runs ORDER BY id"
@@ -219,7 +223,12 @@ def test_sigkill_mid_log_then_restart_gives_the_uninterrupted_history(tmp_path):
     # logs long enough (450 estimates each) that the second is still being tracked after its first transactions
     paths, _ = write_wear_logs(tmp_path, days=2, duration_s=900.0, play_at_hours=lambda h: 0.25 + 0.2 * h, seed=20)
     argv = [str(p) for p in paths] + ["--ratio", "30", "--gearbox", "g1", "--every", "2", "--quiet"]
-    command = [sys.executable, "-c", "import sys; from online_backlash.cli import main; sys.exit(main(sys.argv[1:]))", "track"]
+    command = [
+        sys.executable,
+        "-c",
+        "import sys; from online_backlash.cli import main; sys.exit(main(sys.argv[1:]))",
+        "track",
+    ]
     reference, db = tmp_path / "reference.db", tmp_path / "killed.db"
     with HistoryStore(reference, create=True) as store:  # what the command does, uninterrupted
         tracker = GearboxTracker(store, "g1", 30.0, every_s=2.0)
@@ -227,7 +236,9 @@ def test_sigkill_mid_log_then_restart_gives_the_uninterrupted_history(tmp_path):
             tracker.track_log(p)
 
     # cwd: run the installed package, not the source tree (drivers/ and replay/ are mapped at install)
-    proc = subprocess.Popen([*command, *argv, "--db", str(db)], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, cwd=tmp_path)
+    proc = subprocess.Popen(
+        [*command, *argv, "--db", str(db)], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, cwd=tmp_path
+    )
 
     def inside_the_second_log() -> bool:
         assert proc.poll() is None, f"track ended before it could be killed mid-log: {proc.communicate()[1].decode()}"
@@ -266,7 +277,9 @@ def test_a_month_of_wear_trend_and_forecast(tmp_path):
         travel_before = [0.0]  # true load revolutions before each log
         for k in range(DAYS):
             h0 = k * LOG_S / 3600.0
-            rec = simulate_rig(duration_s=LOG_S, play_deg=lambda t, h0=h0: 0.20 + RATE * (h0 + t / 3600.0), seed=100 + k)
+            rec = simulate_rig(
+                duration_s=LOG_S, play_deg=lambda t, h0=h0: 0.20 + RATE * (h0 + t / 3600.0), seed=100 + k
+            )
             rec.time_s = rec.time_s + T0 + k * DAY
             tracker.track_chunks([rec.to_chunk()], f"day {k}", key=f"day-{k}")
             travel = np.abs(np.diff(rec.u_true_deg)) / 360.0
@@ -286,7 +299,9 @@ def test_a_month_of_wear_trend_and_forecast(tmp_path):
     assert last.operating_hours + s["forecast_hours_to_limit"] == pytest.approx(true_hours_at_limit, rel=0.10)
     # at 2 minutes a day the remaining 0.5 h take about 15 more days after the last log
     assert s["usage_hours_per_day"] == pytest.approx(LOG_S / 3600.0, rel=0.05)
-    true_date = dt.datetime.fromtimestamp(T0 + (DAYS - 1) * DAY + (true_hours_at_limit - TOTAL_H) * 3600 / LOG_S * DAY, dt.timezone.utc)
+    true_date = dt.datetime.fromtimestamp(
+        T0 + (DAYS - 1) * DAY + (true_hours_at_limit - TOTAL_H) * 3600 / LOG_S * DAY, dt.timezone.utc
+    )
     assert abs((dt.date.fromisoformat(s["forecast_date"]) - true_date.date()).days) <= 2
     assert len(report.estimates) >= 55
 

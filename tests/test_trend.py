@@ -45,7 +45,9 @@ def test_interval_and_band_contain_the_true_line_about_as_often_as_stated():
 
 def test_band_widens_away_from_the_centre():
     trend = fit_trend(*noisy_line())
-    widths = [float(np.subtract(*trend.band(x))[()]) * -1 for x in (trend.center_x, trend.center_x + 10, trend.center_x + 50)]
+    widths = [
+        float(np.subtract(*trend.band(x))[()]) * -1 for x in (trend.center_x, trend.center_x + 10, trend.center_x + 50)
+    ]
     assert widths[0] == pytest.approx(2 * trend.level_halfwidth_deg)
     assert widths[0] < widths[1] < widths[2]
     low, high = trend.band(np.linspace(0, 60, 7))

@@ -8,7 +8,9 @@ from online_backlash.simulation.two_mass_rig import ARCMIN_PER_DEG, simulate_two
 
 
 def test_engaged_flank_is_flank_offset_plus_windup():
-    rec = simulate_two_mass(duration_s=10, play_deg=0.4, left_fraction=0.3, stiffness_nm_per_arcmin=0.1, torque_noise_nm=0.0, seed=1)
+    rec = simulate_two_mass(
+        duration_s=10, play_deg=0.4, left_fraction=0.3, stiffness_nm_per_arcmin=0.1, torque_noise_nm=0.0, seed=1
+    )
     y_true = rec.load_deg - rec.load_deg[0]  # quantised; offsets removed below via the rest of the identity
     tau = rec.torque_true_Nm
     k_deg = rec.stiffness_nm_per_arcmin * ARCMIN_PER_DEG

@@ -111,8 +111,13 @@ def test_few_plays_fall_back_to_the_floor_and_forgetting_shrinks_the_count():
     rng = np.random.default_rng(3)
     plays = 0.5 + 0.01 * rng.standard_normal(100)
     noise = np.full(100, 1e-4)
-    assert play_uncertainty(plays, w, noise_var_deg2=noise).se_deg > 1.5 * play_uncertainty(plays, noise_var_deg2=noise).se_deg
-    assert play_uncertainty(plays, w).n_effective == pytest.approx((1 + math.exp(-0.1)) / (1 - math.exp(-0.1)), rel=0.01)
+    assert (
+        play_uncertainty(plays, w, noise_var_deg2=noise).se_deg
+        > 1.5 * play_uncertainty(plays, noise_var_deg2=noise).se_deg
+    )
+    assert play_uncertainty(plays, w).n_effective == pytest.approx(
+        (1 + math.exp(-0.1)) / (1 - math.exp(-0.1)), rel=0.01
+    )
     assert forgetting_weights(5, None) is None
 
 
@@ -172,8 +177,11 @@ def test_measured_runs_at_one_torque_setting_agree_within_the_stated_std():
     out = []
     for name in ("tool4_L_run00_0.1Hz_torque10pct.csv", "tool4_L_run20_0.3Hz_torque10pct.csv"):
         log = read_csv_arrays(
-            DAVINCI / name, columns={"time": "time_s", "motor": "motor_counts", "load": "spindle_counts"},
-            units="counts", motor_cpr=4096, load_cpr=8192,
+            DAVINCI / name,
+            columns={"time": "time_s", "motor": "motor_counts", "load": "spindle_counts"},
+            units="counts",
+            motor_cpr=4096,
+            load_cpr=8192,
         )
         report, est = fit_batch(log, -35.0)
         out.append((report.backlash_deg, report.extra["backlash_std_deg"], est.backlash_white_std_))
@@ -188,12 +196,17 @@ def test_torque_aware_repeat_runs_lie_within_two_std_more_often_than_with_the_no
     the std from the per-reversal plays, the misfit and the wind-up the data cannot separate (half of
     the runs fold it into the play, half do not: 0.40 against 0.44-0.45 deg) covers the run pairs."""
     runs = [simulate_two_mass(duration_s=30.0, motion="rig", seed=s) for s in range(8)]
-    for fit in (lambda r: fit_batch(r.to_chunk(), r.ratio), lambda r: fit_recursive([r.to_chunk()], r.ratio, memory_reversals=10.0)):
+    for fit in (
+        lambda r: fit_batch(r.to_chunk(), r.ratio),
+        lambda r: fit_recursive([r.to_chunk()], r.ratio, memory_reversals=10.0),
+    ):
         fitted = [(rep, getattr(est, "estimator", est)) for rep, est in (fit(r) for r in runs)]  # the torque estimator
         assert all(rep.play_method == "torque" and est.play_observable_ for rep, est in fitted)  # it fits the dwells
         new = [(rep.backlash_deg, rep.extra["backlash_std_deg"]) for rep, _ in fitted]
         old = [(rep.backlash_deg, est.backlash_white_std_) for rep, est in fitted]
-        assert all(std >= est.backlash_white_std_ for (_, std), (_, est) in zip(new, fitted))  # floored at the noise-only std
+        assert all(
+            std >= est.backlash_white_std_ for (_, std), (_, est) in zip(new, fitted)
+        )  # floored at the noise-only std
         assert within_two_std(new) >= 0.9 > 0.5 > within_two_std(old)
 
 

@@ -68,10 +68,20 @@ class GapPolicy:
         """True where a gap with time step ``dt_s`` (s) and angle steps ``du_deg``, ``dy_deg`` (deg) is bridged
         (NaN steps, i.e. no sample before the gap, are never bridged)."""
         with np.errstate(invalid="ignore"):
-            return (dt_s > 0.0) & (dt_s <= self.bridge_s) & (np.abs(du_deg) <= self.jump_deg) & (np.abs(dy_deg) <= self.jump_deg)
+            return (
+                (dt_s > 0.0)
+                & (dt_s <= self.bridge_s)
+                & (np.abs(du_deg) <= self.jump_deg)
+                & (np.abs(dy_deg) <= self.jump_deg)
+            )
 
     def split(
-        self, after_gap: np.ndarray, time_s: np.ndarray | None, u: np.ndarray, y: np.ndarray, last: tuple[float, float, float]
+        self,
+        after_gap: np.ndarray,
+        time_s: np.ndarray | None,
+        u: np.ndarray,
+        y: np.ndarray,
+        last: tuple[float, float, float],
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Decide the gaps of one block: ``(restarts, dt_s, bridged)``.
 

@@ -139,7 +139,9 @@ def effect_from_dict(d: dict[str, Any]) -> EffectTerms:
     """The effect saved by :func:`effect_to_dict`: the registered class built with the saved
     arguments (lists become tuples again), with no stream history."""
     if d.get("params") is None:
-        raise InvalidParameterError(f"effect {d.get('name')!r} was saved without its parameters (no get_params()); pass it explicitly")
+        raise InvalidParameterError(
+            f"effect {d.get('name')!r} was saved without its parameters (no get_params()); pass it explicitly"
+        )
     params = {k: tuple(v) if isinstance(v, list) else v for k, v in d["params"].items()}
     effect = effect_class(d["name"])(**params)
     if not isinstance(effect, EffectTerms):

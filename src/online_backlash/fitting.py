@@ -54,7 +54,13 @@ KINEMATIC = {"origin": "first", "full_engagement": True}
 BOOKKEEPING_AHEAD = 2
 
 __all__ = [
-    "ARCMIN_PER_DEG", "TRACE_COLUMNS", "BacklashReport", "describe", "fit_batch", "fit_recursive", "plausibility",
+    "ARCMIN_PER_DEG",
+    "TRACE_COLUMNS",
+    "BacklashReport",
+    "describe",
+    "fit_batch",
+    "fit_recursive",
+    "plausibility",
 ]
 
 
@@ -413,7 +419,11 @@ def fit_recursive(
     if chosen is None or not chosen.started:  # that path never started: its play is null, the lines the other's
         chosen = est.estimator
     report = BacklashReport.from_estimator(
-        "recursive", est.n_samples_seen_, chosen, n_reversals=chosen.n_reversals_, **pipeline.gap_tally.values(),
+        "recursive",
+        est.n_samples_seen_,
+        chosen,
+        n_reversals=chosen.n_reversals_,
+        **pipeline.gap_tally.values(),
     )
     main = est.estimator
     if main.warm_start_.get("method") == "cold" and not main.takes_torque:

@@ -47,5 +47,7 @@ def inspect_file(
     if log_format is None or log_format.describe is None:
         known = suffixes([f for f in FORMATS if f.describe is not None])
         suffix = file_suffix(path)
-        raise LogFormatError(path, None, f"inspect reads {', '.join(known)} files, not {suffix or 'files without a suffix'!r}")
+        raise LogFormatError(
+            path, None, f"inspect reads {', '.join(known)} files, not {suffix or 'files without a suffix'!r}"
+        )
     return log_format.describe(path, dbc=dbc, **csv_options)

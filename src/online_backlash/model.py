@@ -62,9 +62,7 @@ class BacklashParams:
     @property
     def theta(self) -> np.ndarray:
         """The parameter vector of eq. (8): ``[mL, mL cL, mR, mR cR]``."""
-        return np.array(
-            [self.m_left, self.m_left * self.c_left, self.m_right, self.m_right * self.c_right]
-        )
+        return np.array([self.m_left, self.m_left * self.c_left, self.m_right, self.m_right * self.c_right])
 
     def feasible(self) -> BacklashParams:
         """These parameters where the dead band is >= 0, else the nearest with a zero dead band (both
@@ -89,9 +87,7 @@ def heaviside_le0(s: np.ndarray | float) -> np.ndarray:
     return (np.asarray(s) <= 0).astype(float)
 
 
-def switching_functions(
-    u: np.ndarray, x_prev: np.ndarray, params: BacklashParams
-) -> tuple[np.ndarray, np.ndarray]:
+def switching_functions(u: np.ndarray, x_prev: np.ndarray, params: BacklashParams) -> tuple[np.ndarray, np.ndarray]:
     """Eq. (5)-(6) evaluated element-wise: ``f1`` (left line active) and ``f2`` (right line active).
 
     ``x_prev`` holds ``x(t-1)`` for every ``u(t)``. Computed in the first form of (5)-(6),
@@ -122,7 +118,9 @@ def _backlash_loop(u, mL, cL, mR, cR, x0):  # pragma: no cover - compiled
     x = np.empty(n)
     prev = x0
     for t in range(n):
-        prev = sensitivity_step(u[t], prev, mL, cL, mR, cR, 0.0, 0.0, 0.0, 0.0)[0]  # eq. (1)-(3); the derivatives unused
+        prev = sensitivity_step(u[t], prev, mL, cL, mR, cR, 0.0, 0.0, 0.0, 0.0)[
+            0
+        ]  # eq. (1)-(3); the derivatives unused
         x[t] = prev
     return x
 
@@ -175,7 +173,9 @@ def _backlash_varying_loop(u, mL, cL, mR, cR, x0):  # pragma: no cover - compile
     x = np.empty(n)
     prev = x0
     for t in range(n):
-        prev = sensitivity_step(u[t], prev, mL, cL[t], mR, cR[t], 0.0, 0.0, 0.0, 0.0)[0]  # eq. (1)-(3) with cL(t), cR(t)
+        prev = sensitivity_step(u[t], prev, mL, cL[t], mR, cR[t], 0.0, 0.0, 0.0, 0.0)[
+            0
+        ]  # eq. (1)-(3) with cL(t), cR(t)
         x[t] = prev
     return x
 
@@ -253,7 +253,9 @@ def simulate_switching(
     """
     _check_band(params)
     u_prev, f1_prev, f2_prev = (float("nan"), 0.0, 0.0) if previous is None else (float(v) for v in previous)
-    return _switching_loop(_as_input(u), params.m_left, params.c_left, params.m_right, params.c_right, float(x0), u_prev, f1_prev, f2_prev)
+    return _switching_loop(
+        _as_input(u), params.m_left, params.c_left, params.m_right, params.c_right, float(x0), u_prev, f1_prev, f2_prev
+    )
 
 
 @njit(cache=True, nogil=True)
@@ -307,7 +309,9 @@ def backlash_sensitivity(
     u = _as_input(u)
     x, dx = (np.empty(u.size), np.empty((u.size, 4))) if out is None else out
     if x.shape != u.shape or dx.shape != (u.size, 4) or not (x.flags.c_contiguous and dx.flags.c_contiguous):
-        raise InvalidParameterError(f"out must be contiguous arrays of shapes {u.shape} and {(u.size, 4)}, got {x.shape} and {dx.shape}")
+        raise InvalidParameterError(
+            f"out must be contiguous arrays of shapes {u.shape} and {(u.size, 4)}, got {x.shape} and {dx.shape}"
+        )
     _sensitivity_loop(u, params.m_left, params.c_left, params.m_right, params.c_right, float(x0), x, dx)
     return x, dx
 
@@ -325,7 +329,17 @@ def backlash_sensitivity_spans(
     n = int(np.sum(stops - firsts))
     x, dx = np.empty(n), np.empty((n, 4))
     _sensitivity_spans(
-        _as_input(u), params.m_left, params.c_left, params.m_right, params.c_right, starts, firsts, stops, np.ascontiguousarray(x0s, dtype=float), x, dx
+        _as_input(u),
+        params.m_left,
+        params.c_left,
+        params.m_right,
+        params.c_right,
+        starts,
+        firsts,
+        stops,
+        np.ascontiguousarray(x0s, dtype=float),
+        x,
+        dx,
     )
     return x, dx
 

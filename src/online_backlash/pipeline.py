@@ -122,7 +122,9 @@ class DataClock:
         Time of the last sample seen in the current segment (None at the start of one).
     """
 
-    def __init__(self, every_s: float | None, data_ns: int = 0, next_due_ns: int | None = None, prev_time_s: float | None = None) -> None:
+    def __init__(
+        self, every_s: float | None, data_ns: int = 0, next_due_ns: int | None = None, prev_time_s: float | None = None
+    ) -> None:
         self.every_ns = None if every_s is None else max(1, round(check_every(every_s) * 1e9))
         self.data_ns = int(data_ns)
         self.next_due_ns = next_due_ns
@@ -160,7 +162,9 @@ class DataClock:
         self.next_due_ns = int(next_ns[-1]) if has_due else self.next_due_ns
         return tuple(ends[dues].tolist())
 
-    def _cut(self, time_s: np.ndarray, after_gap: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, bool]:
+    def _cut(
+        self, time_s: np.ndarray, after_gap: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, bool]:
         """:func:`_cut` from the clock's state: each block's end, due, data ns and next due ns; and whether
         the clock has a due instant (without ``every_s``, one restored from a state never moves on)."""
         if self.next_due_ns is None and self.every_ns is not None:
@@ -235,7 +239,14 @@ def _block(chunk: SampleChunk, start: int, end: int) -> SampleChunk:
         return chunk
     seq = None if chunk.seq is None else chunk.seq[start:end]
     part = slice(start, end)
-    return SampleChunk(chunk.time_s[part], chunk.motor_deg[part], chunk.load_deg[part], chunk.torque_Nm[part], chunk.after_gap[part], seq)
+    return SampleChunk(
+        chunk.time_s[part],
+        chunk.motor_deg[part],
+        chunk.load_deg[part],
+        chunk.torque_Nm[part],
+        chunk.after_gap[part],
+        seq,
+    )
 
 
 def tail(chunk: SampleChunk, start: int) -> SampleChunk:
@@ -483,11 +494,15 @@ class Pipeline:
                 u, bad = _refer_checked(np.ascontiguousarray(chunk.referred(self.ratio)[0], dtype=float), y, 1.0)
             if bad >= 0:
                 name = "u (motor angle / ratio)" if not math.isfinite(u[bad]) else "y (load angle)"
-                raise InvalidParameterError(f"{name} has non-finite values, first at index {bad} of the chunk (time {chunk.time_s[bad]} s)")
+                raise InvalidParameterError(
+                    f"{name} has non-finite values, first at index {bad} of the chunk (time {chunk.time_s[bad]} s)"
+                )
             learn["assume_finite"] = True
         else:
             u, y = chunk.referred(self.ratio)
-        return _Referred(chunk, u, y, learn, self.clock.ticks(chunk.time_s, chunk.after_gap) if self._whole_chunks else None)
+        return _Referred(
+            chunk, u, y, learn, self.clock.ticks(chunk.time_s, chunk.after_gap) if self._whole_chunks else None
+        )
 
     def _learn(self, referred: _Referred | None) -> Iterator[PipelineStep]:
         """The estimator learns a referred chunk, block by block (or whole, see :meth:`_feed_whole`)."""
@@ -499,7 +514,9 @@ class Pipeline:
             return
         for start, end, due in self.clock.blocks(chunk.time_s, chunk.after_gap):
             block = _block(chunk, start, end)
-            self.estimator.learn_many(u[start:end], y[start:end], block.after_gap, time_s=block.time_s, torque_Nm=block.torque_Nm, **learn)
+            self.estimator.learn_many(
+                u[start:end], y[start:end], block.after_gap, time_s=block.time_s, torque_Nm=block.torque_Nm, **learn
+            )
             self.samples += end - start
             self.samples_since_row += end - start
             self.last_time_s = float(block.time_s[-1])
@@ -508,16 +525,26 @@ class Pipeline:
                 self.samples_since_row = 0
             yield PipelineStep(block, u[start:end], self.samples, row, due, (end - start,) if due else ())
 
-    def _feed_whole(self, chunk: SampleChunk, u: np.ndarray, y: np.ndarray, learn: dict[str, Any], ticks: tuple[int, ...]) -> PipelineStep:
+    def _feed_whole(
+        self, chunk: SampleChunk, u: np.ndarray, y: np.ndarray, learn: dict[str, Any], ticks: tuple[int, ...]
+    ) -> PipelineStep:
         """:meth:`feed` of a pipeline without rows over an estimator that records snapshots: the whole
         chunk in one ``learn_many`` call, the estimate recorded at each of its ``ticks`` (``snapshot_at``);
         the same estimates, ticks and counts as cutting the chunk at the ticks."""
         estimates = self.estimator.learn_many(
-            u, y, chunk.after_gap, time_s=chunk.time_s, torque_Nm=chunk.torque_Nm, snapshot_at=np.array(ticks, dtype=np.int64), **learn
+            u,
+            y,
+            chunk.after_gap,
+            time_s=chunk.time_s,
+            torque_Nm=chunk.torque_Nm,
+            snapshot_at=np.array(ticks, dtype=np.int64),
+            **learn,
         )
         n = len(chunk)
         self.samples += n
-        started = [tick for tick, at in zip(ticks, estimates) if at.started]  # a tick of a started estimator makes its row
+        started = [
+            tick for tick, at in zip(ticks, estimates) if at.started
+        ]  # a tick of a started estimator makes its row
         self.samples_since_row = n - started[-1] if started else self.samples_since_row + n
         self.last_time_s = float(chunk.time_s[-1])
         return PipelineStep(chunk, u, self.samples, None, bool(ticks) and ticks[-1] == n, ticks, estimates)

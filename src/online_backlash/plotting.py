@@ -70,7 +70,11 @@ def plot_hysteresis(curve: Any, path: str | os.PathLike[str], title: str = "", n
     fig = Figure(figsize=(7.5, 5.2))
     ax = fig.subplots()
     q, phi, flank = np.asarray(curve.torque_Nm), np.asarray(curve.torsion_arcmin), np.asarray(curve.flank)
-    for side, colour, label in ((0, "0.75", "in the dead band"), (-1, "C0", "left flank (torque < 0)"), (1, "C3", "right flank (torque > 0)")):
+    for side, colour, label in (
+        (0, "0.75", "in the dead band"),
+        (-1, "C0", "left flank (torque < 0)"),
+        (1, "C3", "right flank (torque > 0)"),
+    ):
         sel = flank == side
         if sel.any():
             ax.plot(q[sel], phi[sel], ".", ms=1.5, color=colour, label=label)
@@ -89,8 +93,12 @@ def plot_hysteresis(curve: Any, path: str | os.PathLike[str], title: str = "", n
             ax.axvline(x, color="k", lw=0.6, ls=":")
         ax.annotate("", xy=(0.0, top), xytext=(0.0, bottom), arrowprops={"arrowstyle": "<->", "color": "k", "lw": 1.0})
         ax.text(
-            0.02, 0.97, f"lost motion {curve.lost_motion_arcmin:.2f} arcmin at +-{t:.3g} N m ({curve.lost_motion_basis})",
-            transform=ax.transAxes, va="top", fontsize=9,
+            0.02,
+            0.97,
+            f"lost motion {curve.lost_motion_arcmin:.2f} arcmin at +-{t:.3g} N m ({curve.lost_motion_basis})",
+            transform=ax.transAxes,
+            va="top",
+            fontsize=9,
         )
     ax.set_xlabel("torque  [N m]")
     ax.set_ylabel("torsion angle  [arcmin]")

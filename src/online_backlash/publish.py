@@ -113,10 +113,19 @@ class MqttTarget:
         except ValueError:
             port = 0
         prefix = parts.path.strip("/")
-        if parts.scheme not in ("mqtt", "mqtts") or not parts.hostname or port <= 0 or not prefix or parts.query or parts.fragment:
+        if (
+            parts.scheme not in ("mqtt", "mqtts")
+            or not parts.hostname
+            or port <= 0
+            or not prefix
+            or parts.query
+            or parts.fragment
+        ):
             raise InvalidParameterError(f"--mqtt: expected mqtt://HOST:PORT/PREFIX (or mqtts:// for TLS), got {url!r}")
         if parts.password is not None:
-            raise InvalidParameterError(f"--mqtt: put the password in the environment variable {PASSWORD_ENV}, not in the URL")
+            raise InvalidParameterError(
+                f"--mqtt: put the password in the environment variable {PASSWORD_ENV}, not in the URL"
+            )
         if "+" in prefix or "#" in url:  # a '#' would be read as a URL fragment
             raise InvalidParameterError(f"--mqtt: the topic prefix {prefix!r} must not contain the wildcards + or #")
         return cls(parts.hostname, port, prefix, tls, parts.username or None)
@@ -144,7 +153,9 @@ def _iso(time_unix_s: float) -> str:
     return dt.datetime.fromtimestamp(time_unix_s, dt.timezone.utc).isoformat()
 
 
-def live_state(row: EstimateRow, time_unix_s: float, warn_arcmin: float | None, limit_arcmin: float | None) -> AlarmStatus:
+def live_state(
+    row: EstimateRow, time_unix_s: float, warn_arcmin: float | None, limit_arcmin: float | None
+) -> AlarmStatus:
     """The alarm state of one live estimate (the latest is current: its own time is "now").
 
     The rules of :func:`~online_backlash.history.alarms.evaluate_alarm`: ``unknown`` without a
@@ -153,7 +164,12 @@ def live_state(row: EstimateRow, time_unix_s: float, warn_arcmin: float | None, 
     """
     one = np.array
     return evaluate_alarm(
-        one([time_unix_s]), one([row.backlash_deg]), one([row.backlash_std_deg]), warn_arcmin, limit_arcmin, now_unix_s=time_unix_s
+        one([time_unix_s]),
+        one([row.backlash_deg]),
+        one([row.backlash_std_deg]),
+        warn_arcmin,
+        limit_arcmin,
+        now_unix_s=time_unix_s,
     )
 
 
@@ -172,7 +188,13 @@ def estimate_message(row: EstimateRow, gearbox_id: str, state: str, time_unix_s:
 def status_message(gearbox_id: str, status: str, reason: str) -> dict[str, Any]:
     """The JSON object published, retained, to ``PREFIX/GEARBOX/status``: ``online`` or ``offline`` and why."""
     now = dt.datetime.now(dt.timezone.utc)
-    return {"gearbox": gearbox_id, "status": status, "reason": reason, "time": now.isoformat(), "time_unix_s": now.timestamp()}
+    return {
+        "gearbox": gearbox_id,
+        "status": status,
+        "reason": reason,
+        "time": now.isoformat(),
+        "time_unix_s": now.timestamp(),
+    }
 
 
 def state_message(status: AlarmStatus, gearbox_id: str, time_unix_s: float) -> dict[str, Any]:
@@ -248,7 +270,9 @@ class MqttPublisher:
         self._figures: dict[str, Any] = {}  # the wear figures as of the last change of state
         self._state_sent: str | None = None  # the state the broker has retained from us
         self._success = mqtt.MQTT_ERR_SUCCESS
-        client = mqtt.Client(mqtt.CallbackAPIVersion.VERSION2, client_id=f"online-backlash-{gearbox_id}-{uuid.uuid4().hex[:8]}")
+        client = mqtt.Client(
+            mqtt.CallbackAPIVersion.VERSION2, client_id=f"online-backlash-{gearbox_id}-{uuid.uuid4().hex[:8]}"
+        )
         client.reconnect_delay_set(*RECONNECT_DELAY_S)
         client.max_queued_messages_set(MAX_QUEUED_MESSAGES)
         client.on_connect = self._on_connect

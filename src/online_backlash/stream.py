@@ -223,7 +223,14 @@ class SampleChunk:
         """Samples ``start`` to ``stop`` (views of the arrays)."""
         part = slice(start, stop)
         seq = None if self.seq is None else self.seq[part]
-        return SampleChunk(self.time_s[part], self.motor_deg[part], self.load_deg[part], self.torque_Nm[part], self.after_gap[part], seq)
+        return SampleChunk(
+            self.time_s[part],
+            self.motor_deg[part],
+            self.load_deg[part],
+            self.torque_Nm[part],
+            self.after_gap[part],
+            seq,
+        )
 
     def referred(self, ratio: float) -> tuple[np.ndarray, np.ndarray]:
         """The estimator's input and output, degrees on the load side: ``(u, y) = (motor_deg / ratio, load_deg)``.
@@ -238,7 +245,12 @@ class SampleChunk:
         """The block as :class:`Sample` objects (torque None where NaN, seq None where absent or negative)."""
         seq = self.seq.tolist() if self.seq is not None else [None] * len(self)
         for t, m, y, q, n, g in zip(
-            self.time_s.tolist(), self.motor_deg.tolist(), self.load_deg.tolist(), self.torque_Nm.tolist(), seq, self.after_gap.tolist()
+            self.time_s.tolist(),
+            self.motor_deg.tolist(),
+            self.load_deg.tolist(),
+            self.torque_Nm.tolist(),
+            seq,
+            self.after_gap.tolist(),
         ):
             yield Sample(t, m, y, None if math.isnan(q) else q, None if n is None or n < 0 else n, g)
 
@@ -270,7 +282,9 @@ def samples_to_chunk(samples: Sequence[Sample]) -> SampleChunk:
         load_deg=np.fromiter((s.load_deg for s in samples), float, n),
         torque_Nm=np.fromiter((np.nan if s.torque_Nm is None else s.torque_Nm for s in samples), float, n),
         after_gap=np.fromiter((s.after_gap for s in samples), bool, n),
-        seq=np.fromiter((-1 if q is None else q for q in seq), np.int64, n) if any(q is not None for q in seq) else None,
+        seq=np.fromiter((-1 if q is None else q for q in seq), np.int64, n)
+        if any(q is not None for q in seq)
+        else None,
     )
 
 
@@ -303,7 +317,9 @@ def concat_chunks(chunks: Sequence[SampleChunk]) -> SampleChunk:
         return np.concatenate([getattr(c, name) for c in chunks])
 
     seq = np.concatenate(seqs) if len(seqs) == len(chunks) else None
-    return SampleChunk(joined("time_s"), joined("motor_deg"), joined("load_deg"), joined("torque_Nm"), joined("after_gap"), seq)
+    return SampleChunk(
+        joined("time_s"), joined("motor_deg"), joined("load_deg"), joined("torque_Nm"), joined("after_gap"), seq
+    )
 
 
 def read_all(source: SampleSource, name: str | os.PathLike[str], empty: str = "no samples") -> SampleChunk:

@@ -90,7 +90,14 @@ from .rows import STORE_COLUMNS, EstimateRow, select, source_counts
 from .stream import SampleChunk, SampleSource, live_clock_offset, refer_to_load
 
 __all__ = [
-    "CLOCK_LIVE", "CLOCK_MTIME", "CLOCK_START", "CLOCK_UNIX", "GearboxTracker", "LogClock", "TrackResult", "log_clock",
+    "CLOCK_LIVE",
+    "CLOCK_MTIME",
+    "CLOCK_START",
+    "CLOCK_UNIX",
+    "GearboxTracker",
+    "LogClock",
+    "TrackResult",
+    "log_clock",
 ]
 
 #: Version of the checkpoint's layout (inside the store's ``gearboxes.checkpoint``).
@@ -113,6 +120,7 @@ def file_sha256(path: str | os.PathLike[str], block_bytes: int = 1 << 20) -> str
 
 #: Samples at the start of a log whose times and angles identify it (:func:`sample_key`).
 IDENTITY_SAMPLES = 4096
+
 
 def sample_key(chunks: Iterable[SampleChunk], n: int = IDENTITY_SAMPLES) -> tuple[str | None, Iterator[SampleChunk]]:
     """A log's identity: SHA-256 (hex) of its first ``n`` samples' ``time_s``, ``motor_deg`` and
@@ -213,7 +221,7 @@ def mtime_overlap(source: str, start_unix_s: float, other: str, inside: str) -> 
     else:
         option = (
             "give each log's start: --start-from-name PATTERN if their names hold it (e.g. '%Y-%m-%d_%H%M%S'), "
-            "a per-log start in a fleet manifest (logs = [{ path = \"...\", start = \"2026-11-02T08:00:00\" }]), "
+            'a per-log start in a fleet manifest (logs = [{ path = "...", start = "2026-11-02T08:00:00" }]), '
             "or --start TIME for one log"
         )
     return (
@@ -231,7 +239,9 @@ def log_files(path: str | os.PathLike[str]) -> list[str]:
     path = os.fspath(path)
     if not os.path.isdir(path):
         return [path]
-    names = sorted(e.name for e in os.scandir(path) if e.is_file() and not e.name.startswith(".") and "-active." not in e.name)
+    names = sorted(
+        e.name for e in os.scandir(path) if e.is_file() and not e.name.startswith(".") and "-active." not in e.name
+    )
     if not names:
         raise LogFormatError(path, None, "no finished log files in this directory")
     return [os.path.join(path, name) for name in names]
@@ -382,7 +392,11 @@ class GearboxTracker:
             )
 
     def track_source(
-        self, source: SampleSource, label: str, progress: ProgressCallback | None = None, on_row: RowCallback | None = None
+        self,
+        source: SampleSource,
+        label: str,
+        progress: ProgressCallback | None = None,
+        on_row: RowCallback | None = None,
     ) -> TrackResult:
         """Feed a live source (``online_backlash.drivers``' CanSource, SerialSource) until it ends.
 
@@ -401,7 +415,9 @@ class GearboxTracker:
         on_row : callable, optional
             ``on_row(row, time_unix_s)`` after each estimate is committed (e.g. to publish it).
         """
-        return self.track_chunks(source.iter_chunks(), label, counters=lambda: source.counters.as_dict(), progress=progress, on_row=on_row)
+        return self.track_chunks(
+            source.iter_chunks(), label, counters=lambda: source.counters.as_dict(), progress=progress, on_row=on_row
+        )
 
     def track_chunks(
         self,
@@ -447,18 +463,26 @@ class GearboxTracker:
         if first is None:
             raise LogFormatError(source, None, "no data rows")
         first_time_s = float(first.time_s[0])
-        placed = clock_offset(first_time_s) if clock_offset is not None else LogClock(live_clock_offset(first_time_s), CLOCK_LIVE)
+        placed = (
+            clock_offset(first_time_s)
+            if clock_offset is not None
+            else LogClock(live_clock_offset(first_time_s), CLOCK_LIVE)
+        )
         offset, clock_name = placed if isinstance(placed, LogClock) else (placed, "")
         known = self.store.find_gearbox(self.gearbox_id)
         self._check_estimator_params(known)
         runs = self.store.runs(self.gearbox_id) if known is not None else []
         stored = next((r for r in runs if key is not None and r.log_sha256 == key), None)
-        if key is not None and known is not None and known.ratio == self.ratio:  # a contradicting ratio: begin_run says so
+        if (
+            key is not None and known is not None and known.ratio == self.ratio
+        ):  # a contradicting ratio: begin_run says so
             check_time_order(runs, key, source, first_time_s + offset, clock_name)
         meter = hour_meter(first_time_s) if hour_meter is not None and (stored is None or not stored.complete) else None
         if meter is not None and stored is None and known is not None:
             check_machine_hours(known.checkpoint, meter.hours_at(first_time_s), first_time_s + offset, source)
-        gearbox, run = self.store.begin_run(self.gearbox_id, self.ratio, source, key, first_time_s + offset, self.limit_arcmin)
+        gearbox, run = self.store.begin_run(
+            self.gearbox_id, self.ratio, source, key, first_time_s + offset, self.limit_arcmin
+        )
         result = TrackResult(self.gearbox_id, run.id, source, resumed_from=run.samples_done, clock=clock_name)
         if run.complete:
             result.already_imported = True
@@ -775,7 +799,9 @@ class TrackerState:
             fresh = recursive_estimator(first, ratio, play_method, no_torque_why, **(estimator_params or {}))
             return cls(Pipeline(fresh, ratio, every_s), UsageCounter(**(usage_params or {})))
         if checkpoint.get("format") != CHECKPOINT_FORMAT:
-            raise HistoryError(f"checkpoint format {checkpoint.get('format')!r} is not {CHECKPOINT_FORMAT}; upgrade online-backlash")
+            raise HistoryError(
+                f"checkpoint format {checkpoint.get('format')!r} is not {CHECKPOINT_FORMAT}; upgrade online-backlash"
+            )
         saved = checkpoint["estimator"]
         kind = TorqueBacklashRLS if saved.get("estimator") == TorqueBacklashRLS.__name__ else BacklashRLS
         main = kind.from_state(saved)
@@ -817,7 +843,11 @@ class TrackerState:
         }
         machine = None if self.meter is None else self.note_machine_hours(self.meter.hours_at(row.time_s), time_unix_s)
         values = {
-            **row.values(), **usage, **self.condition.take(), "sample_index": sample_index, "time_unix_s": time_unix_s,
+            **row.values(),
+            **usage,
+            **self.condition.take(),
+            "sample_index": sample_index,
+            "time_unix_s": time_unix_s,
             "machine_hours": machine,
         }
         est = self.pipeline.estimator
@@ -839,7 +869,12 @@ def track_series(
     """
     m = series.manifest
     tracker = GearboxTracker(
-        store, m["gearbox"], m["ratio"], every_s=m["every_s"], limit_arcmin=m["limit_arcmin"], estimator_params=m["estimator_params"]
+        store,
+        m["gearbox"],
+        m["ratio"],
+        every_s=m["every_s"],
+        limit_arcmin=m["limit_arcmin"],
+        estimator_params=m["estimator_params"],
     )
     usage = MachineUsage(hours_column=m.get("hours_column"))
     results = []

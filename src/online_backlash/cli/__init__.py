@@ -35,7 +35,9 @@ def build_parser() -> argparse.ArgumentParser:
         module.add_subparser(subparsers)
     for subparser in subparsers.choices.values():  # --debug after the subcommand too
         with contextlib.suppress(argparse.ArgumentError):  # a subcommand that declares its own keeps it
-            subparser.add_argument("--debug", action="store_true", default=argparse.SUPPRESS, help="show the full traceback on errors")
+            subparser.add_argument(
+                "--debug", action="store_true", default=argparse.SUPPRESS, help="show the full traceback on errors"
+            )
     return parser
 
 

@@ -72,7 +72,14 @@ def error_line(exc: BaseException, log: str | None = None) -> str:
     return " ".join(text.split())  # one line
 
 
-def _show_warning(message: Warning | str, category: type[Warning], filename: str, lineno: int, file: Any = None, line: str | None = None) -> None:
+def _show_warning(
+    message: Warning | str,
+    category: type[Warning],
+    filename: str,
+    lineno: int,
+    file: Any = None,
+    line: str | None = None,
+) -> None:
     """``warnings.showwarning`` of the CLI: one line ``warning: ...`` on stderr (another library's warning
     with its category, e.g. ``warning: RuntimeWarning: ...``), never the source line of a traceback."""
     text = " ".join(str(message).split())
@@ -103,11 +110,13 @@ def add_counts_options(group: argparse._ActionsContainer) -> None:
     """``--motor-cpr N --load-cpr N``: encoder counts per revolution (:class:`~online_backlash.replay.options.Counts`),
     declared once for every command that reads angles in counts (a CAN decoder takes whole counts)."""
     group.add_argument(
-        "--motor-cpr", type=positive_float,
+        "--motor-cpr",
+        type=positive_float,
         help="motor encoder counts per motor revolution (with --units counts; CAN: from the DBC or dictionary if not given)",
     )
     group.add_argument(
-        "--load-cpr", type=positive_float,
+        "--load-cpr",
+        type=positive_float,
         help="load encoder counts per load revolution (with --units counts; CAN: from the DBC or dictionary if not given)",
     )
 
@@ -116,17 +125,27 @@ def add_csv_dialect_options(group: argparse._ActionsContainer) -> None:
     """``--delimiter C --decimal M --comment C --encoding E``: override what is sniffed of a CSV or delimited text
     file (German Excel: ``--delimiter ';' --decimal ,``; a Windows export: ``--encoding cp1252``)."""
     group.add_argument(
-        "--delimiter", type=_delimiter, metavar="C",
+        "--delimiter",
+        type=_delimiter,
+        metavar="C",
         help="CSV field separator (one character; 'tab' for a tab); default: sniffed from the file (, ; tab |)",
     )
-    group.add_argument("--decimal", choices=(".", ","), help="CSV decimal mark; default: sniffed (',' only with a separator other than ',')")
     group.add_argument(
-        "--comment", metavar="C", type=_comment,
+        "--decimal",
+        choices=(".", ","),
+        help="CSV decimal mark; default: sniffed (',' only with a separator other than ',')",
+    )
+    group.add_argument(
+        "--comment",
+        metavar="C",
+        type=_comment,
         help="CSV lines starting with this character are comments, skipped anywhere; default: '#' lines before "
         "the header",
     )
     group.add_argument(
-        "--encoding", metavar="NAME", type=_encoding,
+        "--encoding",
+        metavar="NAME",
+        type=_encoding,
         help="CSV text encoding, e.g. cp1252 (Windows), latin-1, utf-16; default: UTF-8, or what a byte-order "
         "mark says",
     )
@@ -210,7 +229,9 @@ def check_plot_path(path: str | None) -> None:
     suffix = os.path.splitext(path)[1].lower().lstrip(".")
     formats = FigureCanvasBase.get_supported_filetypes()
     if suffix and suffix not in formats:
-        raise InvalidParameterError(f"{path}: cannot draw a plot as .{suffix}; use one of {', '.join('.' + f for f in sorted(formats))}")
+        raise InvalidParameterError(
+            f"{path}: cannot draw a plot as .{suffix}; use one of {', '.join('.' + f for f in sorted(formats))}"
+        )
 
 
 def add_play_method_option(parser: argparse.ArgumentParser, default: str | None = "auto", new: str = "") -> None:
@@ -243,7 +264,9 @@ def parse_column_map(text: str | None) -> dict[str, str] | None:
     for item in text.split(","):
         key, sep, value = item.partition("=")
         if not sep or not key.strip() or not value.strip():
-            raise InvalidParameterError(f"--columns expects role=column pairs such as time=time_s,motor=m,load=l; got {item!r} in {text!r}")
+            raise InvalidParameterError(
+                f"--columns expects role=column pairs such as time=time_s,motor=m,load=l; got {item!r} in {text!r}"
+            )
         mapping[key.strip()] = value.strip()
     return mapping
 
@@ -267,17 +290,46 @@ def print_json(obj: dict[str, Any]) -> None:
 def add_can_decoding_options(parser: argparse.ArgumentParser, required: bool) -> None:
     """``--dbc F --motor-signal S --load-signal S``: how CAN frames carry the two angles."""
     group = parser.add_argument_group("CAN decoding")
-    group.add_argument("--dbc", required=required, metavar="FILE", help="DBC describing the frames; 'rig' for the example rig.dbc shipped with the package")
-    group.add_argument("--motor-signal", required=required, metavar="MSG.SIGNAL", help="motor angle (counts, deg, rad...), e.g. MotorAngle.Count")
-    group.add_argument("--load-signal", required=required, metavar="MSG.SIGNAL", help="load angle (counts, deg, rad...), e.g. LoadAngle.Count")
     group.add_argument(
-        "--wrap-deg", type=wrap_deg_type, metavar="DEG",
+        "--dbc",
+        required=required,
+        metavar="FILE",
+        help="DBC describing the frames; 'rig' for the example rig.dbc shipped with the package",
+    )
+    group.add_argument(
+        "--motor-signal",
+        required=required,
+        metavar="MSG.SIGNAL",
+        help="motor angle (counts, deg, rad...), e.g. MotorAngle.Count",
+    )
+    group.add_argument(
+        "--load-signal",
+        required=required,
+        metavar="MSG.SIGNAL",
+        help="load angle (counts, deg, rad...), e.g. LoadAngle.Count",
+    )
+    group.add_argument(
+        "--wrap-deg",
+        type=wrap_deg_type,
+        metavar="DEG",
         help="angle signals (deg, rad...) wrap every DEG degrees, e.g. 360, or per signal: motor=360,load=none; default: multi-turn as given",
     )
-    group.add_argument("--counter-signal", default="Counter", metavar="NAME", help="rolling counter signal in those messages ('none': pair by time)")
-    group.add_argument("--checksum-signal", default="Checksum", metavar="NAME", help="CRC-8/SAE-J1850 checksum byte in those messages ('none': no check)")
     group.add_argument(
-        "--max-skew", type=positive_float, metavar="S",
+        "--counter-signal",
+        default="Counter",
+        metavar="NAME",
+        help="rolling counter signal in those messages ('none': pair by time)",
+    )
+    group.add_argument(
+        "--checksum-signal",
+        default="Checksum",
+        metavar="NAME",
+        help="CRC-8/SAE-J1850 checksum byte in those messages ('none': no check)",
+    )
+    group.add_argument(
+        "--max-skew",
+        type=positive_float,
+        metavar="S",
         help="pairing by time (no counter signal; event-driven CANopen TPDOs): "
         "the largest time between the motor's and the load's frame of one sample, seconds (default 1 ms)",
     )
@@ -287,12 +339,24 @@ def add_can_decoding_options(parser: argparse.ArgumentParser, required: bool) ->
 def add_canopen_options(parser: argparse.ArgumentParser) -> None:
     """``--eds F --node N [--load-node N [--load-eds F] | --load-subindex K]``: CANopen drives instead of a DBC."""
     group = parser.add_argument_group("CANopen drives (instead of --dbc)")
-    group.add_argument("--eds", metavar="FILE", help="EDS or DCF of the motor drive: its TPDO mapping carries position actual value 0x6064")
+    group.add_argument(
+        "--eds",
+        metavar="FILE",
+        help="EDS or DCF of the motor drive: its TPDO mapping carries position actual value 0x6064",
+    )
     group.add_argument("--node", type=node_id_type, metavar="N", help="node-ID of the motor drive (1-127)")
-    group.add_argument("--load-node", type=node_id_type, metavar="N", help="load encoder: 0x6064 of this node; default: 0x60E4 of --node")
+    group.add_argument(
+        "--load-node",
+        type=node_id_type,
+        metavar="N",
+        help="load encoder: 0x6064 of this node; default: 0x60E4 of --node",
+    )
     group.add_argument("--load-eds", metavar="FILE", help="EDS or DCF of --load-node, if it is not the --eds one")
     group.add_argument(
-        "--load-subindex", type=_integer_in(1, 254), metavar="K", help="sub-index of 0x60E4 (additional position actual value); default: the first mapped"
+        "--load-subindex",
+        type=_integer_in(1, 254),
+        metavar="K",
+        help="sub-index of 0x60E4 (additional position actual value); default: the first mapped",
     )
 
 
@@ -317,8 +381,14 @@ def can_decoding(args: argparse.Namespace) -> CanDecoding:
         where = Canopen(args.eds, args.node, args.load_node, args.load_eds, args.load_subindex)
         return CanDecoding(max_skew_s=args.max_skew, canopen=where)
     return CanDecoding(
-        RIG_DBC if args.dbc == "rig" else args.dbc, args.motor_signal, args.load_signal, optional(args.counter_signal),
-        optional(args.checksum_signal), getattr(args, "units", None), args.wrap_deg, args.max_skew,
+        RIG_DBC if args.dbc == "rig" else args.dbc,
+        args.motor_signal,
+        args.load_signal,
+        optional(args.counter_signal),
+        optional(args.checksum_signal),
+        getattr(args, "units", None),
+        args.wrap_deg,
+        args.max_skew,
     )
 
 

@@ -47,7 +47,9 @@ def run_manifest(
     given = sorted(k for k, v in defaults.items() if k not in NOT_PER_GEARBOX and getattr(args, k) != v)
     if given:
         flags = ", ".join("--" + k.replace("_", "-") for k in given)
-        raise InvalidParameterError(f"{flags}: with --manifest, per-gearbox options go into the manifest ([defaults] or a [[gearbox]] table)")
+        raise InvalidParameterError(
+            f"{flags}: with --manifest, per-gearbox options go into the manifest ([defaults] or a [[gearbox]] table)"
+        )
     if args.workers is not None and args.scheduler is not None:
         raise InvalidParameterError("give --workers N (a local cluster) or --scheduler URL (an existing one), not both")
     if args.workers is not None and args.workers < 0:
@@ -67,7 +69,13 @@ def run_manifest(
     show = not (args.quiet or args.json) and sys.stderr.isatty()
     started = time.perf_counter()
     with FleetProgress(len(jobs), show) as progress:
-        outcomes = run_fleet(jobs, task, workers=args.workers if args.scheduler is None else None, scheduler=args.scheduler, on_done=progress.done)
+        outcomes = run_fleet(
+            jobs,
+            task,
+            workers=args.workers if args.scheduler is None else None,
+            scheduler=args.scheduler,
+            on_done=progress.done,
+        )
     elapsed = time.perf_counter() - started
     failed = 0
     for outcome in outcomes:
@@ -78,7 +86,9 @@ def run_manifest(
             print(f"error: {args.manifest}: gearbox {outcome.gearbox_id}: {outcome.error}", file=sys.stderr)
     if not args.json:
         samples = sum(o.samples_fed for o in outcomes)
-        where = f"on {args.scheduler}" if args.scheduler else "serially" if not parallel else f"on {workers} local workers"
+        where = (
+            f"on {args.scheduler}" if args.scheduler else "serially" if not parallel else f"on {workers} local workers"
+        )
         rate = samples / elapsed if elapsed > 0 else 0.0
         print(
             f"fleet: {len(outcomes) - failed} of {len(outcomes)} gearboxes tracked, {sum(len(o.results) for o in outcomes)} logs, "

@@ -31,7 +31,9 @@ def open_can_source(args: argparse.Namespace) -> LiveSource:
 
         source = CanopenSource
     elif not (args.dbc and args.motor_signal and args.load_signal):
-        raise InvalidParameterError("listen can decodes frames with --dbc FILE --motor-signal S --load-signal S, or with --eds FILE --node N (CANopen)")
+        raise InvalidParameterError(
+            "listen can decodes frames with --dbc FILE --motor-signal S --load-signal S, or with --eds FILE --node N (CANopen)"
+        )
     counts = WholeCounts(args.motor_cpr, args.load_cpr).kwargs()  # a DBC's or dictionary's counts are whole
     bus = open_bus(args.interface, args.channel, args.bitrate)
     return source(bus, **options, raw_format=args.raw_format, **counts, **_live_options(args))

@@ -24,8 +24,14 @@ MQTT_HELP = (
 def add_mqtt_option(parser: argparse.ArgumentParser | argparse._ArgumentGroup) -> None:
     """``--mqtt URL`` and its TLS files (``track`` has ``--gearbox``, ``--every`` and the alarm levels already)."""
     parser.add_argument("--mqtt", metavar="URL", help=MQTT_HELP)
-    parser.add_argument("--mqtt-ca", metavar="FILE", help="mqtts://: the CA certificate (PEM) that signed the broker's; default: the system's CAs")
-    parser.add_argument("--mqtt-cert", metavar="FILE", help="mqtts://: a client certificate (PEM) to present to the broker")
+    parser.add_argument(
+        "--mqtt-ca",
+        metavar="FILE",
+        help="mqtts://: the CA certificate (PEM) that signed the broker's; default: the system's CAs",
+    )
+    parser.add_argument(
+        "--mqtt-cert", metavar="FILE", help="mqtts://: a client certificate (PEM) to present to the broker"
+    )
     parser.add_argument("--mqtt-key", metavar="FILE", help="mqtts://: the client certificate's private key (PEM)")
 
 
@@ -41,9 +47,15 @@ def add_listen_mqtt_options(parser: argparse.ArgumentParser) -> None:
     group = parser.add_argument_group("MQTT")
     add_mqtt_option(group)
     group.add_argument("--gearbox", metavar="ID", help="the gearbox's id in the topics (required with --mqtt)")
-    group.add_argument("--every", type=float, metavar="S", help="seconds of data between published estimates; default: --status-every")
-    group.add_argument("--warn-arcmin", type=float, metavar="X", help="warning level of the play, for the published state")
-    group.add_argument("--limit-arcmin", type=float, metavar="X", help="limit of the play, for the published state (without: unknown)")
+    group.add_argument(
+        "--every", type=float, metavar="S", help="seconds of data between published estimates; default: --status-every"
+    )
+    group.add_argument(
+        "--warn-arcmin", type=float, metavar="X", help="warning level of the play, for the published state"
+    )
+    group.add_argument(
+        "--limit-arcmin", type=float, metavar="X", help="limit of the play, for the published state (without: unknown)"
+    )
 
 
 @contextmanager
@@ -88,7 +100,9 @@ def history_figures(store: HistoryStore, gearbox_id: str) -> Callable[[], dict[s
         words = wear_figures(report)
         summary = report.summary.as_dict()
         return {
-            "trend_clock": summary["trend_clock"], "trend": words.trend_short, "forecast": words.forecast_short,
+            "trend_clock": summary["trend_clock"],
+            "trend": words.trend_short,
+            "forecast": words.forecast_short,
             "forecast_date_utc": summary["forecast_date_utc"],
         }
 

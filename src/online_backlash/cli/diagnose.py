@@ -35,20 +35,23 @@ def add_subparser(subparsers: argparse._SubParsersAction) -> None:
         ),
         formatter_class=argparse.ArgumentDefaultsHelpFormatter,
     )
-    parser.add_argument(
-        "log", help=f"recorded log: {LOG_FORMATS}")
+    parser.add_argument("log", help=f"recorded log: {LOG_FORMATS}")
     add_ratio_option(parser)
     parser.add_argument("--json", action="store_true", help="print one JSON object")
     parser.add_argument("--plot", metavar="FILE.png", help="write the residual before/after plot")
     parser.add_argument("--report", metavar="FILE.md", help="write a Markdown report")
     parser.add_argument("--max-terms", type=count_type, default=6, help="most terms (named or generic) to add")
     parser.add_argument(
-        "--floor-ratio", type=positive_float, metavar="R",
+        "--floor-ratio",
+        type=positive_float,
+        metavar="R",
         help="stop adding terms once the residual RMS is within R times the noise floor (the loop's default: 1.25; "
         "a larger R stops sooner, e.g. 1.5)",
     )
     parser.add_argument(
-        "--screen-cycles", type=count_type, metavar="N",
+        "--screen-cycles",
+        type=count_type,
+        metavar="N",
         help="on a record of at least 3N reversal cycles and 300,000 samples, score and refit the candidates on N cycles "
         "spread over it (more if N hold fewer than 100,000 samples), then configure and fit the terms chosen on every sample "
         "(the loop's default: 10; 0: every cycle, slower on long logs)",
@@ -59,10 +62,14 @@ def add_subparser(subparsers: argparse._SubParsersAction) -> None:
         help="also track the backlash over the log with the named effects found (recursive estimator) and write "
         "the estimate over time, as estimate --trace does",
     )
-    parser.add_argument("--every", metavar="S", type=positive_float, default=1.0, help="seconds of data between trace rows")
+    parser.add_argument(
+        "--every", metavar="S", type=positive_float, default=1.0, help="seconds of data between trace rows"
+    )
     add_log_options(parser)
     add_can_decoding_options(parser, required=False)
-    parser.add_argument("--serial-format", choices=("ascii", "binary"), help="frame format of a serial capture (.serial)")
+    parser.add_argument(
+        "--serial-format", choices=("ascii", "binary"), help="frame format of a serial capture (.serial)"
+    )
     parser.set_defaults(func=run)
 
 

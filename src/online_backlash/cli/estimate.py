@@ -43,29 +43,35 @@ def add_subparser(subparsers: argparse._SubParsersAction) -> None:
         ),
         formatter_class=argparse.ArgumentDefaultsHelpFormatter,
     )
-    parser.add_argument(
-        "log", help=f"recorded log: {LOG_FORMATS}; or a listen --raw-log folder")
+    parser.add_argument("log", help=f"recorded log: {LOG_FORMATS}; or a listen --raw-log folder")
     add_ratio_option(parser)
     parser.add_argument("--method", choices=("recursive", "batch"), default="recursive", help="estimator")
     parser.add_argument("--json", action="store_true", help="print one JSON object")
     add_play_method_option(parser)
     parser.add_argument(
-        "--rated-torque", metavar="NM", type=positive_float,
+        "--rated-torque",
+        metavar="NM",
+        type=positive_float,
         help="rated torque of the gearbox, N m: with a torque column, lost motion is taken at +-3 %% of it (else at the torque dead band)",
     )
     parser.add_argument(
-        "--stiffness-torques", metavar="T1,T2", type=_segment_torques,
+        "--stiffness-torques",
+        metavar="T1,T2",
+        type=_segment_torques,
         help="with a torque column and --method batch: the data sheet's segment torques, N m: the torsional stiffness "
         "in three segments (K1 up to T1, K2 up to T2, K3 above; the segments the torque covers are fitted)",
     )
     parser.add_argument(
-        "--plot", metavar="FILE.png",
+        "--plot",
+        metavar="FILE.png",
         help="write a plot of a batch fit of the whole log (read into memory): with a torque column the data-sheet "
         "hysteresis curve (torsion angle vs torque), else the backlash characteristic",
     )
     group = parser.add_argument_group("recursive method")
     group.add_argument("--trace", metavar="FILE.csv", help="write the estimate over time: " + ",".join(TRACE_COLUMNS))
-    group.add_argument("--every", metavar="S", type=positive_float, default=1.0, help="seconds of data between trace rows")
+    group.add_argument(
+        "--every", metavar="S", type=positive_float, default=1.0, help="seconds of data between trace rows"
+    )
     group.add_argument(
         "--memory-reversals", type=positive_float, default=10.0, help="memory of the estimator, in reversals"
     )
@@ -74,22 +80,32 @@ def add_subparser(subparsers: argparse._SubParsersAction) -> None:
     )
     group.add_argument("--sample-period", type=positive_float, default=0.001, help="sampling period of the log, s")
     group.add_argument(
-        "--bridge-s", type=nonnegative_float, default=BRIDGE_S,
+        "--bridge-s",
+        type=nonnegative_float,
+        default=BRIDGE_S,
         help="longest gap (seconds) the estimator is carried across, keeping its state; 0: every gap restarts it",
     )
     group.add_argument(
-        "--jump-deg", type=nonnegative_float, default=JUMP_DEG,
+        "--jump-deg",
+        type=nonnegative_float,
+        default=JUMP_DEG,
         help="a step of either angle (deg, load side) larger than this across a gap is a jump in the data and restarts",
     )
     parser.add_argument(
-        "--period", type=positive_float, metavar="S",
+        "--period",
+        type=positive_float,
+        metavar="S",
         help="nominal sample period for gap detection (CSV, CAN log, serial capture), as given to listen/track; learnt if not given. "
         "With a frame counter (CAN, serial, CANopen), sample times are then first time + counter periods x S, not the jittery timestamps",
     )
     add_log_options(parser)
     add_can_decoding_options(parser, required=False)
-    parser.add_argument("--serial-format", choices=("ascii", "binary"), help="frame format of a serial capture (.serial)")
-    parser.add_argument("--realtime", action="store_true", help="replay a CAN log or serial capture at its recorded pace")
+    parser.add_argument(
+        "--serial-format", choices=("ascii", "binary"), help="frame format of a serial capture (.serial)"
+    )
+    parser.add_argument(
+        "--realtime", action="store_true", help="replay a CAN log or serial capture at its recorded pace"
+    )
     parser.set_defaults(func=run)
 
 
@@ -159,8 +175,12 @@ def run(args: argparse.Namespace) -> int:
                 "--stiffness-torques needs --method batch: the three segments are fitted on the whole curve"
             )
         params = {
-            "memory_reversals": args.memory_reversals, "memory_s": args.memory_s, "sample_period_s": args.sample_period,
-            "gap_policy": GapPolicy(args.bridge_s, args.jump_deg), "rated_torque_Nm": args.rated_torque, **choice,
+            "memory_reversals": args.memory_reversals,
+            "memory_s": args.memory_s,
+            "sample_period_s": args.sample_period,
+            "gap_policy": GapPolicy(args.bridge_s, args.jump_deg),
+            "rated_torque_Nm": args.rated_torque,
+            **choice,
         }
         with open_log(args.log, **log_options(args)) as source:
             if args.trace:
@@ -185,7 +205,12 @@ def run(args: argparse.Namespace) -> int:
 
 
 def write_trace(
-    path: str | os.PathLike[str], chunks: Iterable[SampleChunk], ratio: float, every_s: float, source: str, **params: Any
+    path: str | os.PathLike[str],
+    chunks: Iterable[SampleChunk],
+    ratio: float,
+    every_s: float,
+    source: str,
+    **params: Any,
 ) -> BacklashReport:
     """Run the recursive fit (the pipeline) and write its rows to ``path`` as CSV (columns ``TRACE_COLUMNS``)."""
     with open(path, "w", newline="") as f:
@@ -195,5 +220,7 @@ def write_trace(
         def write(row: EstimateRow) -> None:
             writer.writerow(row.trace())
 
-        report, _ = fit_recursive(chunks, ratio, every_s=every_s, trace=write, source=source, ahead=READ_AHEAD, **params)
+        report, _ = fit_recursive(
+            chunks, ratio, every_s=every_s, trace=write, source=source, ahead=READ_AHEAD, **params
+        )
     return report

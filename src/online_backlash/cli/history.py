@@ -18,8 +18,12 @@ if TYPE_CHECKING:
 
 def add_db_options(parser: argparse.ArgumentParser, gearbox_required: bool = True) -> None:
     """``--db`` and ``--gearbox``, shared with ``track``."""
-    parser.add_argument("--db", required=True, help="history store: an SQLite file path or postgresql://user@host/dbname")
-    parser.add_argument("--gearbox", type=nonempty_text, required=gearbox_required, metavar="ID", help="the gearbox's id in the store")
+    parser.add_argument(
+        "--db", required=True, help="history store: an SQLite file path or postgresql://user@host/dbname"
+    )
+    parser.add_argument(
+        "--gearbox", type=nonempty_text, required=gearbox_required, metavar="ID", help="the gearbox's id in the store"
+    )
 
 
 def add_subparser(subparsers: argparse._SubParsersAction) -> None:
@@ -42,8 +46,15 @@ def add_subparser(subparsers: argparse._SubParsersAction) -> None:
         "with --all the worst, in the order OK < WARNING < UNKNOWN < CRITICAL)",
     )
     parser.add_argument("--all", action="store_true", help="with --check: every gearbox in the store")
-    parser.add_argument("--limit-arcmin", type=float, metavar="X", help="backlash limit for the forecast; without it, the gearbox's stored limit")
-    parser.add_argument("--warn-arcmin", type=float, metavar="X", help="warning level of the play; without it, the gearbox's stored one")
+    parser.add_argument(
+        "--limit-arcmin",
+        type=float,
+        metavar="X",
+        help="backlash limit for the forecast; without it, the gearbox's stored limit",
+    )
+    parser.add_argument(
+        "--warn-arcmin", type=float, metavar="X", help="warning level of the play; without it, the gearbox's stored one"
+    )
     parser.add_argument(
         "--max-age-h",
         type=float,
@@ -59,7 +70,9 @@ def add_subparser(subparsers: argparse._SubParsersAction) -> None:
         "corrected for the estimator's lag); see docs/wear-trend.md",
     )
     parser.add_argument("--plot", metavar="FILE.png", help="also draw the wear plot into this file")
-    parser.add_argument("--confidence", type=float, default=0.95, help="confidence of the trend band and forecast interval")
+    parser.add_argument(
+        "--confidence", type=float, default=0.95, help="confidence of the trend band and forecast interval"
+    )
     parser.set_defaults(func=run)
 
 

@@ -30,19 +30,39 @@ def add_subparser(subparsers: argparse._SubParsersAction) -> None:
         formatter_class=argparse.ArgumentDefaultsHelpFormatter,
     )
     parser.add_argument(
-        "file", nargs="?",
+        "file",
+        nargs="?",
         help="a .csv[.gz] (or delimited .txt .tsv), .parquet, .arrow/.feather, .mf4/.mdf, .tdms, .mat, .h5/.hdf5 file "
         "or a CAN log (.asc .blf .log .trc .mf4 ...)",
     )
-    parser.add_argument("--dbc", metavar="FILE", help="name the CAN IDs of a CAN log by this DBC ('rig' for the shipped rig.dbc)")
     parser.add_argument(
-        "--eds", action="append", metavar="FILE",
+        "--dbc", metavar="FILE", help="name the CAN IDs of a CAN log by this DBC ('rig' for the shipped rig.dbc)"
+    )
+    parser.add_argument(
+        "--eds",
+        action="append",
+        metavar="FILE",
         help="a CANopen EDS/DCF: list its TPDO mapping and name a CAN log's COB-IDs by it (with --node; repeat both for several nodes)",
     )
-    parser.add_argument("--node", action="append", type=node_id_type, metavar="N", help="node-ID of the --eds drive (the n-th --node goes with the n-th --eds)")
-    parser.add_argument("--load-node", type=node_id_type, metavar="N", help="a second CANopen node to name (its dictionary: --load-eds, else --eds)")
+    parser.add_argument(
+        "--node",
+        action="append",
+        type=node_id_type,
+        metavar="N",
+        help="node-ID of the --eds drive (the n-th --node goes with the n-th --eds)",
+    )
+    parser.add_argument(
+        "--load-node",
+        type=node_id_type,
+        metavar="N",
+        help="a second CANopen node to name (its dictionary: --load-eds, else --eds)",
+    )
     parser.add_argument("--load-eds", metavar="FILE", help="EDS or DCF of --load-node")
-    parser.add_argument("--filter", metavar="PATTERN", help="only names matching this shell pattern or containing this word (case-insensitive)")
+    parser.add_argument(
+        "--filter",
+        metavar="PATTERN",
+        help="only names matching this shell pattern or containing this word (case-insensitive)",
+    )
     parser.add_argument("--json", action="store_true", help="print one JSON object")
     add_csv_dialect_options(parser)
     parser.set_defaults(func=run)
@@ -94,8 +114,13 @@ def _print_summary(summary: FileSummary) -> None:
         table = [("name", "group", "unit", "type", *(("shape",) if shaped else ()), "samples", "rate_hz")]
         table += [
             (
-                c.name, "" if c.group is None else str(c.group), c.unit or "", c.dtype,
-                *((c.shape or "",) if shaped else ()), "" if c.samples is None else str(c.samples), _number(c.rate_hz),
+                c.name,
+                "" if c.group is None else str(c.group),
+                c.unit or "",
+                c.dtype,
+                *((c.shape or "",) if shaped else ()),
+                "" if c.samples is None else str(c.samples),
+                _number(c.rate_hz),
             )
             for c in summary.channels
         ]
@@ -113,7 +138,12 @@ def _print_node(node: NodeMapping) -> None:
     print(f"node {node.node_id} ({node.path}): {len(node.tpdos)} valid TPDOs, SYNC COB-ID 0x{node.sync_cob_id:03X}")
     table: list[tuple[str, ...]] = [("tpdo", "cob_id", "type", "objects")]
     table += [
-        (str(p.number), f"0x{p.cob_id:03X}", f"{p.transmission_type} ({p.trigger})", ", ".join(f"{o.label} [{o.bit_length} bit]" for o in p.objects))
+        (
+            str(p.number),
+            f"0x{p.cob_id:03X}",
+            f"{p.transmission_type} ({p.trigger})",
+            ", ".join(f"{o.label} [{o.bit_length} bit]" for o in p.objects),
+        )
         for p in node.tpdos
     ]
     _print_table(table)
@@ -126,7 +156,9 @@ def _canopen_nodes(args: argparse.Namespace) -> list[NodeMapping]:
 
     eds, node_ids = args.eds or [], args.node or []
     if args.file is None and not eds:
-        raise InvalidParameterError("give a FILE to inspect, or --eds FILE --node N to list a CANopen node's TPDO mapping")
+        raise InvalidParameterError(
+            "give a FILE to inspect, or --eds FILE --node N to list a CANopen node's TPDO mapping"
+        )
     if not eds:
         if node_ids or args.load_node is not None or args.load_eds is not None:
             raise InvalidParameterError("--node, --load-node and --load-eds go with --eds FILE, the node's EDS/DCF")
@@ -134,7 +166,9 @@ def _canopen_nodes(args: argparse.Namespace) -> list[NodeMapping]:
     if not node_ids:
         raise InvalidParameterError(f"--eds {eds[0]}: give --node N, the node-ID of the drive")
     if len(eds) not in (1, len(node_ids)):
-        raise InvalidParameterError(f"{len(eds)} --eds for {len(node_ids)} --node: give one --eds per --node, or one for all")
+        raise InvalidParameterError(
+            f"{len(eds)} --eds for {len(node_ids)} --node: give one --eds per --node, or one for all"
+        )
     pairs = [(eds[0] if len(eds) == 1 else eds[i], node) for i, node in enumerate(node_ids)]
     if args.load_node is not None:
         pairs.append((args.load_eds or eds[0], args.load_node))
@@ -155,7 +189,9 @@ def _canopen_named(summary: FileSummary, nodes: list[NodeMapping]) -> FileSummar
     from ..errors import InvalidParameterError
 
     if summary.kind != "can":
-        raise InvalidParameterError(f"{summary.path}: --eds names the frames of a CAN log, and this is a {summary.kind} file")
+        raise InvalidParameterError(
+            f"{summary.path}: --eds names the frames of a CAN log, and this is a {summary.kind} file"
+        )
     names = cob_id_names(nodes)
 
     def name(info: CanIdInfo) -> str | None:

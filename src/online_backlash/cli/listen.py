@@ -47,13 +47,19 @@ def add_subparser(subparsers: argparse._SubParsersAction) -> None:
         description="Listen to a CAN bus; frames are decoded with a DBC (--dbc) or a CANopen drive's EDS/DCF (--eds --node).",
         formatter_class=argparse.ArgumentDefaultsHelpFormatter,
     )
-    can_parser.add_argument("--interface", required=True, help="python-can interface: socketcan, pcan, kvaser, vector, virtual, ...")
+    can_parser.add_argument(
+        "--interface", required=True, help="python-can interface: socketcan, pcan, kvaser, vector, virtual, ..."
+    )
     can_parser.add_argument("--channel", required=True, help="channel of the interface, e.g. can0")
     can_parser.add_argument("--bitrate", type=int, help="bit rate, bit/s (where the interface sets it)")
     add_can_decoding_options(can_parser, required=False)  # --dbc with its signals, or --eds --node: checked on opening
     add_counts_options(can_parser)
-    can_parser.add_argument("--units", help="unit of the motor and load DBC signals (deg, rad, rev, counts...), replacing the DBC's")
-    can_parser.add_argument("--raw-format", choices=("blf", "asc", "log"), default="blf", help="format of the raw CAN log")
+    can_parser.add_argument(
+        "--units", help="unit of the motor and load DBC signals (deg, rad, rev, counts...), replacing the DBC's"
+    )
+    can_parser.add_argument(
+        "--raw-format", choices=("blf", "asc", "log"), default="blf", help="format of the raw CAN log"
+    )
     _add_common(can_parser)
     can_parser.set_defaults(func=run, open_source=open_can_source)
 
@@ -63,9 +69,13 @@ def add_subparser(subparsers: argparse._SubParsersAction) -> None:
         description="Listen to a serial port: 'ascii' lines time,motor,load (s, deg, deg) or 'binary' COBS frames with CRC-16.",
         formatter_class=argparse.ArgumentDefaultsHelpFormatter,
     )
-    serial_parser.add_argument("--port", required=True, help="pyserial URL: /dev/ttyUSB0, COM3, socket://host:port, loop://")
+    serial_parser.add_argument(
+        "--port", required=True, help="pyserial URL: /dev/ttyUSB0, COM3, socket://host:port, loop://"
+    )
     serial_parser.add_argument("--baud", type=int, default=115200, help="baud rate")
-    serial_parser.add_argument("--format", dest="serial_format", choices=("ascii", "binary"), required=True, help="frame format")
+    serial_parser.add_argument(
+        "--format", dest="serial_format", choices=("ascii", "binary"), required=True, help="frame format"
+    )
     add_counts_options(serial_parser)
     _add_common(serial_parser)
     serial_parser.set_defaults(func=run, open_source=open_serial_source)
@@ -73,11 +83,15 @@ def add_subparser(subparsers: argparse._SubParsersAction) -> None:
 
 def _add_common(parser: argparse.ArgumentParser) -> None:
     add_ratio_option(parser)
-    parser.add_argument("--raw-log", required=True, metavar="DIR", help="directory for the raw captures (written before decoding)")
+    parser.add_argument(
+        "--raw-log", required=True, metavar="DIR", help="directory for the raw captures (written before decoding)"
+    )
     parser.add_argument("--duration", type=positive_float, metavar="S", help="stop after S seconds; else at Ctrl-C")
     parser.add_argument("--timeout", type=positive_float, metavar="S", help="fail when nothing arrives for S seconds")
     parser.add_argument(
-        "--period", type=float, metavar="S",
+        "--period",
+        type=float,
+        metavar="S",
         help="nominal sample period for gap detection; learnt if not given. With a frame counter, sample times are then first time + counter periods x S",
     )
     parser.add_argument("--json", action="store_true", help="print the summary as one JSON object on stdout")
@@ -121,10 +135,17 @@ class _StatusLine:
 
 def run(args: argparse.Namespace) -> int:
     label = f"{args.source_kind} {getattr(args, 'channel', None) or getattr(args, 'port', '')}"
-    params = {"memory_reversals": args.memory_reversals, "memory_s": args.memory_s, "sample_period_s": args.sample_period}
+    params = {
+        "memory_reversals": args.memory_reversals,
+        "memory_s": args.memory_s,
+        "sample_period_s": args.sample_period,
+    }
     started = time.monotonic()
     every_s = args.status_every if args.every is None else args.every
-    with mqtt_publisher(args.mqtt, args.gearbox, args.warn_arcmin, args.limit_arcmin, mqtt_tls(args)) as publisher, args.open_source(args) as source:
+    with (
+        mqtt_publisher(args.mqtt, args.gearbox, args.warn_arcmin, args.limit_arcmin, mqtt_tls(args)) as publisher,
+        args.open_source(args) as source,
+    ):
         status = _StatusLine(source.counters)
         try:
             with ctrl_c_ends_the_run(source.request_stop, label):
@@ -151,7 +172,9 @@ def run(args: argparse.Namespace) -> int:
         print_json(summary)
     else:
         print(describe(report, label))
-        print(f"received:       {_counts(source.counters.as_dict())} in {summary['duration_s']:.1f} s; raw log in {args.raw_log}")
+        print(
+            f"received:       {_counts(source.counters.as_dict())} in {summary['duration_s']:.1f} s; raw log in {args.raw_log}"
+        )
         if publisher is not None:
             print(mqtt_summary_line(publisher))
     return play_exit_code(report.backlash_deg, label, report.no_play_reason())

@@ -85,10 +85,15 @@ def add_subparser(subparsers: argparse._SubParsersAction) -> None:
     )
     add_ratio_option(parser, required=False)
     add_db_options(parser, gearbox_required=False)
-    parser.add_argument("--every", type=positive_float, default=60.0, metavar="S", help="seconds of data between estimates")
+    parser.add_argument(
+        "--every", type=positive_float, default=60.0, metavar="S", help="seconds of data between estimates"
+    )
     parser.add_argument("--limit-arcmin", type=float, metavar="X", help="store this backlash limit with the gearbox")
     parser.add_argument(
-        "--warn-arcmin", type=float, metavar="X", help="store this warning level of the play with the gearbox (not above the limit)"
+        "--warn-arcmin",
+        type=float,
+        metavar="X",
+        help="store this warning level of the play with the gearbox (not above the limit)",
     )
     clocks = parser.add_argument_group(
         "clocks: where a log lies in time and in the machine's use (see docs/wear-trend.md)"
@@ -139,7 +144,12 @@ def add_subparser(subparsers: argparse._SubParsersAction) -> None:
         help="memory of a new gearbox's estimator, in reversals (shorter follows fast wear with less lag, "
         "more noise); default: BacklashRLS's",
     )
-    parser.add_argument("--sample-period", type=float, metavar="S", help="sampling period of a new gearbox's logs, seconds; default: BacklashRLS's (0.001)")
+    parser.add_argument(
+        "--sample-period",
+        type=float,
+        metavar="S",
+        help="sampling period of a new gearbox's logs, seconds; default: BacklashRLS's (0.001)",
+    )
     add_play_method_option(parser, default=None, new="a new gearbox's ")
     parser.add_argument(
         "--diagnose",
@@ -151,29 +161,54 @@ def add_subparser(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("--json", action="store_true", help="print one JSON object per log")
     add_log_options(parser)
     add_can_decoding_options(parser, required=False)
-    parser.add_argument("--serial-format", choices=("ascii", "binary"), help="frame format of serial captures (.serial) and serial ports")
+    parser.add_argument(
+        "--serial-format",
+        choices=("ascii", "binary"),
+        help="frame format of serial captures (.serial) and serial ports",
+    )
     live = parser.add_argument_group("live, instead of logs (the options of listen)")
-    live.add_argument("--listen", choices=("can", "serial"), help="track live from a CAN bus or a serial port until --duration or Ctrl-C")
+    live.add_argument(
+        "--listen",
+        choices=("can", "serial"),
+        help="track live from a CAN bus or a serial port until --duration or Ctrl-C",
+    )
     live.add_argument("--interface", help="python-can interface (CAN): socketcan, pcan, kvaser, vector, virtual, ...")
     live.add_argument("--channel", help="channel of the interface (CAN), e.g. can0")
     live.add_argument("--bitrate", type=int, help="bit rate, bit/s (CAN, where the interface sets it)")
     live.add_argument("--raw-format", choices=("blf", "asc", "log"), default="blf", help="format of the raw CAN log")
     live.add_argument("--port", help="pyserial URL (serial): /dev/ttyUSB0, COM3, socket://host:port")
     live.add_argument("--baud", type=int, default=115200, help="baud rate (serial)")
-    live.add_argument("--raw-log", metavar="DIR", help="directory for the raw captures, written before decoding (required with --listen)")
+    live.add_argument(
+        "--raw-log",
+        metavar="DIR",
+        help="directory for the raw captures, written before decoding (required with --listen)",
+    )
     live.add_argument("--duration", type=positive_float, metavar="S", help="stop after S seconds; else at Ctrl-C")
     live.add_argument("--timeout", type=positive_float, metavar="S", help="fail when nothing arrives for S seconds")
     live.add_argument(
-        "--period", type=float, metavar="S",
+        "--period",
+        type=float,
+        metavar="S",
         help="nominal sample period for gap detection; learnt if not given. With a frame counter, sample times are then first time + counter periods x S",
     )
     add_mqtt_option(live)
     fleet = parser.add_argument_group("fleet, instead of one gearbox (see docs/fleet.md)")
-    fleet.add_argument("--manifest", metavar="TOML", help="track every gearbox of this fleet manifest ([defaults], [[gearbox]] tables of track options)")
     fleet.add_argument(
-        "--workers", type=int, metavar="N", help="with --manifest: Dask worker processes on this machine (default: its cores); 0: gearboxes one by one here"
+        "--manifest",
+        metavar="TOML",
+        help="track every gearbox of this fleet manifest ([defaults], [[gearbox]] tables of track options)",
     )
-    fleet.add_argument("--scheduler", metavar="tcp://HOST:PORT", help="with --manifest: run on this Dask scheduler's workers instead of local ones")
+    fleet.add_argument(
+        "--workers",
+        type=int,
+        metavar="N",
+        help="with --manifest: Dask worker processes on this machine (default: its cores); 0: gearboxes one by one here",
+    )
+    fleet.add_argument(
+        "--scheduler",
+        metavar="tcp://HOST:PORT",
+        help="with --manifest: run on this Dask scheduler's workers instead of local ones",
+    )
     parser.set_defaults(func=run)
 
 
@@ -198,7 +233,9 @@ def check_track_args(args: argparse.Namespace) -> None:
     usage_of(args, None)  # the hour meter's options, checked
     clock_of(args, None)
     if args.diagnose and args.listen is not None:
-        raise InvalidParameterError("--diagnose diagnoses the first log: track a log first, then --listen continues with its effects")
+        raise InvalidParameterError(
+            "--diagnose diagnoses the first log: track a log first, then --listen continues with its effects"
+        )
     check_alarm_levels(args.warn_arcmin, args.limit_arcmin)
 
 
@@ -219,7 +256,9 @@ def run(args: argparse.Namespace) -> int:
         tracker = gearbox_tracker(store, args, logs)
         if args.listen is not None:
             known = store.find_gearbox(args.gearbox)
-            warn, limit = (known.warn_arcmin, known.limit_arcmin) if known is not None else (args.warn_arcmin, args.limit_arcmin)
+            warn, limit = (
+                (known.warn_arcmin, known.limit_arcmin) if known is not None else (args.warn_arcmin, args.limit_arcmin)
+            )
             figures = history_figures(store, args.gearbox)
             with mqtt_publisher(args.mqtt, args.gearbox, warn, limit, tls=mqtt_tls(args), figures=figures) as publisher:
                 with _progress_bar(f"{args.listen} live", show_progress) as progress:
@@ -294,7 +333,10 @@ def ordered_logs(args: argparse.Namespace, per_log: PerLog | None = None) -> lis
     check_one_log_options(args, len(given), "folders count their files")
     ordered = in_time_order(given, lambda p: _log_options(args, p), lambda p: clock_of(args, p, per_log))
     if ordered != given and not args.quiet:
-        print(f"note: {args.gearbox}: logs tracked in the order of their first samples' time: {', '.join(ordered)}", file=sys.stderr)
+        print(
+            f"note: {args.gearbox}: logs tracked in the order of their first samples' time: {', '.join(ordered)}",
+            file=sys.stderr,
+        )
     return ordered
 
 

@@ -32,15 +32,21 @@ class SampleAssembler:
         Raise FrameError instead of counting a bad reading as corrupt.
     """
 
-    def __init__(self, counters: StreamCounters, counter_modulus: int | None, period_s: float | None, strict: bool) -> None:
+    def __init__(
+        self, counters: StreamCounters, counter_modulus: int | None, period_s: float | None, strict: bool
+    ) -> None:
         self.counters = counters
         self.strict = strict
         self.gaps = GapDetector(counter_modulus, period_s)
         # with a counter and a given period, a sample's time is the counter's (the gap rule reads the timestamps)
-        self.clock = CounterClock(counter_modulus, period_s) if counter_modulus is not None and period_s is not None else None
+        self.clock = (
+            CounterClock(counter_modulus, period_s) if counter_modulus is not None and period_s is not None else None
+        )
         self._last_time = -math.inf
 
-    def accept(self, time_s: float, motor_deg: float, load_deg: float, seq: int | None, n_frames: int = 1) -> bool | None:
+    def accept(
+        self, time_s: float, motor_deg: float, load_deg: float, seq: int | None, n_frames: int = 1
+    ) -> bool | None:
         """Check one sample (seconds, degrees): None if it is corrupt (``n_frames`` counted), else
         whether a gap precedes it (``after_gap``); the sample is then counted."""
         if not (math.isfinite(time_s) and math.isfinite(motor_deg) and math.isfinite(load_deg)):

@@ -131,9 +131,19 @@ class BlockDecoder:
             self._entries.append((frame_id, message.is_extended_frame, layout, wanted, counter))
         signals = [s for *_, wanted, c in self._entries for s in [v[0] for v in wanted.values()] + ([c] if c else [])]
         messages = decoder.messages.values()
-        self.supported = all(m.length <= MAX_BYTES and not m.is_multiplexed() for m in messages) and not any(s.is_float for s in signals)
+        self.supported = all(m.length <= MAX_BYTES and not m.is_multiplexed() for m in messages) and not any(
+            s.is_float for s in signals
+        )
 
-    def decode(self, ids: np.ndarray, extended: np.ndarray, special: np.ndarray, lengths: np.ndarray, offsets: np.ndarray, data: np.ndarray) -> DecodedBlock:
+    def decode(
+        self,
+        ids: np.ndarray,
+        extended: np.ndarray,
+        special: np.ndarray,
+        lengths: np.ndarray,
+        offsets: np.ndarray,
+        data: np.ndarray,
+    ) -> DecodedBlock:
         """Check and decode ``n`` frames: arbitration ids, extended-id flags, error-or-remote flags,
         data lengths, offsets of each frame's data in ``data`` (all data bytes concatenated, uint8)."""
         n = ids.shape[0]

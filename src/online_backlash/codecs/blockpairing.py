@@ -65,10 +65,33 @@ def _median(values):  # pragma: no cover - compiled
 
 @njit(cache=True)
 def _pair_block(
-    status, role, counter, motor, load, time_s,
-    paired, max_skew_s, motor_cpr, load_cpr, motor_scale, load_scale, motor_offset, load_offset, modulus, gap_periods,
-    ist, fst, steps,
-    out_time, out_motor, out_load, out_seq, out_gap, gap_time, gap_dt, gap_missing,
+    status,
+    role,
+    counter,
+    motor,
+    load,
+    time_s,
+    paired,
+    max_skew_s,
+    motor_cpr,
+    load_cpr,
+    motor_scale,
+    load_scale,
+    motor_offset,
+    load_offset,
+    modulus,
+    gap_periods,
+    ist,
+    fst,
+    steps,
+    out_time,
+    out_motor,
+    out_load,
+    out_seq,
+    out_gap,
+    gap_time,
+    gap_dt,
+    gap_missing,
 ):  # pragma: no cover - compiled
     """Process one block; returns (samples, gaps, corrupt, unpaired) added by it."""
     n_samples = 0
@@ -196,7 +219,9 @@ class BlockPipeline(CanPipeline):
         gaps = GapDetector(decoder.counter_modulus, period_s)  # validates, and holds the rule's settings
         self.blocks = BlockDecoder(decoder)
         if not self.blocks.supported:
-            raise InvalidParameterError("this DBC needs the per-frame path (a message over 8 bytes, multiplexed, or a float signal)")
+            raise InvalidParameterError(
+                "this DBC needs the per-frame path (a message over 8 bytes, multiplexed, or a float signal)"
+            )
         self._modulus = gaps.counter_modulus or 0
         self._gap_periods = gaps.gap_periods
         self._ist = np.zeros(_N_INT, dtype=np.int64)
@@ -206,7 +231,9 @@ class BlockPipeline(CanPipeline):
             self._fst[_G_PERIOD] = gaps.period_s
             self._ist[_G_KNOWN] = 1
         self._steps = np.zeros(gaps.learn_steps, dtype=np.float64)
-        self._clock = CounterClock(self._modulus, period_s) if self._modulus and period_s is not None else None  # as SampleAssembler
+        self._clock = (
+            CounterClock(self._modulus, period_s) if self._modulus and period_s is not None else None
+        )  # as SampleAssembler
 
     @property
     def skew_mean_s(self) -> float:
@@ -252,7 +279,11 @@ class BlockPipeline(CanPipeline):
 
 
 def make_pipeline(
-    decoder: DbcDecoder, period_s: float | None = None, max_skew_s: float = 1e-3, strict: bool = False, per_frame: bool = False
+    decoder: DbcDecoder,
+    period_s: float | None = None,
+    max_skew_s: float = 1e-3,
+    strict: bool = False,
+    per_frame: bool = False,
 ) -> FramePipeline | BlockPipeline:
     """The block pipeline where it applies, else the per-frame one (``strict``, ``per_frame``, or a
     DBC the block decoder does not support); both give the same samples and counters."""

@@ -166,7 +166,15 @@ class Tpdo:
     def as_dict(self) -> dict[str, Any]:
         """The PDO as JSON values (``inspect --json``): number, name, COB-ID, transmission type and trigger, length in
         bytes, the objects mapped (``0x6064.0``, name, bit offset and length)."""
-        objects = [{"object": f"0x{o.index:04X}.{o.subindex}", "name": o.name, "bit_offset": o.bit_offset, "bit_length": o.bit_length} for o in self.objects]
+        objects = [
+            {
+                "object": f"0x{o.index:04X}.{o.subindex}",
+                "name": o.name,
+                "bit_offset": o.bit_offset,
+                "bit_length": o.bit_length,
+            }
+            for o in self.objects
+        ]
         return {
             "tpdo": self.number, "name": self.name, "cob_id": f"0x{self.cob_id:03X}", "transmission_type": self.transmission_type,
             "trigger": self.trigger, "length": self.length, "objects": objects,
@@ -200,10 +208,23 @@ def tpdos(od: ObjectDictionary, node_id: int, path: str | os.PathLike[str] = "")
                 continue
             var = od.get_variable(index, subindex)
             if var is None:
-                raise LogFormatError(path, None, f"0x{TPDO_MAPPING + n:04X}.{entry} maps 0x{index:04X}.{subindex}, which the dictionary lacks")
+                raise LogFormatError(
+                    path,
+                    None,
+                    f"0x{TPDO_MAPPING + n:04X}.{entry} maps 0x{index:04X}.{subindex}, which the dictionary lacks",
+                )
             objects.append(MappedObject(index, subindex, var.name, offset, bits, var.data_type in SIGNED_TYPES))
             offset += bits
-        found.append(Tpdo(n + 1, node_id, cob_id & 0x1FFFFFFF, 255 if trans_type is None else int(trans_type), tuple(objects), (offset + 7) // 8))
+        found.append(
+            Tpdo(
+                n + 1,
+                node_id,
+                cob_id & 0x1FFFFFFF,
+                255 if trans_type is None else int(trans_type),
+                tuple(objects),
+                (offset + 7) // 8,
+            )
+        )
     return found
 
 
@@ -219,18 +240,27 @@ def find_encoder(
     where = f"0x{index:04X}" if subindex is None else f"0x{index:04X}.{subindex}"
     if index not in od:
         raise LogFormatError(path, None, f"node {node_id}: the dictionary has no object {where}")
-    mapped = [(pdo, obj) for pdo in tpdos(od, node_id, path) for obj in pdo.objects if obj.index == index and subindex in (None, obj.subindex)]
+    mapped = [
+        (pdo, obj)
+        for pdo in tpdos(od, node_id, path)
+        for obj in pdo.objects
+        if obj.index == index and subindex in (None, obj.subindex)
+    ]
     if not mapped:
         seen = ", ".join(p.describe() for p in tpdos(od, node_id, path)) or "no valid TPDO"
-        raise LogFormatError(path, None, f"node {node_id}: object {where} is not mapped to any TPDO (0x1A00..); mapped: {seen}")
+        raise LogFormatError(
+            path, None, f"node {node_id}: object {where} is not mapped to any TPDO (0x1A00..); mapped: {seen}"
+        )
     pdo, obj = mapped[0]
     var = od.get_variable(obj.index, obj.subindex)
     if not isinstance(var, ODVariable) or var.data_type not in INTEGER_TYPES:
         raise LogFormatError(path, None, f"node {node_id}: {obj.label} is not an integer object")
     if pdo.transmission_type > _LAST_SYNCHRONOUS and pdo.transmission_type not in EVENT_DRIVEN:
         raise LogFormatError(
-            path, None, f"node {node_id}: {pdo.name} (0x{TPDO_COMMUNICATION + pdo.number - 1:04X}) has transmission type "
-            f"{pdo.transmission_type}: neither synchronous (0-240) nor event-driven (254, 255)"
+            path,
+            None,
+            f"node {node_id}: {pdo.name} (0x{TPDO_COMMUNICATION + pdo.number - 1:04X}) has transmission type "
+            f"{pdo.transmission_type}: neither synchronous (0-240) nor event-driven (254, 255)",
         )
     return pdo, obj
 
@@ -243,7 +273,9 @@ def _ratio(od: ObjectDictionary, index: int) -> float | None:
     return float(top) / float(bottom)
 
 
-def counts_per_rev(od: ObjectDictionary, node_id: int, path: str | os.PathLike[str], given: float | None, option: str) -> float:
+def counts_per_rev(
+    od: ObjectDictionary, node_id: int, path: str | os.PathLike[str], given: float | None, option: str
+) -> float:
     """Position units of 0x6064 per revolution of the node's shaft: ``given``, else feed constant 0x6092
     over gear ratio 0x6091 (CiA 402 factor group) where the feed constant is set, else position encoder
     resolution 0x608F (increments / motor revolutions); LogFormatError naming ``path``, the objects and
@@ -301,7 +333,9 @@ def _sync_settings(od: ObjectDictionary) -> tuple[int, int | None]:
     """The SYNC COB-ID (0x1005, else 0x80) and the counter's overflow value (0x1019; 0 or 1: no counter; absent: 240)."""
     cob_id = _od_value(od, COB_ID_SYNC, 0)
     overflow = _od_value(od, SYNC_COUNTER_OVERFLOW, 0) if SYNC_COUNTER_OVERFLOW in od else SYNC_COUNTER_MAX
-    return (SYNC_COB_ID if cob_id is None else int(cob_id) & 0x7FF), (int(overflow) if overflow and overflow > 1 else None)
+    return (SYNC_COB_ID if cob_id is None else int(cob_id) & 0x7FF), (
+        int(overflow) if overflow and overflow > 1 else None
+    )
 
 
 @dataclass(frozen=True)
@@ -337,7 +371,9 @@ class CanopenLayout:
         motor = Encoder(pdo, obj, counts_per_rev(od, node, eds, motor_cpr, "--motor-cpr"))
         if load_node is None:
             if load_eds is not None:
-                raise InvalidParameterError("--load-eds is the dictionary of the load encoder's node: give --load-node too")
+                raise InvalidParameterError(
+                    "--load-eds is the dictionary of the load encoder's node: give --load-node too"
+                )
             pdo, obj = find_encoder(od, node, eds, ADDITIONAL_POSITION_ACTUAL_VALUE, load_subindex)
             if load_cpr is None:
                 raise InvalidParameterError(
@@ -346,9 +382,13 @@ class CanopenLayout:
             load = Encoder(pdo, obj, _positive(load_cpr, "--load-cpr"))
         else:
             if load_node == node:
-                raise InvalidParameterError(f"--load-node {load_node} is the motor node: omit it to read 0x60E4 of that node")
+                raise InvalidParameterError(
+                    f"--load-node {load_node} is the motor node: omit it to read 0x60E4 of that node"
+                )
             if load_subindex is not None:
-                raise InvalidParameterError("--load-subindex selects a sub-index of 0x60E4 on the motor node: not with --load-node")
+                raise InvalidParameterError(
+                    "--load-subindex selects a sub-index of 0x60E4 on the motor node: not with --load-node"
+                )
             load_path = eds if load_eds is None else load_eds
             load_od = load_dictionary(load_path, load_node)
             pdo, obj = find_encoder(load_od, load_node, load_path, POSITION_ACTUAL_VALUE)
@@ -370,7 +410,11 @@ class CanopenLayout:
         out = {} if self.event_driven else {self.sync_cob_id: "SYNC"}
         for role, enc in (("motor", self.motor), ("load", self.load)):
             text = f"{enc.pdo.describe()} ({role}: {enc.obj.label})"
-            out[enc.pdo.cob_id] = text if enc.pdo.cob_id not in out or role == "motor" else f"{out[enc.pdo.cob_id]}; load: {enc.obj.label}"
+            out[enc.pdo.cob_id] = (
+                text
+                if enc.pdo.cob_id not in out or role == "motor"
+                else f"{out[enc.pdo.cob_id]}; load: {enc.obj.label}"
+            )
         return out
 
 
@@ -391,7 +435,12 @@ class NodeMapping:
 
     def as_dict(self) -> dict[str, Any]:
         """JSON values: ``node``, ``eds``, ``sync_cob_id`` and ``tpdos`` (:meth:`Tpdo.as_dict`)."""
-        return {"node": self.node_id, "eds": self.path, "sync_cob_id": f"0x{self.sync_cob_id:03X}", "tpdos": [p.as_dict() for p in self.tpdos]}
+        return {
+            "node": self.node_id,
+            "eds": self.path,
+            "sync_cob_id": f"0x{self.sync_cob_id:03X}",
+            "tpdos": [p.as_dict() for p in self.tpdos],
+        }
 
 
 def cob_id_names(nodes: Sequence[NodeMapping]) -> dict[int, str]:
@@ -566,7 +615,9 @@ class PdoDecoder:
         return DecodedFrame(msg.timestamp, role, None, motor, load)
 
 
-def canopen_pipeline(layout: CanopenLayout, period_s: float | None = None, max_skew_s: float = 1e-3, strict: bool = False) -> PerFramePipeline:
+def canopen_pipeline(
+    layout: CanopenLayout, period_s: float | None = None, max_skew_s: float = 1e-3, strict: bool = False
+) -> PerFramePipeline:
     """The frame rule of ``layout``: :class:`SyncPipeline` for synchronous TPDOs, else the DBC path's
     pairing by time (:class:`~online_backlash.codecs.pairing.FramePipeline` over a :class:`PdoDecoder`;
     ``max_skew_s``, seconds: the largest time between a motor and a load value of one sample).

@@ -120,17 +120,14 @@ def _find_signal(db: Database, spec: str) -> tuple[Message, Signal]:
     if not isinstance(spec, str) or not spec:
         raise InvalidParameterError(f"signal must be a name like 'Message.Signal', got {spec!r}")
     msg_name, dot, sig_name = spec.rpartition(".")
-    matches = [
-        (m, s)
-        for m in db.messages
-        for s in m.signals
-        if s.name == sig_name and (not dot or m.name == msg_name)
-    ]
+    matches = [(m, s) for m in db.messages for s in m.signals if s.name == sig_name and (not dot or m.name == msg_name)]
     if not matches:
         known = [f"{m.name}.{s.name}" for m in db.messages for s in m.signals]
         raise InvalidParameterError(f"signal {spec!r} is not in the DBC; signals: {known}")
     if len(matches) > 1:
-        raise InvalidParameterError(f"signal {spec!r} is ambiguous; use one of {[f'{m.name}.{s.name}' for m, s in matches]}")
+        raise InvalidParameterError(
+            f"signal {spec!r} is ambiguous; use one of {[f'{m.name}.{s.name}' for m, s in matches]}"
+        )
     return matches[0]
 
 
@@ -171,7 +168,9 @@ def resolve_signal(
         ratio = wrap_deg / abs(deg_per_raw)
         modulus = round(ratio)
         if modulus < 2 or abs(ratio - modulus) > 1e-6 * ratio:
-            raise InvalidParameterError(f"signal {name}: a wrap of {wrap_deg} deg is not a whole number of raw steps of {abs(deg_per_raw)} deg")
+            raise InvalidParameterError(
+                f"signal {name}: a wrap of {wrap_deg} deg is not a whole number of raw steps of {abs(deg_per_raw)} deg"
+            )
     return EncoderSignal(message, signal.name, modulus, deg_per_raw, offset * ANGLE_UNITS[key], unit, is_count=False)
 
 
@@ -191,7 +190,9 @@ def _count_signal(message: Message, signal: Signal, name: str, unit: str, counts
         low = -(counts_per_rev // 2)
     if not isinstance(counts_per_rev, int) or counts_per_rev < 2:
         raise InvalidParameterError(f"counts per revolution of {name} must be an integer >= 2, got {counts_per_rev!r}")
-    return EncoderSignal(message, signal.name, counts_per_rev, 360.0 / counts_per_rev, 0.0, unit, is_count=True, low=low)
+    return EncoderSignal(
+        message, signal.name, counts_per_rev, 360.0 / counts_per_rev, 0.0, unit, is_count=True, low=low
+    )
 
 
 @dataclass(frozen=True)
@@ -304,20 +305,30 @@ class DbcDecoder:
         self.load = resolve_signal(self.db, load_signal, load_cpr, units, load_wrap)
         self.paired = self.motor.message.frame_id != self.load.message.frame_id
         if not self.paired and self.motor.message.is_multiplexed():
-            motor_ids, load_ids = (self.motor.message.get_signal_by_name(e.signal).multiplexer_ids for e in (self.motor, self.load))
+            motor_ids, load_ids = (
+                self.motor.message.get_signal_by_name(e.signal).multiplexer_ids for e in (self.motor, self.load)
+            )
             if motor_ids is not None and load_ids is not None and not set(motor_ids) & set(load_ids):
-                raise InvalidParameterError(f"{motor_signal} and {load_signal} are never in the same frame of multiplexed message {self.motor.message.name}")
-        roles = [(self.motor.message, MOTOR), (self.load.message, LOAD)] if self.paired else [(self.motor.message, BOTH)]
+                raise InvalidParameterError(
+                    f"{motor_signal} and {load_signal} are never in the same frame of multiplexed message {self.motor.message.name}"
+                )
+        roles = (
+            [(self.motor.message, MOTOR), (self.load.message, LOAD)] if self.paired else [(self.motor.message, BOTH)]
+        )
         self.layouts: dict[int, MessageLayout] = {}
         for message, role in roles:
             modulus = _counter_modulus(message, counter_signal)
             checksum = _checksum_byte(message, checksum_signal) if checksum_signal else None
-            self.layouts[message.frame_id] = MessageLayout(role, message.length, counter_signal if modulus else None, modulus, checksum)
+            self.layouts[message.frame_id] = MessageLayout(
+                role, message.length, counter_signal if modulus else None, modulus, checksum
+            )
         moduli = {lay.counter_modulus for lay in self.layouts.values()}
         self.counter_modulus = moduli.pop() if len(moduli) == 1 else None
         self.messages: dict[int, Message] = {m.frame_id: m for m, _ in roles}
         # hot path of decode(): one lookup per frame
-        self._by_id = {fid: (m.is_extended_frame, self.layouts[fid], m.decode_simple) for fid, m in self.messages.items()}
+        self._by_id = {
+            fid: (m.is_extended_frame, self.layouts[fid], m.decode_simple) for fid, m in self.messages.items()
+        }
         self._motor_name, self._motor_range = self.motor.signal, self.motor.raw_range()
         self._load_name, self._load_range = self.load.signal, self.load.raw_range()
 
@@ -345,7 +356,9 @@ class DbcDecoder:
                 return None
             load = cast(int, values[self._load_name])
             _check_range(msg, "load", load, self._load_range)
-        return DecodedFrame(msg.timestamp, layout.role, cast(int, values[layout.counter]) if layout.counter else None, motor, load)
+        return DecodedFrame(
+            msg.timestamp, layout.role, cast(int, values[layout.counter]) if layout.counter else None, motor, load
+        )
 
 
 def _check_range(msg: can.Message, which: str, value: int, valid: tuple[int, int] | None) -> None:
@@ -379,7 +392,15 @@ class FrameEncoder:
             if layout.checksum_byte is not None:
                 i = layout.checksum_byte
                 data[i] = Crc8SaeJ1850.calc(bytes(data[:i] + data[i + 1 :]))
-            out.append(can.Message(timestamp=time_s, arbitration_id=frame_id, is_extended_id=message.is_extended_frame, is_fd=message.is_fd, data=data))
+            out.append(
+                can.Message(
+                    timestamp=time_s,
+                    arbitration_id=frame_id,
+                    is_extended_id=message.is_extended_frame,
+                    is_fd=message.is_fd,
+                    data=data,
+                )
+            )
         return out
 
 
@@ -399,7 +420,9 @@ def wrap_per_signal(wrap_deg: WrapDeg) -> tuple[float | None, float | None]:
         return wrap_deg, wrap_deg
     unknown = sorted(set(wrap_deg) - set(WRAP_ROLES))
     if unknown:
-        raise InvalidParameterError(f"wrap_deg names {', '.join(map(repr, unknown))}; the signals are {' and '.join(WRAP_ROLES)}")
+        raise InvalidParameterError(
+            f"wrap_deg names {', '.join(map(repr, unknown))}; the signals are {' and '.join(WRAP_ROLES)}"
+        )
     return wrap_deg.get("motor"), wrap_deg.get("load")
 
 
@@ -419,7 +442,9 @@ def parse_wrap_deg(text: str) -> WrapDeg:
         except ValueError:
             number = math.nan
         if not (math.isfinite(number) and number > 0):
-            raise InvalidParameterError(f"--wrap-deg {text!r}: {what} must be a positive number of degrees or 'none', got {value!r}")
+            raise InvalidParameterError(
+                f"--wrap-deg {text!r}: {what} must be a positive number of degrees or 'none', got {value!r}"
+            )
         return number
 
     if "=" not in text:
@@ -429,7 +454,9 @@ def parse_wrap_deg(text: str) -> WrapDeg:
         role, eq, value = part.partition("=")
         role = role.strip().lower()
         if not eq or role not in WRAP_ROLES or role in out:
-            raise InvalidParameterError(f"--wrap-deg {text!r}: expected DEG or motor=DEG,load=DEG (DEG a number or 'none')")
+            raise InvalidParameterError(
+                f"--wrap-deg {text!r}: expected DEG or motor=DEG,load=DEG (DEG a number or 'none')"
+            )
         out[role] = degrees(value, role)
     return out
 

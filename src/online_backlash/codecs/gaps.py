@@ -75,7 +75,9 @@ class GapDetector:
     Gap(time_s=0.01, duration_s=0.008, missing=7)
     """
 
-    def __init__(self, counter_modulus: int | None = None, period_s: float | None = None, learn_steps: int = 16) -> None:
+    def __init__(
+        self, counter_modulus: int | None = None, period_s: float | None = None, learn_steps: int = 16
+    ) -> None:
         if counter_modulus is not None and counter_modulus < 2:
             raise InvalidParameterError(f"counter_modulus must be >= 2 or None, got {counter_modulus!r}")
         if period_s is not None and not period_s > 0:
@@ -134,7 +136,9 @@ class GapDetector:
             return after_gap, []
         index = np.flatnonzero(after_gap)
         steps = time_s[index] - np.where(index > 0, time_s[index - 1], start)
-        return after_gap, [Gap(t, d, missing_in_step(d, period)) for t, d in zip(time_s[index].tolist(), steps.tolist())]
+        return after_gap, [
+            Gap(t, d, missing_in_step(d, period)) for t, d in zip(time_s[index].tolist(), steps.tolist())
+        ]
 
     def _learn(self, steps: list[float]) -> None:
         """Take steps (seconds) towards the learnt period: the median of the first ``learn_steps``, or with a
@@ -147,7 +151,9 @@ class GapDetector:
 
 
 @njit(cache=True, nogil=True)
-def _flag_gaps(time_s: np.ndarray, first: int, before: float, longest_s: float, after_gap: np.ndarray) -> int:  # pragma: no cover - compiled
+def _flag_gaps(
+    time_s: np.ndarray, first: int, before: float, longest_s: float, after_gap: np.ndarray
+) -> int:  # pragma: no cover - compiled
     """Set ``after_gap[i]`` for ``i >= first`` where the step to ``time_s[i]`` (from ``time_s[i - 1]``, or
     ``before`` for ``i == 0``) is longer than ``longest_s`` seconds (:func:`step_is_gap`); returns how many."""
     found = 0

@@ -197,7 +197,9 @@ class FramePipeline(PerFramePipeline):
     {'frames': 2, 'samples': 1, 'corrupt': 0, 'skipped': 0, 'gaps': 0, 'unpaired': 0}
     """
 
-    def __init__(self, decoder: FrameDecoder, period_s: float | None = None, max_skew_s: float = 1e-3, strict: bool = False) -> None:
+    def __init__(
+        self, decoder: FrameDecoder, period_s: float | None = None, max_skew_s: float = 1e-3, strict: bool = False
+    ) -> None:
         super().__init__(decoder, max_skew_s)
         self.strict = strict
         self._pending: list[DecodedFrame | None] = [None, None]  # [motor, load]
@@ -229,14 +231,22 @@ class FramePipeline(PerFramePipeline):
         mine, other = (0, 1) if frame.role == MOTOR else (1, 0)
         partner = self._pending[other]
         if partner is not None and (
-            frame.counter == partner.counter if frame.counter is not None else abs(frame.time_s - partner.time_s) <= self.max_skew_s
+            frame.counter == partner.counter
+            if frame.counter is not None
+            else abs(frame.time_s - partner.time_s) <= self.max_skew_s
         ):
             self._pending[other] = None
             if self._pending[mine] is not None:  # an older frame whose partner never came
                 self.counters.unpaired += 1
                 self._pending[mine] = None
             motor, load = (frame, partner) if mine == 0 else (partner, frame)
-            return self._complete(min(motor.time_s, load.time_s), frame.counter, motor.motor_count, load.load_count, load.time_s - motor.time_s)
+            return self._complete(
+                min(motor.time_s, load.time_s),
+                frame.counter,
+                motor.motor_count,
+                load.load_count,
+                load.time_s - motor.time_s,
+            )
         if self._pending[mine] is not None:
             self.counters.unpaired += 1
         self._pending[mine] = frame
@@ -247,7 +257,9 @@ class FramePipeline(PerFramePipeline):
         self.counters.unpaired += sum(p is not None for p in self._pending)
         self._pending = [None, None]
 
-    def _complete(self, time_s: float, counter: int | None, motor_count: int, load_count: int, skew_s: float) -> Row | None:
+    def _complete(
+        self, time_s: float, counter: int | None, motor_count: int, load_count: int, skew_s: float
+    ) -> Row | None:
         if self.frames_per_sample == 2:
             self._add_skew(skew_s)
         return self._assemble(

@@ -194,7 +194,13 @@ class BinaryParser(FrameParser):
     max_frame_bytes = 2 * BINARY_FRAME_BYTES
     counter_modulus = 2**16
 
-    def __init__(self, motor_cpr: float | None = None, load_cpr: float | None = None, period_s: float | None = None, strict: bool = False) -> None:
+    def __init__(
+        self,
+        motor_cpr: float | None = None,
+        load_cpr: float | None = None,
+        period_s: float | None = None,
+        strict: bool = False,
+    ) -> None:
         self._motor_scale = 360.0 / require_cpr("motor_cpr", motor_cpr)
         self._load_scale = 360.0 / require_cpr("load_cpr", load_cpr)
         super().__init__(period_s, strict)
@@ -212,7 +218,12 @@ class BinaryParser(FrameParser):
         if Crc16CcittFalse.calc(payload) != _CRC.unpack_from(body, _BINARY.size)[0]:
             raise FrameError("bad CRC")
         seq, time_us, motor, load = _BINARY.unpack(payload)
-        return time_us * 1e-6, self._motor_turns(motor) * self._motor_scale, self._load_turns(load) * self._load_scale, seq
+        return (
+            time_us * 1e-6,
+            self._motor_turns(motor) * self._motor_scale,
+            self._load_turns(load) * self._load_scale,
+            seq,
+        )
 
 
 def require_cpr(name: str, cpr: float | None) -> float:
@@ -223,7 +234,11 @@ def require_cpr(name: str, cpr: float | None) -> float:
 
 
 def make_parser(
-    serial_format: str, motor_cpr: float | None = None, load_cpr: float | None = None, period_s: float | None = None, strict: bool = False
+    serial_format: str,
+    motor_cpr: float | None = None,
+    load_cpr: float | None = None,
+    period_s: float | None = None,
+    strict: bool = False,
 ) -> FrameParser:
     """The parser of ``serial_format`` (``ascii`` or ``binary``)."""
     if serial_format == "ascii":

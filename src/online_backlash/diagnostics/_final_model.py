@@ -67,8 +67,20 @@ def hold_out_each(steps: list[AddedTerm], final: JointFit, record: LoopRecord) -
     columns = held_columns_per_term(terms, r.built, view)
     supports = [own_support(e, r.built) for e in terms]
     dense = [part for part, support in zip(columns, supports) if support is None]
-    data = detection_data(r.u_deg, r.time_s, r.torque_Nm, r.uc, final, terms, r.ratio, r.period_s, r.folds,
-                          r.built, view=view, done_columns=dense)
+    data = detection_data(
+        r.u_deg,
+        r.time_s,
+        r.torque_Nm,
+        r.uc,
+        final,
+        terms,
+        r.ratio,
+        r.period_s,
+        r.folds,
+        r.built,
+        view=view,
+        done_columns=dense,
+    )
     assert data.nuisance is not None
     sparse = [(part, support) for part, support in zip(columns, supports) if support is not None]
     rows = extra = None

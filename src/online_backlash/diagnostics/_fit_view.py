@@ -103,9 +103,20 @@ def scored_columns(data: DetectionData, effect: Any, built: TermColumns) -> np.n
 
 
 def detection_data(
-    u: np.ndarray, t: np.ndarray, q: np.ndarray, uc: np.ndarray, current: JointFit, done: list[Any], ratio: float,
-    period: float, folds: Folds, built: TermColumns, cache: RecordCache | None = None, view: FitView | None = None,
-    done_columns: Sequence[np.ndarray] | None = None, noise: NoiseFloor | None = None,
+    u: np.ndarray,
+    t: np.ndarray,
+    q: np.ndarray,
+    uc: np.ndarray,
+    current: JointFit,
+    done: list[Any],
+    ratio: float,
+    period: float,
+    folds: Folds,
+    built: TermColumns,
+    cache: RecordCache | None = None,
+    view: FitView | None = None,
+    done_columns: Sequence[np.ndarray] | None = None,
+    noise: NoiseFloor | None = None,
 ) -> DetectionData:
     """What the detectors see given the current fit.
 
@@ -120,8 +131,18 @@ def detection_data(
     if done:
         parts.extend(held_columns_per_term(done, built, view) if done_columns is None else done_columns)
     return DetectionData.stacked(
-        parts, current.residual_deg, u_deg=u, time_s=t, torque_Nm=q, ratio=ratio, sample_period_s=period,
-        engaged_index=view.engaged_index, n_backlash=view.other_directions.shape[1] + 1, folds=folds,
-        model_output_deg=view.output_deg, backlash_params=current.params, cache=cache,
+        parts,
+        current.residual_deg,
+        u_deg=u,
+        time_s=t,
+        torque_Nm=q,
+        ratio=ratio,
+        sample_period_s=period,
+        engaged_index=view.engaged_index,
+        n_backlash=view.other_directions.shape[1] + 1,
+        folds=folds,
+        model_output_deg=view.output_deg,
+        backlash_params=current.params,
+        cache=cache,
         noise_floor_deg=0.0 if noise is None else noise.floor_deg,
     )

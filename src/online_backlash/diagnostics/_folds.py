@@ -120,16 +120,26 @@ class Folds:
     @cached_property
     def row_index(self) -> np.ndarray:
         """The indices of the samples the scores read: in :attr:`segments`, in order, every :attr:`stride`-th from each one's start."""
-        return np.concatenate([np.arange(a, b, self.stride) for _, a, b in self.segments]) if self.segments else np.zeros(0, np.int64)
+        return (
+            np.concatenate([np.arange(a, b, self.stride) for _, a, b in self.segments])
+            if self.segments
+            else np.zeros(0, np.int64)
+        )
 
     @cached_property
     def cycle_rows(self) -> np.ndarray:
         """Every sample of :attr:`segments`, in order (:attr:`row_index` without the stride: the rows the
         candidates' joint refits run over, runs of consecutive samples)."""
-        return np.concatenate([np.arange(a, b) for _, a, b in self.segments]) if self.segments else np.zeros(0, np.int64)
+        return (
+            np.concatenate([np.arange(a, b) for _, a, b in self.segments]) if self.segments else np.zeros(0, np.int64)
+        )
 
     def screen(
-        self, cycles: int = SCREEN_CYCLES, factor: int = SCREEN_FACTOR, stride: int = SCREEN_STRIDE, min_samples: int | None = None
+        self,
+        cycles: int = SCREEN_CYCLES,
+        factor: int = SCREEN_FACTOR,
+        stride: int = SCREEN_STRIDE,
+        min_samples: int | None = None,
     ) -> Folds:
         """These folds restricted to about ``cycles`` whole reversal cycles spread evenly over the
         record (more where its cycles are short: as many as hold about ``min_samples`` samples at the
@@ -141,15 +151,24 @@ class Folds:
         runs = self._runs
         k = self.n_folds
         min_samples = SCREEN_MIN_SAMPLES if min_samples is None else min_samples
-        for_samples = math.ceil(min_samples * self.n_cycles / max(self.fold.size, 1))  # cycles of mean length holding min_samples
-        if self.kind != "reversal cycles" or self.n_cycles < factor * max(cycles, for_samples) or len(runs) != self.n_cycles or k < 2:
+        for_samples = math.ceil(
+            min_samples * self.n_cycles / max(self.fold.size, 1)
+        )  # cycles of mean length holding min_samples
+        if (
+            self.kind != "reversal cycles"
+            or self.n_cycles < factor * max(cycles, for_samples)
+            or len(runs) != self.n_cycles
+            or k < 2
+        ):
             return self
         groups = self.n_cycles // k
         wanted = max(cycles // k, -(-for_samples // k), 2)
         if wanted >= groups:  # it would keep (nearly) every cycle
             return self
         chosen = np.unique(np.round(np.linspace(0, groups - 1, wanted)).astype(int))
-        return Folds(self.fold, k, self.n_cycles, self.kind, tuple(int(g * k + j) for g in chosen for j in range(k)), stride)
+        return Folds(
+            self.fold, k, self.n_cycles, self.kind, tuple(int(g * k + j) for g in chosen for j in range(k)), stride
+        )
 
     def as_dict(self) -> dict[str, object]:
         """For the JSON evidence: ``{"folds", "cycles", "split"}``."""

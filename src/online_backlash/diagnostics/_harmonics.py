@@ -71,7 +71,9 @@ def shaft_harmonic(data: DetectionData, shaft: str, angle_deg: np.ndarray, order
     return data.memo(key, lambda: harmonic_stack(angle_deg, top))[order - 1]
 
 
-def harmonic_at_sources(data: DetectionData, shaft: str, angle_deg: np.ndarray, order: int, top: int) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+def harmonic_at_sources(
+    data: DetectionData, shaft: str, angle_deg: np.ndarray, order: int, top: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
     """The order's ``[sin, cos]`` at the samples a held column reads, ``(columns, positions, rows)``:
     ``columns[positions]`` is ``data.hold(shaft_harmonic(...))`` (the rows :meth:`DetectionData.hold`
     gives); ``rows`` are the samples ``columns`` has (None: every sample). For a screen, the stack

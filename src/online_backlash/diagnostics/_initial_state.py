@@ -213,12 +213,16 @@ def first_engagement(uc_deg: np.ndarray, load_deg: np.ndarray, params: BacklashP
     """The first sample where a flank catches the load at ``load_deg`` (the switching test of
     eq. 1-3: ``u >= x / mR + cR`` or ``u <= x / mL - cL``); ``len(load_deg)`` if none does."""
     n = min(len(uc_deg), len(load_deg))
-    f1, f2 = switching_functions(np.asarray(uc_deg[:n], dtype=float), np.asarray(load_deg[:n], dtype=float), params)  # eq. (5)-(6)
+    f1, f2 = switching_functions(
+        np.asarray(uc_deg[:n], dtype=float), np.asarray(load_deg[:n], dtype=float), params
+    )  # eq. (5)-(6)
     hit = (f1 + f2) > 0
     return int(np.argmax(hit)) if hit.any() else n
 
 
-def simulate_with_coast(uc_deg: np.ndarray, params: BacklashParams, path_deg: np.ndarray, x0: float = 0.0) -> np.ndarray:
+def simulate_with_coast(
+    uc_deg: np.ndarray, params: BacklashParams, path_deg: np.ndarray, x0: float = 0.0
+) -> np.ndarray:
     """Eq. (1)-(3) run freely on ``uc_deg``, with the load following ``path_deg`` until a flank first catches it, deg.
 
     While no flank has engaged, the output is the given path; at the first sample where the
@@ -269,7 +273,10 @@ def _best_coast(y: np.ndarray, s_record: np.ndarray, tau: float, start: float = 
     coef, *_ = np.linalg.lstsq(free, y, rcond=None)
     if coef[1] * coef[2] < 0:  # friction brakes the load, it does not drive it: viscous only
         coef = np.r_[np.linalg.lstsq(free[:, :2], y, rcond=None)[0], 0.0]
-    best = (float(np.sum((y - free @ coef) ** 2)), Coast(float(coef[0]), float(coef[1]), float(coef[2]), tau, start_s=start))
+    best = (
+        float(np.sum((y - free @ coef) ** 2)),
+        Coast(float(coef[0]), float(coef[1]), float(coef[2]), tau, start_s=start),
+    )
     # a stop at s[j]: v = a tau (exp(s[j] / tau) - 1), and the path held from there
     if k - 1 - j0 < 1:
         return best[1]
@@ -288,7 +295,10 @@ def _best_coast(y: np.ndarray, s_record: np.ndarray, tau: float, start: float = 
     if rss[j] < best[0]:
         offset = float(y.mean() - a[j] * per_a[j].mean())
         stop = float(s[stops[j]])
-        best = (float(rss[j]), Coast(offset, float(a[j] * tau * np.expm1(stop / tau)), float(a[j]), tau, stop + start, start))
+        best = (
+            float(rss[j]),
+            Coast(offset, float(a[j] * tau * np.expm1(stop / tau)), float(a[j]), tau, stop + start, start),
+        )
     return best[1]
 
 
@@ -325,7 +335,9 @@ def _until_agreed(uc: np.ndarray, params: BacklashParams, path: np.ndarray, rest
         cap = min(n, 4 * cap)
 
 
-def estimate_initial_state(params: BacklashParams, uc_deg: np.ndarray, yc_deg: np.ndarray, time_s: np.ndarray) -> InitialState:
+def estimate_initial_state(
+    params: BacklashParams, uc_deg: np.ndarray, yc_deg: np.ndarray, time_s: np.ndarray
+) -> InitialState:
     """The load's offset and velocity inside the dead band at the record's start (see the module docstring).
 
     Parameters
@@ -346,7 +358,9 @@ def estimate_initial_state(params: BacklashParams, uc_deg: np.ndarray, yc_deg: n
     """
     uc, yc, t = (np.asarray(a, dtype=float) for a in (uc_deg, yc_deg, time_s))
     rest = simulate_backlash(uc, params, 0.0)
-    k_rest = first_engagement(uc, rest, params)  # a load held at 0 until the first flank: the engagement of today's model
+    k_rest = first_engagement(
+        uc, rest, params
+    )  # a load held at 0 until the first flank: the engagement of today's model
     if k_rest < MIN_SAMPLES or t.size < 2:
         return InitialState()
     period = sample_period_s(t)
@@ -379,7 +393,9 @@ def estimate_initial_state(params: BacklashParams, uc_deg: np.ndarray, yc_deg: n
 
 
 def _simpler_unless_beaten(
-    moving: tuple[float, int, InitialState] | None, kicked: tuple[float, int, InitialState] | None, residual_at_rest: np.ndarray
+    moving: tuple[float, int, InitialState] | None,
+    kicked: tuple[float, int, InitialState] | None,
+    residual_at_rest: np.ndarray,
 ) -> InitialState | None:
     """The start moving from the first sample, unless the one kicked later (one parameter more,
     the time it starts to move) beats it by the information criterion over the samples either
@@ -394,4 +410,3 @@ def _simpler_unless_beaten(
     if rss_moving > 0.0 and n * float(np.log(max(rss_kicked, 1e-300) / rss_moving)) + float(np.log(n)) < BIC_THRESHOLD:
         return kicked[2]
     return moving[2]
-

@@ -18,7 +18,10 @@ from ._scoring import DetectionData
 def record_direction(data: DetectionData) -> np.ndarray:
     """+1 / -1, the direction of motion of the record's ``u_deg`` (the folds' window and dead zone,
     :func:`._causal.motion_direction`), built once per record for every detector that splits by flank."""
-    return data.memo(("direction", DIRECTION_WINDOW, DEADZONE_DEG), lambda: motion_direction(data.u_deg, DIRECTION_WINDOW, DEADZONE_DEG, 0.0))
+    return data.memo(
+        ("direction", DIRECTION_WINDOW, DEADZONE_DEG),
+        lambda: motion_direction(data.u_deg, DIRECTION_WINDOW, DEADZONE_DEG, 0.0),
+    )
 
 
 class PerFlankTerms(EffectBase):

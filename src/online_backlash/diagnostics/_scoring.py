@@ -140,7 +140,9 @@ class _Grams:
             return a
         return np.take(a, self.folds.row_index, axis=0)
 
-    def _per_fold(self, a: np.ndarray, b: np.ndarray, segments: Sequence[tuple[int, int, int]] | None = None) -> np.ndarray:
+    def _per_fold(
+        self, a: np.ndarray, b: np.ndarray, segments: Sequence[tuple[int, int, int]] | None = None
+    ) -> np.ndarray:
         """``a^T b`` over the samples of every fold, ``(n_folds, a columns, b columns)``; ``segments``:
         the folds' runs of rows of ``a`` and ``b`` (default :attr:`segments`)."""
         out = np.zeros((self.folds.n_folds, a.shape[1], b.shape[1]))
@@ -165,7 +167,9 @@ class _Grams:
         z[:, j] = self.z[:, p]
         return _Grams(z, self.folds)
 
-    def extended(self, x: np.ndarray, heldout: bool = True, support: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    def extended(
+        self, x: np.ndarray, heldout: bool = True, support: np.ndarray | None = None
+    ) -> tuple[np.ndarray, np.ndarray]:
         """Per-fold (empty without ``heldout``) and total Grams of ``W = [nuisance, x, residual]`` (residual
         last); ``x`` has the rows of ``z`` (see :meth:`rows`), or with ``support`` (the rows of ``z``,
         increasing, outside which ``x`` is zero) its rows there only: its products read those rows."""
@@ -173,7 +177,9 @@ class _Grams:
         z = self.z if support is None else np.take(self.z, support, axis=0)  # the rows that carry x, side by side
         if not heldout:
             return np.empty((0, p + q, p + q)), _assemble(self.total, z.T @ x, x.T @ x)
-        segments = self.segments if support is None else [(f, *np.searchsorted(support, (a, b))) for f, a, b in self.segments]
+        segments = (
+            self.segments if support is None else [(f, *np.searchsorted(support, (a, b))) for f, a, b in self.segments]
+        )
         zx, xx = self._per_fold(z, x, segments), self._per_fold(x, x, segments)
         out = np.empty((k, p + q, p + q))
         for j in range(k):
@@ -249,7 +255,9 @@ def _test_sse(gram: np.ndarray, cols: np.ndarray, c: np.ndarray) -> float:
     return float(gram[-1, -1] - 2.0 * c @ gram[cols, -1] + c @ gram[np.ix_(cols, cols)] @ c)
 
 
-def _score_grams(per_fold: np.ndarray, total: np.ndarray, lag: Callable[[np.ndarray], float], n: int, p: int, terms: np.ndarray) -> Score:
+def _score_grams(
+    per_fold: np.ndarray, total: np.ndarray, lag: Callable[[np.ndarray], float], n: int, p: int, terms: np.ndarray
+) -> Score:
     """The :class:`Score` of the columns ``p .. end-1`` of W beyond its first ``p`` (nuisance) columns.
 
     ``lag(e)``: ``sum_t w(t+1) w(t)`` for ``w = W e`` (see :meth:`_Grams.lag_product`).
@@ -305,7 +313,15 @@ def score_columns(residual: np.ndarray, columns: np.ndarray, nuisance: np.ndarra
     measured over reversal cycles of the sample index (no angle is known here): time blocks.
     """
     r = np.asarray(residual, dtype=float)
-    data = DetectionData(np.arange(r.size, dtype=float) * 0.0, np.arange(r.size, dtype=float), np.full(r.size, np.nan), r, 1.0, 1.0, nuisance)
+    data = DetectionData(
+        np.arange(r.size, dtype=float) * 0.0,
+        np.arange(r.size, dtype=float),
+        np.full(r.size, np.nan),
+        r,
+        1.0,
+        1.0,
+        nuisance,
+    )
     return data.score(False, columns)
 
 
@@ -350,7 +366,9 @@ class DetectionData:
     def __post_init__(self) -> None:
         n = self.residual_deg.size
         given = self.grams
-        if given is not None and not (given.nuisance is self.nuisance and given.residual is self.residual_deg and given.folds is self.folds):
+        if given is not None and not (
+            given.nuisance is self.nuisance and given.residual is self.residual_deg and given.folds is self.folds
+        ):
             given = None  # made for other data (a replace() of something else): formed afresh
         if self.folds is None:
             object.__setattr__(self, "folds", cycle_folds(self.u_deg))
@@ -458,7 +476,11 @@ class DetectionData:
         return _score_grams(per_fold, total, lambda e: self._cross.lag_product(x, e), self.folds.rows, p, terms)
 
     def score_subsets(
-        self, columns: np.ndarray, subsets: Sequence[Sequence[int]], heldout: bool = True, support: np.ndarray | None = None
+        self,
+        columns: np.ndarray,
+        subsets: Sequence[Sequence[int]],
+        heldout: bool = True,
+        support: np.ndarray | None = None,
     ) -> list[Score]:
         """:meth:`score` of ``columns[:, s]`` (not held) for every list of column positions ``s`` in
         ``subsets``, from one set of cross-products of all the columns: each subset's normal equations,
@@ -484,11 +506,17 @@ class DetectionData:
                 whole[:p], whole[at], whole[-1] = e[:p], e[p:-1], e[-1]
                 return self._cross.lag_product(x, whole, support)
 
-            out.append(_score_grams(per_fold[:, keep][:, :, keep], total[np.ix_(keep, keep)], lag, self.folds.rows, p, terms))
+            out.append(
+                _score_grams(per_fold[:, keep][:, :, keep], total[np.ix_(keep, keep)], lag, self.folds.rows, p, terms)
+            )
         return out
 
     def scores_left_out(
-        self, groups: Sequence[np.ndarray], coefs: Sequence[np.ndarray], extra: np.ndarray | None = None, support: np.ndarray | None = None
+        self,
+        groups: Sequence[np.ndarray],
+        coefs: Sequence[np.ndarray],
+        extra: np.ndarray | None = None,
+        support: np.ndarray | None = None,
     ) -> list[Score]:
         """For every group of nuisance columns (positions ``groups[i]``, after the backlash's own
         ``n_backlash``), the :class:`Score` of those columns with their part ``W[:, groups[i]] @
@@ -510,7 +538,9 @@ class DetectionData:
         for group, coef in zip(groups, coefs):
             group = np.asarray(group, dtype=np.intp)
             kept = np.setdiff1d(np.arange(p), group)
-            m = np.zeros((p + 1, p + 1))  # columns of [kept, group, residual + W[:, group] @ coef] from [nuisance, extra, residual]
+            m = np.zeros(
+                (p + 1, p + 1)
+            )  # columns of [kept, group, residual + W[:, group] @ coef] from [nuisance, extra, residual]
             m[kept, np.arange(kept.size)] = 1.0
             m[group, kept.size + np.arange(group.size)] = 1.0
             m[p, p] = 1.0

@@ -66,15 +66,29 @@ class SearchRound:
     generic: Detection | None
 
     @classmethod
-    def detect(cls, record: LoopRecord, current: JointFit, steps: list[AddedTerm], refused: set[type],
-               rules: SelectionRules) -> SearchRound:
+    def detect(
+        cls, record: LoopRecord, current: JointFit, steps: list[AddedTerm], refused: set[type], rules: SelectionRules
+    ) -> SearchRound:
         """The candidates of the round after ``steps`` on the fit ``current`` (scored on the screen's cycles)."""
         taken = {type(s.effect) for s in steps} | refused
         r = record
         view = FitView.of(r.uc, current.params)  # the round's model: its detectors' and its confirmation's
         done = [s.effect for s in steps]
-        data = detection_data(r.u_deg, r.time_s, r.torque_Nm, r.uc, current, done, r.ratio, r.period_s,
-                              r.screen, r.built, r.cache, view, noise=r.noise)
+        data = detection_data(
+            r.u_deg,
+            r.time_s,
+            r.torque_Nm,
+            r.uc,
+            current,
+            done,
+            r.ratio,
+            r.period_s,
+            r.screen,
+            r.built,
+            r.cache,
+            view,
+            noise=r.noise,
+        )
         named = significant([c.detect(data) for c in LIBRARY if c not in taken], rules)
         named = [without_columns(d, r.built) for d in named]
         generic = significant([c.detect(data) for c in GENERIC if c not in taken], rules)
@@ -114,8 +128,10 @@ class SearchRound:
             generic, fit_generic = self.refits.candidate(generic)
             if not self.physical(generic, fit_generic):
                 generic = fit_generic = None
-        if named is not None and fit_named is not None and (
-            fit_generic is None or fit_named.rms_deg**2 <= self.rules.label_ratio * fit_generic.rms_deg**2
+        if (
+            named is not None
+            and fit_named is not None
+            and (fit_generic is None or fit_named.rms_deg**2 <= self.rules.label_ratio * fit_generic.rms_deg**2)
         ):
             return Choice("effect", named, fit_named, named_refits)
         if generic is not None and fit_generic is not None:
@@ -143,8 +159,21 @@ class SearchRound:
         if not r.screen.screened:
             terms, fit = refits.walked([*done, choice.detection.effect], choice.fit, range(len(done)))
             return terms, choice.detection, fit, refits.data
-        whole = detection_data(r.u_deg, r.time_s, r.torque_Nm, r.uc, refits.current, done, r.ratio, r.period_s,
-                               r.folds, r.built, r.cache, refits.view, noise=r.noise)
+        whole = detection_data(
+            r.u_deg,
+            r.time_s,
+            r.torque_Nm,
+            r.uc,
+            refits.current,
+            done,
+            r.ratio,
+            r.period_s,
+            r.folds,
+            r.built,
+            r.cache,
+            refits.view,
+            noise=r.noise,
+        )
         confirmed = confirmed_on_every_sample(choice.detection, whole, r.built, self.rules)
         if confirmed is None:
             return None
@@ -172,12 +201,27 @@ class SearchRound:
             self.refused.add(type(choice.detection.effect))  # the whole record does not bear it out: try the others
             return None
         terms, chosen, fit, every_sample = settled
-        return terms, fit, AddedTerm(
-            "not_separable" if rivals else choice.kind, chosen.effect, chosen, current.rms_deg, fit.rms_deg,
-            current.params.play, fit.params.play, fit.play_inflation, fit.play_std_deg, fit.play_held, number,
-            residual_after_deg=fit.residual_deg, heldout_split=self.record.folds.as_dict(), rivals=rivals,
-            scored_on=(current, tuple(self.refits.done)),
-            scored_data=every_sample if hasattr(chosen.effect, "neighbours") else None,
+        return (
+            terms,
+            fit,
+            AddedTerm(
+                "not_separable" if rivals else choice.kind,
+                chosen.effect,
+                chosen,
+                current.rms_deg,
+                fit.rms_deg,
+                current.params.play,
+                fit.params.play,
+                fit.play_inflation,
+                fit.play_std_deg,
+                fit.play_held,
+                number,
+                residual_after_deg=fit.residual_deg,
+                heldout_split=self.record.folds.as_dict(),
+                rivals=rivals,
+                scored_on=(current, tuple(self.refits.done)),
+                scored_data=every_sample if hasattr(chosen.effect, "neighbours") else None,
+            ),
         )
 
 

@@ -103,7 +103,12 @@ def held_spline_columns(data: DetectionData, knots_deg_s: tuple[float, ...]) -> 
     return data.memo(("held speed columns", tuple(knots_deg_s)), build, held=True)
 
 
-def cardinal_columns(knots_deg_s: tuple[float, ...], velocity: np.ndarray, index: np.ndarray | None = None, rows: np.ndarray | None = None) -> np.ndarray:
+def cardinal_columns(
+    knots_deg_s: tuple[float, ...],
+    velocity: np.ndarray,
+    index: np.ndarray | None = None,
+    rows: np.ndarray | None = None,
+) -> np.ndarray:
     """:func:`cardinal_splines` at ``velocity`` (deg/s) without the column of the knot nearest 0 (the
     columns of :class:`~.generic_terms.VelocityFunction`), in one compiled pass (the piecewise cubics of
     :class:`scipy.interpolate.CubicSpline` in its power form, as it evaluates them: the same numbers,

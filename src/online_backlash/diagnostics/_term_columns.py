@@ -43,7 +43,9 @@ class TermColumns:
         stream over the record, ``(n, effect.n_terms)``), read-only from now on; ``nonzero_rows``: their
         rows with a value other than zero (increasing), when known (else :meth:`support` finds them)."""
         if columns.shape != (self.u_deg.size, effect.n_terms):
-            raise ValueError(f"columns of shape {columns.shape} for {effect!r}, expected {(self.u_deg.size, effect.n_terms)}")
+            raise ValueError(
+                f"columns of shape {columns.shape} for {effect!r}, expected {(self.u_deg.size, effect.n_terms)}"
+            )
         columns.flags.writeable = False
         self._built[id(effect)] = (effect, columns)
         if nonzero_rows is not None:

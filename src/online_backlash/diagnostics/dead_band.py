@@ -78,8 +78,13 @@ EXIT_TIME_CONSTANTS = (4, 32, 256)
 REST_TIME_CONSTANTS = (8, 32, 128)
 #: the parts :meth:`DeadBandMotion.detect` tries, alone and together
 VARIANTS = (
-    ("coast", "entry"), ("coast",), ("entry",),
-    ("coast", "entry", "creep at rest"), ("coast", "creep at rest"), ("entry", "creep at rest"), ("creep at rest",),
+    ("coast", "entry"),
+    ("coast",),
+    ("entry",),
+    ("coast", "entry", "creep at rest"),
+    ("coast", "creep at rest"),
+    ("entry", "creep at rest"),
+    ("creep at rest",),
 )
 #: the JSON names of the directions the output last moved
 DIRECTION_NAMES = {1: "moving_up", -1: "moving_down"}
@@ -141,7 +146,12 @@ class DeadBandMotion(EffectBase):
         creep_step: bool = False,
         creep_directions: tuple[int, ...] = (1, -1),
     ) -> None:
-        self.m_left, self.c_left_deg, self.m_right, self.c_right_deg = float(m_left), float(c_left_deg), float(m_right), float(c_right_deg)
+        self.m_left, self.c_left_deg, self.m_right, self.c_right_deg = (
+            float(m_left),
+            float(c_left_deg),
+            float(m_right),
+            float(c_right_deg),
+        )
         self._params = BacklashParams(self.m_left, self.c_left_deg, self.m_right, self.c_right_deg)
         self.exit_time_constants_s = tuple(float(v) for v in exit_time_constants_s)
         self.entry_knots_s = tuple(float(v) for v in entry_knots_s)
@@ -159,7 +169,9 @@ class DeadBandMotion(EffectBase):
         if not directions or len(set(directions)) != len(directions) or set(directions) - {1, -1}:
             raise InvalidParameterError(f"creep_directions must be 1, -1 or both, got {creep_directions!r}")
         if int(window_samples) < 1 or int(smooth_samples) < 1:
-            raise InvalidParameterError(f"window_samples and smooth_samples must be >= 1, got {window_samples!r}, {smooth_samples!r}")
+            raise InvalidParameterError(
+                f"window_samples and smooth_samples must be >= 1, got {window_samples!r}, {smooth_samples!r}"
+            )
         self.window_samples = int(window_samples)
         self.smooth_samples = int(smooth_samples)
         self._window = CausalWindow(max(self.window_samples, self.smooth_samples))
@@ -231,7 +243,9 @@ class DeadBandMotion(EffectBase):
         """Regressor columns ``(len(u_deg), n_terms)``: coast, torque and entry columns (causal)."""
         return self._stream(u_deg, time_s, torque_Nm, None)[0]
 
-    def columns_at(self, u_deg: np.ndarray, time_s: np.ndarray, torque_Nm: np.ndarray, rows: np.ndarray | None) -> np.ndarray:
+    def columns_at(
+        self, u_deg: np.ndarray, time_s: np.ndarray, torque_Nm: np.ndarray, rows: np.ndarray | None
+    ) -> np.ndarray:
         """:meth:`terms` of a fresh stream over the whole record, at the sample indices ``rows`` only
         (increasing; None: every sample): the same numbers, without the record's full block."""
         return self.columns_and_support_at(u_deg, time_s, torque_Nm, rows)[0]
@@ -245,7 +259,9 @@ class DeadBandMotion(EffectBase):
         fresh: DeadBandMotion = self.clone()  # type: ignore[assignment]
         return fresh._stream(u_deg, time_s, torque_Nm, rows)
 
-    def _stream(self, u_deg: np.ndarray, time_s: np.ndarray, torque_Nm: np.ndarray, rows: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+    def _stream(
+        self, u_deg: np.ndarray, time_s: np.ndarray, torque_Nm: np.ndarray, rows: np.ndarray | None
+    ) -> tuple[np.ndarray, np.ndarray]:
         """The columns of the next samples (:meth:`terms`), at ``rows`` of them only unless None, and
         the positions of the rows written with a value other than zero."""
         ue, te, qe, n_past = self._window.extend(u_deg, time_s, torque_Nm)
@@ -266,9 +282,20 @@ class DeadBandMotion(EffectBase):
         # last move (time, direction, velocity, torque)
         state = np.array([float(engaged_before), *self._entry, *self._moved], dtype=float)
         _columns_pass(
-            e, dx, np.ascontiguousarray(t, dtype=float), np.ascontiguousarray(v, dtype=float), np.ascontiguousarray(qs, dtype=float), state,
-            np.asarray(self.exit_time_constants_s, dtype=float), self.torque, np.asarray(self.entry_knots_s, dtype=float), self.n_entry,
-            np.asarray(self.creep_shapes, dtype=float), np.asarray(self.creep_directions, dtype=np.int64), rows, cols,
+            e,
+            dx,
+            np.ascontiguousarray(t, dtype=float),
+            np.ascontiguousarray(v, dtype=float),
+            np.ascontiguousarray(qs, dtype=float),
+            state,
+            np.asarray(self.exit_time_constants_s, dtype=float),
+            self.torque,
+            np.asarray(self.entry_knots_s, dtype=float),
+            self.n_entry,
+            np.asarray(self.creep_shapes, dtype=float),
+            np.asarray(self.creep_directions, dtype=np.int64),
+            rows,
+            cols,
             nonzero,
         )
         self._entry = (float(state[1]), float(state[2]))
@@ -285,7 +312,9 @@ class DeadBandMotion(EffectBase):
             "active_on": "the coast wherever eq. (7) holds the model's output (the dead band, a flank while the motor stands still); "
             "the first entry_knots_s[-1] s after a flank engages, by the model's switching functions (eq. 5-6)",
             "dead_band_deg": self.c_left_deg + self.c_right_deg,
-            "coast": [{"time_constant_s": tau, "deg_per_deg_s": b} for tau, b in zip(self.exit_time_constants_s, coast)],
+            "coast": [
+                {"time_constant_s": tau, "deg_per_deg_s": b} for tau, b in zip(self.exit_time_constants_s, coast)
+            ],
             "coast_per_exit_speed_s": float(sum(coast)),
         }
         k = n_exit
@@ -377,7 +406,9 @@ class DeadBandMotion(EffectBase):
         rests = tuple(tau for tau in _at_period(REST_TIME_CONSTANTS, dt) if tau <= horizon)
         every_one = cls(p.m_left, p.c_left, p.m_right, p.c_right, taus, knots, torque, rests, creep_step=True)
         # the coast (and torque) columns come first, then the entry's, the creep's last: each a slice
-        every, nonzero = every_one.columns_and_support_at(data.u_deg, data.time_s, data.torque_Nm, data.scored_rows)  # the rows the scores use
+        every, nonzero = every_one.columns_and_support_at(
+            data.u_deg, data.time_s, data.torque_Nm, data.scored_rows
+        )  # the rows the scores use
         split = every_one.n_terms - every_one.n_entry - every_one.n_rest
         ends = np.cumsum([0, split, every_one.n_entry, every_one.n_rest])
         parts = dict(zip(("coast", "entry", "creep at rest"), (list(range(int(a), int(b))) for a, b in pairwise(ends))))
@@ -428,16 +459,29 @@ class DeadBandMotion(EffectBase):
 
     @classmethod
     def _detection(
-        cls, p: Any, option: _Option, taus: tuple[float, ...], knots: tuple[float, ...], torque: bool,
-        rests: tuple[float, ...], score: Score,
+        cls,
+        p: Any,
+        option: _Option,
+        taus: tuple[float, ...],
+        knots: tuple[float, ...],
+        torque: bool,
+        rests: tuple[float, ...],
+        score: Score,
     ) -> Detection:
         """The effect of ``option`` (its parts, the creep's step and directions) on the backlash fit ``p``, and
         its evidence."""
         names, creep = option.names, bool(option.directions)
         exit_taus = taus if "coast" in names else ()
         effect = cls(
-            p.m_left, p.c_left, p.m_right, p.c_right, exit_taus, knots if "entry" in names else (),
-            torque and bool(exit_taus), rests if creep else (), creep_step=option.step,
+            p.m_left,
+            p.c_left,
+            p.m_right,
+            p.c_right,
+            exit_taus,
+            knots if "entry" in names else (),
+            torque and bool(exit_taus),
+            rests if creep else (),
+            creep_step=option.step,
             creep_directions=option.directions or (1, -1),
         )
         notes = ["from the lead at the stop"] * option.step

@@ -148,7 +148,9 @@ class TransmissionError(EffectBase):
 
     name = "transmission_error"
 
-    def __init__(self, load_orders: tuple[int, ...] = (), motor_orders: tuple[int, ...] = (), ratio: float = 1.0) -> None:
+    def __init__(
+        self, load_orders: tuple[int, ...] = (), motor_orders: tuple[int, ...] = (), ratio: float = 1.0
+    ) -> None:
         self.load_orders = tuple(load_orders)
         self.motor_orders = tuple(motor_orders)
         self.ratio = ratio
@@ -175,11 +177,18 @@ class TransmissionError(EffectBase):
         }
 
     @classmethod
-    def detect(cls, data: DetectionData, max_load_order: int = 24, max_motor_order: int = 3, max_orders: int = 6) -> Detection | None:
+    def detect(
+        cls, data: DetectionData, max_load_order: int = 24, max_motor_order: int = 3, max_orders: int = 6
+    ) -> Detection | None:
         """Significant harmonics of the residual against the load and motor angles."""
         u = data.u_deg
         load = select_orders(
-            data, lambda n: held_harmonic(data, "load", u, n, max_load_order), max_load_order, float(np.ptp(u)), max_orders, PERIODIC_MIN_PERIODS,
+            data,
+            lambda n: held_harmonic(data, "load", u, n, max_load_order),
+            max_load_order,
+            float(np.ptp(u)),
+            max_orders,
+            PERIODIC_MIN_PERIODS,
             held=True,
         )
         motor: list[int] = []
@@ -191,13 +200,21 @@ class TransmissionError(EffectBase):
             motor = select_orders(
                 given,
                 lambda n: held_harmonic(data, "motor", motor_deg, n, max_motor_order),
-                max_motor_order, float(np.ptp(motor_deg)), max_orders, PERIODIC_MIN_PERIODS, held=True,
+                max_motor_order,
+                float(np.ptp(motor_deg)),
+                max_orders,
+                PERIODIC_MIN_PERIODS,
+                held=True,
             )
         if not load and not motor:
             return None
         effect = cls(tuple(sorted(int(n) for n in load)), tuple(sorted(int(n) for n in motor)), float(data.ratio))
         s = data.score(effect.input_side, effect.clone().terms(u, data.time_s, data.torque_Nm))
-        shafts = [f"{shaft} orders {list(orders)}" for shaft, orders in (("load", effect.load_orders), ("motor", effect.motor_orders)) if orders]
+        shafts = [
+            f"{shaft} orders {list(orders)}"
+            for shaft, orders in (("load", effect.load_orders), ("motor", effect.motor_orders))
+            if orders
+        ]
         return Detection(effect, s, f"residual repeats with the shaft angle: {' and '.join(shafts)} per revolution")
 
 
@@ -277,7 +294,9 @@ class Delay(EffectBase):
         s = data.score(*effect._prepared(data))
         p = effect.describe(s.coef)
         return Detection(
-            effect, s, f"residual follows the motor-angle change over {k_grid} samples (lag {p['lag_samples']:.2f} samples, {p['lag_s'] * 1e3:.3f} ms)"
+            effect,
+            s,
+            f"residual follows the motor-angle change over {k_grid} samples (lag {p['lag_samples']:.2f} samples, {p['lag_s'] * 1e3:.3f} ms)",
         )
 
 
@@ -344,7 +363,9 @@ class Compliance(EffectBase):
     #: the motion proxies' differentiator windows the joint refit may choose from, samples
     WINDOW_GRID: tuple[int, ...] = (11, 15, 21, 31, 41, 61, 81, 121, 161)
 
-    def __init__(self, proxy: str = "torque", window_samples: int = 61, deadband_Nm: float = 0.0, smooth_samples: int = 5) -> None:
+    def __init__(
+        self, proxy: str = "torque", window_samples: int = 61, deadband_Nm: float = 0.0, smooth_samples: int = 5
+    ) -> None:
         if proxy not in ("torque", "motion", "acceleration"):
             raise InvalidParameterError(f"proxy must be 'torque', 'motion' or 'acceleration', got {proxy!r}")
         if not deadband_Nm >= 0:
@@ -371,7 +392,9 @@ class Compliance(EffectBase):
         if self.proxy == "torque":
             q = np.nan_to_num(q, nan=0.0)
             w = self.smooth_samples
-            mean = np.convolve(q, np.ones(w) / w)[: q.size] if w > 1 else q  # the first w-1 rows are in the window's past
+            mean = (
+                np.convolve(q, np.ones(w) / w)[: q.size] if w > 1 else q
+            )  # the first w-1 rows are in the window's past
             return mean * either_flank_engaged(q, self.deadband_Nm)
         start = self._window.record_start  # the rows before it are the rest before the record: no motion there
         acc = savgol_derivative(u, t, self.window_samples, 2, start)
@@ -394,12 +417,15 @@ class Compliance(EffectBase):
                 "torque_column_lag_samples": (self.smooth_samples - 1) / 2.0,
             }
         out: dict[str, Any] = {
-            "proxy": "load-side acceleration" + (" and velocity (inertial and viscous torque)" if self.proxy == "motion" else " (inertial torque)"),
+            "proxy": "load-side acceleration"
+            + (" and velocity (inertial and viscous torque)" if self.proxy == "motion" else " (inertial torque)"),
             "active_on": "engaged samples, by the model's switching functions (eq. 5-6); held through the dead band (eq. 7)",
             "deflection_per_acceleration_s2": c[0],
             "differentiator_window_samples": self.window_samples,
         }
-        if c[0] < 0:  # the twist opposes the acceleration, as an inertia's does: J / k and the shaft's natural frequency
+        if (
+            c[0] < 0
+        ):  # the twist opposes the acceleration, as an inertia's does: J / k and the shaft's natural frequency
             out["inertia_over_stiffness_s2"] = -c[0]
             out["natural_frequency_hz"] = float(1.0 / (2.0 * np.pi * np.sqrt(-c[0])))
         if self.proxy == "motion":
@@ -430,7 +456,9 @@ class Compliance(EffectBase):
         torque's average (:data:`SMOOTHING_GRID`) or the motion proxies' differentiator window
         (:data:`WINDOW_GRID`)."""
         torque = self.proxy == "torque"
-        setting, grid = (self.smooth_samples, self.SMOOTHING_GRID) if torque else (self.window_samples, self.WINDOW_GRID)
+        setting, grid = (
+            (self.smooth_samples, self.SMOOTHING_GRID) if torque else (self.window_samples, self.WINDOW_GRID)
+        )
         options = sorted({*grid, setting})
         i = options.index(setting)
         near = options[max(i - 1, 0) : i] + options[i + 1 : i + 2]
@@ -486,7 +514,12 @@ class Drift(EffectBase):
 
     def describe(self, coef: np.ndarray) -> dict[str, Any]:
         c = [float(v) for v in coef]
-        return {"degree": self.degree, "time_scale_s": self.time_scale_s, "coefficients_deg": c, "offset_at_time_scale_deg": float(sum(c))}
+        return {
+            "degree": self.degree,
+            "time_scale_s": self.time_scale_s,
+            "coefficients_deg": c,
+            "offset_at_time_scale_deg": float(sum(c)),
+        }
 
     @classmethod
     def detect(cls, data: DetectionData, max_degree: int = 3) -> Detection | None:
@@ -528,20 +561,29 @@ class Drift(EffectBase):
             in_time = data.score(effect.input_side, cols)
             # what time explains beyond its rivals decides; the collinearity test is against the terms only
             s = replace(beyond.score(effect.input_side, cols), own_share=in_time.own_share)
-            found.append(Detection(effect, s, f"residual drifts in time (degree {degree} over {span:.0f} s), beyond the net rotation and the speed"))
+            found.append(
+                Detection(
+                    effect,
+                    s,
+                    f"residual drifts in time (degree {degree} over {span:.0f} s), beyond the net rotation and the speed",
+                )
+            )
             alone.append(Detection(effect, in_time, "in time alone"))
         best = best_detection(found)
         confounded = best_detection([d for d in alone if d.score.significant()])
         if best is None or best.score.significant() or confounded is None:
             return best
         cols = confounded.effect.powers(times, t0)  # type: ignore[attr-defined]
-        named = tuple(k for k, x in rivals.items() if x.shape[1] and not data.with_nuisance(x).score(False, cols).significant())
+        named = tuple(
+            k for k, x in rivals.items() if x.shape[1] and not data.with_nuisance(x).score(False, cols).significant()
+        )
         if "velocity_function" in named and not data.score(False, rivals["velocity_function"]).significant():
             named = tuple(k for k in named if k != "velocity_function")  # the leftover of a velocity term already in
             if not named:
                 return best
         return Detection(
-            confounded.effect, confounded.score,
+            confounded.effect,
+            confounded.score,
             f"residual drifts in time (degree {getattr(confounded.effect, 'degree', 0)}), but time is collinear with {' and '.join(named or tuple(rivals))}",
             rivals=named or tuple(rivals),
         )

@@ -88,11 +88,16 @@ class FlankProfile(PerFlankTerms):
     name = "flank_profile"
 
     def __init__(
-        self, knots_deg: tuple[float, ...] = (0.0, 1.0, 2.0), window_samples: int = DIRECTION_WINDOW, deadzone_deg: float = DEADZONE_DEG
+        self,
+        knots_deg: tuple[float, ...] = (0.0, 1.0, 2.0),
+        window_samples: int = DIRECTION_WINDOW,
+        deadzone_deg: float = DEADZONE_DEG,
     ) -> None:
         knots = np.asarray(knots_deg, dtype=float)
         if knots.ndim != 1 or knots.size < 3 or not np.all(np.isfinite(knots)) or np.any(np.diff(knots) <= 0):
-            raise InvalidParameterError(f"knots_deg must be at least three finite, strictly increasing angles, got {knots_deg!r}")
+            raise InvalidParameterError(
+                f"knots_deg must be at least three finite, strictly increasing angles, got {knots_deg!r}"
+            )
         if int(window_samples) < 1:
             raise InvalidParameterError(f"window_samples must be >= 1, got {window_samples!r}")
         if not (np.isfinite(deadzone_deg) and deadzone_deg >= 0):
@@ -176,7 +181,9 @@ def _covered_range(u: np.ndarray, direction: np.ndarray) -> tuple[float, float] 
     return lo, hi
 
 
-def _covered_knots(u: np.ndarray, direction: np.ndarray, spacing: float, covered: tuple[float, float]) -> np.ndarray | None:
+def _covered_knots(
+    u: np.ndarray, direction: np.ndarray, spacing: float, covered: tuple[float, float]
+) -> np.ndarray | None:
     """Knots ``spacing`` apart over the range ``covered`` (:func:`_covered_range`), every knot's
     neighbourhood visited by at least :data:`MIN_KNOT_SHARE` of the samples on each flank, or None
     when that range is shorter than two spacings or needs more than :data:`MAX_KNOTS`."""

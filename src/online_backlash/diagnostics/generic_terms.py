@@ -28,7 +28,14 @@ from ._folds import DEADZONE_DEG, DIRECTION_WINDOW
 from ._harmonics import harmonic_at_sources, harmonic_columns, held_per_flank
 from ._per_flank import PerFlankTerms, record_direction
 from ._scoring import Detection, DetectionData, Score
-from ._speed import MAX_INNER_KNOTS, VELOCITY_WINDOW, cardinal_columns, held_spline_columns, record_speed_knots, zero_knot
+from ._speed import (
+    MAX_INNER_KNOTS,
+    VELOCITY_WINDOW,
+    cardinal_columns,
+    held_spline_columns,
+    record_speed_knots,
+    zero_knot,
+)
 from .effects import amplitudes_phases, select_orders
 
 
@@ -49,7 +56,9 @@ class AngleHarmonicsPerFlank(PerFlankTerms):
 
     name = "angle_harmonics_per_flank"
 
-    def __init__(self, orders: tuple[int, ...] = (1,), window_samples: int = DIRECTION_WINDOW, deadzone_deg: float = DEADZONE_DEG) -> None:
+    def __init__(
+        self, orders: tuple[int, ...] = (1,), window_samples: int = DIRECTION_WINDOW, deadzone_deg: float = DEADZONE_DEG
+    ) -> None:
         self.orders = tuple(orders)
         self.window_samples = int(window_samples)
         self.deadzone_deg = deadzone_deg
@@ -86,7 +95,9 @@ class AngleHarmonicsPerFlank(PerFlankTerms):
 
         def held(n: int) -> np.ndarray:  # the columns of order n, held through the dead band
             columns, positions, rows = harmonic_at_sources(data, "load", u, n, max_order)
-            return held_per_flank(columns, up if rows is None else up[rows], down if rows is None else down[rows], positions)
+            return held_per_flank(
+                columns, up if rows is None else up[rows], down if rows is None else down[rows], positions
+            )
 
         orders = select_orders(data, held, max_order, float(np.ptp(u)), max_orders, held=True)
         if not orders:
@@ -130,7 +141,9 @@ class VelocityFunction(EffectBase):
     def __init__(self, knots_deg_s: tuple[float, ...] = (-30.0, 0.0, 30.0), window_samples: int = 10) -> None:
         knots = np.asarray(knots_deg_s, dtype=float)
         if knots.ndim != 1 or knots.size < 2 or not np.all(np.isfinite(knots)) or np.any(np.diff(knots) <= 0):
-            raise InvalidParameterError(f"knots_deg_s must be at least two finite, strictly increasing velocities, got {knots_deg_s!r}")
+            raise InvalidParameterError(
+                f"knots_deg_s must be at least two finite, strictly increasing velocities, got {knots_deg_s!r}"
+            )
         if int(window_samples) < 1:
             raise InvalidParameterError(f"window_samples must be >= 1, got {window_samples!r}")
         self.knots_deg_s = tuple(float(k) for k in knots)
@@ -163,7 +176,9 @@ class VelocityFunction(EffectBase):
         return f"against the velocity, {self.knots_deg_s[0]:.1f} to {self.knots_deg_s[-1]:.1f} deg/s"
 
     @classmethod
-    def detect(cls, data: DetectionData, knots_per_direction: tuple[int, ...] = KNOTS_PER_DIRECTION) -> Detection | None:
+    def detect(
+        cls, data: DetectionData, knots_per_direction: tuple[int, ...] = KNOTS_PER_DIRECTION
+    ) -> Detection | None:
         """A smooth function of velocity fitted to the residual.
 
         The knots are spread evenly over the speeds of each direction of motion, each direction
@@ -195,7 +210,9 @@ class VelocityFunction(EffectBase):
         else:
             _, effect, s = min(scored, key=lambda e: e[2].delta_bic)
         top = max(abs(effect.knots_deg_s[0]), abs(effect.knots_deg_s[-1]))
-        return Detection(effect, s, f"residual depends on the velocity (|v| up to {top:.1f} deg/s, {effect.n_terms} knots)")
+        return Detection(
+            effect, s, f"residual depends on the velocity (|v| up to {top:.1f} deg/s, {effect.n_terms} knots)"
+        )
 
 
 #: the generic terms, tried when structure remains that the named effects do not explain

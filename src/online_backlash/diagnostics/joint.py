@@ -80,7 +80,9 @@ class JointFit:
         return float(np.sqrt(np.mean(self.residual_deg**2)))
 
 
-def _spans(rows: np.ndarray, switched: tuple[np.ndarray, np.ndarray]) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+def _spans(
+    rows: np.ndarray, switched: tuple[np.ndarray, np.ndarray]
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """``(starts, firsts, stops, x0s)`` of :func:`~online_backlash.model.backlash_sensitivity_spans` for the
     runs of consecutive ``rows``: each started :data:`SPAN_LEAD` samples before the last sample ahead
     of it with a flank engaged, from the output there; ``switched`` is :func:`_switched` of the
@@ -103,7 +105,9 @@ def _sensitivity_gram(u, y, mL, cL, mR, cR, starts, firsts, stops, x0s, a):  # p
     more than the simulation)."""
     at = 0
     count = 0.0
-    g01 = g02 = g03 = g04 = g05 = g11 = g12 = g13 = g14 = g15 = g22 = g23 = g24 = g25 = g33 = g34 = g35 = g44 = g45 = g55 = 0.0
+    g01 = g02 = g03 = g04 = g05 = g11 = g12 = g13 = g14 = g15 = g22 = g23 = g24 = g25 = g33 = g34 = g35 = g44 = g45 = (
+        g55
+    ) = 0.0
     for k in range(starts.size):
         prev = x0s[k]
         d0 = d1 = d2 = d3 = 0.0
@@ -181,7 +185,9 @@ def hold_columns(columns: np.ndarray, held: np.ndarray, index: np.ndarray) -> np
         return columns
     if np.all(held):
         return np.take(columns, index, axis=0)
-    return _hold_some(np.asarray(columns, dtype=float), np.asarray(held, dtype=np.bool_), np.asarray(index, dtype=np.int64))
+    return _hold_some(
+        np.asarray(columns, dtype=float), np.asarray(held, dtype=np.bool_), np.asarray(index, dtype=np.int64)
+    )
 
 
 @njit(cache=True)
@@ -401,8 +407,15 @@ class _HeldAt:
 
 
 def _fit_held(
-    uc: np.ndarray, yc: np.ndarray, columns: ColumnParts, held: np.ndarray, start: BacklashParams, hold_play: float | None,
-    first: ColumnParts | None, rows: np.ndarray | None = None, planned: tuple[np.ndarray, np.ndarray] | None = None,
+    uc: np.ndarray,
+    yc: np.ndarray,
+    columns: ColumnParts,
+    held: np.ndarray,
+    start: BacklashParams,
+    hold_play: float | None,
+    first: ColumnParts | None,
+    rows: np.ndarray | None = None,
+    planned: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> JointFit:
     """:func:`fit_joint` given ``first``, the columns held through the dead band of ``start`` (the
     first search's; :func:`fit_guarded` hands the same to its second fit instead of forming it again).
@@ -423,7 +436,12 @@ def _fit_held(
 
 
 def _fit_fixed_columns(
-    uc: np.ndarray, yc: np.ndarray, columns: ColumnParts | _HeldAt, start: BacklashParams, hold_play: float | None, rows: np.ndarray | None = None,
+    uc: np.ndarray,
+    yc: np.ndarray,
+    columns: ColumnParts | _HeldAt,
+    start: BacklashParams,
+    hold_play: float | None,
+    rows: np.ndarray | None = None,
     switched: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> JointFit:
     """:func:`fit_joint` for columns that do not depend on the backlash parameters.
@@ -479,7 +497,9 @@ def _fit_fixed_columns(
         """The Gram matrix of ``[1, dx/dp, yc - x]`` at ``p`` and the columns' products ``C^T [dx/dp, yc - x]``
         (``a`` rewritten)."""
         starts, firsts, stops, x0s = spans
-        gram = _sensitivity_gram(u, yc_fitted, float(p[0]), float(p[1]), float(p[2]), float(p[3]), starts, firsts, stops, x0s, a)
+        gram = _sensitivity_gram(
+            u, yc_fitted, float(p[0]), float(p[1]), float(p[2]), float(p[3]), starts, firsts, stops, x0s, a
+        )
         return gram, proj.columns.t_dot(a) if q else np.empty((0, 5))
 
     # the last point asked for: its key, (r, J), and its point (None where invalid); ``a`` holds the
@@ -543,12 +563,19 @@ def _fit_fixed_columns(
 def separable(fit: JointFit, start: BacklashParams) -> bool:
     """True when the joint fit pins the play down: inflation at most :data:`MAX_PLAY_INFLATION`
     and standard error at most :data:`MAX_PLAY_STD_SHARE` of the play."""
-    return fit.play_inflation <= MAX_PLAY_INFLATION and fit.play_std_deg <= MAX_PLAY_STD_SHARE * max(fit.params.play, start.play)
+    return fit.play_inflation <= MAX_PLAY_INFLATION and fit.play_std_deg <= MAX_PLAY_STD_SHARE * max(
+        fit.params.play, start.play
+    )
 
 
 def fit_guarded(
-    uc: np.ndarray, yc: np.ndarray, columns: np.ndarray | ColumnParts, start: BacklashParams, held: np.ndarray | None = None,
-    rows: np.ndarray | None = None, planned: tuple[np.ndarray, np.ndarray] | None = None,
+    uc: np.ndarray,
+    yc: np.ndarray,
+    columns: np.ndarray | ColumnParts,
+    start: BacklashParams,
+    held: np.ndarray | None = None,
+    rows: np.ndarray | None = None,
+    planned: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> JointFit:
     """:func:`fit_joint` with the play free; if the play is not :func:`separable` from the columns, hold it at ``start.play``.
 
@@ -563,8 +590,12 @@ def fit_guarded(
     parts = columns if isinstance(columns, ColumnParts) else ColumnParts((np.asarray(columns, dtype=float),))
     first = None
     if rows is None:
-        first = parts.held_at(held, engaged_index(uc, start) if planned is None else planned[1]) if np.any(held) else parts
-    planned = _switched(uc, start) if rows is not None and planned is None else planned  # the play-held fit starts there too
+        first = (
+            parts.held_at(held, engaged_index(uc, start) if planned is None else planned[1]) if np.any(held) else parts
+        )
+    planned = (
+        _switched(uc, start) if rows is not None and planned is None else planned
+    )  # the play-held fit starts there too
     fit = _fit_held(uc, yc, parts, held, start, None, first, rows, planned)
     if separable(fit, start):
         return fit

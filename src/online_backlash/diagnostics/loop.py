@@ -151,8 +151,20 @@ def diagnose(
     after = r.start.coasting(r.residual_before_deg, current.residual_deg)  # until a flank first catches the load
     screened = len(r.screen.segments) if r.screen.screened else None
     return Diagnosis(
-        r.base, current, steps, r.noise, r.residual_before_deg, after, r.u_deg, r.load_deg, r.time_s, r.ratio,
-        r.torque_Nm, r.start, screened, r.folds.n_cycles,
+        r.base,
+        current,
+        steps,
+        r.noise,
+        r.residual_before_deg,
+        after,
+        r.u_deg,
+        r.load_deg,
+        r.time_s,
+        r.ratio,
+        r.torque_Nm,
+        r.start,
+        screened,
+        r.folds.n_cycles,
     )
 
 
@@ -173,12 +185,17 @@ def _loop_record(chunk: SampleChunk, ratio: float, screen_cycles: int) -> LoopRe
     folds = cycle_folds(u)
     screen = folds.screen(screen_cycles) if screen_cycles else folds  # a long record's candidates are tried on these
     cache, columns = RecordCache(), TermColumns(u, t, q)  # the record's columns, and the terms', built once
-    return LoopRecord(u, y, t, q, float(ratio), base, uc, yc, start, before, noise, period, folds, screen, cache,
-                      columns)
+    return LoopRecord(
+        u, y, t, q, float(ratio), base, uc, yc, start, before, noise, period, folds, screen, cache, columns
+    )
 
 
 def diagnose_arrays(
-    time_s: np.ndarray, motor_deg: np.ndarray, load_deg: np.ndarray, ratio: float, torque_Nm: np.ndarray | None = None,
+    time_s: np.ndarray,
+    motor_deg: np.ndarray,
+    load_deg: np.ndarray,
+    ratio: float,
+    torque_Nm: np.ndarray | None = None,
     **options: Any,
 ) -> Diagnosis:
     """:func:`diagnose` on plain arrays (torque optional)."""

@@ -44,8 +44,13 @@ def plot_diagnosis(diagnosis: Diagnosis, path: str | os.PathLike[str], title: st
         f, amp = time_spectrum(r, period)
         ax.loglog(f[1:], amp[1:], label=label)
     # white noise of RMS s has amplitude s * sqrt(2 df / fs) per bin
-    ax.axhline(d.noise.floor_deg * np.sqrt(2 * (f[1] - f[0]) * period), color="k", ls=":", lw=1,
-               label=f"white noise at the floor ({d.noise.floor_deg:.4f} deg RMS)")
+    ax.axhline(
+        d.noise.floor_deg * np.sqrt(2 * (f[1] - f[0]) * period),
+        color="k",
+        ls=":",
+        lw=1,
+        label=f"white noise at the floor ({d.noise.floor_deg:.4f} deg RMS)",
+    )
     ax.set_xlabel("frequency, Hz")
     ax.set_ylabel("amplitude per bin, deg")
     ax.legend(loc="upper right")

@@ -42,7 +42,7 @@ def markdown_report(diagnosis: Diagnosis, source: str | os.PathLike[str] | None 
         f"| backlash (play), deg | {d['backlash_before_deg']:.4f} | {d['backlash_after_deg']:.4f} |",
         "",
         f"Noise floor: {d['noise_floor_deg']:.5f} deg (load encoder step {d['load_step_deg']:.5f} deg, "
-        f"sample noise {d['load_noise_deg']:.5f} deg). The \"before\" is the four backlash parameters "
+        f'sample noise {d["load_noise_deg"]:.5f} deg). The "before" is the four backlash parameters '
         "refitted on the simulation (free-run) residual.",
         "",
     ]
@@ -76,11 +76,20 @@ def markdown_report(diagnosis: Diagnosis, source: str | os.PathLike[str] | None 
     lines.append("")
     if not d["effects"] and not d["unexplained"]:
         lines += ["Nothing significant is missing from the model: no effect was added.", ""]
-    steps = sorted([("effect", e) for e in d["effects"]] + [("unexplained", e) for e in d["unexplained"]], key=lambda s: s[1]["step"])
+    steps = sorted(
+        [("effect", e) for e in d["effects"]] + [("unexplained", e) for e in d["unexplained"]],
+        key=lambda s: s[1]["step"],
+    )
     along = {s.number: _along(diagnosis, s, before, after) for s, before, after in diagnosis.step_residuals()}
     for kind, e in steps:
         ev = e["evidence"]
-        title = "effect" if kind == "effect" else "not separable" if e["name"] == "not_separable" else "unexplained structure"
+        title = (
+            "effect"
+            if kind == "effect"
+            else "not separable"
+            if e["name"] == "not_separable"
+            else "unexplained structure"
+        )
         split = ev["heldout_split"]
         lines += [
             f"## Step {e['step']}: {title} `{e['name']}`",

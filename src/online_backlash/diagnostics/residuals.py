@@ -78,7 +78,9 @@ def simulation_residual(
     ``u_ref_`` and ``y_ref_`` first).
     """
     y = np.asarray(y_deg, dtype=float)
-    return y - simulate_with_coast(np.asarray(u_deg, dtype=float), params, np.empty(0) if start_path_deg is None else start_path_deg, float(y[0]))
+    return y - simulate_with_coast(
+        np.asarray(u_deg, dtype=float), params, np.empty(0) if start_path_deg is None else start_path_deg, float(y[0])
+    )
 
 
 def one_step_residual(params: BacklashParams, u_deg: np.ndarray, y_deg: np.ndarray) -> np.ndarray:

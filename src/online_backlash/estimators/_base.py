@@ -53,7 +53,9 @@ _DEFAULT_GAP_POLICY = GapPolicy()
 T = TypeVar("T")
 
 
-def memory_factors(memory_s: float | None, memory_reversals: float | None, sample_period_s: float) -> tuple[float, float]:
+def memory_factors(
+    memory_s: float | None, memory_reversals: float | None, sample_period_s: float
+) -> tuple[float, float]:
     """Forgetting factors per update and per reversal: ``exp(-dt / memory_s)``, ``exp(-1 / memory_reversals)``."""
     lam = 1.0 if memory_s is None else math.exp(-sample_period_s / memory_s)
     lam_rev = 1.0 if memory_reversals is None else math.exp(-1.0 / memory_reversals)
@@ -84,7 +86,9 @@ def finite_array(name: str, value: Any) -> np.ndarray:
     arr = np.ascontiguousarray(value, dtype=float)
     # a finite sum (one pass, no temporary) proves every value finite; else look closer
     if not math.isfinite(float(np.sum(arr))) and not np.all(np.isfinite(arr)):
-        raise InvalidParameterError(f"{name} has non-finite values, first at index {int(np.flatnonzero(~np.isfinite(arr))[0])}")
+        raise InvalidParameterError(
+            f"{name} has non-finite values, first at index {int(np.flatnonzero(~np.isfinite(arr))[0])}"
+        )
     return arr
 
 
@@ -231,12 +235,20 @@ class RecursiveEstimator(ABC):
         """One sample by the interpreted step (the readable reference)."""
 
     @abstractmethod
-    def _learn_arrays(self, u: np.ndarray, y: np.ndarray, gap: np.ndarray, t: np.ndarray | None, q: np.ndarray | None) -> None:
+    def _learn_arrays(
+        self, u: np.ndarray, y: np.ndarray, gap: np.ndarray, t: np.ndarray | None, q: np.ndarray | None
+    ) -> None:
         """Consecutive samples by the compiled loop; the same estimates as :meth:`_learn_py`
         (time ``t`` and torque ``q`` are given where there are effects, else None)."""
 
     def _learn_arrays_marked(
-        self, u: np.ndarray, y: np.ndarray, gap: np.ndarray, t: np.ndarray | None, q: np.ndarray | None, marks: np.ndarray
+        self,
+        u: np.ndarray,
+        y: np.ndarray,
+        gap: np.ndarray,
+        t: np.ndarray | None,
+        q: np.ndarray | None,
+        marks: np.ndarray,
     ) -> list[EstimateAt]:
         """:meth:`_learn_arrays` (the estimator has started) with the estimate after the first
         ``marks[k]`` samples (strictly ascending, 1..n): here by learning up to each mark in turn and reading
@@ -245,7 +257,9 @@ class RecursiveEstimator(ABC):
         lo = 0
         for hi in [*marks.tolist(), u.size]:
             if hi > lo:
-                self._learn_arrays(u[lo:hi], y[lo:hi], gap[lo:hi], None if t is None else t[lo:hi], None if q is None else q[lo:hi])
+                self._learn_arrays(
+                    u[lo:hi], y[lo:hi], gap[lo:hi], None if t is None else t[lo:hi], None if q is None else q[lo:hi]
+                )
             if len(out) < marks.size:
                 out.append(self.estimate_now())
             lo = hi
@@ -363,7 +377,13 @@ class RecursiveEstimator(ABC):
             self._pending_gap = True
 
     def learn_one(
-        self, u: float, y: float, *, time_s: float | None = None, torque_Nm: float | None = None, after_gap: bool = False
+        self,
+        u: float,
+        y: float,
+        *,
+        time_s: float | None = None,
+        torque_Nm: float | None = None,
+        after_gap: bool = False,
     ) -> None:
         """Learn one sample: input ``u`` (motor angle referred to the load side) and output ``y`` (load angle).
 
@@ -384,7 +404,11 @@ class RecursiveEstimator(ABC):
         q = math.nan if torque_Nm is None else float(torque_Nm)
         restart = False
         if after_gap:
-            restart = bool(self._bridge(np.array([True]), None if time_s is None else np.array([t]), np.array([u]), np.array([y]))[0])
+            restart = bool(
+                self._bridge(np.array([True]), None if time_s is None else np.array([t]), np.array([u]), np.array([y]))[
+                    0
+                ]
+            )
         else:
             self._remember(math.nan if time_s is None else t, u, y)
         if not self._started:
@@ -434,7 +458,9 @@ class RecursiveEstimator(ABC):
         u = np.ascontiguousarray(u, dtype=float) if assume_finite else finite_array("u", u)
         y = np.ascontiguousarray(y, dtype=float) if assume_finite else finite_array("y", y)
         if u.ndim != 1 or u.shape != y.shape:
-            raise InvalidParameterError(f"u and y must be 1-D arrays of equal length, got shapes {u.shape} and {y.shape}")
+            raise InvalidParameterError(
+                f"u and y must be 1-D arrays of equal length, got shapes {u.shape} and {y.shape}"
+            )
         n = u.size
         gap = np.zeros(n, dtype=bool) if after_gap is None else np.ascontiguousarray(after_gap, dtype=bool)
         if gap.shape != u.shape:
@@ -613,7 +639,10 @@ class RecursiveEstimator(ABC):
                 d["effects_stream"] = self._fx.state_dict()
         else:
             # NaN (no torque) is not JSON: saved as None
-            d["buffer"] = {k: [bool(v) if k == "gap" else (float(v) if math.isfinite(v) else None) for v in vals] for k, vals in self._buf.items()}
+            d["buffer"] = {
+                k: [bool(v) if k == "gap" else (float(v) if math.isfinite(v) else None) for v in vals]
+                for k, vals in self._buf.items()
+            }
             d["pending_gap"] = self._pending_gap
             d["next_attempt"] = self._next_attempt
             d["attempts"] = self._attempts
@@ -709,7 +738,9 @@ def _marks(snapshot_at: Any, n: int) -> np.ndarray:
     """``snapshot_at`` as int64 sample counts, or InvalidParameterError unless strictly ascending within ``1..n``."""
     marks = np.ascontiguousarray(snapshot_at, dtype=np.int64)
     if marks.ndim != 1 or (marks.size and (marks[0] < 1 or marks[-1] > n or np.any(np.diff(marks) <= 0))):
-        raise InvalidParameterError(f"snapshot_at must be strictly ascending sample counts within 1..{n}, got {snapshot_at!r}")
+        raise InvalidParameterError(
+            f"snapshot_at must be strictly ascending sample counts within 1..{n}, got {snapshot_at!r}"
+        )
     return marks
 
 

@@ -40,10 +40,14 @@ def effects_from_records(records: list[Any], effects: Sequence[EffectTerms] | No
     if effects is not None and len(effects):
         given = list(effects)
         if [e.name for e in given] != names:
-            raise InvalidParameterError(f"the saved state was learned with effects {names}; pass effects with these names")
+            raise InvalidParameterError(
+                f"the saved state was learned with effects {names}; pass effects with these names"
+            )
         return given
     if any(isinstance(r, str) for r in records):
-        raise InvalidParameterError(f"the saved state names its effects {names} without their parameters; pass effects with these names")
+        raise InvalidParameterError(
+            f"the saved state names its effects {names} without their parameters; pass effects with these names"
+        )
     return [effect_from_dict(r) for r in records]
 
 
@@ -86,12 +90,17 @@ class EffectStream:
         self._recent = np.empty((3, 0))
         self._count = 0
 
-    def terms(self, u: np.ndarray, t: np.ndarray, q: np.ndarray, effects: Sequence[EffectTerms] | None = None) -> np.ndarray:
+    def terms(
+        self, u: np.ndarray, t: np.ndarray, q: np.ndarray, effects: Sequence[EffectTerms] | None = None
+    ) -> np.ndarray:
         """Columns ``(len(u), n_terms)`` of ``effects`` (default: the stream's own) for these samples,
         without recording them as the stream's (the warm start's batch fit, predictions on copies)."""
         if u.size == 0:
             return np.empty((0, self.n_terms))
-        cols = [np.asarray(e.terms(u, t, q), dtype=float).reshape(u.size, -1) for e in (self.effects if effects is None else effects)]
+        cols = [
+            np.asarray(e.terms(u, t, q), dtype=float).reshape(u.size, -1)
+            for e in (self.effects if effects is None else effects)
+        ]
         return np.concatenate(cols, axis=1) if cols else np.empty((u.size, 0))
 
     def feed(self, u: np.ndarray, t: np.ndarray, q: np.ndarray) -> np.ndarray:

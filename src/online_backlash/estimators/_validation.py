@@ -83,6 +83,4 @@ def check_option(name: str, value: object, options: tuple[str, ...]) -> str:
 def check_is_fitted(estimator: object, attribute: str = "n_iter_") -> None:
     """Raise NotFittedError if ``estimator`` has no fitted ``attribute``."""
     if not hasattr(estimator, attribute):
-        raise NotFittedError(
-            f"this {type(estimator).__name__} is not fitted yet; call fit (or learn_one) first"
-        )
+        raise NotFittedError(f"this {type(estimator).__name__} is not fitted yet; call fit (or learn_one) first")

@@ -246,7 +246,9 @@ class BacklashRLS(RecursiveEstimator):
         self.effects = effects
         self.switching = switching
         self.full_engagement = full_engagement
-        super().__init__(memory_s, memory_reversals, sample_period_s, start, warm_start_samples, origin, noise_window, gap_policy)
+        super().__init__(
+            memory_s, memory_reversals, sample_period_s, start, warm_start_samples, origin, noise_window, gap_policy
+        )
 
     def _reset_own(self) -> None:
         # the joint information matrix of [mL, bL, mR, bR, beta] (effects only), beta, and the
@@ -288,7 +290,11 @@ class BacklashRLS(RecursiveEstimator):
         batch = VorosBacklash(origin="zero", full_engagement=self.full_engagement)
         batch.warn_unconverged = False  # told by converged_ (warm_start_), as no warning the user could act on
         batch.fit(uc, yc)
-        start = batch.params_ if terms.shape[1] == 0 else _refine_with_effects(uc, yc, terms, batch.params_, ~batch.partial_)
+        start = (
+            batch.params_
+            if terms.shape[1] == 0
+            else _refine_with_effects(uc, yc, terms, batch.params_, ~batch.partial_)
+        )
         return start, int(batch.n_iter_), bool(batch.converged_)
 
     def _cold_params(self, u: np.ndarray | None, y: np.ndarray | None) -> BacklashParams:
@@ -380,7 +386,9 @@ class BacklashRLS(RecursiveEstimator):
         else:
             K.backlash_step(self._st, self._c, u, y, seen)
 
-    def _learn_arrays(self, u: np.ndarray, y: np.ndarray, gap: np.ndarray, t: np.ndarray | None, q: np.ndarray | None) -> None:
+    def _learn_arrays(
+        self, u: np.ndarray, y: np.ndarray, gap: np.ndarray, t: np.ndarray | None, q: np.ndarray | None
+    ) -> None:
         seen = self._seen(u, y, gap)
         if t is None or q is None:  # no effects: compiled
             st = np.asarray(self._st, dtype=float)
@@ -397,7 +405,13 @@ class BacklashRLS(RecursiveEstimator):
                 self._step_effects(float(u[i]), float(y[i]), rows[i - lo], int(seen[i]))
 
     def _learn_arrays_marked(
-        self, u: np.ndarray, y: np.ndarray, gap: np.ndarray, t: np.ndarray | None, q: np.ndarray | None, marks: np.ndarray
+        self,
+        u: np.ndarray,
+        y: np.ndarray,
+        gap: np.ndarray,
+        t: np.ndarray | None,
+        q: np.ndarray | None,
+        marks: np.ndarray,
     ) -> list[EstimateAt]:
         if t is not None or q is not None:  # effects: the interpreted path, cut at the marks
             return super()._learn_arrays_marked(u, y, gap, t, q, marks)
@@ -495,7 +509,9 @@ class BacklashRLS(RecursiveEstimator):
         if self._fx.effects:
             t = self._time(time_s)
             q = math.nan if torque_Nm is None else float(torque_Nm)
-            rows = self._fx.terms(np.array([u]), np.array([t]), np.array([q]), [copy.deepcopy(e) for e in self._fx.effects])
+            rows = self._fx.terms(
+                np.array([u]), np.array([t]), np.array([q]), [copy.deepcopy(e) for e in self._fx.effects]
+            )
             shift = float(self._beta @ rows[0])
         x_prev = st[S.Y_PREV] - self._prev_shift
         y_left = st[S.LEFT + F.B] + st[S.LEFT + F.M] * (uc - st[S.LEFT + F.UREF])

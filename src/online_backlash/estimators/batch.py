@@ -174,7 +174,11 @@ def _eq14_rss(u, x_prev, x, kept, mL, cL, mR, cR, theta):  # pragma: no cover - 
         f1, f2 = switching_at(u[t], x_prev[t], mL, cL, mR, cR)
         if f1 + f2 == 0 or not kept[t]:
             continue
-        e = x[t] - x_prev[t] * (1 - f1) * (1 - f2) - (theta[0] * u[t] * f1 + theta[1] * f1 + theta[2] * u[t] * f2 - theta[3] * f2)
+        e = (
+            x[t]
+            - x_prev[t] * (1 - f1) * (1 - f2)
+            - (theta[0] * u[t] * f1 + theta[1] * f1 + theta[2] * u[t] * f2 - theta[3] * f2)
+        )
         rss += e * e
     return rss
 
@@ -287,7 +291,11 @@ class _VorosBase:
         p = getattr(self, "params_" if stage == "final" else "equation_error_params_")
         out = {name: float(getattr(p, name)) for name in ("m_left", "c_left", "m_right", "c_right")}
         if hasattr(self, "a_"):
-            a, b = (getattr(self, f"{prefix}{k}_") for k in ("a", "b") for prefix in ["" if stage == "final" else "equation_error_"])
+            a, b = (
+                getattr(self, f"{prefix}{k}_")
+                for k in ("a", "b")
+                for prefix in ["" if stage == "final" else "equation_error_"]
+            )
             out.update({f"a{i}": float(v) for i, v in enumerate(a[1:], start=2)})
             out.update({f"b{j}": float(v) for j, v in enumerate(b, start=1)})
         return out
@@ -684,7 +692,9 @@ class VorosCascade(_VorosBase):
     @staticmethod
     def _filter_coefficients(p: CascadeParams) -> tuple[np.ndarray, np.ndarray]:
         """Numerator ``[0, 1, a2, ...]`` and denominator ``[1, b1, ...]`` of eq. (15)-(17)."""
-        return np.concatenate(([0.0, 1.0], np.asarray(p.a, dtype=float))), np.concatenate(([1.0], np.asarray(p.b, dtype=float)))
+        return np.concatenate(([0.0, 1.0], np.asarray(p.a, dtype=float))), np.concatenate(
+            ([1.0], np.asarray(p.b, dtype=float))
+        )
 
     @staticmethod
     def _simulate(uc: np.ndarray, p: CascadeParams) -> np.ndarray:

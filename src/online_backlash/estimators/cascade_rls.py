@@ -135,7 +135,9 @@ class CascadeRLS(RecursiveEstimator):
         self.p0 = p0
         self.trace_max = trace_max
         self.regressor = regressor
-        super().__init__(memory_s, memory_reversals, sample_period_s, start, warm_start_samples, origin, noise_window, gap_policy)
+        super().__init__(
+            memory_s, memory_reversals, sample_period_s, start, warm_start_samples, origin, noise_window, gap_policy
+        )
 
     def _reset_own(self) -> None:
         """No state beside the state vector."""
@@ -196,7 +198,9 @@ class CascadeRLS(RecursiveEstimator):
         p = self._offsets()[0]
         K.cascade_step(self._st, self._c, u, y, [0.0] * p, [0.0] * p)
 
-    def _learn_arrays(self, u: np.ndarray, y: np.ndarray, gap: np.ndarray, t: np.ndarray | None, q: np.ndarray | None) -> None:
+    def _learn_arrays(
+        self, u: np.ndarray, y: np.ndarray, gap: np.ndarray, t: np.ndarray | None, q: np.ndarray | None
+    ) -> None:
         p = self._offsets()[0]
         st = np.asarray(self._st, dtype=float)
         K.cascade_run(st, self._c_arr, u, y, gap, np.zeros(p), np.zeros(p))

@@ -250,7 +250,9 @@ class CyclePlays:
         side = np.asarray(side)
         offset = np.ascontiguousarray(offset_deg, dtype=float)
         if side.shape != offset.shape or side.ndim != 1:
-            raise InvalidParameterError(f"side and offset_deg must be 1-D of equal length, got {side.shape} and {offset.shape}")
+            raise InvalidParameterError(
+                f"side and offset_deg must be 1-D of equal length, got {side.shape} and {offset.shape}"
+            )
         if side.size and (side.min() < -1 or side.max() > 1 or not np.issubdtype(side.dtype, np.integer)):
             raise InvalidParameterError("side must hold -1 (left flank), 0 (none) or +1 (right flank)")
         brk = np.zeros(side.size, dtype=np.bool_) if breaks is None else np.ascontiguousarray(breaks, dtype=np.bool_)

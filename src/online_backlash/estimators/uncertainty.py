@@ -72,8 +72,18 @@ from .cycle_plays import CyclePlays, MotionFlanks, OutputNoise, kinematic_offset
 from .full_engagement import NO_FLANK, FullEngagement
 
 __all__ = [
-    "CyclePlays", "EstimateAt", "KinematicPlayScatter", "MotionFlanks", "OutputNoise", "PlayUncertainty", "RecursivePlayScatter",
-    "forgetting_weights", "kinematic_offsets", "model_misfit", "play_std", "play_uncertainty",
+    "CyclePlays",
+    "EstimateAt",
+    "KinematicPlayScatter",
+    "MotionFlanks",
+    "OutputNoise",
+    "PlayUncertainty",
+    "RecursivePlayScatter",
+    "forgetting_weights",
+    "kinematic_offsets",
+    "model_misfit",
+    "play_std",
+    "play_uncertainty",
 ]
 
 #: Samples :class:`RecursivePlayScatter` holds before its estimator starts.
@@ -292,7 +302,10 @@ class KinematicPlayScatter:
         plays = self.plays_deg
         misfit = math.hypot(model_misfit(residual_rms_deg, self.noise.var_deg2), engagement_deg)
         found = play_uncertainty(
-            plays, forgetting_weights(plays.size, memory_reversals), noise_var_deg2=self.noise_var_deg2, floor_deg=floor_deg,
+            plays,
+            forgetting_weights(plays.size, memory_reversals),
+            noise_var_deg2=self.noise_var_deg2,
+            floor_deg=floor_deg,
             misfit_deg=misfit,
         )
         return dataclasses.replace(found, engagement_deg=float(engagement_deg))
@@ -352,7 +365,12 @@ class RecursivePlayScatter:
         return est.estimate_now()
 
     def update(
-        self, u: np.ndarray, y: np.ndarray, gap: np.ndarray | None = None, due: bool = True, estimate: EstimateAt | None = None
+        self,
+        u: np.ndarray,
+        y: np.ndarray,
+        gap: np.ndarray | None = None,
+        due: bool = True,
+        estimate: EstimateAt | None = None,
     ) -> None:
         """Add a block the estimator has just learned: input ``u`` and output ``y`` (degrees, load
         side); ``due``: the block ends at a data-clock tick (measure what is held now, if the
@@ -360,7 +378,13 @@ class RecursivePlayScatter:
         ``estimate``: the estimator as it was right after this block (:meth:`snapshot`; default: as it is now)."""
         if self._given_up or not self._kinematic:
             return
-        self._held.append((np.asarray(u, dtype=float), np.asarray(y, dtype=float), None if gap is None else np.asarray(gap, dtype=bool)))
+        self._held.append(
+            (
+                np.asarray(u, dtype=float),
+                np.asarray(y, dtype=float),
+                None if gap is None else np.asarray(gap, dtype=bool),
+            )
+        )
         self._n_held += len(u)
         at = estimate if estimate is not None else self.snapshot(due)
         if due:
@@ -370,7 +394,13 @@ class RecursivePlayScatter:
             self._given_up, self._held, self._n_held = True, [], 0
 
     def update_ticks(
-        self, u: np.ndarray, y: np.ndarray, gap: np.ndarray | None, ticks: Sequence[int], estimates: Sequence[EstimateAt], end: EstimateAt
+        self,
+        u: np.ndarray,
+        y: np.ndarray,
+        gap: np.ndarray | None,
+        ticks: Sequence[int],
+        estimates: Sequence[EstimateAt],
+        end: EstimateAt,
     ) -> None:
         """:meth:`update` of a block with data-clock ticks inside it: the samples up to each tick
         (``ticks``, counts of the block's samples, ascending) with the estimate there

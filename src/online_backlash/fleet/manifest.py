@@ -69,7 +69,20 @@ else:  # pragma: no cover - Python 3.10
 #: live tracking is not for a manifest's logs.
 NOT_PER_GEARBOX = frozenset(
     {"db", "manifest", "workers", "scheduler", "json", "quiet", "debug", "func"}
-    | {"listen", "interface", "channel", "bitrate", "raw_format", "port", "baud", "raw_log", "duration", "timeout", "period", "mqtt"}
+    | {
+        "listen",
+        "interface",
+        "channel",
+        "bitrate",
+        "raw_format",
+        "port",
+        "baud",
+        "raw_log",
+        "duration",
+        "timeout",
+        "period",
+        "mqtt",
+    }
 )
 #: Top-level tables of a manifest.
 TABLES = ("defaults", "gearbox")
@@ -100,7 +113,9 @@ class GearboxJob:
     per_log: Mapping[str, Mapping[str, float]] = field(default_factory=dict)
 
 
-def load_manifest(path: str | os.PathLike[str], db: str, parse: ParseOptions, known: Collection[str]) -> list[GearboxJob]:
+def load_manifest(
+    path: str | os.PathLike[str], db: str, parse: ParseOptions, known: Collection[str]
+) -> list[GearboxJob]:
     """Read a fleet manifest and check every gearbox's options with ``track``'s parser.
 
     Parameters
@@ -123,7 +138,9 @@ def load_manifest(path: str | os.PathLike[str], db: str, parse: ParseOptions, kn
     tables = _read_toml(name)
     for key in tables:
         if key not in TABLES:
-            raise ManifestError(f"{name}: unknown table {key!r}{_closest(key, TABLES)}; a manifest has [defaults] and [[gearbox]] tables")
+            raise ManifestError(
+                f"{name}: unknown table {key!r}{_closest(key, TABLES)}; a manifest has [defaults] and [[gearbox]] tables"
+            )
     defaults = tables.get("defaults", {})
     gearboxes = tables.get("gearbox")
     if not isinstance(defaults, dict):
@@ -139,7 +156,7 @@ def load_manifest(path: str | os.PathLike[str], db: str, parse: ParseOptions, kn
         gearbox_id = table.get("id")
         where = f"{name}: [[gearbox]] #{number}" + (f" (id {gearbox_id!r})" if isinstance(gearbox_id, str) else "")
         if not isinstance(gearbox_id, str) or not gearbox_id:
-            raise ManifestError(f"{where}: needs an id, e.g. id = \"GB-7\"")
+            raise ManifestError(f'{where}: needs an id, e.g. id = "GB-7"')
         if gearbox_id in seen:
             raise ManifestError(f"{where}: the id {gearbox_id!r} is given twice")
         seen.add(gearbox_id)
@@ -172,10 +189,14 @@ def _check_keys(table: Mapping[str, Any], options: Collection[str], where: str) 
         if key in ("id", "logs"):
             continue
         if key in NOT_PER_GEARBOX:
-            raise ManifestError(f"{where}: {key!r} is not a per-gearbox option (the store and the fleet's run are given on the command line)")
+            raise ManifestError(
+                f"{where}: {key!r} is not a per-gearbox option (the store and the fleet's run are given on the command line)"
+            )
         if key not in options:
             hint = _closest(key, [*options, "id", "logs"])
-            raise ManifestError(f"{where}: unknown key {key!r}{hint} (keys are track's options with dashes as underscores)")
+            raise ManifestError(
+                f"{where}: unknown key {key!r}{hint} (keys are track's options with dashes as underscores)"
+            )
 
 
 def _closest(key: str, names: Collection[str]) -> str:
@@ -189,13 +210,15 @@ def _logs(value: Any, folder: Path, where: str) -> tuple[list[str], dict[str, di
     if isinstance(value, (str, dict)):
         value = [value]
     if not isinstance(value, list) or not value or not all(isinstance(v, (str, dict)) for v in value):
-        raise ManifestError(f"{where}: logs must be a path or glob, or a list of them, e.g. logs = \"gb7/*.csv.gz\"")
+        raise ManifestError(f'{where}: logs must be a path or glob, or a list of them, e.g. logs = "gb7/*.csv.gz"')
     found: list[str] = []
     per_log: dict[str, dict[str, float]] = {}
     for entry in value:
         pattern = entry if isinstance(entry, str) else _log_table(entry, where)
         full = str(folder / os.path.expanduser(pattern))
-        matches = sorted(glob.glob(full, recursive=True)) if glob.has_magic(full) else [full] if os.path.exists(full) else []
+        matches = (
+            sorted(glob.glob(full, recursive=True)) if glob.has_magic(full) else [full] if os.path.exists(full) else []
+        )
         if not matches:
             raise ManifestError(f"{where}: logs: nothing matches {pattern!r} (in {folder})")
         if isinstance(entry, dict):
@@ -256,5 +279,7 @@ def _option_argv(options: Mapping[str, Any], where: str) -> list[str]:
         elif isinstance(value, dict) and all(isinstance(v, (str, int, float)) for v in value.values()):
             argv.append(f"{flag}=" + ",".join(f"{k}={v}" for k, v in value.items()))
         else:
-            raise ManifestError(f"{where}: {key} = {value!r}: expected one value (a string, number, true/false, or a table of names)")
+            raise ManifestError(
+                f"{where}: {key} = {value!r}: expected one value (a string, number, true/false, or a table of names)"
+            )
     return argv

@@ -110,7 +110,9 @@ def run_fleet(
         )
     try:
         with Client(cluster if cluster is not None else scheduler) as client:
-            futures = {client.submit(task, job, key=f"track-{job.id}", retries=retries, pure=False): job.id for job in jobs}
+            futures = {
+                client.submit(task, job, key=f"track-{job.id}", retries=retries, pure=False): job.id for job in jobs
+            }
             done: dict[str, GearboxOutcome] = {}
             for future in as_completed(futures):
                 outcome = future.result()

@@ -11,7 +11,9 @@ START_UNIX_S = 1.7e9
 DAY_S = 86400.0
 
 
-def write_simulated_fleet(folder: str | Path, gearboxes: int = 3, logs: int = 2, duration_s: float = 20.0, every_s: float = 5.0) -> Path:
+def write_simulated_fleet(
+    folder: str | Path, gearboxes: int = 3, logs: int = 2, duration_s: float = 20.0, every_s: float = 5.0
+) -> Path:
     """Write ``gearboxes`` x ``logs`` simulated 30:1 rig logs (CSV, 1 kHz, UNIX times, one a day)
     into ``folder/gb<g>/day<k>.csv`` and a manifest ``folder/fleet.toml`` naming them; returns it.
 

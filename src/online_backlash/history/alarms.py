@@ -70,7 +70,9 @@ def check_alarm_levels(warn_arcmin: float | None = None, limit_arcmin: float | N
         if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) or value <= 0:
             raise InvalidParameterError(f"the {name} must be a finite positive angle in arcmin, got {value!r}")
     if warn_arcmin is not None and limit_arcmin is not None and warn_arcmin > limit_arcmin:
-        raise InvalidParameterError(f"the warning level {warn_arcmin:g} arcmin is above the limit {limit_arcmin:g} arcmin")
+        raise InvalidParameterError(
+            f"the warning level {warn_arcmin:g} arcmin is above the limit {limit_arcmin:g} arcmin"
+        )
 
 
 @dataclass(frozen=True)
@@ -163,10 +165,23 @@ def evaluate_alarm(
     if last_play > limit_arcmin:
         below = np.flatnonzero(play <= limit_arcmin)
         first_above = 0 if below.size == 0 else int(below[-1]) + 1
-        return AlarmStatus("alarm", "play above the limit", last_play, last_time, **levels, limit_exceeded_since_unix_s=float(t[first_above]))
+        return AlarmStatus(
+            "alarm",
+            "play above the limit",
+            last_play,
+            last_time,
+            **levels,
+            limit_exceeded_since_unix_s=float(t[first_above]),
+        )
     if warn_arcmin is not None and last_play > warn_arcmin:
         return AlarmStatus("warning", "play above the warning level", last_play, last_time, **levels)
-    return AlarmStatus("ok", "play below the warning level" if warn_arcmin is not None else "play below the limit", last_play, last_time, **levels)
+    return AlarmStatus(
+        "ok",
+        "play below the warning level" if warn_arcmin is not None else "play below the limit",
+        last_play,
+        last_time,
+        **levels,
+    )
 
 
 def worst_state(states: list[str]) -> str:

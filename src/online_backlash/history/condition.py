@@ -62,7 +62,12 @@ class LoadCondition:
 
     def state_dict(self) -> dict[str, Any]:
         """The window so far, JSON-serialisable."""
-        return {"count": self.count, "total_nm": self.total_nm, "total_sq_nm2": self.total_sq_nm2, "reversals": self.reversals}
+        return {
+            "count": self.count,
+            "total_nm": self.total_nm,
+            "total_sq_nm2": self.total_sq_nm2,
+            "reversals": self.reversals,
+        }
 
     @classmethod
     def from_state(cls, state: dict[str, Any] | None) -> LoadCondition:

@@ -228,7 +228,11 @@ class KalmanTrend:
         mean, var = self._mean_var(grid)
         half = self._z * np.sqrt(var)
         n = self.x.size
-        return _reach(grid, mean, limit_deg, n), _reach(grid, mean + half, limit_deg, n), _reach(grid, mean - half, limit_deg, n)
+        return (
+            _reach(grid, mean, limit_deg, n),
+            _reach(grid, mean + half, limit_deg, n),
+            _reach(grid, mean - half, limit_deg, n),
+        )
 
 
 def _reach(grid: np.ndarray, curve: np.ndarray, limit: float, n_data: int) -> float:
@@ -307,7 +311,9 @@ def fit_kalman_trend(
     rate_scale = max(abs(float(np.polyfit(x, z, 1)[0])), float(np.median(std)) / span)
     best: tuple[float, float, float, _FilterRun] | None = None
     if min(drift_fractions, default=-1.0) < 0 or min(noise_floors, default=-1.0) < 0:  # also refuses an empty grid
-        raise InvalidParameterError(f"drift fractions and noise floors must be >= 0, got {drift_fractions!r}, {noise_floors!r}")
+        raise InvalidParameterError(
+            f"drift fractions and noise floors must be >= 0, got {drift_fractions!r}, {noise_floors!r}"
+        )
     median_std = float(np.median(std))
     for f in drift_fractions:
         q = (f * rate_scale) ** 2 / span

@@ -27,7 +27,13 @@ from .store import Estimate, Gearbox, HistoryStore, Run
 from .trend import WearSummary, iso_time, summarise
 
 __all__ = [
-    "ARCMIN_PER_DEG", "HISTORY_CSV_COLUMNS", "WearReport", "estimate_column", "estimate_dict", "observable_mask", "wear_report",
+    "ARCMIN_PER_DEG",
+    "HISTORY_CSV_COLUMNS",
+    "WearReport",
+    "estimate_column",
+    "estimate_dict",
+    "observable_mask",
+    "wear_report",
 ]
 
 

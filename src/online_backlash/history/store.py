@@ -244,7 +244,9 @@ _SQL_TYPES: dict[type, Any] = {float: Double, int: BigInteger, bool: Boolean, st
 def _estimate_column(key: str) -> Column:
     """The store column of field ``key``; ``play_observable`` defaults to true (rows written without it)."""
     f = FIELDS[key]
-    return Column(f.name, _SQL_TYPES[f.kind], nullable=f.nullable, server_default=true() if key == "play_observable" else None)
+    return Column(
+        f.name, _SQL_TYPES[f.kind], nullable=f.nullable, server_default=true() if key == "play_observable" else None
+    )
 
 
 estimates_table = Table(
@@ -488,7 +490,9 @@ class HistoryStore:
         try:
             with self._connect() as conn:
                 tables = set(inspect(conn).get_table_names())
-                stamp = dict(conn.execute(select(meta_table.c.key, meta_table.c.value)).all()) if "meta" in tables else None
+                stamp = (
+                    dict(conn.execute(select(meta_table.c.key, meta_table.c.value)).all()) if "meta" in tables else None
+                )
         except DBAPIError as exc:
             raise HistoryError(f"{self.name} is not an online-backlash history store ({exc.orig})") from exc
         if stamp is None:
@@ -529,7 +533,10 @@ class HistoryStore:
                 metadata.create_all(conn)
                 conn.execute(
                     meta_table.insert(),
-                    [{"key": "application", "value": APPLICATION}, {"key": "schema_version", "value": str(SCHEMA_VERSION)}],
+                    [
+                        {"key": "application", "value": APPLICATION},
+                        {"key": "schema_version", "value": str(SCHEMA_VERSION)},
+                    ],
                 )
         except SQLAlchemyError as exc:
             raise HistoryError(f"creating the history store in {self.name} failed: {exc}") from exc
@@ -537,7 +544,9 @@ class HistoryStore:
     def _migrate(self, version: int) -> None:
         missing = [v for v in range(version, SCHEMA_VERSION) if v not in MIGRATIONS]
         if missing:
-            raise HistoryError(f"{self.name} has schema version {version} and no migration from version {missing[0]} exists")
+            raise HistoryError(
+                f"{self.name} has schema version {version} and no migration from version {missing[0]} exists"
+            )
         try:
             with self._connect(write=True) as conn, conn.begin():
                 for v in range(version, SCHEMA_VERSION):
@@ -580,7 +589,9 @@ class HistoryStore:
     def runs(self, gearbox_id: str) -> list[Run]:
         """The runs of a gearbox in the order they were started."""
         with self._connect() as conn:
-            rows = conn.execute(select(runs_table).where(runs_table.c.gearbox_id == gearbox_id).order_by(runs_table.c.id))
+            rows = conn.execute(
+                select(runs_table).where(runs_table.c.gearbox_id == gearbox_id).order_by(runs_table.c.id)
+            )
             return [Run(**row._mapping) for row in rows]
 
     def estimates(self, gearbox_id: str) -> list[Estimate]:
@@ -624,11 +635,14 @@ class HistoryStore:
             run_row = None
             if log_sha256 is not None:
                 run_row = conn.execute(
-                    select(runs_table).where(runs_table.c.gearbox_id == gearbox_id, runs_table.c.log_sha256 == log_sha256)
+                    select(runs_table).where(
+                        runs_table.c.gearbox_id == gearbox_id, runs_table.c.log_sha256 == log_sha256
+                    )
                 ).first()
             if run_row is None:
                 run_row = conn.execute(
-                    runs_table.insert().values(
+                    runs_table.insert()
+                    .values(
                         gearbox_id=gearbox_id,
                         source=source[:1000],
                         log_sha256=log_sha256,
@@ -641,7 +655,8 @@ class HistoryStore:
                         corrupt=0,
                         skipped=0,
                         gaps=0,
-                    ).returning(*runs_table.c)
+                    )
+                    .returning(*runs_table.c)
                 ).one()
         return gearbox, Run(**run_row._mapping)
 
@@ -656,7 +671,9 @@ class HistoryStore:
         Returns the stored gearbox.
         """
         with self._connect(write=True) as conn, conn.begin():
-            return _register_gearbox(conn, gearbox_id, ratio, time.time(), warn_arcmin=warn_arcmin, limit_arcmin=limit_arcmin)
+            return _register_gearbox(
+                conn, gearbox_id, ratio, time.time(), warn_arcmin=warn_arcmin, limit_arcmin=limit_arcmin
+            )
 
     def commit(
         self,
@@ -674,12 +691,16 @@ class HistoryStore:
         committed to the same gearbox or run meanwhile, HistoryError is raised and nothing is
         written. With ``counters`` the run is marked complete. Returns the updated records.
         """
-        rows = [{k: _finite_or_none(v) for k, v in dict(e, gearbox_id=gearbox.id, run_id=run.id).items()} for e in estimates]
+        rows = [
+            {k: _finite_or_none(v) for k, v in dict(e, gearbox_id=gearbox.id, run_id=run.id).items()} for e in estimates
+        ]
         run_values: dict[str, Any] = {"samples_done": samples_done}
         if ended_unix_s is not None:
             run_values["ended_unix_s"] = ended_unix_s
         if counters is not None:
-            run_values.update(status="complete", **{k: int(counters[k]) for k in ("frames", "samples", "corrupt", "skipped", "gaps")})
+            run_values.update(
+                status="complete", **{k: int(counters[k]) for k in ("frames", "samples", "corrupt", "skipped", "gaps")}
+            )
         state = json.dumps(checkpoint, allow_nan=True)
         try:
             return self._commit(gearbox, run, rows, run_values, state)
@@ -695,7 +716,11 @@ class HistoryStore:
             ).rowcount
             advanced = conn.execute(
                 update(runs_table)
-                .where(runs_table.c.id == run.id, runs_table.c.samples_done == run.samples_done, runs_table.c.status == "running")
+                .where(
+                    runs_table.c.id == run.id,
+                    runs_table.c.samples_done == run.samples_done,
+                    runs_table.c.status == "running",
+                )
                 .values(**run_values)
             ).rowcount
             if moved != 1 or advanced != 1:
@@ -745,7 +770,9 @@ def _register_gearbox(conn: Connection, gearbox_id: str, ratio: float, now: floa
     stored = {} if gearbox is None else {"warn_arcmin": gearbox.warn_arcmin, "limit_arcmin": gearbox.limit_arcmin}
     check_alarm_levels(**{**stored, **given})
     if gearbox is None:
-        conn.execute(gearboxes_table.insert().values(id=gearbox_id, ratio=float(ratio), created_unix_s=now, revision=0, **given))
+        conn.execute(
+            gearboxes_table.insert().values(id=gearbox_id, ratio=float(ratio), created_unix_s=now, revision=0, **given)
+        )
     elif not math.isclose(gearbox.ratio, ratio, rel_tol=1e-9):
         raise HistoryError(
             f"gearbox {gearbox_id!r} is stored with ratio {gearbox.ratio:g}; --ratio {ratio:g} contradicts it "

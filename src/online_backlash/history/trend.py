@@ -490,7 +490,9 @@ def summarise(
     machine = np.full(hours.shape, np.nan) if machine_hours is None else np.asarray(machine_hours, dtype=float)
     keep = np.ones(hours.shape, dtype=bool) if observable is None else np.asarray(observable, dtype=bool)
     if keep.shape != hours.shape:
-        raise InvalidParameterError(f"observable must have one flag per estimate ({hours.size}), got shape {keep.shape}")
+        raise InvalidParameterError(
+            f"observable must have one flag per estimate ({hours.size}), got shape {keep.shape}"
+        )
     play = np.asarray(backlash_deg, dtype=float)
     std = np.full(hours.shape, np.nan) if backlash_std_deg is None else np.asarray(backlash_std_deg, dtype=float)
     keep = keep & np.isfinite(play)
@@ -526,8 +528,18 @@ def summarise(
         elif per_hour is not None and last_hours is not None:
             hours_result = forecast(per_hour, limit_deg, last_hours, last_time, hours_per_day, None, hour_clock)
     return WearSummary(
-        per_hour, per_rev, result, hours_per_day, last_hours, last_time,
-        main, clock, last_x, hours_result, int(points.size), snapshots,
+        per_hour,
+        per_rev,
+        result,
+        hours_per_day,
+        last_hours,
+        last_time,
+        main,
+        clock,
+        last_x,
+        hours_result,
+        int(points.size),
+        snapshots,
     )
 
 

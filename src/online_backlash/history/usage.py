@@ -26,7 +26,16 @@ from ..errors import InvalidParameterError
 
 # state vector layout (float64 so that one array carries it through numba)
 _HAS_PREV, _PREV_T, _ANCHOR, _DIRECTION, _LAST_PROGRESS_T, _OPERATING_S, _TRAVEL_DEG, _REVERSALS = range(8)
-_STATE_NAMES = ("has_prev", "prev_time_s", "anchor_deg", "direction", "last_progress_s", "operating_s", "travel_deg", "reversals")
+_STATE_NAMES = (
+    "has_prev",
+    "prev_time_s",
+    "anchor_deg",
+    "direction",
+    "last_progress_s",
+    "operating_s",
+    "travel_deg",
+    "reversals",
+)
 
 
 @njit(cache=True)
@@ -104,13 +113,20 @@ class UsageCounter:
         """Count a block of samples: times (s), load-side angles (deg), gap flags."""
         for name in ("reversal_deg", "idle_after_s"):
             value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, (int, float)) or not value > 0 or not np.isfinite(value):
+            if (
+                isinstance(value, bool)
+                or not isinstance(value, (int, float))
+                or not value > 0
+                or not np.isfinite(value)
+            ):
                 raise InvalidParameterError(f"{name} must be a finite real number > 0, got {value!r}")
         time_s = np.ascontiguousarray(time_s, dtype=float)
         u_deg = np.ascontiguousarray(u_deg, dtype=float)
         gaps = np.zeros(time_s.size, dtype=bool) if after_gap is None else np.ascontiguousarray(after_gap, dtype=bool)
         if not (time_s.shape == u_deg.shape == gaps.shape) or time_s.ndim != 1:
-            raise InvalidParameterError(f"time_s, u_deg and after_gap must be 1-D of equal length, got {time_s.shape}, {u_deg.shape}, {gaps.shape}")
+            raise InvalidParameterError(
+                f"time_s, u_deg and after_gap must be 1-D of equal length, got {time_s.shape}, {u_deg.shape}, {gaps.shape}"
+            )
         _count(self._state, time_s, u_deg, gaps, float(self.reversal_deg), float(self.idle_after_s))
 
     def mark_gap(self) -> None:
@@ -132,11 +148,17 @@ class UsageCounter:
     def state_dict(self) -> dict:
         """Parameters and counts as a JSON-serialisable dict (``-inf`` is written as None)."""
         values = [None if not np.isfinite(v) else float(v) for v in self._state]
-        return {"reversal_deg": self.reversal_deg, "idle_after_s": self.idle_after_s, "state": dict(zip(_STATE_NAMES, values))}
+        return {
+            "reversal_deg": self.reversal_deg,
+            "idle_after_s": self.idle_after_s,
+            "state": dict(zip(_STATE_NAMES, values)),
+        }
 
     @classmethod
     def from_state(cls, d: dict) -> UsageCounter:
         """Rebuild a counter saved by :meth:`state_dict`."""
         counter = cls(d["reversal_deg"], d["idle_after_s"])
-        counter._state = np.array([-np.inf if d["state"][k] is None else d["state"][k] for k in _STATE_NAMES], dtype=float)
+        counter._state = np.array(
+            [-np.inf if d["state"][k] is None else d["state"][k] for k in _STATE_NAMES], dtype=float
+        )
         return counter

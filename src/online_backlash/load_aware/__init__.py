@@ -18,7 +18,15 @@ from .observability import DwellTracker
 from .torque_rls import TorqueBacklashRLS
 
 __all__ = [
-    "DatasheetFigures", "DwellTracker", "PlayChooser",
-    "TorqueBacklash", "TorqueBacklashRLS", "count_torque_reversals", "datasheet_figures",
-    "engaged_flank", "torque_deadband", "torque_noise_std", "torsion_curve",
+    "DatasheetFigures",
+    "DwellTracker",
+    "PlayChooser",
+    "TorqueBacklash",
+    "TorqueBacklashRLS",
+    "count_torque_reversals",
+    "datasheet_figures",
+    "engaged_flank",
+    "torque_deadband",
+    "torque_noise_std",
+    "torsion_curve",
 ]

@@ -126,7 +126,9 @@ def line_figures(
     both = observable and left is not None and right is not None
     lost = lost_motion_deg(left, right, at, engagement_Nm) * ARCMIN_PER_DEG if both else None  # type: ignore[arg-type]
     return DatasheetFigures(
-        stiffness_nm_per_arcmin=_finite_or_none(FlankLine(1.0, 0.0, mean_s).stiffness_nm_per_arcmin) if math.isfinite(mean_s) else None,
+        stiffness_nm_per_arcmin=_finite_or_none(FlankLine(1.0, 0.0, mean_s).stiffness_nm_per_arcmin)
+        if math.isfinite(mean_s)
+        else None,
         stiffness_left_nm_per_arcmin=k_left,
         stiffness_right_nm_per_arcmin=k_right,
         lost_motion_arcmin=lost,
@@ -201,8 +203,15 @@ def datasheet_figures(
     )
     var = tuple(math.inf if f is None else float(f.cov[2, 2]) for f in (est.fits_[-1], est.fits_[1]))
     base = line_figures(
-        left, right, est.play_observable_, est.deadband_Nm_, peaks, rated_torque_Nm, est.operating_torque_Nm_,
-        var, est.engagement_torques_Nm_,  # type: ignore[arg-type]
+        left,
+        right,
+        est.play_observable_,
+        est.deadband_Nm_,
+        peaks,
+        rated_torque_Nm,
+        est.operating_torque_Nm_,
+        var,
+        est.engagement_torques_Nm_,  # type: ignore[arg-type]
     )
     lines = left is not None and right is not None
     if base.lost_motion_arcmin is not None and lines and est.stiffness_torques_Nm is not None:
@@ -241,7 +250,9 @@ class HysteresisCurve:
     lost_motion_basis: str
 
 
-def hysteresis_curve(est: TorqueBacklash, u: np.ndarray, y: np.ndarray, torque_Nm: np.ndarray, figures: DatasheetFigures) -> HysteresisCurve:
+def hysteresis_curve(
+    est: TorqueBacklash, u: np.ndarray, y: np.ndarray, torque_Nm: np.ndarray, figures: DatasheetFigures
+) -> HysteresisCurve:
     """The torsion-angle/torque curve of a fitted :class:`TorqueBacklash` with its flank lines (arc minutes, N m)."""
     q = est.torque_sign_ * np.asarray(torque_Nm, dtype=float)
     lines = [ln for ln in (est.left_, est.right_) if ln is not None]

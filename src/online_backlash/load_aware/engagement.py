@@ -33,7 +33,14 @@ import numpy as np
 from ..errors import InvalidParameterError
 from ..estimators.resolution import robust_noise_std
 
-__all__ = ["DEADBAND_SIGMAS", "count_torque_reversals", "engaged_flank", "torque_deadband", "torque_noise_std", "torque_orientation"]
+__all__ = [
+    "DEADBAND_SIGMAS",
+    "count_torque_reversals",
+    "engaged_flank",
+    "torque_deadband",
+    "torque_noise_std",
+    "torque_orientation",
+]
 
 #: Dead band in noise standard deviations (a Gaussian sample exceeds 4 sigma once in 16 000).
 DEADBAND_SIGMAS = 4.0
@@ -44,7 +51,9 @@ def _torque_array(torque_Nm: np.ndarray) -> np.ndarray:
     if q.ndim != 1:
         raise InvalidParameterError(f"torque must be a 1-D array, got shape {q.shape}")
     if not np.all(np.isfinite(q)):
-        raise InvalidParameterError(f"torque has non-finite values, first at index {int(np.flatnonzero(~np.isfinite(q))[0])}")
+        raise InvalidParameterError(
+            f"torque has non-finite values, first at index {int(np.flatnonzero(~np.isfinite(q))[0])}"
+        )
     return q
 
 
@@ -118,7 +127,9 @@ def torque_orientation(u_deg: np.ndarray, y_deg: np.ndarray, torque_Nm: np.ndarr
     y = np.asarray(y_deg, dtype=float)
     q = _torque_array(torque_Nm)
     if u.size < 3 or u.shape != q.shape or y.shape != q.shape:
-        raise InvalidParameterError(f"need equal-length u, y and torque of at least 3 samples, got {u.size}, {y.size}, {q.size}")
+        raise InvalidParameterError(
+            f"need equal-length u, y and torque of at least 3 samples, got {u.size}, {y.size}, {q.size}"
+        )
     design = np.column_stack((np.ones_like(u), u - u.mean()))
     coef, *_ = np.linalg.lstsq(design, y, rcond=None)
     torsion = design @ coef - y  # u - y about the fitted line

@@ -30,7 +30,14 @@ import numpy as np
 from ..errors import InvalidParameterError, NotFittedError
 from ..estimators.uncertainty import CyclePlays, OutputNoise, model_misfit
 from .engagement import DEADBAND_SIGMAS, count_torque_reversals, engaged_flank, torque_noise_std, torque_orientation
-from .flank_lines import FlankLine, FlankPairFigures, at_operating_torque, noisy_torque_corrected, sample_offsets, windup_separable
+from .flank_lines import (
+    FlankLine,
+    FlankPairFigures,
+    at_operating_torque,
+    noisy_torque_corrected,
+    sample_offsets,
+    windup_separable,
+)
 from .segments import SegmentFit, check_knots, fit_segments
 
 __all__ = ["FlankFit", "TorqueBacklash", "fit_flank"]
@@ -81,7 +88,9 @@ class FlankFit:
         return FlankFit(line, T @ self.cov @ T.T, self.rss, self.n, self.slope_fixed, *torque)
 
 
-def _solve(columns: list[np.ndarray], target: np.ndarray, torque_var: float) -> tuple[np.ndarray, np.ndarray, float] | None:
+def _solve(
+    columns: list[np.ndarray], target: np.ndarray, torque_var: float
+) -> tuple[np.ndarray, np.ndarray, float] | None:
     """Least squares of ``target`` on ``columns`` (scaled for conditioning; the last column is the
     torque, corrected for its noise variance ``torque_var``, :func:`~.flank_lines.noisy_torque_corrected`):
     ``(coef, unscaled cov, rss)``, or None when the design is singular or ill-conditioned."""
@@ -134,7 +143,9 @@ def fit_flank(
             (m, b, s), cov_local, rss = sol
             # a = m uc + b (y = m (u - uc) - b - s tau): J maps [m, b, s] to [m, a, s]
             J = np.array([[1.0, 0.0, 0.0], [uc, 1.0, 0.0], [0.0, 0.0, 1.0]])
-            return FlankFit(FlankLine(float(m), float(m * uc + b), float(s)), J @ cov_local @ J.T, rss, int(u.size), False, *stats)
+            return FlankFit(
+                FlankLine(float(m), float(m * uc + b), float(s)), J @ cov_local @ J.T, rss, int(u.size), False, *stats
+            )
     sol = _solve([-ones, -torque_Nm], y - slope * u, torque_var)
     if sol is None:
         return None

@@ -29,8 +29,16 @@ from ..estimators.uncertainty import CyclePlays, PlayUncertainty, forgetting_wei
 from ..rows import ARCMIN_PER_DEG
 
 __all__ = [
-    "MAX_LEVER", "FlankLine", "FlankPairFigures", "at_operating_torque", "flank_offsets", "noisy_torque_corrected", "play_between", "play_gradient",
-    "sample_offsets", "windup_separable",
+    "MAX_LEVER",
+    "FlankLine",
+    "FlankPairFigures",
+    "at_operating_torque",
+    "flank_offsets",
+    "noisy_torque_corrected",
+    "play_between",
+    "play_gradient",
+    "sample_offsets",
+    "windup_separable",
 ]
 
 #: The wind-up is told apart from the flank offset only when the torque on a flank varies: the
@@ -153,7 +161,9 @@ def at_operating_torque(line: FlankLine, torque_mean_Nm: float) -> FlankLine:
     return FlankLine(line.m, line.a + line.s * torque_mean_Nm, 0.0)
 
 
-def noisy_torque_corrected(info: np.ndarray, theta: np.ndarray, weight: float, torque_var: float, column: int) -> np.ndarray:
+def noisy_torque_corrected(
+    info: np.ndarray, theta: np.ndarray, weight: float, torque_var: float, column: int
+) -> np.ndarray:
     """Least-squares coefficients corrected for the noise of the torque regressor (errors in variables).
 
     The torque column carries the sensor's noise (variance ``torque_var``, N^2 m^2), which biases its

@@ -23,7 +23,14 @@ from ..estimators._validation import check_real
 from ..estimators.uncertainty import CyclePlays, OutputNoise, model_misfit
 from . import _torque_kernel as K
 from .engagement import DEADBAND_SIGMAS, engaged_flank
-from .flank_lines import FlankLine, FlankPairFigures, at_operating_torque, noisy_torque_corrected, sample_offsets, windup_separable
+from .flank_lines import (
+    FlankLine,
+    FlankPairFigures,
+    at_operating_torque,
+    noisy_torque_corrected,
+    sample_offsets,
+    windup_separable,
+)
 
 __all__ = ["TorqueBacklashRLS"]
 
@@ -160,7 +167,10 @@ class TorqueBacklashRLS(FlankPairFigures, RecursiveEstimator):
         self._cycles = CyclePlays()
         self._frozen: dict[str, Any] | None = None  # lines and dead band placing the plays, set at each tick
         self._held: dict[str, Any] = _empty_held()  # samples since the last tick
-        self._y_noise = [0.0, 0]  # sum of squared second differences of the output and their count (OutputNoise), per tick block
+        self._y_noise = [
+            0.0,
+            0,
+        ]  # sum of squared second differences of the output and their count (OutputNoise), per tick block
 
     def _validate(self) -> None:
         if self.deadband_Nm is not None:
@@ -218,14 +228,19 @@ class TorqueBacklashRLS(FlankPairFigures, RecursiveEstimator):
         saved = (0.0, 0.0) if fz is None else fz.get("engagement", (0.0, 0.0))  # lines frozen before issue 27: zero
         engagement = (float(saved[0]), float(saved[1]))
         side = np.zeros(q.size, np.int8) if db is None else engaged_flank(q, db, engagement)
-        left, right = (None, None) if fz is None else (None if v is None else FlankLine(*v) for v in (fz["left"], fz["right"]))
+        left, right = (
+            (None, None) if fz is None else (None if v is None else FlankLine(*v) for v in (fz["left"], fz["right"]))
+        )
         uc, yc = u - self._st[S.U0], y - self._st[S.Y0]
         # offsets at one output level (0) for the whole run: a level that moved from tick to tick would
         # shift a stretch against the next by the motion between the ticks
         self._cycles.update(side, sample_offsets(uc, yc, q, side, left, right, 0.0, engagement), gap)
         noise = OutputNoise()
         noise.update(y, gap)
-        self._y_noise = [self._y_noise[0] + noise.total, self._y_noise[1] + noise.count]  # across blocks: 2 differences per tick lost
+        self._y_noise = [
+            self._y_noise[0] + noise.total,
+            self._y_noise[1] + noise.count,
+        ]  # across blocks: 2 differences per tick lost
         memory = self.memory_reversals
         self._cycles.trim(MAX_SEGMENTS if memory is None else min(MAX_SEGMENTS, math.ceil(MEMORY_SPANS * memory) + 2))
         self._held = {**_empty_held(), "gap_next": held["gap_next"]}
@@ -254,13 +269,17 @@ class TorqueBacklashRLS(FlankPairFigures, RecursiveEstimator):
 
     def _learn_py(self, u: float, y: float, t: float, q: float) -> None:
         if not math.isfinite(q):
-            raise InvalidParameterError(f"torque must be finite, got {q!r} (TorqueBacklashRLS needs the torque of every sample)")
+            raise InvalidParameterError(
+                f"torque must be finite, got {q!r} (TorqueBacklashRLS needs the torque of every sample)"
+            )
         q = self.torque_sign * q
         self._hold(np.array([u]), np.array([y]), np.array([q]), None)
         K.torque_step(self._st, self._c, u, y, q)
         self._tick()
 
-    def _learn_arrays(self, u: np.ndarray, y: np.ndarray, gap: np.ndarray, t: np.ndarray | None, q: np.ndarray | None) -> None:
+    def _learn_arrays(
+        self, u: np.ndarray, y: np.ndarray, gap: np.ndarray, t: np.ndarray | None, q: np.ndarray | None
+    ) -> None:
         if q is None:
             raise InvalidParameterError("TorqueBacklashRLS needs torque_Nm with every sample")
         q = self.torque_sign * finite_array("torque_Nm", q)
@@ -276,7 +295,12 @@ class TorqueBacklashRLS(FlankPairFigures, RecursiveEstimator):
 
     def _extra_state(self) -> dict[str, Any]:
         held = {k: list(v) if isinstance(v, list) else v for k, v in self._held.items()}
-        return {"cycle_plays": self._cycles.state_dict(), "cycle_lines": self._frozen, "cycle_held": held, "output_noise": list(self._y_noise)}
+        return {
+            "cycle_plays": self._cycles.state_dict(),
+            "cycle_lines": self._frozen,
+            "cycle_held": held,
+            "output_noise": list(self._y_noise),
+        }
 
     def _restore_extra(self, d: dict[str, Any]) -> None:
         self._st += [0.0] * (K.STATE_SIZE - len(self._st))  # saved before the engagement torques: zero

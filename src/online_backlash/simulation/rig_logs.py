@@ -18,7 +18,9 @@ from ..codecs.serialframes import encode_ascii, encode_binary, require_cpr
 from .rig import RigRecording, simulate_rig
 
 
-def rig_can_frames(rec: RigRecording, decoder: DbcDecoder, start_s: float = 0.0, skew_s: float = 0.0) -> Iterator[can.Message]:
+def rig_can_frames(
+    rec: RigRecording, decoder: DbcDecoder, start_s: float = 0.0, skew_s: float = 0.0
+) -> Iterator[can.Message]:
     """The frames of every sample, timestamped ``start_s + time_s`` (the load frame ``skew_s`` later when separate)."""
     encoder = FrameEncoder(decoder)
     motor = counts_of(rec.motor_deg, decoder.motor).tolist()
@@ -30,7 +32,9 @@ def rig_can_frames(rec: RigRecording, decoder: DbcDecoder, start_s: float = 0.0,
         yield from frames
 
 
-def rig_serial_records(rec: RigRecording, serial_format: str, motor_cpr: float | None = None, load_cpr: float | None = None) -> Iterator[bytes]:
+def rig_serial_records(
+    rec: RigRecording, serial_format: str, motor_cpr: float | None = None, load_cpr: float | None = None
+) -> Iterator[bytes]:
     """One ``ascii`` line or ``binary`` frame per sample (counts per revolution for ``binary``)."""
     if serial_format == "ascii":
         for t, m, y in zip(rec.time_s.tolist(), rec.motor_deg.tolist(), rec.load_deg.tolist()):

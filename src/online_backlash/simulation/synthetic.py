@@ -31,7 +31,9 @@ def _true_load(rec: RigRecording) -> np.ndarray:
     return simulate_backlash_varying(rec.u_true_deg, 1.0, rec.c_left_deg, 1.0, rec.c_right_deg)
 
 
-def _with(rec: RigRecording, disturbance_deg: np.ndarray, load_bits: int, torque_Nm: np.ndarray | None = None) -> Record:
+def _with(
+    rec: RigRecording, disturbance_deg: np.ndarray, load_bits: int, torque_Nm: np.ndarray | None = None
+) -> Record:
     n = rec.time_s.size
     load = quantise(rec.load_deg + disturbance_deg, load_bits)
     return rec.time_s, rec.motor_deg, load, np.full(n, np.nan) if torque_Nm is None else torque_Nm
@@ -43,7 +45,12 @@ def clean(rec: RigRecording, load_bits: int = 17) -> Record:
 
 
 def transmission_error(
-    rec: RigRecording, load_order: int = 2, load_amp_deg: float = 0.02, motor_order: int = 1, motor_amp_deg: float = 0.01, load_bits: int = 17
+    rec: RigRecording,
+    load_order: int = 2,
+    load_amp_deg: float = 0.02,
+    motor_order: int = 1,
+    motor_amp_deg: float = 0.01,
+    load_bits: int = 17,
 ) -> Record:
     """Add ``A sin(n x + 0.7) + B sin(k motor_angle + 1.9)`` to the load angle (``x`` the true load angle)."""
     x = _true_load(rec)
@@ -72,7 +79,9 @@ def compliance(
     rng = np.random.default_rng(seed)
     v = velocity_deg_s(rec.u_true_deg, rec.time_s, 10)
     torque = coulomb_Nm * np.tanh(v / 2.0) + viscous_Nm_s_per_deg * v
-    return _with(rec, -compliance_deg_per_Nm * torque, load_bits, torque + rng.normal(0.0, torque_noise_Nm, torque.size))
+    return _with(
+        rec, -compliance_deg_per_Nm * torque, load_bits, torque + rng.normal(0.0, torque_noise_Nm, torque.size)
+    )
 
 
 def drift(rec: RigRecording, amp_deg: float = 0.2, tau_s: float = 60.0, load_bits: int = 17) -> Record:
@@ -81,7 +90,9 @@ def drift(rec: RigRecording, amp_deg: float = 0.2, tau_s: float = 60.0, load_bit
     return _with(rec, amp_deg * (1.0 - np.exp(-t / tau_s)), load_bits)
 
 
-def speed_dependent_lag(rec: RigRecording, lag_s_at_ref: float = 0.0015, ref_speed_deg_s: float = 30.0, load_bits: int = 17) -> Record:
+def speed_dependent_lag(
+    rec: RigRecording, lag_s_at_ref: float = 0.0015, ref_speed_deg_s: float = 30.0, load_bits: int = 17
+) -> Record:
     """Outside the library: a lag that grows with the square of the speed, ``x(t - d(|v|))``."""
     x = _true_load(rec)
     v = velocity_deg_s(rec.u_true_deg, rec.time_s, 10)
@@ -119,7 +130,12 @@ COMPLIANT_NM_PER_ARCMIN = 0.1
 def _two_mass(seed: int, duration_s: float, stiffness_nm_per_arcmin: float) -> TwoMassRecording:
     """The rig with a load angle kept unquantised (30 bits) until the effect is added."""
     return simulate_two_mass(
-        duration_s=duration_s, seed=seed, stiffness_nm_per_arcmin=stiffness_nm_per_arcmin, substeps=40, load_bits=30, **TWO_MASS_RIG
+        duration_s=duration_s,
+        seed=seed,
+        stiffness_nm_per_arcmin=stiffness_nm_per_arcmin,
+        substeps=40,
+        load_bits=30,
+        **TWO_MASS_RIG,
     )
 
 
@@ -134,10 +150,14 @@ def two_mass_clean(seed: int = 0, duration_s: float = 180.0) -> Record:
     return _record(rec, np.zeros_like(rec.load_deg))
 
 
-def two_mass_transmission_error(seed: int = 0, duration_s: float = 180.0, load_amp_deg: float = 0.02, motor_amp_deg: float = 0.01) -> Record:
+def two_mass_transmission_error(
+    seed: int = 0, duration_s: float = 180.0, load_amp_deg: float = 0.02, motor_amp_deg: float = 0.01
+) -> Record:
     """The stiff rig with ``A sin(2 y + 0.7) + B sin(motor angle + 1.9)`` added to the load angle ``y``."""
     rec = _two_mass(seed, duration_s, STIFF_NM_PER_ARCMIN)
-    te = load_amp_deg * np.sin(np.radians(2.0 * rec.load_deg) + 0.7) + motor_amp_deg * np.sin(np.radians(rec.motor_deg) + 1.9)
+    te = load_amp_deg * np.sin(np.radians(2.0 * rec.load_deg) + 0.7) + motor_amp_deg * np.sin(
+        np.radians(rec.motor_deg) + 1.9
+    )
     return _record(rec, te)
 
 
@@ -162,7 +182,9 @@ def two_mass_drift(seed: int = 0, duration_s: float = 180.0, amp_deg: float = 0.
     return _record(rec, amp_deg * (1.0 - np.exp(-(rec.time_s - rec.time_s[0]) / tau_s)))
 
 
-def two_mass_speed_dependent_lag(seed: int = 0, duration_s: float = 180.0, lag_s_at_ref: float = 0.0015, ref_speed_deg_s: float = 30.0) -> Record:
+def two_mass_speed_dependent_lag(
+    seed: int = 0, duration_s: float = 180.0, lag_s_at_ref: float = 0.0015, ref_speed_deg_s: float = 30.0
+) -> Record:
     """Outside the library, on the stiff rig: a lag that grows with the square of the speed."""
     rec = _two_mass(seed, duration_s, STIFF_NM_PER_ARCMIN)
     v = velocity_deg_s(rec.u_true_deg, rec.time_s, 10)
@@ -193,7 +215,9 @@ TWO_MASS_INJECTORS = {
 INERTIA_OVER_STIFFNESS_S2 = 1e-4
 
 
-def _raised_cosine_ramps(t: np.ndarray, starts_s: np.ndarray, speed_steps: np.ndarray, ramp_s: float) -> tuple[np.ndarray, np.ndarray]:
+def _raised_cosine_ramps(
+    t: np.ndarray, starts_s: np.ndarray, speed_steps: np.ndarray, ramp_s: float
+) -> tuple[np.ndarray, np.ndarray]:
     """Angle (deg) and acceleration (deg/s^2) of a speed that changes by ``speed_steps`` (deg/s), each
     over ``ramp_s`` seconds from ``starts_s``, with the raised-cosine acceleration
     ``(dv / T) (1 - cos(2 pi s / T))``, from rest at angle 0: in closed form (the speed's ramp
@@ -210,8 +234,13 @@ def _raised_cosine_ramps(t: np.ndarray, starts_s: np.ndarray, speed_steps: np.nd
 
 
 def point_to_point_motion(
-    duration_s: float, rate_hz: float = 1000.0, seed: int = 0, ramp_s: float = 0.15, speed_deg_s: tuple[float, float] = (20.0, 60.0),
-    distance_deg: tuple[float, float] = (5.0, 60.0), dwell_s: tuple[float, float] = (0.05, 0.5),
+    duration_s: float,
+    rate_hz: float = 1000.0,
+    seed: int = 0,
+    ramp_s: float = 0.15,
+    speed_deg_s: tuple[float, float] = (20.0, 60.0),
+    distance_deg: tuple[float, float] = (5.0, 60.0),
+    dwell_s: tuple[float, float] = (0.05, 0.5),
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Time (s), load-side angle (deg) and its acceleration (deg/s^2) of point-to-point moves: each of a
     random length and direction, at a random top speed, reached and left with raised-cosine acceleration
@@ -231,7 +260,10 @@ def point_to_point_motion(
 
 
 def two_tone_motion(
-    duration_s: float, rate_hz: float = 1000.0, seed: int = 0, amplitudes_deg: tuple[float, float] = (30.0, 10.0),
+    duration_s: float,
+    rate_hz: float = 1000.0,
+    seed: int = 0,
+    amplitudes_deg: tuple[float, float] = (30.0, 10.0),
     frequencies_hz: tuple[float, float] = (0.5, 1.3),
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Time (s), load-side angle (deg) and its acceleration (deg/s^2) of two sines with phases drawn from
@@ -248,12 +280,21 @@ def two_tone_motion(
 
 
 #: the prescribed motions of :func:`inertial_twist`: ``(duration_s, seed=...) -> (time_s, angle_deg, acceleration_deg_s2)``
-MOTIONS: dict[str, Callable[..., tuple[np.ndarray, np.ndarray, np.ndarray]]] = {"two_tone": two_tone_motion, "point_to_point": point_to_point_motion}
+MOTIONS: dict[str, Callable[..., tuple[np.ndarray, np.ndarray, np.ndarray]]] = {
+    "two_tone": two_tone_motion,
+    "point_to_point": point_to_point_motion,
+}
 
 
 def inertial_twist(
-    seed: int = 0, duration_s: float = 120.0, inertia_over_stiffness_s2: float = INERTIA_OVER_STIFFNESS_S2, motion: str = "two_tone",
-    play_deg: float = 0.5, ratio: float = 30.0, motor_bits: int = 14, load_bits: int = 17,
+    seed: int = 0,
+    duration_s: float = 120.0,
+    inertia_over_stiffness_s2: float = INERTIA_OVER_STIFFNESS_S2,
+    motion: str = "two_tone",
+    play_deg: float = 0.5,
+    ratio: float = 30.0,
+    motor_bits: int = 14,
+    load_bits: int = 17,
 ) -> Record:
     """A log without a torque column whose load twists by ``-(J / k) a`` while a flank is engaged.
 

@@ -197,8 +197,23 @@ def _mesh(delta, c_left, c_right, k, d, slip):  # pragma: no cover - compiled
 
 @numba.njit(cache=True)
 def _integrate_two_gaps(
-    u, du, tau_ext, dt, k, d, gaps, inertia_x, friction_x, inertia, viscous, coulomb, coulomb_width,
-    coulomb_at_rad, coulomb_scale, y0, v0,
+    u,
+    du,
+    tau_ext,
+    dt,
+    k,
+    d,
+    gaps,
+    inertia_x,
+    friction_x,
+    inertia,
+    viscous,
+    coulomb,
+    coulomb_width,
+    coulomb_at_rad,
+    coulomb_scale,
+    y0,
+    v0,
 ):  # pragma: no cover - compiled
     """Semi-implicit Euler of the train with two gaps in series (module docstring): load angle and the
     torque of the first mesh (rad, N m) at each step's start. ``gaps``: the first and the second gap's
@@ -222,7 +237,9 @@ def _integrate_two_gaps(
     return y_out, tau_out
 
 
-def sine_motion(duration_s: float, rate_hz: float, amplitude_deg: float, frequency_hz: float) -> tuple[np.ndarray, np.ndarray]:
+def sine_motion(
+    duration_s: float, rate_hz: float, amplitude_deg: float, frequency_hz: float
+) -> tuple[np.ndarray, np.ndarray]:
     """Time (s) and a load-side reference angle (deg) following ``A sin(2 pi f t)``."""
     n = round(duration_s * rate_hz)
     t = np.arange(n) / rate_hz
@@ -378,8 +395,25 @@ def simulate_two_mass(
         )  # fmt: skip
     else:
         y_fine, tau_fine = _integrate(
-            u_fine, du_fine, tau_ext, 1.0 / (rate_hz * substeps), k, knots, knot_torques, ks, damping, c_left, c_right,
-            load_inertia_kgm2, viscous_nms_per_rad, coulomb_nm, 1e-3, np.radians(at_deg), scale, y0, du_fine[0],
+            u_fine,
+            du_fine,
+            tau_ext,
+            1.0 / (rate_hz * substeps),
+            k,
+            knots,
+            knot_torques,
+            ks,
+            damping,
+            c_left,
+            c_right,
+            load_inertia_kgm2,
+            viscous_nms_per_rad,
+            coulomb_nm,
+            1e-3,
+            np.radians(at_deg),
+            scale,
+            y0,
+            du_fine[0],
         )
     pick = slice(0, None, substeps)  # the fine steps at the output instants
     y_deg, tau_true = np.degrees(y_fine[pick]), tau_fine[pick]
