@@ -256,7 +256,7 @@ class TorqueBacklash(FlankPairFigures):
         transmitted torque (N m). ``engagement_Nm``: the torques (as measured, N m) at which the left
         and the right flank engage (None: zero). InvalidParameterError for unequal lengths or
         non-finite values."""
-        from ..estimators._validation import check_pair  # the estimators' one statement of the input checks
+        from ..estimators.validation import check_pair  # the estimators' one statement of the input checks
 
         u, y = check_pair(u, y)
         q = np.ascontiguousarray(torque_Nm, dtype=float)

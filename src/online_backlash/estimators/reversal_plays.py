@@ -24,7 +24,7 @@ import numba
 import numpy as np
 
 from ..errors import InvalidParameterError
-from ._base import finite_array
+from .validation import finite_array
 
 __all__ = ["MIN_SEGMENT_SAMPLES", "CyclePlays", "MotionFlanks", "OutputNoise", "kinematic_offsets", "kinematic_update"]
 
