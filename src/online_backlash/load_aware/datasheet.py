@@ -201,7 +201,7 @@ def datasheet_figures(
         float(-carried[est.flank_ == -1].min()) if left is not None else None,
         float(carried[est.flank_ == 1].max()) if right is not None else None,
     )
-    var = tuple(math.inf if f is None else float(f.cov[2, 2]) for f in (est.fits_[-1], est.fits_[1]))
+    var_left, var_right = (math.inf if f is None else float(f.cov[2, 2]) for f in (est.fits_[-1], est.fits_[1]))
     base = line_figures(
         left,
         right,
@@ -210,8 +210,8 @@ def datasheet_figures(
         peaks,
         rated_torque_Nm,
         est.operating_torque_Nm_,
-        var,
-        est.engagement_torques_Nm_,  # type: ignore[arg-type]
+        (var_left, var_right),
+        est.engagement_torques_Nm_,
     )
     lines = left is not None and right is not None
     if base.lost_motion_arcmin is not None and lines and est.stiffness_torques_Nm is not None:
