@@ -301,9 +301,9 @@ class BacklashRLS(RecursiveEstimator):
     def _constants(self) -> list[float]:
         lam, lam_rev = memory_factors(self.memory_s, self.memory_reversals, self.sample_period_s)
         return pack(
-            BACKLASH_CONSTS, kernels.N_CONSTS, DT=self.sample_period_s, LAM=lam, LAM_REV=lam_rev, FLOOR_M=self.info_floor,
-            FLOOR_B=self.info_floor, MIN_STEP=self.min_step_deg, NOISE_WINDOW=self.noise_window,
-            WEAR_HORIZON=self.wear_horizon_s, ORIGIN_FIRST=self.origin == "first",
+            BACKLASH_CONSTS, kernels.N_CONSTS, DT=self.sample_period_s, LAM=lam, LAM_REV=lam_rev,
+            FLOOR_M=self.info_floor, FLOOR_B=self.info_floor, MIN_STEP=self.min_step_deg,
+            NOISE_WINDOW=self.noise_window, WEAR_HORIZON=self.wear_horizon_s, ORIGIN_FIRST=self.origin == "first",
             SWITCH_MODEL=self._switching() == "model", HOLD_BAND=self._hold_band(),
             ENGAGED_LEVEL=self.full_engagement and not self._fx.effects,
         )  # fmt: skip
@@ -532,10 +532,10 @@ class BacklashRLS(RecursiveEstimator):
 
     # -- fitted attributes -----------------------------------------------------------------------
     def _lines(self) -> tuple[float, float, float, float, float, float]:
-        st = self._st
+        st, left, right = self._st, BACKLASH_STATE.LEFT, BACKLASH_STATE.RIGHT
         return (
-            st[BACKLASH_STATE.LEFT + FLANK.M], st[BACKLASH_STATE.LEFT + FLANK.B], st[BACKLASH_STATE.LEFT + FLANK.UREF],
-            st[BACKLASH_STATE.RIGHT + FLANK.M], st[BACKLASH_STATE.RIGHT + FLANK.B], st[BACKLASH_STATE.RIGHT + FLANK.UREF],
+            st[left + FLANK.M], st[left + FLANK.B], st[left + FLANK.UREF],
+            st[right + FLANK.M], st[right + FLANK.B], st[right + FLANK.UREF],
         )  # fmt: skip
 
     @property
@@ -557,7 +557,8 @@ class BacklashRLS(RecursiveEstimator):
 
     @property
     def P_local_(self) -> np.ndarray:
-        """Unscaled covariance of the local lines ``[mL, bL, mR, bR]`` (``b`` at each flank's latest operating point)."""
+        """Unscaled covariance of the local lines ``[mL, bL, mR, bR]`` (``b`` at each flank's latest operating
+        point)."""
         self._check_started()
         return self._local_cov()
 

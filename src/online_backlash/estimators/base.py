@@ -747,7 +747,8 @@ class RecursiveEstimator(ABC):
         """
         if d.get("estimator") != cls.__name__ or d.get("format") not in _READ_FORMATS:
             raise InvalidParameterError(
-                f"not a saved {cls.__name__} state (format {STATE_FORMAT}): estimator={d.get('estimator')!r}, format={d.get('format')!r}"
+                f"not a saved {cls.__name__} state (format {STATE_FORMAT}): "
+                f"estimator={d.get('estimator')!r}, format={d.get('format')!r}"
             )
         params = dict(d["params"])
         if "effects" in params:

@@ -54,7 +54,8 @@ class CascadeRLS(RecursiveEstimator):
     Parameters
     ----------
     n_a, n_b : int
-        As in :class:`VorosCascade`: ``A = q^-1 + a2 q^-2 + ... + a_{n_a} q^-n_a``, ``B = 1 + b1 q^-1 + ... + b_{n_b} q^-n_b``.
+        As in :class:`VorosCascade`: ``A = q^-1 + a2 q^-2 + ... + a_{n_a} q^-n_a``,
+        ``B = 1 + b1 q^-1 + ... + b_{n_b} q^-n_b``.
     memory_s, memory_reversals, sample_period_s, start, warm_start_samples, origin, noise_window, gap_policy
         As in :class:`BacklashRLS` (``memory_s`` counts updates, ``memory_reversals`` changes of
         the active flank of ``x_hat``).

@@ -12,9 +12,10 @@ cycle, and the standard error of the estimate is the scatter of those per-cycle 
    sample on an engaged flank implies where that flank is, its *flank offset*: on the left
    flank of eq. (1), ``y = mL (u + cL)``, so ``y / mL - u = cL``; on the right,
    ``y / mR - u = -cR`` (degrees, input units). A torque-aware model adds the wind-up,
-   ``(y + tau / k) / m - u``. Consecutive samples on one flank form a *segment* (one half-cycle); the mean offset of each segment minus that of the adjacent
-   segment on the other flank is one measurement of the play, one per reversal. Adjacent
-   segments lie close together, so a slope error hardly enters their difference.
+   ``(y + tau / k) / m - u``. Consecutive samples on one flank form a *segment* (one half-cycle); the
+   mean offset of each segment minus that of the adjacent segment on the other flank is one
+   measurement of the play, one per reversal. Adjacent segments lie close together, so a slope error
+   hardly enters their difference.
 2. **Standard error of their mean** (:func:`play_std`): a moving-block bootstrap (Künsch 1989)
    of the (weighted) mean of the per-cycle plays, blocks of ``ceil(n^(1/3))`` consecutive plays
    (Hall, Horowitz & Jing 1995), so correlation between neighbouring cycles (each play shares a

@@ -36,8 +36,8 @@ from .flank_lines import FlankLine
 from .segments import check_knots, hinge_columns
 
 __all__ = [
-    "LOST_MOTION_FRACTION", "DatasheetFigures", "HysteresisCurve", "datasheet_figures", "hysteresis_curve", "line_figures",
-    "lost_motion_deg", "torsion_curve", "unloading_mask",
+    "LOST_MOTION_FRACTION", "DatasheetFigures", "HysteresisCurve", "datasheet_figures", "hysteresis_curve",
+    "line_figures", "lost_motion_deg", "torsion_curve", "unloading_mask",
 ]  # fmt: skip
 
 #: Lost motion is the curve's width at +-3 % of the rated torque (data-sheet definition).

@@ -76,7 +76,8 @@ class FlankFit:
 
     @property
     def separable(self) -> bool:
-        """The torque varied enough on this flank to tell its wind-up from its offset (:func:`~.flank_lines.windup_separable`)."""
+        """The torque varied enough on this flank to tell its wind-up from its offset
+        (:func:`~.flank_lines.windup_separable`)."""
         return windup_separable(self.torque_mean, self.torque_std)
 
     def at_operating_torque(self) -> FlankFit:
@@ -370,6 +371,6 @@ class TorqueBacklash(FlankPairFigures):
     def get_params(self) -> dict[str, Any]:
         """The constructor arguments."""
         return {
-            "deadband_Nm": self.deadband_Nm, "n_sigma": self.n_sigma, "fit_slope": self.fit_slope, "origin": self.origin,
-            "torque_sign": self.torque_sign, "stiffness_torques_Nm": self.stiffness_torques_Nm,
+            "deadband_Nm": self.deadband_Nm, "n_sigma": self.n_sigma, "fit_slope": self.fit_slope,
+            "origin": self.origin, "torque_sign": self.torque_sign, "stiffness_torques_Nm": self.stiffness_torques_Nm,
         }  # fmt: skip

@@ -186,9 +186,11 @@ class TorqueBacklashRLS(FlankPairFigures, RecursiveEstimator):
     def _constants(self) -> list[float]:
         lam, lam_rev = memory_factors(self.memory_s, self.memory_reversals, self.sample_period_s)
         return pack(
-            TORQUE_CONSTS, torque_kernel.N_CONSTS, LAM=lam, LAM_REV=lam_rev, DEADBAND=-1.0 if self.deadband_Nm is None else self.deadband_Nm,
-            N_SIGMA=self.n_sigma, MED_UP=math.exp(_MEDIAN_ETA), MED_DOWN=math.exp(-_MEDIAN_ETA), NOISE_WARMUP=_NOISE_WARMUP,
-            MIN_STEP=self.min_step_deg, NOISE_WINDOW=self.noise_window, ORIGIN_FIRST=self.origin == "first", P0=self.prior_var,
+            TORQUE_CONSTS, torque_kernel.N_CONSTS, LAM=lam, LAM_REV=lam_rev,
+            DEADBAND=-1.0 if self.deadband_Nm is None else self.deadband_Nm, N_SIGMA=self.n_sigma,
+            MED_UP=math.exp(_MEDIAN_ETA), MED_DOWN=math.exp(-_MEDIAN_ETA), NOISE_WARMUP=_NOISE_WARMUP,
+            MIN_STEP=self.min_step_deg, NOISE_WINDOW=self.noise_window, ORIGIN_FIRST=self.origin == "first",
+            P0=self.prior_var,
         )  # fmt: skip
 
     def _initial_state(self, start: Any) -> list[float]:
@@ -243,7 +245,8 @@ class TorqueBacklashRLS(FlankPairFigures, RecursiveEstimator):
             return  # lines not placed yet: no plays measured until they are
         left, right = self.flank_lines_()
         self._frozen = {
-            "left": None if left is None else [left.m, left.a, left.s], "right": None if right is None else [right.m, right.a, right.s],
+            "left": None if left is None else [left.m, left.a, left.s],
+            "right": None if right is None else [right.m, right.a, right.s],
             "deadband": self.deadband_Nm_ if math.isfinite(self.deadband_Nm_) else None,
             "engagement": list(self.engagement_torques_Nm_),
         }  # fmt: skip
