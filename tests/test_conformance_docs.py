@@ -10,9 +10,11 @@ import re
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pytest
 
 from online_backlash.estimators.conformance import check_estimator
+from online_backlash.model import BacklashParams, simulate_backlash
 
 PAGE = Path(__file__).resolve().parents[1] / "docs" / "estimators.md"
 
@@ -42,3 +44,18 @@ def test_the_suite_fails_the_example_once_it_reads_a_gap_as_motion():
     blind = _run(forgetful)["PaperRLS"]
     with pytest.raises(AssertionError, match="check_a_gap_is_not_read_as_motion"):
         check_estimator(lambda: blind(warm_start_samples=400))
+
+
+def test_the_base_predicts_by_eq_1_to_3_from_theta():
+    """The default ``predict_one`` (eq. 1-3 with the lines of ``theta_``, from the last output learned): on
+    noise-free data of the paper's example 1 the example estimator predicts each next output."""
+    namespace = _run(_blocks()[0])
+    u = np.random.default_rng(5).uniform(-1.0, 1.0, 3000)
+    x = simulate_backlash(u, BacklashParams(1.3, 0.5, 2.5, 0.7))
+    est = namespace["PaperRLS"](origin="zero", warm_start_samples=400)
+    est.learn_many(u[:2000], x[:2000])
+    predicted = []
+    for i in range(2000, 3000):
+        predicted.append(est.predict_one(u[i]))
+        est.learn_one(u[i], x[i])
+    np.testing.assert_allclose(predicted, x[2000:], atol=1e-9)

@@ -20,12 +20,12 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from ..effect_terms import EffectTerms
-from ..errors import InvalidParameterError, NotExcitedError, NotFittedError
+from ..errors import InvalidParameterError, NotFittedError
 from ..model import BacklashParams
 from . import _rls_kernels as kernels
 from ._rls_kernels import BACKLASH_CONSTS, BACKLASH_STATE, FLANK
 from .base import EstimateAt, RecursiveEstimator, StateField, WarmStartParams, finite, memory_factors
-from .batch import VorosBacklash, _direction_guess, _levenberg_marquardt, _start_params
+from .batch import VorosBacklash, _levenberg_marquardt
 from .full_engagement import NO_FLANK, RESTING, FullEngagement
 from .layout import pack
 from .validation import check_option, check_real
@@ -289,14 +289,6 @@ class BacklashRLS(RecursiveEstimator):
             else _refine_with_effects(uc, yc, terms, batch.params_, ~batch.partial_)
         )
         return start, int(batch.n_iter_), bool(batch.converged_)
-
-    def _cold_params(self, u: np.ndarray | None, y: np.ndarray | None) -> BacklashParams:
-        if u is None or y is None or u.size < 2:
-            return BacklashParams(1.0, 1e-3, 1.0, 1e-3)
-        try:
-            return _direction_guess(u, y)
-        except NotExcitedError:
-            return _start_params(u, y)
 
     def _constants(self) -> list[float]:
         lam, lam_rev = memory_factors(self.memory_s, self.memory_reversals, self.sample_period_s)

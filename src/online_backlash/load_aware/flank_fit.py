@@ -23,6 +23,7 @@ Units: degrees (load side), N m.
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -48,31 +49,21 @@ MIN_FLANK_SAMPLES = 20
 _MAX_COND = 1e6
 
 
+@dataclass(eq=False, repr=False)
 class FlankFit:
     """The least-squares line of one flank: ``line``, its unscaled covariance ``cov`` (3x3, of
     ``[m, a, s]``; multiply by the residual variance), residual sum of squares, sample count, and
     the mean and standard deviation of the torque the flank carries (N m: the measured torque less
     ``engaged_at``, the torque at which the flank engages)."""
 
-    def __init__(
-        self,
-        line: FlankLine,
-        cov: np.ndarray,
-        rss: float,
-        n: int,
-        slope_fixed: bool,
-        torque_mean: float = 0.0,
-        torque_std: float = 0.0,
-        engaged_at: float = 0.0,
-    ) -> None:
-        self.line = line
-        self.cov = cov
-        self.rss = rss
-        self.n = n
-        self.slope_fixed = slope_fixed
-        self.torque_mean = torque_mean
-        self.torque_std = torque_std
-        self.engaged_at = engaged_at
+    line: FlankLine
+    cov: np.ndarray
+    rss: float
+    n: int
+    slope_fixed: bool
+    torque_mean: float = 0.0
+    torque_std: float = 0.0
+    engaged_at: float = 0.0
 
     @property
     def separable(self) -> bool:
