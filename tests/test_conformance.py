@@ -20,7 +20,9 @@ estimator on :class:`~online_backlash.estimators.RecursiveEstimator` must pass a
 
 from __future__ import annotations
 
+import inspect
 from collections.abc import Callable
+from typing import NamedTuple
 
 import numpy as np
 import pytest
@@ -28,7 +30,9 @@ import pytest
 from online_backlash import BacklashRLS, CascadeRLS
 from online_backlash.diagnostics.effects import Delay, Drift
 from online_backlash.estimators import RecursiveEstimator
+from online_backlash.estimators.base import SHARED_DEFAULTS, TORQUE_DEFAULTS
 from online_backlash.estimators.conformance import CHECKS, Case, check_estimator
+from online_backlash.estimators.layout import offsets
 from online_backlash.load_aware import TorqueBacklashRLS
 from online_backlash.model import BacklashParams, simulate_cascade
 from online_backlash.simulation.rig import simulate_rig
@@ -100,3 +104,40 @@ class _GapBlind(BacklashRLS):
 
     def _gap_now(self) -> None:
         pass
+
+
+# -- the contract's declarations ---------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("cls", [BacklashRLS, CascadeRLS, TorqueBacklashRLS], ids=lambda c: c.__name__)
+def test_the_shared_parameters_are_declared_once_and_each_class_lists_them(cls):
+    """Each class's signature (what ``get_params``, ``clone`` and ``help`` read) lists its own parameters and the
+    shared ones it takes, with the defaults of :data:`~online_backlash.estimators.base.SHARED_DEFAULTS` or of its
+    declared departure (:data:`~online_backlash.estimators.base.TORQUE_DEFAULTS`); a fixed one is refused."""
+    params = inspect.signature(cls).parameters
+    shared = {n: params[n].default for n in SHARED_DEFAULTS if n in params}
+    assert shared == {n: cls.shared_defaults[n] for n in SHARED_DEFAULTS if n not in cls.fixed_params}
+    assert list(cls().get_params()) == list(params)
+    for name in cls.fixed_params:
+        with pytest.raises(TypeError, match=name):
+            cls(**{name: SHARED_DEFAULTS[name]})
+    with pytest.raises(TypeError, match="memory_days"):
+        cls(memory_days=3)
+
+
+def test_torque_departs_from_the_shared_defaults_only_where_declared():
+    departures = {n for n in SHARED_DEFAULTS if TORQUE_DEFAULTS[n] != SHARED_DEFAULTS[n]}
+    assert departures == {"memory_reversals", "start", "warm_start_samples"}
+    assert TorqueBacklashRLS.fixed_params == ("start", "warm_start_samples")
+    assert TorqueBacklashRLS().memory_reversals is None and BacklashRLS().memory_reversals == 10.0
+
+
+def test_a_layout_without_the_fields_the_base_reads_is_refused_when_the_class_is_defined():
+    class NoOrigin(NamedTuple):
+        N_SEEN: int = 1
+        NOISE_VAR: int = 1
+        N_REV: int = 1
+
+    layout, _ = offsets(NoOrigin())
+    with pytest.raises(TypeError, match="U0, Y0"):
+        type("Originless", (RecursiveEstimator,), {"_layout": layout})
