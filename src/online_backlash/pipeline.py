@@ -225,13 +225,12 @@ class DataClock:
 
 
 class _Referred(NamedTuple):
-    """A chunk ready for the estimator: ``u`` (motor / ratio) and ``y``, deg, ``learn_many``'s options, and
-    for a pipeline that learns whole chunks (:meth:`Pipeline._feed_whole`) the data-clock ticks in it."""
+    """A chunk ready for the estimator: ``u`` (motor / ratio) and ``y``, deg, checked finite, and for a
+    pipeline that learns whole chunks (:meth:`Pipeline._feed_whole`) the data-clock ticks in it."""
 
     chunk: SampleChunk
     u_deg: np.ndarray
     y_deg: np.ndarray
-    learn: dict[str, Any]
     ticks: tuple[int, ...] | None = None
 
 
@@ -532,23 +531,25 @@ class Pipeline(Generic[E]):
             raise InvalidParameterError(
                 f"{name} has non-finite values, first at index {bad} of the chunk (time {chunk.time_s[bad]} s)"
             )
-        learn: dict[str, Any] = {"assume_finite": True}
-        return _Referred(
-            chunk, u, y, learn, self.clock.ticks(chunk.time_s, chunk.after_gap) if self._whole_chunks else None
-        )
+        return _Referred(chunk, u, y, self.clock.ticks(chunk.time_s, chunk.after_gap) if self._whole_chunks else None)
 
     def _learn(self, referred: _Referred | None) -> Iterator[PipelineStep]:
         """The estimator learns a referred chunk, block by block (or whole, see :meth:`_feed_whole`)."""
         if referred is None:
             return
-        chunk, u, y, learn, ticks = referred
+        chunk, u, y, ticks = referred
         if ticks is not None:
-            yield self._feed_whole(chunk, u, y, learn, ticks)
+            yield self._feed_whole(chunk, u, y, ticks)
             return
         for start, end, due in self.clock.blocks(chunk.time_s, chunk.after_gap):
             block = _block(chunk, start, end)
             self.estimator.learn_many(
-                u[start:end], y[start:end], block.after_gap, time_s=block.time_s, torque_Nm=block.torque_Nm, **learn
+                u[start:end],
+                y[start:end],
+                block.after_gap,
+                time_s=block.time_s,
+                torque_Nm=block.torque_Nm,
+                assume_finite=True,
             )
             self.samples += end - start
             self.samples_since_row += end - start
@@ -558,9 +559,7 @@ class Pipeline(Generic[E]):
                 self.samples_since_row = 0
             yield PipelineStep(block, u[start:end], self.samples, row, due, (end - start,) if due else ())
 
-    def _feed_whole(
-        self, chunk: SampleChunk, u: np.ndarray, y: np.ndarray, learn: dict[str, Any], ticks: tuple[int, ...]
-    ) -> PipelineStep:
+    def _feed_whole(self, chunk: SampleChunk, u: np.ndarray, y: np.ndarray, ticks: tuple[int, ...]) -> PipelineStep:
         """:meth:`feed` of a pipeline without rows over an estimator that records snapshots: the whole
         chunk in one ``learn_many`` call, the estimate recorded at each of its ``ticks`` (``snapshot_at``);
         the same estimates, ticks and counts as cutting the chunk at the ticks."""
@@ -571,7 +570,7 @@ class Pipeline(Generic[E]):
             time_s=chunk.time_s,
             torque_Nm=chunk.torque_Nm,
             snapshot_at=np.array(ticks, dtype=np.int64),
-            **learn,
+            assume_finite=True,
         )
         assert estimates is not None  # (snapshot_at given)
         n = len(chunk)
