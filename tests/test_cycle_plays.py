@@ -1,6 +1,6 @@
 """The compiled per-reversal plays equal numpy's passes bit for bit, whatever the blocks.
 
-:mod:`online_backlash.estimators.cycle_plays` runs compiled (one pass per block for a kinematic
+:mod:`online_backlash.estimators.reversal_plays` runs compiled (one pass per block for a kinematic
 drive); its sums follow numpy's summation order so that the plays, their noise and hence the
 reported ``backlash_std_deg`` are the numbers the numpy implementation gave. The reference below
 is that implementation (segments as objects, ``numpy.add.reduceat``, ``numpy.diff``,
@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 
 from online_backlash.errors import InvalidParameterError
-from online_backlash.estimators.cycle_plays import (
+from online_backlash.estimators.reversal_plays import (
     CyclePlays,
     MotionFlanks,
     OutputNoise,

@@ -213,3 +213,51 @@ LEFT_FOR_LATER = [
 def test_no_import_cycle_through_imports_in_functions_but_those_left_for_later():
     new = [c for c in import_cycles(at_import_time=False) if not any(set(c) <= known for known in LEFT_FOR_LATER)]
     assert new == []
+
+
+# -- private names stay in their package ---------------------------------------------------------------------------
+
+
+def _private_owner(dotted: str) -> str | None:
+    """The package that owns ``dotted`` (a module, or a module's name) if a part of it is private (``_x``, not a
+    dunder): the package holding its first private part (a private module's package, a private name's module's
+    package); None if it is public."""
+    parts = dotted.split(".")
+    for i, part in enumerate(parts):
+        if part.startswith("_") and not part.startswith("__"):
+            holder = ".".join(parts[:i])
+            return MODULES[holder][0] if holder in MODULES else holder or None
+    return None
+
+
+def private_imports(module: str) -> list[str]:
+    """What ``module`` imports (modules and names, relative imports resolved) that is private to a package
+    it is not in."""
+    package, path = MODULES[module]
+    found = []
+    for node in _import_nodes(ast.parse(path.read_text(encoding="utf-8")), False):
+        if isinstance(node, ast.Import):
+            targets = [a.name for a in node.names]
+        else:
+            base = package.rsplit(".", node.level - 1)[0] if node.level > 1 else package
+            source = (f"{base}.{node.module}" if node.module else base) if node.level else node.module or ""
+            targets = [f"{source}.{a.name}" for a in node.names]
+        for target in targets:
+            owner = _private_owner(target)
+            if owner and owner.startswith("online_backlash") and not (module + ".").startswith(owner + "."):
+                found.append(target)
+    return found
+
+
+def test_the_private_owner_is_the_package_holding_the_name():
+    assert _private_owner("online_backlash.estimators._rls_kernels.S") == "online_backlash.estimators"
+    assert _private_owner("online_backlash.estimators.batch._start_params") == "online_backlash.estimators"
+    assert _private_owner("online_backlash.estimators.base.RecursiveEstimator") is None
+
+
+@pytest.mark.parametrize("package", ["online_backlash.estimators", "online_backlash.load_aware"])
+def test_no_module_outside_a_package_imports_its_private_names(package):
+    """A package's private modules and names (``_base``, ``batch._start_params``) are its own: a module outside it
+    imports its public ones (``estimators.base``, ``estimators.validation``, ``estimators.layout``)."""
+    leaks = {m: names for m in MODULES if (names := [n for n in private_imports(m) if n.startswith(package + ".")])}
+    assert not leaks, f"modules outside {package} import its private names: {leaks}"

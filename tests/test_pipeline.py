@@ -81,7 +81,7 @@ def test_the_pipeline_refers_once_and_passes_time_torque_and_gaps_through(rig30)
         def __init__(self):
             self.calls = []
 
-        def learn_many(self, u, y, after_gap, *, time_s, torque_Nm):
+        def learn_many(self, u, y, after_gap, *, time_s, torque_Nm, assume_finite=False, snapshot_at=None):
             self.calls.append((u, y, after_gap, time_s, torque_Nm))
 
     chunk = dataclasses.replace(

@@ -32,13 +32,12 @@ checkpoints it with each row. The library never prints; the caller decides what 
 
 from __future__ import annotations
 
-import inspect
 import math
 import queue
 import threading
-from collections.abc import Callable, Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import dataclass
-from typing import Any, NamedTuple, TypeVar
+from typing import Any, Generic, NamedTuple, Protocol, TypeVar
 
 import numba
 import numpy as np
@@ -90,13 +89,51 @@ def _refer_checked(motor_deg, load_deg, ratio):  # pragma: no cover - compiled
     return u, bad
 
 
-def _learn_many_takes(estimator: Any, name: str) -> bool:
-    """True if ``estimator.learn_many`` takes the keyword ``name``: ``assume_finite`` (then the pipeline
-    checks each chunk once), ``snapshot_at`` (then ticks without rows do not cut its blocks)."""
-    try:
-        return name in inspect.signature(estimator.learn_many).parameters
-    except (AttributeError, TypeError, ValueError):
-        return False
+class Snapshot(Protocol):
+    """The estimate at one instant, as ``learn_many(..., snapshot_at=)`` records it
+    (:class:`~online_backlash.estimators.EstimateAt`): the pipeline reads whether the estimator had started."""
+
+    @property
+    def started(self) -> bool: ...
+
+
+class LearningEstimator(Protocol):
+    """What the pipeline calls of its estimator: every recursive estimator on
+    :class:`~online_backlash.estimators.RecursiveEstimator` (``BacklashRLS``, ``CascadeRLS``,
+    ``TorqueBacklashRLS``) and :class:`~online_backlash.load_aware.PlayChooser` have it.
+
+    ``learn_many`` learns a block (``u``, ``y`` deg, ``after_gap``; ``time_s`` s and ``torque_Nm`` N m passed
+    through); with ``assume_finite=True`` it skips its own finiteness check (the pipeline checked the chunk
+    once); with ``snapshot_at`` (ascending sample counts of the block) it returns its estimate after each,
+    else None. A row reads the estimator's fitted figures (:meth:`EstimateRow.from_estimator
+    <online_backlash.rows.EstimateRow.from_estimator>`).
+    """
+
+    @property
+    def started(self) -> bool: ...
+
+    @property
+    def gaps_(self) -> GapTally: ...
+
+    def learn_many(
+        self,
+        u: np.ndarray,
+        y: np.ndarray,
+        after_gap: np.ndarray | None = None,
+        *,
+        time_s: np.ndarray | None = None,
+        torque_Nm: np.ndarray | None = None,
+        assume_finite: bool = False,
+        snapshot_at: np.ndarray | None = None,
+    ) -> Sequence[Snapshot] | None: ...
+
+    def mark_gap(self) -> None: ...
+
+    def force_start(self) -> None: ...
+
+
+#: The estimator type a :class:`Pipeline` runs (so ``pipeline.estimator`` keeps its own type)
+E = TypeVar("E", bound=LearningEstimator)
 
 
 def check_every(every_s: object) -> float:
@@ -188,13 +225,12 @@ class DataClock:
 
 
 class _Referred(NamedTuple):
-    """A chunk ready for the estimator: ``u`` (motor / ratio) and ``y``, deg, ``learn_many``'s options, and
-    for a pipeline that learns whole chunks (:meth:`Pipeline._feed_whole`) the data-clock ticks in it."""
+    """A chunk ready for the estimator: ``u`` (motor / ratio) and ``y``, deg, checked finite, and for a
+    pipeline that learns whole chunks (:meth:`Pipeline._feed_whole`) the data-clock ticks in it."""
 
     chunk: SampleChunk
     u_deg: np.ndarray
     y_deg: np.ndarray
-    learn: dict[str, Any]
     ticks: tuple[int, ...] | None = None
 
 
@@ -231,7 +267,7 @@ class PipelineStep:
     row: EstimateRow | None
     due: bool = False
     ticks: tuple[int, ...] = ()
-    estimates: list[Any] | None = None
+    estimates: Sequence[Snapshot] | None = None
 
 
 def _block(chunk: SampleChunk, start: int, end: int) -> SampleChunk:
@@ -397,15 +433,15 @@ class OrderedWorker:
             self._end()
 
 
-class Pipeline:
+class Pipeline(Generic[E]):
     """Feed chunks of samples to a recursive estimator and emit a row every ``every_s`` seconds of data.
 
     Parameters
     ----------
-    estimator : BacklashRLS-like
-        A recursive estimator (``learn_many(u, y, after_gap, time_s=, torque_Nm=)``, and
-        ``assume_finite=`` where it takes it: the pipeline then checks each chunk once), ``started``,
-        ``force_start()``, ``mark_gap()``, ``gaps_`` and the fitted attributes :class:`EstimateRow` reads).
+    estimator : LearningEstimator
+        A recursive estimator (:class:`LearningEstimator`: ``learn_many(u, y, after_gap, time_s=, torque_Nm=,
+        assume_finite=, snapshot_at=)``, ``started``, ``force_start()``, ``mark_gap()``, ``gaps_``, and the
+        fitted attributes :class:`EstimateRow` reads); the pipeline checks each chunk once.
     ratio : float
         Gear ratio motor:load (negative for a reversing stage): ``u = motor_deg / ratio``.
     every_s : float or None
@@ -416,9 +452,9 @@ class Pipeline:
         Make the :class:`EstimateRow` of each tick (``PipelineStep.row``). False: the steps only say
         where a tick falls (``PipelineStep.due``), for a caller that needs the instants but not
         the rows, which cost time (the estimator's standard error); :meth:`finish` still gives
-        the last row. An estimator whose ``learn_many`` takes ``snapshot_at`` then learns each chunk
-        in one call, its estimate recorded at every tick inside it (``PipelineStep.ticks`` and
-        ``estimates``): a tick does not cut the compiled loop.
+        the last row. The estimator then learns each chunk in one call, its estimate recorded at every
+        tick inside it (``snapshot_at``; ``PipelineStep.ticks`` and ``estimates``): a tick does not cut
+        the compiled loop.
 
     The estimator decides which gaps are bridged (its ``gap_policy``,
     :class:`~online_backlash.bridging.GapPolicy`) and tallies them (``gaps_``, read here as
@@ -439,7 +475,7 @@ class Pipeline:
 
     def __init__(
         self,
-        estimator: Any,
+        estimator: E,
         ratio: float,
         every_s: float | None = 1.0,
         clock: DataClock | None = None,
@@ -449,9 +485,8 @@ class Pipeline:
         self.estimator = estimator
         self.ratio = ratio
         self.rows = rows
-        self._checked = _learn_many_takes(estimator, "assume_finite")  # the estimator may skip its own finiteness check
         # without rows, a tick needs only the estimate there: recorded inside one call per chunk
-        self._whole_chunks = not rows and _learn_many_takes(estimator, "snapshot_at")
+        self._whole_chunks = not rows
         self.clock = clock if clock is not None else DataClock(every_s)
         self.samples = 0
         self.samples_since_row = 0
@@ -478,44 +513,43 @@ class Pipeline:
 
     def _refer(self, chunk: SampleChunk) -> _Referred | None:
         """A chunk's estimator input and output (``u = motor / ratio``, ``y``), checked finite once
-        for the whole chunk where the estimator then skips its own check (the division and the check in
+        for the whole chunk, so the estimator skips its own check (the division and the check in
         one compiled pass, :func:`_refer_checked`); None for an empty chunk. For a pipeline that learns
         whole chunks, the data clock's ticks in the chunk too (:meth:`DataClock.ticks`). Depends on nothing
         the estimator changes: :meth:`run` calls it in the reader thread (the clock then runs up to the
         chunks read ahead beyond the estimator until the run ends)."""
         if not len(chunk):
             return None
-        learn: dict[str, Any] = {}
-        if self._checked:  # once per chunk, not per block: a non-finite value never reaches the estimator
-            y = np.ascontiguousarray(chunk.load_deg, dtype=float)
-            if chunk.motor_deg.dtype == np.float64:
-                u, bad = _refer_checked(np.ascontiguousarray(chunk.motor_deg), y, float(self.ratio))
-            else:  # numpy divides other dtypes in their own precision: referred as such, then checked (/ 1.0 is exact)
-                u, bad = _refer_checked(np.ascontiguousarray(chunk.referred(self.ratio)[0], dtype=float), y, 1.0)
-            if bad >= 0:
-                name = "u (motor angle / ratio)" if not math.isfinite(u[bad]) else "y (load angle)"
-                raise InvalidParameterError(
-                    f"{name} has non-finite values, first at index {bad} of the chunk (time {chunk.time_s[bad]} s)"
-                )
-            learn["assume_finite"] = True
-        else:
-            u, y = chunk.referred(self.ratio)
-        return _Referred(
-            chunk, u, y, learn, self.clock.ticks(chunk.time_s, chunk.after_gap) if self._whole_chunks else None
-        )
+        # once per chunk, not per block: a non-finite value never reaches the estimator
+        y = np.ascontiguousarray(chunk.load_deg, dtype=float)
+        if chunk.motor_deg.dtype == np.float64:
+            u, bad = _refer_checked(np.ascontiguousarray(chunk.motor_deg), y, float(self.ratio))
+        else:  # numpy divides other dtypes in their own precision: referred as such, then checked (/ 1.0 is exact)
+            u, bad = _refer_checked(np.ascontiguousarray(chunk.referred(self.ratio)[0], dtype=float), y, 1.0)
+        if bad >= 0:
+            name = "u (motor angle / ratio)" if not math.isfinite(u[bad]) else "y (load angle)"
+            raise InvalidParameterError(
+                f"{name} has non-finite values, first at index {bad} of the chunk (time {chunk.time_s[bad]} s)"
+            )
+        return _Referred(chunk, u, y, self.clock.ticks(chunk.time_s, chunk.after_gap) if self._whole_chunks else None)
 
     def _learn(self, referred: _Referred | None) -> Iterator[PipelineStep]:
         """The estimator learns a referred chunk, block by block (or whole, see :meth:`_feed_whole`)."""
         if referred is None:
             return
-        chunk, u, y, learn, ticks = referred
+        chunk, u, y, ticks = referred
         if ticks is not None:
-            yield self._feed_whole(chunk, u, y, learn, ticks)
+            yield self._feed_whole(chunk, u, y, ticks)
             return
         for start, end, due in self.clock.blocks(chunk.time_s, chunk.after_gap):
             block = _block(chunk, start, end)
             self.estimator.learn_many(
-                u[start:end], y[start:end], block.after_gap, time_s=block.time_s, torque_Nm=block.torque_Nm, **learn
+                u[start:end],
+                y[start:end],
+                block.after_gap,
+                time_s=block.time_s,
+                torque_Nm=block.torque_Nm,
+                assume_finite=True,
             )
             self.samples += end - start
             self.samples_since_row += end - start
@@ -525,9 +559,7 @@ class Pipeline:
                 self.samples_since_row = 0
             yield PipelineStep(block, u[start:end], self.samples, row, due, (end - start,) if due else ())
 
-    def _feed_whole(
-        self, chunk: SampleChunk, u: np.ndarray, y: np.ndarray, learn: dict[str, Any], ticks: tuple[int, ...]
-    ) -> PipelineStep:
+    def _feed_whole(self, chunk: SampleChunk, u: np.ndarray, y: np.ndarray, ticks: tuple[int, ...]) -> PipelineStep:
         """:meth:`feed` of a pipeline without rows over an estimator that records snapshots: the whole
         chunk in one ``learn_many`` call, the estimate recorded at each of its ``ticks`` (``snapshot_at``);
         the same estimates, ticks and counts as cutting the chunk at the ticks."""
@@ -538,8 +570,9 @@ class Pipeline:
             time_s=chunk.time_s,
             torque_Nm=chunk.torque_Nm,
             snapshot_at=np.array(ticks, dtype=np.int64),
-            **learn,
+            assume_finite=True,
         )
+        assert estimates is not None  # (snapshot_at given)
         n = len(chunk)
         self.samples += n
         started = [

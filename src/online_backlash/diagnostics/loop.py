@@ -48,7 +48,7 @@ import numpy as np
 from threadpoolctl import threadpool_limits
 
 from ..estimators import VorosBacklash
-from ..estimators._validation import check_int, check_real
+from ..estimators.validation import check_int, check_real
 from ..stream import SampleChunk
 from ._causal import sample_period_s
 from ._final_model import finish_terms

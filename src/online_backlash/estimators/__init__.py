@@ -1,8 +1,9 @@
-"""Estimators: the paper's batch algorithms and the recursive online estimators."""
+"""Estimators: the paper's batch algorithms and the recursive online estimators on one public base
+(:mod:`.base`; a new one is done when :func:`.conformance.check_estimator` passes: ``docs/estimators.md``)."""
 
-from ._base import RecursiveEstimator
 from .backlash_rls import BacklashRLS
+from .base import EstimateAt, RecursiveEstimator
 from .batch import VorosBacklash, VorosCascade
 from .cascade_rls import CascadeRLS
 
-__all__ = ["BacklashRLS", "CascadeRLS", "RecursiveEstimator", "VorosBacklash", "VorosCascade"]
+__all__ = ["BacklashRLS", "CascadeRLS", "EstimateAt", "RecursiveEstimator", "VorosBacklash", "VorosCascade"]

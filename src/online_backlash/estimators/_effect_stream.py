@@ -25,7 +25,8 @@ def check_effects(effects: Sequence[EffectTerms] | None) -> list[EffectTerms]:
     for eff in out:
         if not isinstance(eff, EffectTerms):
             raise InvalidParameterError(
-                f"effects must follow online_backlash.effect_terms.EffectTerms (name, n_terms, terms, reset), got {eff!r}"
+                "effects must follow online_backlash.effect_terms.EffectTerms (name, n_terms, terms, reset), "
+                f"got {eff!r}"
             )
     return out
 

@@ -4,9 +4,9 @@ Every step works on a flat state vector: a Python list on the interpreted path
 (``learn_one``, the readable reference) and a float64 array on the compiled path
 (``learn_many``: the *same source* compiled by numba). So both paths do the same
 arithmetic in the same order and give the same estimates. The vectors' fields are declared
-once, by name and size (:mod:`._layout`): :data:`S` (BacklashRLS state), :data:`F` (one flank's
-block in it), :data:`KC` (BacklashRLS constants), :data:`CS` (CascadeRLS scalars, followed by
-the regions of :func:`cascade_offsets`) and :data:`QC` (CascadeRLS constants).
+once, by name and size (:mod:`.layout`): :data:`BACKLASH_STATE` (BacklashRLS state), :data:`FLANK` (one flank's
+block in it), :data:`BACKLASH_CONSTS` (BacklashRLS constants), :data:`CASCADE_STATE` (CascadeRLS scalars, followed by
+the regions of :func:`cascade_offsets`) and :data:`CASCADE_CONSTS` (CascadeRLS constants).
 
 Equation numbers refer to J. Vörös, Automatica 46 (2010) 369-374 (``PAPER.md``).
 
@@ -45,8 +45,8 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
-from ._layout import offsets
 from .full_engagement import FOLLOWING, NO_FLANK
+from .layout import offsets
 
 
 # ---- BacklashRLS state layout: field sizes, in order ----------------------------------------
@@ -64,7 +64,7 @@ class FlankFields(NamedTuple):
     N_UPD: int = 1  # updates of this flank
 
 
-F, FLANK_SIZE = offsets(FlankFields())
+FLANK, FLANK_SIZE = offsets(FlankFields())
 
 
 class BacklashFields(NamedTuple):
@@ -91,7 +91,7 @@ class BacklashFields(NamedTuple):
     HOLD_SIDE: int = 1  # the flank X_HAT rests on (0: unknown, after a start or gap)
 
 
-S, STATE_SIZE = offsets(BacklashFields())
+BACKLASH_STATE, STATE_SIZE = offsets(BacklashFields())
 
 
 class BacklashConsts(NamedTuple):
@@ -112,7 +112,7 @@ class BacklashConsts(NamedTuple):
     ENGAGED_LEVEL: int = 1  # 1: the play is read where the flanks' information lies, 0: at the current output level
 
 
-KC, N_CONSTS = offsets(BacklashConsts())
+BACKLASH_CONSTS, N_CONSTS = offsets(BacklashConsts())
 
 
 def _make_to_reference(jit):
@@ -140,19 +140,29 @@ def _make_backlash_steps(jit):
         ``du = 0`` means no update can follow (first sample, after a gap, motor still, or a
         step no larger than ``min_step_deg``).
         """
-        uc, yc = to_reference(st, c[KC.ORIGIN_FIRST] != 0.0, S.N_SEEN, S.U0, S.Y0, u, y)
-        du = uc - st[S.U_PREV]
-        y_prev = st[S.Y_PREV]
-        if st[S.HAVE_PREV] == 0.0:
+        uc, yc = to_reference(
+            st,
+            c[BACKLASH_CONSTS.ORIGIN_FIRST] != 0.0,
+            BACKLASH_STATE.N_SEEN,
+            BACKLASH_STATE.U0,
+            BACKLASH_STATE.Y0,
+            u,
+            y,
+        )
+        du = uc - st[BACKLASH_STATE.U_PREV]
+        y_prev = st[BACKLASH_STATE.Y_PREV]
+        if st[BACKLASH_STATE.HAVE_PREV] == 0.0:
             du = 0.0
-            st[S.X_HAT] = yc  # (re)start the model's output at the measured one
-            st[S.HOLD_SIDE] = 0.0
-        st[S.HAVE_PREV] = 1.0
-        st[S.U_PREV] = uc
-        st[S.Y_PREV] = yc
+            st[BACKLASH_STATE.X_HAT] = yc  # (re)start the model's output at the measured one
+            st[BACKLASH_STATE.HOLD_SIDE] = 0.0
+        st[BACKLASH_STATE.HAVE_PREV] = 1.0
+        st[BACKLASH_STATE.U_PREV] = uc
+        st[BACKLASH_STATE.Y_PREV] = yc
         if du != 0.0:
-            st[S.T_MOTION] += c[KC.DT]  # the motion clock: seconds during which the motor moved
-        if abs(du) <= c[KC.MIN_STEP]:
+            st[BACKLASH_STATE.T_MOTION] += c[
+                BACKLASH_CONSTS.DT
+            ]  # the motion clock: seconds during which the motor moved
+        if abs(du) <= c[BACKLASH_CONSTS.MIN_STEP]:
             du = 0.0
         return uc, yc, du, y_prev
 
@@ -168,17 +178,27 @@ def _make_backlash_steps(jit):
         """
         # both sides evaluated, then one picked: no branch on the direction, which reverses
         # every few samples on some inputs (a mispredicted branch each time)
-        m_left = st[S.LEFT + F.M]
-        m_right = st[S.RIGHT + F.M]
-        left = (st[S.LEFT + F.B] + m_left * (uc - st[S.LEFT + F.UREF]) - x_prev) * m_left <= 0.0  # eq. (12)
-        right = (x_prev - st[S.RIGHT + F.B] - m_right * (uc - st[S.RIGHT + F.UREF])) * m_right <= 0.0  # eq. (13)
-        return S.LEFT * (du < 0.0 and left) + S.RIGHT * (du > 0.0 and right)
+        m_left = st[BACKLASH_STATE.LEFT + FLANK.M]
+        m_right = st[BACKLASH_STATE.RIGHT + FLANK.M]
+        left = (
+            st[BACKLASH_STATE.LEFT + FLANK.B] + m_left * (uc - st[BACKLASH_STATE.LEFT + FLANK.UREF]) - x_prev
+        ) * m_left <= 0.0  # eq. (12)
+        right = (
+            x_prev - st[BACKLASH_STATE.RIGHT + FLANK.B] - m_right * (uc - st[BACKLASH_STATE.RIGHT + FLANK.UREF])
+        ) * m_right <= 0.0  # eq. (13)
+        return BACKLASH_STATE.LEFT * (du < 0.0 and left) + BACKLASH_STATE.RIGHT * (du > 0.0 and right)
 
     @jit
     def flank_width(st, level):
         """Horizontal distance between the flanks at output ``level``: the play, input units."""
-        u_left = st[S.LEFT + F.UREF] + (level - st[S.LEFT + F.B]) / st[S.LEFT + F.M]
-        u_right = st[S.RIGHT + F.UREF] + (level - st[S.RIGHT + F.B]) / st[S.RIGHT + F.M]
+        u_left = (
+            st[BACKLASH_STATE.LEFT + FLANK.UREF]
+            + (level - st[BACKLASH_STATE.LEFT + FLANK.B]) / st[BACKLASH_STATE.LEFT + FLANK.M]
+        )
+        u_right = (
+            st[BACKLASH_STATE.RIGHT + FLANK.UREF]
+            + (level - st[BACKLASH_STATE.RIGHT + FLANK.B]) / st[BACKLASH_STATE.RIGHT + FLANK.M]
+        )
         return u_right - u_left
 
     @jit
@@ -187,36 +207,46 @@ def _make_backlash_steps(jit):
         midway between the two flanks' information centroids (each line is best placed where its data lie,
         ``b + m R12 / R22`` at ``u_ref + R12 / R22``: where the flanks were fully engaged, whatever the output
         is doing now)."""
-        if c[KC.ENGAGED_LEVEL] == 0.0:
+        if c[BACKLASH_CONSTS.ENGAGED_LEVEL] == 0.0:
             return level
-        left = st[S.LEFT + F.B] + st[S.LEFT + F.M] * st[S.LEFT + F.R12] / st[S.LEFT + F.R22]
-        right = st[S.RIGHT + F.B] + st[S.RIGHT + F.M] * st[S.RIGHT + F.R12] / st[S.RIGHT + F.R22]
+        left = (
+            st[BACKLASH_STATE.LEFT + FLANK.B]
+            + st[BACKLASH_STATE.LEFT + FLANK.M]
+            * st[BACKLASH_STATE.LEFT + FLANK.R12]
+            / st[BACKLASH_STATE.LEFT + FLANK.R22]
+        )
+        right = (
+            st[BACKLASH_STATE.RIGHT + FLANK.B]
+            + st[BACKLASH_STATE.RIGHT + FLANK.M]
+            * st[BACKLASH_STATE.RIGHT + FLANK.R12]
+            / st[BACKLASH_STATE.RIGHT + FLANK.R22]
+        )
         return 0.5 * (left + right)
 
     @jit
     def reversal(st, c, side, level):
         """Count a change of the driving flank; track the wear rate; return the per-reversal forgetting."""
-        last = st[S.LAST_SIDE]
-        st[S.LAST_SIDE] = side
+        last = st[BACKLASH_STATE.LAST_SIDE]
+        st[BACKLASH_STATE.LAST_SIDE] = side
         if last == 0.0 or last == side:
             return 1.0
-        st[S.N_REV] += 1.0
+        st[BACKLASH_STATE.N_REV] += 1.0
         # rate of change of the play: an EWMA of the play with time constant H (seconds of
         # motion) lags a ramp of slope r by r H, so r = (width - ewma) / H
         w = flank_width(st, play_level(st, c, level))
-        t = st[S.T_MOTION]
-        horizon = c[KC.WEAR_HORIZON]
-        if st[S.W_EWMA_SET] == 0.0:
-            st[S.W_EWMA] = w
-            st[S.W_EWMA_SET] = 1.0
+        t = st[BACKLASH_STATE.T_MOTION]
+        horizon = c[BACKLASH_CONSTS.WEAR_HORIZON]
+        if st[BACKLASH_STATE.W_EWMA_SET] == 0.0:
+            st[BACKLASH_STATE.W_EWMA] = w
+            st[BACKLASH_STATE.W_EWMA_SET] = 1.0
         else:
-            a = (t - st[S.T_LAST_REV]) / horizon
+            a = (t - st[BACKLASH_STATE.T_LAST_REV]) / horizon
             if a > 1.0:
                 a = 1.0
-            st[S.W_EWMA] += a * (w - st[S.W_EWMA])
-            st[S.W_RATE] = (w - st[S.W_EWMA]) / horizon
-        st[S.T_LAST_REV] = t
-        return c[KC.LAM_REV]
+            st[BACKLASH_STATE.W_EWMA] += a * (w - st[BACKLASH_STATE.W_EWMA])
+            st[BACKLASH_STATE.W_RATE] = (w - st[BACKLASH_STATE.W_EWMA]) / horizon
+        st[BACKLASH_STATE.T_LAST_REV] = t
+        return c[BACKLASH_CONSTS.LAM_REV]
 
     @jit
     def select_flank(st, c, uc, du, x_measured, level):
@@ -228,11 +258,11 @@ def _make_backlash_steps(jit):
         ``switching="model"``, motion inside the dead band updates the flank last driven at its
         reference (``engaged`` False).
         """
-        model = c[KC.SWITCH_MODEL] != 0.0
-        side = engaged_side(st, uc, st[S.X_HAT] if model else x_measured, du)
+        model = c[BACKLASH_CONSTS.SWITCH_MODEL] != 0.0
+        side = engaged_side(st, uc, st[BACKLASH_STATE.X_HAT] if model else x_measured, du)
         if side == 0:
-            if model and st[S.HOLD_SIDE] != 0.0:  # moving in the dead band
-                return int(st[S.HOLD_SIDE]), 1.0, False
+            if model and st[BACKLASH_STATE.HOLD_SIDE] != 0.0:  # moving in the dead band
+                return int(st[BACKLASH_STATE.HOLD_SIDE]), 1.0, False
             return 0, 1.0, False
         return side, reversal(st, c, side, level), True
 
@@ -241,56 +271,56 @@ def _make_backlash_steps(jit):
         """The model holds the load in the dead band (``engaged`` False) where the motion shows it following
         the motor (``seen`` ``FOLLOWING``) at ``x``, farther than ``HOLD_BAND`` from the held output: no flank
         holds it there, and the sample updates no line."""
-        return seen == FOLLOWING and not engaged and abs(x - st[S.X_HAT]) > c[KC.HOLD_BAND]
+        return seen == FOLLOWING and not engaged and abs(x - st[BACKLASH_STATE.X_HAT]) > c[BACKLASH_CONSTS.HOLD_BAND]
 
     @jit
     def pass_by(st, yc):
         """A sample on no flank (a partial crossing of the gap): no flank holds the load where the model's
         output last was; it restarts at the measured output, on no flank (as after a gap)."""
-        st[S.X_HAT] = yc
-        st[S.HOLD_SIDE] = 0.0
+        st[BACKLASH_STATE.X_HAT] = yc
+        st[BACKLASH_STATE.HOLD_SIDE] = 0.0
 
     @jit
     def forget_counts(st, o, lam):
         """Forget the age bookkeeping of flank ``o`` like its information."""
-        st[o + F.W_COUNT] = lam * st[o + F.W_COUNT]
-        st[o + F.W_TIME] = lam * st[o + F.W_TIME]
+        st[o + FLANK.W_COUNT] = lam * st[o + FLANK.W_COUNT]
+        st[o + FLANK.W_TIME] = lam * st[o + FLANK.W_TIME]
 
     @jit
     def forget_side(st, o, lam, floor_m, floor_b):
         """Regularised exponential forgetting of one flank: ``R <- lam R + (1 - lam) R_floor``."""
-        st[o + F.R11] = lam * st[o + F.R11] + (1.0 - lam) * floor_m
-        st[o + F.R12] = lam * st[o + F.R12]
-        st[o + F.R22] = lam * st[o + F.R22] + (1.0 - lam) * floor_b
+        st[o + FLANK.R11] = lam * st[o + FLANK.R11] + (1.0 - lam) * floor_m
+        st[o + FLANK.R12] = lam * st[o + FLANK.R12]
+        st[o + FLANK.R22] = lam * st[o + FLANK.R22] + (1.0 - lam) * floor_b
         forget_counts(st, o, lam)
 
     @jit
     def recenter(st, o, uc):
         """Move the flank's reference to ``uc``: ``b += m d``, ``R <- T^-T R T^-1``; returns ``d``."""
-        d = uc - st[o + F.UREF]
-        st[o + F.B] += st[o + F.M] * d
-        r12 = st[o + F.R12]
-        r22 = st[o + F.R22]
-        st[o + F.R11] = st[o + F.R11] - 2.0 * d * r12 + d * d * r22
-        st[o + F.R12] = r12 - d * r22
-        st[o + F.UREF] = uc
+        d = uc - st[o + FLANK.UREF]
+        st[o + FLANK.B] += st[o + FLANK.M] * d
+        r12 = st[o + FLANK.R12]
+        r22 = st[o + FLANK.R22]
+        st[o + FLANK.R11] = st[o + FLANK.R11] - 2.0 * d * r12 + d * d * r22
+        st[o + FLANK.R12] = r12 - d * r22
+        st[o + FLANK.UREF] = uc
         return d
 
     @jit
     def track_noise(st, c, e):
         """Running variance of the a-priori residuals (window ``noise_window`` updates)."""
-        n = st[S.N_RESID] + 1.0
-        st[S.N_RESID] = n
-        st[S.NOISE_VAR] += (e * e - st[S.NOISE_VAR]) / min(n, c[KC.NOISE_WINDOW])
+        n = st[BACKLASH_STATE.N_RESID] + 1.0
+        st[BACKLASH_STATE.N_RESID] = n
+        st[BACKLASH_STATE.NOISE_VAR] += (e * e - st[BACKLASH_STATE.NOISE_VAR]) / min(n, c[BACKLASH_CONSTS.NOISE_WINDOW])
 
     @jit
     def close_update(st, o):
         """Bookkeeping after an update of flank ``o``: age, count, and the model's output on its line."""
-        st[o + F.W_COUNT] += 1.0
-        st[o + F.W_TIME] += st[S.T_MOTION]
-        st[o + F.N_UPD] += 1.0
-        st[S.X_HAT] = st[o + F.B]  # the model's output: on the updated line, at its reference
-        st[S.HOLD_SIDE] = o
+        st[o + FLANK.W_COUNT] += 1.0
+        st[o + FLANK.W_TIME] += st[BACKLASH_STATE.T_MOTION]
+        st[o + FLANK.N_UPD] += 1.0
+        st[BACKLASH_STATE.X_HAT] = st[o + FLANK.B]  # the model's output: on the updated line, at its reference
+        st[BACKLASH_STATE.HOLD_SIDE] = o
 
     @jit
     def update_side(st, c, o, yc):
@@ -300,18 +330,18 @@ def _make_backlash_steps(jit):
         dead band (reference left where the flank was last driven) it is the output-error
         gradient of eq. (1)'s third case: the load rests where the flank left it.
         """
-        if c[KC.LAM] != 1.0:  # lam = 1 would leave R unchanged, bit for bit
-            forget_side(st, o, c[KC.LAM], c[KC.FLOOR_M], c[KC.FLOOR_B])
-        e = yc - st[o + F.B]  # a-priori error, eq. (14); the local regressor is [0, 1]
+        if c[BACKLASH_CONSTS.LAM] != 1.0:  # lam = 1 would leave R unchanged, bit for bit
+            forget_side(st, o, c[BACKLASH_CONSTS.LAM], c[BACKLASH_CONSTS.FLOOR_M], c[BACKLASH_CONSTS.FLOOR_B])
+        e = yc - st[o + FLANK.B]  # a-priori error, eq. (14); the local regressor is [0, 1]
         track_noise(st, c, e)
-        r11 = st[o + F.R11]
-        r12 = st[o + F.R12]
-        r22 = st[o + F.R22] + 1.0  # R <- R + phi phi^T
-        st[o + F.R22] = r22
-        if c[KC.FREEZE] == 0.0:  # frozen lines: only the information is gathered (warm start)
+        r11 = st[o + FLANK.R11]
+        r12 = st[o + FLANK.R12]
+        r22 = st[o + FLANK.R22] + 1.0  # R <- R + phi phi^T
+        st[o + FLANK.R22] = r22
+        if c[BACKLASH_CONSTS.FREEZE] == 0.0:  # frozen lines: only the information is gathered (warm start)
             g = e / (r11 * r22 - r12 * r12)
-            st[o + F.M] -= r12 * g  # theta += R^-1 phi e, R^-1 phi = [-r12, r11] / det
-            st[o + F.B] += r11 * g
+            st[o + FLANK.M] -= r12 * g  # theta += R^-1 phi e, R^-1 phi = [-r12, r11] / det
+            st[o + FLANK.B] += r11 * g
         close_update(st, o)
 
     @jit
@@ -332,8 +362,8 @@ def _make_backlash_steps(jit):
         if side == 0 or left_the_hold(st, c, seen, engaged, yc):
             return
         if lam != 1.0:
-            forget_side(st, S.LEFT, lam, c[KC.FLOOR_M], c[KC.FLOOR_B])
-            forget_side(st, S.RIGHT, lam, c[KC.FLOOR_M], c[KC.FLOOR_B])
+            forget_side(st, BACKLASH_STATE.LEFT, lam, c[BACKLASH_CONSTS.FLOOR_M], c[BACKLASH_CONSTS.FLOOR_B])
+            forget_side(st, BACKLASH_STATE.RIGHT, lam, c[BACKLASH_CONSTS.FLOOR_M], c[BACKLASH_CONSTS.FLOOR_B])
         if engaged:
             recenter(st, side, uc)
         update_side(st, c, side, yc)
@@ -382,7 +412,7 @@ def _run_span(st, c, u, y, after_gap, seen, lo, hi):  # pragma: no cover - compi
     (``seen``)."""
     for i in range(lo, hi):
         if after_gap[i]:
-            st[S.HAVE_PREV] = 0.0
+            st[BACKLASH_STATE.HAVE_PREV] = 0.0
         _backlash_step_nb(st, c, u[i], y[i], seen[i])
 
 
@@ -398,11 +428,11 @@ def backlash_run(st, c, u, y, after_gap, seen, marks, out):  # pragma: no cover 
     for k in range(marks.shape[0]):
         hi = marks[k]
         _run_span(st, c, u, y, after_gap, seen, lo, hi)
-        level = _play_level_nb(st, c, st[S.Y_PREV])
+        level = _play_level_nb(st, c, st[BACKLASH_STATE.Y_PREV])
         out[k, 0] = _flank_width_nb(st, level)
-        out[k, 1] = st[S.LEFT + F.M]
-        out[k, 2] = st[S.RIGHT + F.M]
-        out[k, 3] = level + st[S.Y0] if c[KC.ENGAGED_LEVEL] != 0.0 else 0.0
+        out[k, 1] = st[BACKLASH_STATE.LEFT + FLANK.M]
+        out[k, 2] = st[BACKLASH_STATE.RIGHT + FLANK.M]
+        out[k, 3] = level + st[BACKLASH_STATE.Y0] if c[BACKLASH_CONSTS.ENGAGED_LEVEL] != 0.0 else 0.0
         lo = hi
     _run_span(st, c, u, y, after_gap, seen, lo, u.shape[0])
 
@@ -430,7 +460,7 @@ class CascadeFields(NamedTuple):
     PSI_HEAD: int = 1  # slot of psi(t-1) in the ring of filtered gradients
 
 
-CS, CASCADE_SCALARS = offsets(CascadeFields())
+CASCADE_STATE, CASCADE_SCALARS = offsets(CascadeFields())
 
 
 class CascadeConsts(NamedTuple):
@@ -448,13 +478,13 @@ class CascadeConsts(NamedTuple):
     PRED_ERROR: int = 1  # 1: recursive prediction-error gradient
 
 
-QC, N_CASCADE_CONSTS = offsets(CascadeConsts())
+CASCADE_CONSTS, N_CASCADE_CONSTS = offsets(CascadeConsts())
 
 
 def _make_cascade_offsets(jit):
     @jit
     def cascade_offsets(na, nb):
-        """Regions of a CascadeRLS state vector after the scalars :data:`CS`.
+        """Regions of a CascadeRLS state vector after the scalars :data:`CASCADE_STATE`.
 
         Returns ``(p, op, ox, nx, oy, oyh, osx, opsi, size)``: the number of parameters
         ``p = 4 + n_a - 1 + n_b`` and the offsets of theta (``CASCADE_SCALARS``, p), P
@@ -491,15 +521,17 @@ def _make_cascade_step(jit, orders=(-1, -1)):
     @jit
     def step(st, c, u, y, phi, pphi):
         """Learn one sample of the cascade, eq. (18)-(24); ``phi``, ``pphi`` are scratch vectors of length p."""
-        na = int(c[QC.NA]) if na_fixed < 0 else na_fixed
-        nb = int(c[QC.NB]) if nb_fixed < 0 else nb_fixed
+        na = int(c[CASCADE_CONSTS.NA]) if na_fixed < 0 else na_fixed
+        nb = int(c[CASCADE_CONSTS.NB]) if nb_fixed < 0 else nb_fixed
         # osx + 4 i: d x_hat(t-1-i) / d [m1, c1, m2, c2]; opsi: the ring of psi vectors
         p, op, ox, nx, oy, oyh, osx, opsi, _ = offsets_of(na, nb)
-        oe = c[QC.OUTPUT_ERROR] != 0.0
-        pe = c[QC.PRED_ERROR] != 0.0
-        uc, yc = to_reference(st, c[QC.ORIGIN_FIRST] != 0.0, CS.N_SEEN, CS.U0, CS.Y0, u, y)
+        oe = c[CASCADE_CONSTS.OUTPUT_ERROR] != 0.0
+        pe = c[CASCADE_CONSTS.PRED_ERROR] != 0.0
+        uc, yc = to_reference(
+            st, c[CASCADE_CONSTS.ORIGIN_FIRST] != 0.0, CASCADE_STATE.N_SEEN, CASCADE_STATE.U0, CASCADE_STATE.Y0, u, y
+        )
         y_hat = yc  # the model output where no regression runs
-        if st[CS.K] == 0.0:
+        if st[CASCADE_STATE.K] == 0.0:
             # start, or restart after a gap: the system at rest, x = y B(1) / A(1)
             a_sum = 1.0
             for i in range(1, na):
@@ -515,13 +547,13 @@ def _make_cascade_step(jit, orders=(-1, -1)):
                 st[oyh + j] = yc
             for i in range(4 * nx + p * (nb + 1)):
                 st[osx + i] = 0.0
-            st[CS.U_PREV] = uc
-            st[CS.IDLE] = 0.0
-        elif st[CS.K] >= max(na, nb, 2) and st[CS.IDLE] <= na + nb + 1:
+            st[CASCADE_STATE.U_PREV] = uc
+            st[CASCADE_STATE.IDLE] = 0.0
+        elif st[CASCADE_STATE.K] >= max(na, nb, 2) and st[CASCADE_STATE.IDLE] <= na + nb + 1:
             # ---- regression on eq. (18)-(19) with the switching functions of t-1 (eq. 23)
-            f1p = st[CS.F1]
-            f2p = st[CS.F2]
-            u1 = st[CS.U_PREV]
+            f1p = st[CASCADE_STATE.F1]
+            f2p = st[CASCADE_STATE.F2]
+            u1 = st[CASCADE_STATE.U_PREV]
             phi[0] = u1 * f1p
             phi[1] = f1p
             phi[2] = u1 * f2p
@@ -532,19 +564,19 @@ def _make_cascade_step(jit, orders=(-1, -1)):
                 # -y(t-1-j); output-error form: the model's own simulated output instead
                 phi[3 + na + j] = -st[oyh + j] if oe else -st[oy + j]
             target = yc - st[ox + 1] * (1.0 - f1p) * (1.0 - f2p)  # eq. (24)
-            lam = c[QC.LAM]
+            lam = c[CASCADE_CONSTS.LAM]
             side = 1.0 if f1p > 0.0 else (2.0 if f2p > 0.0 else 0.0)
             if side != 0.0:
-                if st[CS.LAST] != 0.0 and st[CS.LAST] != side:
-                    st[CS.N_REV] += 1.0
-                    lam = lam * c[QC.LAM_REV]
-                st[CS.LAST] = side
+                if st[CASCADE_STATE.LAST] != 0.0 and st[CASCADE_STATE.LAST] != side:
+                    st[CASCADE_STATE.N_REV] += 1.0
+                    lam = lam * c[CASCADE_CONSTS.LAM_REV]
+                st[CASCADE_STATE.LAST] = side
             # forgetting P <- P / lam, limited so that trace(P) stays <= trace_max (anti-windup)
             tr = 0.0
             for i in range(p):
                 tr += st[op + i * p + i]
-            if tr > lam * c[QC.TRACE_MAX]:
-                lam = tr / c[QC.TRACE_MAX]
+            if tr > lam * c[CASCADE_CONSTS.TRACE_MAX]:
+                lam = tr / c[CASCADE_CONSTS.TRACE_MAX]
                 if lam > 1.0:
                     lam = 1.0
             if lam != 1.0:
@@ -554,9 +586,11 @@ def _make_cascade_step(jit, orders=(-1, -1)):
             e = target
             for i in range(p):
                 e -= st[C_THETA + i] * phi[i]
-            n = st[CS.N_RES] + 1.0
-            st[CS.N_RES] = n
-            st[CS.NOISE_VAR] += (e * e - st[CS.NOISE_VAR]) / min(n, c[QC.NOISE_WINDOW])
+            n = st[CASCADE_STATE.N_RES] + 1.0
+            st[CASCADE_STATE.N_RES] = n
+            st[CASCADE_STATE.NOISE_VAR] += (e * e - st[CASCADE_STATE.NOISE_VAR]) / min(
+                n, c[CASCADE_CONSTS.NOISE_WINDOW]
+            )
             if pe:
                 # recursive prediction-error method: the gain follows the gradient of the model
                 # output, d y_hat / d theta = (A / B) d x_hat / d[m1..c2], (q^-i / B) x_hat,
@@ -569,7 +603,7 @@ def _make_cascade_step(jit, orders=(-1, -1)):
                         g += st[C_THETA + 3 + i] * st[osx + 4 * i + k]
                     phi[k] = g
                 n_slots = nb + 1
-                head = int(st[CS.PSI_HEAD])
+                head = int(st[CASCADE_STATE.PSI_HEAD])
                 for j in range(1, nb + 1):  # psi(t) = raw(t) - sum_j b_j psi(t-j)
                     b_j = st[C_THETA + 3 + na + j - 1]
                     slot = head + j - 1  # (head + j - 1) mod n_slots, without an integer division
@@ -581,7 +615,7 @@ def _make_cascade_step(jit, orders=(-1, -1)):
                 head += nb  # the free slot (psi(t-nb-1)) takes psi(t)
                 if head >= n_slots:
                     head -= n_slots
-                st[CS.PSI_HEAD] = head
+                st[CASCADE_STATE.PSI_HEAD] = head
                 o = opsi + head * p
                 for i in range(p):
                     st[o + i] = phi[i]
@@ -596,7 +630,7 @@ def _make_cascade_step(jit, orders=(-1, -1)):
                 pphi[i] = acc
                 s += phi[i] * acc
             inv_s = 1.0 / s
-            if c[QC.FREEZE] == 0.0:  # (warm-start replay: theta held, P gathers the information)
+            if c[CASCADE_CONSTS.FREEZE] == 0.0:  # (warm-start replay: theta held, P gathers the information)
                 for i in range(p):
                     st[C_THETA + i] += pphi[i] * inv_s * e  # gain K = P phi / (1 + phi' P phi)
             # P <- P - P phi phi' P / s; P stays exactly symmetric (pi pj = pj pi), so with the sizes fixed the
@@ -617,10 +651,10 @@ def _make_cascade_step(jit, orders=(-1, -1)):
                 y_hat = yc - target
                 for i in range(p):
                     y_hat += st[C_THETA + i] * phi[i]
-        if uc != st[CS.U_PREV]:
-            st[CS.IDLE] = 0.0
+        if uc != st[CASCADE_STATE.U_PREV]:
+            st[CASCADE_STATE.IDLE] = 0.0
         else:
-            st[CS.IDLE] += 1.0
+            st[CASCADE_STATE.IDLE] += 1.0
         # ---- internal variable, eq. (23), with the current estimates
         m1 = st[C_THETA]
         c1 = st[C_THETA + 1]
@@ -650,11 +684,11 @@ def _make_cascade_step(jit, orders=(-1, -1)):
         if nb > 0:
             st[oy] = yc
             st[oyh] = y_hat
-        st[CS.U_PREV] = uc
-        st[CS.F1] = f1
-        st[CS.F2] = f2
-        if st[CS.K] < 1e9:
-            st[CS.K] += 1.0
+        st[CASCADE_STATE.U_PREV] = uc
+        st[CASCADE_STATE.F1] = f1
+        st[CASCADE_STATE.F2] = f2
+        if st[CASCADE_STATE.K] < 1e9:
+            st[CASCADE_STATE.K] += 1.0
 
     return step
 
@@ -667,13 +701,13 @@ _cascade_step_22 = _make_cascade_step(_JIT, (2, 2))
 @_LOOP
 def cascade_run(st, c, u, y, after_gap, phi, pphi):  # pragma: no cover - compiled
     """``learn_many``'s loop for the cascade."""
-    if c[QC.NA] == 2.0 and c[QC.NB] == 2.0:
+    if c[CASCADE_CONSTS.NA] == 2.0 and c[CASCADE_CONSTS.NB] == 2.0:
         for i in range(u.shape[0]):
             if after_gap[i]:
-                st[CS.K] = 0.0
+                st[CASCADE_STATE.K] = 0.0
             _cascade_step_22(st, c, u[i], y[i], phi, pphi)
         return
     for i in range(u.shape[0]):
         if after_gap[i]:
-            st[CS.K] = 0.0
+            st[CASCADE_STATE.K] = 0.0
         _cascade_step_nb(st, c, u[i], y[i], phi, pphi)

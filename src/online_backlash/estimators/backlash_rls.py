@@ -15,23 +15,25 @@ import copy
 import itertools
 import math
 from collections.abc import Sequence
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from ..bridging import GapPolicy
 from ..effect_terms import EffectTerms
-from ..errors import InvalidParameterError, NotExcitedError, NotFittedError
+from ..errors import InvalidParameterError, NotFittedError
 from ..model import BacklashParams
-from . import _rls_kernels as K
-from ._base import EstimateAt, RecursiveEstimator, StateField, finite, memory_factors
-from ._layout import pack
-from ._validation import check_option, check_real
-from .batch import VorosBacklash, _direction_guess, _levenberg_marquardt, _start_params
+from . import _rls_kernels as kernels
+from ._rls_kernels import BACKLASH_CONSTS, BACKLASH_STATE, FLANK
+from .base import EstimateAt, RecursiveEstimator, StateField, WarmStartParams, finite, memory_factors
+from .batch import VorosBacklash, _levenberg_marquardt
 from .full_engagement import NO_FLANK, RESTING, FullEngagement
+from .layout import pack
+from .validation import check_option, check_real
+
+if TYPE_CHECKING:
+    from typing_extensions import Unpack
 
 _SWITCHING = ("model", "measured")
-S, F, KC = K.S, K.F, K.KC
 
 
 def _refine_with_effects(
@@ -218,27 +220,20 @@ class BacklashRLS(RecursiveEstimator):
     0.5
     """
 
-    _layout = K.S
-    _consts = K.KC
+    _layout = BACKLASH_STATE
+    _consts = BACKLASH_CONSTS
 
     wear_rate_ = StateField("W_RATE", float, "Estimated rate of change of the play, input units per second of motion.")
 
     def __init__(
         self,
-        memory_s: float | None = None,
-        memory_reversals: float | None = 10.0,
-        sample_period_s: float = 0.001,
-        start: str = "batch",
-        warm_start_samples: int = 10_000,
-        origin: str = "first",
         min_step_deg: float = 0.0,
         wear_horizon_s: float = 120.0,
         info_floor: float = 1e-6,
-        noise_window: int = 10_000,
         effects: Sequence[EffectTerms] | None = None,
         switching: str | None = None,
-        gap_policy: GapPolicy | None = None,
         full_engagement: bool = False,
+        **shared: Unpack[WarmStartParams],
     ) -> None:
         self.min_step_deg = min_step_deg
         self.wear_horizon_s = wear_horizon_s
@@ -246,9 +241,7 @@ class BacklashRLS(RecursiveEstimator):
         self.effects = effects
         self.switching = switching
         self.full_engagement = full_engagement
-        super().__init__(
-            memory_s, memory_reversals, sample_period_s, start, warm_start_samples, origin, noise_window, gap_policy
-        )
+        super().__init__(**shared)
 
     def _reset_own(self) -> None:
         # the joint information matrix of [mL, bL, mR, bR, beta] (effects only), beta, and the
@@ -297,20 +290,12 @@ class BacklashRLS(RecursiveEstimator):
         )
         return start, int(batch.n_iter_), bool(batch.converged_)
 
-    def _cold_params(self, u: np.ndarray | None, y: np.ndarray | None) -> BacklashParams:
-        if u is None or y is None or u.size < 2:
-            return BacklashParams(1.0, 1e-3, 1.0, 1e-3)
-        try:
-            return _direction_guess(u, y)
-        except NotExcitedError:
-            return _start_params(u, y)
-
     def _constants(self) -> list[float]:
         lam, lam_rev = memory_factors(self.memory_s, self.memory_reversals, self.sample_period_s)
         return pack(
-            KC, K.N_CONSTS, DT=self.sample_period_s, LAM=lam, LAM_REV=lam_rev, FLOOR_M=self.info_floor,
-            FLOOR_B=self.info_floor, MIN_STEP=self.min_step_deg, NOISE_WINDOW=self.noise_window,
-            WEAR_HORIZON=self.wear_horizon_s, ORIGIN_FIRST=self.origin == "first",
+            BACKLASH_CONSTS, kernels.N_CONSTS, DT=self.sample_period_s, LAM=lam, LAM_REV=lam_rev,
+            FLOOR_M=self.info_floor, FLOOR_B=self.info_floor, MIN_STEP=self.min_step_deg,
+            NOISE_WINDOW=self.noise_window, WEAR_HORIZON=self.wear_horizon_s, ORIGIN_FIRST=self.origin == "first",
             SWITCH_MODEL=self._switching() == "model", HOLD_BAND=self._hold_band(),
             ENGAGED_LEVEL=self.full_engagement and not self._fx.effects,
         )  # fmt: skip
@@ -326,19 +311,19 @@ class BacklashRLS(RecursiveEstimator):
     def _judged(self) -> None:
         """The motion has been judged anew (the warm start, a restored state): its band into the constants."""
         if self._started:
-            self._c[KC.HOLD_BAND] = self._hold_band()
+            self._c[BACKLASH_CONSTS.HOLD_BAND] = self._hold_band()
             self._c_arr = np.asarray(self._c)
 
     def _initial_state(self, start: BacklashParams) -> list[float]:
         """Eq. (1)'s lines through the reference origin (``u_ref = 0``): ``y = mL (u + cL)``, ``y = mR (u - cR)``."""
-        st = [0.0] * K.STATE_SIZE
-        st[S.LEFT + F.M] = start.m_left
-        st[S.LEFT + F.B] = start.m_left * start.c_left
-        st[S.RIGHT + F.M] = start.m_right
-        st[S.RIGHT + F.B] = -start.m_right * start.c_right
-        for o in (S.LEFT, S.RIGHT):
-            st[o + F.R11] = self.info_floor
-            st[o + F.R22] = self.info_floor
+        st = [0.0] * kernels.STATE_SIZE
+        st[BACKLASH_STATE.LEFT + FLANK.M] = start.m_left
+        st[BACKLASH_STATE.LEFT + FLANK.B] = start.m_left * start.c_left
+        st[BACKLASH_STATE.RIGHT + FLANK.M] = start.m_right
+        st[BACKLASH_STATE.RIGHT + FLANK.B] = -start.m_right * start.c_right
+        for o in (BACKLASH_STATE.LEFT, BACKLASH_STATE.RIGHT):
+            st[o + FLANK.R11] = self.info_floor
+            st[o + FLANK.R22] = self.info_floor
         return st
 
     def _begin(self, start: BacklashParams) -> None:
@@ -349,7 +334,7 @@ class BacklashRLS(RecursiveEstimator):
         self._prev_shift = 0.0
 
     def _gap_now(self) -> None:
-        self._st[S.HAVE_PREV] = 0.0
+        self._st[BACKLASH_STATE.HAVE_PREV] = 0.0
         self._fx.reset()
         if self._fe is not None and self._replayed is None:  # (the replay's marks were read with its gaps)
             self._fe.mark_gap()
@@ -384,7 +369,7 @@ class BacklashRLS(RecursiveEstimator):
             row = self._fx.feed(np.array([u]), np.array([t]), np.array([q]))[0]
             self._step_effects(u, y, row, seen)
         else:
-            K.backlash_step(self._st, self._c, u, y, seen)
+            kernels.backlash_step(self._st, self._c, u, y, seen)
 
     def _learn_arrays(
         self, u: np.ndarray, y: np.ndarray, gap: np.ndarray, t: np.ndarray | None, q: np.ndarray | None
@@ -392,7 +377,7 @@ class BacklashRLS(RecursiveEstimator):
         seen = self._seen(u, y, gap)
         if t is None or q is None:  # no effects: compiled
             st = np.asarray(self._st, dtype=float)
-            K.backlash_run(st, self._c_arr, u, y, gap, seen, *K.NO_MARKS)
+            kernels.backlash_run(st, self._c_arr, u, y, gap, seen, *kernels.NO_MARKS)
             self._st = st.tolist()
             return
         # segment by gap: effects keep a history that a gap must reset
@@ -417,7 +402,9 @@ class BacklashRLS(RecursiveEstimator):
             return super()._learn_arrays_marked(u, y, gap, t, q, marks)
         st = np.asarray(self._st, dtype=float)
         out = np.empty((marks.size, 4))
-        K.backlash_run(st, self._c_arr, u, y, gap, self._seen(u, y, gap), marks, out)  # (play, mL, mR, level) at each
+        kernels.backlash_run(
+            st, self._c_arr, u, y, gap, self._seen(u, y, gap), marks, out
+        )  # (play, mL, mR, level) at each
         self._st = st.tolist()
         return [EstimateAt(True, *row) for row in out.tolist()]
 
@@ -432,52 +419,59 @@ class BacklashRLS(RecursiveEstimator):
         per-flank step).
         """
         st, c, R = self._st, self._c, self._R
-        uc, yc, du, y_prev = K.begin_sample(st, c, u, y)
+        uc, yc, du, y_prev = kernels.begin_sample(st, c, u, y)
         if seen == NO_FLANK:
-            K.pass_by(st, yc - float(self._beta @ terms))
+            kernels.pass_by(st, yc - float(self._beta @ terms))
             return
         if du == 0.0:
             return
         shift = float(self._beta @ terms)
         prev_shift, self._prev_shift = self._prev_shift, shift
-        side, lam_rev, engaged = K.select_flank(st, c, uc, du, y_prev - prev_shift, yc - shift)
-        if side == 0 or K.left_the_hold(st, c, seen, engaged, yc - shift):
+        side, lam_rev, engaged = kernels.select_flank(st, c, uc, du, y_prev - prev_shift, yc - shift)
+        if side == 0 or kernels.left_the_hold(st, c, seen, engaged, yc - shift):
             return
         floor = np.full(R.shape[0], self.info_floor)
         if lam_rev != 1.0:
             R *= lam_rev
             R += np.diag((1.0 - lam_rev) * floor)
-            for o in (S.LEFT, S.RIGHT):
-                K.forget_counts(st, o, lam_rev)
-        j = 0 if side == S.LEFT else 2
+            for o in (BACKLASH_STATE.LEFT, BACKLASH_STATE.RIGHT):
+                kernels.forget_counts(st, o, lam_rev)
+        j = 0 if side == BACKLASH_STATE.LEFT else 2
         if engaged:
-            d = K.recenter(st, side, uc)
+            d = kernels.recenter(st, side, uc)
             # information matrix under b' = b + m d: column/row j <- j - d (j+1)
             R[:, j] -= d * R[:, j + 1]
             R[j, :] -= d * R[j + 1, :]
-        lam = c[KC.LAM]
+        lam = c[BACKLASH_CONSTS.LAM]
         idx = np.r_[j, j + 1, 4 : R.shape[0]]
         scale = np.ones(R.shape[0])
         scale[idx] = math.sqrt(lam)
         R *= np.outer(scale, scale)
         R[idx, idx] += (1.0 - lam) * floor[idx]
-        K.forget_counts(st, side, lam)
+        kernels.forget_counts(st, side, lam)
         phi = np.zeros(R.shape[0])
         phi[j + 1] = 1.0  # the local regressor of eq. (8), [0, 1], then the effect columns
         phi[4:] = terms
-        e = yc - st[side + F.B] - shift  # a-priori error, eq. (14)
-        K.track_noise(st, c, e)
+        e = yc - st[side + FLANK.B] - shift  # a-priori error, eq. (14)
+        kernels.track_noise(st, c, e)
         R += np.outer(phi, phi)
-        if c[KC.FREEZE] != 0.0:
+        if c[BACKLASH_CONSTS.FREEZE] != 0.0:
             # warm-start replay: the lines stay at the batch estimate; the effects learn given them
             if self._beta.size:
                 self._beta += np.linalg.solve(R[4:, 4:], phi[4:]) * e
         else:
             delta = np.linalg.solve(R, phi) * e
-            for k, o in enumerate((S.LEFT + F.M, S.LEFT + F.B, S.RIGHT + F.M, S.RIGHT + F.B)):
+            for k, o in enumerate(
+                (
+                    BACKLASH_STATE.LEFT + FLANK.M,
+                    BACKLASH_STATE.LEFT + FLANK.B,
+                    BACKLASH_STATE.RIGHT + FLANK.M,
+                    BACKLASH_STATE.RIGHT + FLANK.B,
+                )
+            ):
                 st[o] += delta[k]
             self._beta += delta[4:]
-        K.close_update(st, side)
+        kernels.close_update(st, side)
 
     def _extra_state(self) -> dict[str, Any]:
         extra: dict[str, Any] = {} if self._fe is None else {"full_engagement": self._fe.state_dict()}
@@ -502,9 +496,9 @@ class BacklashRLS(RecursiveEstimator):
         """
         self._check_started()
         st = self._st
-        if st[S.N_SEEN] == 0.0:
+        if st[BACKLASH_STATE.N_SEEN] == 0.0:
             raise NotFittedError("predict_one needs at least one learned sample (the previous output x(t-1))")
-        uc = finite("u", u) - st[S.U0]
+        uc = finite("u", u) - st[BACKLASH_STATE.U0]
         shift = 0.0
         if self._fx.effects:
             t = self._time(time_s)
@@ -513,23 +507,27 @@ class BacklashRLS(RecursiveEstimator):
                 np.array([u]), np.array([t]), np.array([q]), [copy.deepcopy(e) for e in self._fx.effects]
             )
             shift = float(self._beta @ rows[0])
-        x_prev = st[S.Y_PREV] - self._prev_shift
-        y_left = st[S.LEFT + F.B] + st[S.LEFT + F.M] * (uc - st[S.LEFT + F.UREF])
-        y_right = st[S.RIGHT + F.B] + st[S.RIGHT + F.M] * (uc - st[S.RIGHT + F.UREF])
-        if (y_left - x_prev) * st[S.LEFT + F.M] <= 0.0:  # eq. (5)
+        x_prev = st[BACKLASH_STATE.Y_PREV] - self._prev_shift
+        y_left = st[BACKLASH_STATE.LEFT + FLANK.B] + st[BACKLASH_STATE.LEFT + FLANK.M] * (
+            uc - st[BACKLASH_STATE.LEFT + FLANK.UREF]
+        )
+        y_right = st[BACKLASH_STATE.RIGHT + FLANK.B] + st[BACKLASH_STATE.RIGHT + FLANK.M] * (
+            uc - st[BACKLASH_STATE.RIGHT + FLANK.UREF]
+        )
+        if (y_left - x_prev) * st[BACKLASH_STATE.LEFT + FLANK.M] <= 0.0:  # eq. (5)
             x = y_left
-        elif (x_prev - y_right) * st[S.RIGHT + F.M] <= 0.0:  # eq. (6)
+        elif (x_prev - y_right) * st[BACKLASH_STATE.RIGHT + FLANK.M] <= 0.0:  # eq. (6)
             x = y_right
         else:
             x = x_prev
-        return float(x + shift + st[S.Y0])
+        return float(x + shift + st[BACKLASH_STATE.Y0])
 
     # -- fitted attributes -----------------------------------------------------------------------
     def _lines(self) -> tuple[float, float, float, float, float, float]:
-        st = self._st
+        st, left, right = self._st, BACKLASH_STATE.LEFT, BACKLASH_STATE.RIGHT
         return (
-            st[S.LEFT + F.M], st[S.LEFT + F.B], st[S.LEFT + F.UREF],
-            st[S.RIGHT + F.M], st[S.RIGHT + F.B], st[S.RIGHT + F.UREF],
+            st[left + FLANK.M], st[left + FLANK.B], st[left + FLANK.UREF],
+            st[right + FLANK.M], st[right + FLANK.B], st[right + FLANK.UREF],
         )  # fmt: skip
 
     @property
@@ -545,13 +543,14 @@ class BacklashRLS(RecursiveEstimator):
             return np.linalg.inv(self._R)[:4, :4]
         st = self._st
         R = np.zeros((4, 4))
-        for j, o in ((0, S.LEFT), (2, S.RIGHT)):
-            R[j : j + 2, j : j + 2] = [[st[o + F.R11], st[o + F.R12]], [st[o + F.R12], st[o + F.R22]]]
+        for j, o in ((0, BACKLASH_STATE.LEFT), (2, BACKLASH_STATE.RIGHT)):
+            R[j : j + 2, j : j + 2] = [[st[o + FLANK.R11], st[o + FLANK.R12]], [st[o + FLANK.R12], st[o + FLANK.R22]]]
         return np.linalg.inv(R)
 
     @property
     def P_local_(self) -> np.ndarray:
-        """Unscaled covariance of the local lines ``[mL, bL, mR, bR]`` (``b`` at each flank's latest operating point)."""
+        """Unscaled covariance of the local lines ``[mL, bL, mR, bR]`` (``b`` at each flank's latest operating
+        point)."""
         self._check_started()
         return self._local_cov()
 
@@ -566,12 +565,12 @@ class BacklashRLS(RecursiveEstimator):
     def _play_level_deg(self) -> float:
         """The output level the play is read at, in the caller's frame, where it is the flanks' (``full_engagement``
         without effects); 0 otherwise."""
-        return self._level() + self.y_ref_ if self._c[KC.ENGAGED_LEVEL] else 0.0
+        return self._level() + self.y_ref_ if self._c[BACKLASH_CONSTS.ENGAGED_LEVEL] else 0.0
 
     def _level(self) -> float:
         """The output level the play is read at (reference-origin coordinates): the current one, or with
         ``full_engagement`` (and no effects) where the flanks were fully engaged (:func:`~._rls_kernels.play_level`)."""
-        return float(K.play_level(self._st, self._c, self._st[S.Y_PREV]))
+        return float(kernels.play_level(self._st, self._c, self._st[BACKLASH_STATE.Y_PREV]))
 
     def _flank_split(self) -> tuple[float, float]:
         """Distances from the reference point to the left and right flanks at the level the play is read at.
@@ -601,7 +600,7 @@ class BacklashRLS(RecursiveEstimator):
         effects) at the level where the flanks were fully engaged (midway between the two flanks'
         information centroids: where each line is best placed)."""
         self._check_started()
-        return float(K.flank_width(self._st, self._level()))
+        return float(kernels.flank_width(self._st, self._level()))
 
     @property
     def beta_(self) -> np.ndarray:
@@ -613,9 +612,9 @@ class BacklashRLS(RecursiveEstimator):
         """Mean age, seconds of motion, of each flank's information (grows while it is disengaged)."""
         st = self._st
         ages = []
-        for o in (S.LEFT, S.RIGHT):
-            count = st[o + F.W_COUNT]
-            ages.append(st[S.T_MOTION] - st[o + F.W_TIME] / count if count > 0 else 0.0)
+        for o in (BACKLASH_STATE.LEFT, BACKLASH_STATE.RIGHT):
+            count = st[o + FLANK.W_COUNT]
+            ages.append(st[BACKLASH_STATE.T_MOTION] - st[o + FLANK.W_TIME] / count if count > 0 else 0.0)
         return ages[0], ages[1]
 
     @property

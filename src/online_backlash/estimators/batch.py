@@ -54,9 +54,9 @@ from ..model import (
     simulate_switching,
     switching_at,
 )
-from ._validation import check_int, check_is_fitted, check_option, check_pair, check_real, check_reverses
 from .full_engagement import NO_FLANK, FullEngagement
 from .uncertainty import KinematicPlayScatter, PlayUncertainty
+from .validation import check_int, check_is_fitted, check_option, check_pair, check_real, check_reverses
 
 _ORIGINS = ("first", "zero")
 

@@ -11,21 +11,21 @@ dimensionless; ``c_left_``, ``c_right_``, ``backlash_`` are in input units.
 
 from __future__ import annotations
 
-import math
-from typing import Any
+from typing import TYPE_CHECKING
 
 import numpy as np
 
-from ..bridging import GapPolicy
 from ..errors import NotFittedError
 from ..model import BacklashParams
-from . import _rls_kernels as K
-from ._base import RecursiveEstimator, finite, memory_factors
-from ._layout import pack
-from ._validation import check_int, check_option, check_real
+from . import _rls_kernels as kernels
+from ._rls_kernels import CASCADE_CONSTS, CASCADE_STATE
+from .base import RecursiveEstimator, WarmStartParams, finite, memory_factors
 from .batch import VorosCascade, _start_params
+from .layout import pack
+from .validation import check_int, check_option, check_real
 
-CS, QC = K.CS, K.QC
+if TYPE_CHECKING:
+    from typing_extensions import Unpack
 
 
 class CascadeRLS(RecursiveEstimator):
@@ -54,7 +54,8 @@ class CascadeRLS(RecursiveEstimator):
     Parameters
     ----------
     n_a, n_b : int
-        As in :class:`VorosCascade`: ``A = q^-1 + a2 q^-2 + ... + a_{n_a} q^-n_a``, ``B = 1 + b1 q^-1 + ... + b_{n_b} q^-n_b``.
+        As in :class:`VorosCascade`: ``A = q^-1 + a2 q^-2 + ... + a_{n_a} q^-n_a``,
+        ``B = 1 + b1 q^-1 + ... + b_{n_b} q^-n_b``.
     memory_s, memory_reversals, sample_period_s, start, warm_start_samples, origin, noise_window, gap_policy
         As in :class:`BacklashRLS` (``memory_s`` counts updates, ``memory_reversals`` changes of
         the active flank of ``x_hat``).
@@ -111,42 +112,24 @@ class CascadeRLS(RecursiveEstimator):
     (1.3, array([-0.2 ,  0.35]))
     """
 
-    _layout = K.CS
-    _consts = K.QC
+    _layout = CASCADE_STATE
+    _consts = CASCADE_CONSTS
 
     def __init__(
         self,
         n_a: int = 2,
         n_b: int = 2,
-        memory_s: float | None = None,
-        memory_reversals: float | None = 10.0,
-        sample_period_s: float = 0.001,
-        start: str = "batch",
-        warm_start_samples: int = 10_000,
-        origin: str = "first",
         p0: float = 1e3,
         trace_max: float | None = None,
-        noise_window: int = 10_000,
         regressor: str = "prediction_error",
-        gap_policy: GapPolicy | None = None,
+        **shared: Unpack[WarmStartParams],
     ) -> None:
         self.n_a = n_a
         self.n_b = n_b
         self.p0 = p0
         self.trace_max = trace_max
         self.regressor = regressor
-        super().__init__(
-            memory_s, memory_reversals, sample_period_s, start, warm_start_samples, origin, noise_window, gap_policy
-        )
-
-    def _reset_own(self) -> None:
-        """No state beside the state vector."""
-
-    def _extra_state(self) -> dict[str, Any]:
-        return {}
-
-    def _restore_extra(self, d: dict[str, Any]) -> None:
-        """Nothing beside the state vector."""
+        super().__init__(**shared)
 
     def _validate(self) -> None:
         check_int("n_a", self.n_a, 1)
@@ -170,13 +153,13 @@ class CascadeRLS(RecursiveEstimator):
 
     def _offsets(self) -> tuple[int, ...]:
         """:func:`._rls_kernels.cascade_offsets` for this ``n_a``, ``n_b``."""
-        return tuple(K.cascade_offsets(self.n_a, self.n_b))
+        return tuple(kernels.cascade_offsets(self.n_a, self.n_b))
 
     def _constants(self) -> list[float]:
         lam, lam_rev = memory_factors(self.memory_s, self.memory_reversals, self.sample_period_s)
         p = self._offsets()[0]
         return pack(
-            QC, K.N_CASCADE_CONSTS, LAM=lam, LAM_REV=lam_rev,
+            CASCADE_CONSTS, kernels.N_CASCADE_CONSTS, LAM=lam, LAM_REV=lam_rev,
             TRACE_MAX=self.p0 * p if self.trace_max is None else self.trace_max,
             NOISE_WINDOW=self.noise_window, ORIGIN_FIRST=self.origin == "first", NA=self.n_a, NB=self.n_b,
             OUTPUT_ERROR=self.regressor != "equation_error", PRED_ERROR=self.regressor == "prediction_error",
@@ -186,24 +169,24 @@ class CascadeRLS(RecursiveEstimator):
         """``theta`` of eq. (20) from the start values, ``P = p0 I``."""
         p, op, *_, size = self._offsets()
         st = [0.0] * size
-        st[K.C_THETA : K.C_THETA + p] = [float(v) for v in theta0]
+        st[kernels.C_THETA : kernels.C_THETA + p] = [float(v) for v in theta0]
         for i in range(p):
             st[op + i * p + i] = float(self.p0)
         return st
 
     def _gap_now(self) -> None:
-        self._st[CS.K] = 0.0
+        self._st[CASCADE_STATE.K] = 0.0
 
     def _learn_py(self, u: float, y: float, t: float, q: float) -> None:
         p = self._offsets()[0]
-        K.cascade_step(self._st, self._c, u, y, [0.0] * p, [0.0] * p)
+        kernels.cascade_step(self._st, self._c, u, y, [0.0] * p, [0.0] * p)
 
     def _learn_arrays(
         self, u: np.ndarray, y: np.ndarray, gap: np.ndarray, t: np.ndarray | None, q: np.ndarray | None
     ) -> None:
         p = self._offsets()[0]
         st = np.asarray(self._st, dtype=float)
-        K.cascade_run(st, self._c_arr, u, y, gap, np.zeros(p), np.zeros(p))
+        kernels.cascade_run(st, self._c_arr, u, y, gap, np.zeros(p), np.zeros(p))
         self._st = st.tolist()
 
     # -- fitted attributes -----------------------------------------------------------------------
@@ -212,7 +195,7 @@ class CascadeRLS(RecursiveEstimator):
         """``[m1, c1, m2, c2, a2.., b1..]`` of eq. (20), reference-origin coordinates."""
         self._check_started()
         p = self._offsets()[0]
-        return np.array(self._st[K.C_THETA : K.C_THETA + p])
+        return np.array(self._st[kernels.C_THETA : kernels.C_THETA + p])
 
     @property
     def P_(self) -> np.ndarray:
@@ -220,23 +203,6 @@ class CascadeRLS(RecursiveEstimator):
         self._check_started()
         p, op = self._offsets()[:2]
         return np.array(self._st[op : op + p * p]).reshape(p, p)
-
-    @property
-    def c_left_(self) -> float:
-        """``c1 / m1`` of eq. (20), input units."""
-        th = self.theta_
-        return float(th[1] / th[0])
-
-    @property
-    def c_right_(self) -> float:
-        """``c2 / m2`` of eq. (20), input units."""
-        th = self.theta_
-        return float(th[3] / th[2])
-
-    @property
-    def backlash_(self) -> float:
-        """``c_left_ + c_right_``, input units."""
-        return self.c_left_ + self.c_right_
 
     @property
     def a_(self) -> np.ndarray:
@@ -248,14 +214,6 @@ class CascadeRLS(RecursiveEstimator):
         """``[b1, ..., b_{n_b}]``."""
         return self.theta_[4 + self.n_a - 1 :].copy()
 
-    @property
-    def backlash_std_(self) -> float:
-        """Standard error of ``backlash_`` from ``P`` and the residual variance."""
-        th = self.theta_
-        m1, c1, m2, c2 = th[:4]
-        g = np.array([-c1 / m1**2, 1.0 / m1, -c2 / m2**2, 1.0 / m2])
-        return math.sqrt(max(self.noise_var_ * float(g @ self.P_[:4, :4] @ g), 0.0))
-
     def predict_one(self, u: float) -> float:
         """One-step-ahead output ``y(t+1)``, eq. (15)-(18), with ``x_hat`` of eq. (23).
 
@@ -265,10 +223,10 @@ class CascadeRLS(RecursiveEstimator):
         self._check_started()
         finite("u", u)
         st = self._st
-        if st[CS.K] == 0.0:
+        if st[CASCADE_STATE.K] == 0.0:
             raise NotFittedError("predict_one needs a learned sample before (the system's history)")
         _, _, ox, _, oy, *_ = self._offsets()
         a, b = self.a_, self.b_
         out = sum(a[i] * st[ox + i] for i in range(self.n_a))  # x_hat(t), x_hat(t-1), ...
         out -= sum(b[j] * st[oy + j] for j in range(self.n_b))  # y(t), y(t-1), ...
-        return float(out + st[CS.Y0])
+        return float(out + st[CASCADE_STATE.Y0])

@@ -8,13 +8,14 @@ line (model misfit), and the noise is correlated over a cycle. Repeated runs the
 10-30 times the white-noise standard error (issue 12). So the play is measured once per reversal
 cycle, and the standard error of the estimate is the scatter of those per-cycle plays:
 
-1. **Per-cycle plays** (:class:`~.cycle_plays.CyclePlays` in :mod:`.cycle_plays`). Every
+1. **Per-cycle plays** (:class:`~.reversal_plays.CyclePlays` in :mod:`.reversal_plays`). Every
    sample on an engaged flank implies where that flank is, its *flank offset*: on the left
    flank of eq. (1), ``y = mL (u + cL)``, so ``y / mL - u = cL``; on the right,
    ``y / mR - u = -cR`` (degrees, input units). A torque-aware model adds the wind-up,
-   ``(y + tau / k) / m - u``. Consecutive samples on one flank form a *segment* (one half-cycle); the mean offset of each segment minus that of the adjacent
-   segment on the other flank is one measurement of the play, one per reversal. Adjacent
-   segments lie close together, so a slope error hardly enters their difference.
+   ``(y + tau / k) / m - u``. Consecutive samples on one flank form a *segment* (one half-cycle); the
+   mean offset of each segment minus that of the adjacent segment on the other flank is one
+   measurement of the play, one per reversal. Adjacent segments lie close together, so a slope error
+   hardly enters their difference.
 2. **Standard error of their mean** (:func:`play_std`): a moving-block bootstrap (Künsch 1989)
    of the (weighted) mean of the per-cycle plays, blocks of ``ceil(n^(1/3))`` consecutive plays
    (Hall, Horowitz & Jing 1995), so correlation between neighbouring cycles (each play shares a
@@ -27,7 +28,7 @@ cycle, and the standard error of the estimate is the scatter of those per-cycle 
 3. **Recursive estimators** forget: with ``memory_reversals = M`` the estimate is close to a
    mean of the per-cycle plays weighted ``exp(-age / M)`` (:func:`forgetting_weights`), and its
    scatter is that of the weighted mean (Kish's effective number of cycles in step 2).
-4. **Kinematic engagement** (:class:`~.cycle_plays.MotionFlanks`): without a torque signal, a
+4. **Kinematic engagement** (:class:`~.reversal_plays.MotionFlanks`): without a torque signal, a
    sample is on a flank once the input has travelled more than the play (plus a margin) since its last
    reversal, on the left flank while ``u`` falls and the right while it rises (eq. 5-6 with the
    load at the far flank). A torque-aware estimator takes the flank from the torque sign instead.
@@ -67,9 +68,10 @@ from typing import Any
 import numpy as np
 
 from ..errors import InvalidParameterError
-from ._base import NOT_STARTED, EstimateAt, finite_array
-from .cycle_plays import CyclePlays, MotionFlanks, OutputNoise, kinematic_offsets, kinematic_update
 from .full_engagement import NO_FLANK, FullEngagement
+from .reversal_plays import CyclePlays, MotionFlanks, OutputNoise, kinematic_offsets, kinematic_update
+from .snapshots import NOT_STARTED, EstimateAt
+from .validation import finite_array
 
 __all__ = [
     "CyclePlays",
@@ -273,7 +275,7 @@ class KinematicPlayScatter:
         left_out: np.ndarray | None = None, level_deg: float = 0.0,
     ) -> None:  # fmt: skip
         """Add a block of input ``u`` and output ``y`` (degrees) with the current estimate (one
-        compiled pass, :func:`~.cycle_plays.kinematic_update`); ``left_out``: samples on no flank
+        compiled pass, :func:`~.reversal_plays.kinematic_update`); ``left_out``: samples on no flank
         (partial crossings of the gap, :class:`~.full_engagement.FullEngagement`); ``level_deg``: the output
         level the estimator reads its play at (the per-cycle plays are the flanks' distance there)."""
         if self._flanks is None:

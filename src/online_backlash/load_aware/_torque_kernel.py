@@ -3,7 +3,7 @@
 The step works on a flat state vector: a Python list on the interpreted path (``learn_one``)
 and a float64 array on the compiled path (``learn_many``, the same source compiled by numba),
 so both do the same scalar arithmetic in the same order. Fields are declared once by name and
-size (:mod:`online_backlash.estimators._layout`).
+size (:mod:`online_backlash.estimators.layout`).
 
 Each flank keeps its line ``y = m (u - UC) + b - s tau`` in coordinates local to its latest
 update ``UC`` (moving the centre is an exact reparametrisation, ``b += m d``, ``P <- J P J^T``)
@@ -18,7 +18,7 @@ from typing import NamedTuple
 
 from numba import njit
 
-from ..estimators._layout import offsets
+from ..estimators.layout import offsets
 from ..estimators.resolution import MEDIAN_ABS_D2
 
 
@@ -37,7 +37,7 @@ class FlankFields(NamedTuple):
     W: int = 1  # weighted number of updates (forgetting applied): the weight of the torque-noise correction
 
 
-F, FLANK_SIZE = offsets(FlankFields())
+TORQUE_FLANK, FLANK_SIZE = offsets(FlankFields())
 
 
 class TorqueState(NamedTuple):
@@ -63,7 +63,7 @@ class TorqueState(NamedTuple):
     ENG_RIGHT: int = 1  # and the right flank
 
 
-S, STATE_SIZE = offsets(TorqueState())
+TORQUE_STATE, STATE_SIZE = offsets(TorqueState())
 
 
 class TorqueConsts(NamedTuple):
@@ -81,7 +81,7 @@ class TorqueConsts(NamedTuple):
     P0: int = 1  # prior (and largest) variance of each parameter, unscaled
 
 
-KC, N_CONSTS = offsets(TorqueConsts())
+TORQUE_CONSTS, N_CONSTS = offsets(TorqueConsts())
 
 
 def torque_step(st, c, u, y, q):
@@ -93,67 +93,71 @@ def torque_step(st, c, u, y, q):
     or when neither the input (more than ``MIN_STEP``) nor the torque (more than the dead band) moved
     since the last update: a still drive carries no information, and the flank not engaged keeps its line.
     """
-    if st[S.N_SEEN] == 0.0 and c[KC.ORIGIN_FIRST] != 0.0:
-        st[S.U0] = u
-        st[S.Y0] = y
-    st[S.N_SEEN] += 1.0
-    uc = u - st[S.U0]
-    yc = y - st[S.Y0]
+    if st[TORQUE_STATE.N_SEEN] == 0.0 and c[TORQUE_CONSTS.ORIGIN_FIRST] != 0.0:
+        st[TORQUE_STATE.U0] = u
+        st[TORQUE_STATE.Y0] = y
+    st[TORQUE_STATE.N_SEEN] += 1.0
+    uc = u - st[TORQUE_STATE.U0]
+    yc = y - st[TORQUE_STATE.Y0]
     # torque noise: running median of |second difference| (a held value carries no noise information)
-    if st[S.N_Q] >= 2.0:
-        d2 = abs(q - 2.0 * st[S.Q_PREV] + st[S.Q_PREV2])
+    if st[TORQUE_STATE.N_Q] >= 2.0:
+        d2 = abs(q - 2.0 * st[TORQUE_STATE.Q_PREV] + st[TORQUE_STATE.Q_PREV2])
         if d2 > 0.0:
-            if st[S.N_QMED] == 0.0:
-                st[S.Q_MED] = d2
-            elif d2 > st[S.Q_MED]:
-                st[S.Q_MED] *= c[KC.MED_UP]
-            elif d2 < st[S.Q_MED]:
-                st[S.Q_MED] *= c[KC.MED_DOWN]
-            st[S.N_QMED] += 1.0
-    st[S.Q_PREV2] = st[S.Q_PREV]
-    st[S.Q_PREV] = q
-    st[S.N_Q] = min(st[S.N_Q] + 1.0, 2.0)
-    if c[KC.DEADBAND] >= 0.0:
-        db = c[KC.DEADBAND]
-    elif st[S.N_QMED] >= c[KC.NOISE_WARMUP]:
-        db = c[KC.N_SIGMA] * st[S.Q_MED] / MEDIAN_ABS_D2
+            if st[TORQUE_STATE.N_QMED] == 0.0:
+                st[TORQUE_STATE.Q_MED] = d2
+            elif d2 > st[TORQUE_STATE.Q_MED]:
+                st[TORQUE_STATE.Q_MED] *= c[TORQUE_CONSTS.MED_UP]
+            elif d2 < st[TORQUE_STATE.Q_MED]:
+                st[TORQUE_STATE.Q_MED] *= c[TORQUE_CONSTS.MED_DOWN]
+            st[TORQUE_STATE.N_QMED] += 1.0
+    st[TORQUE_STATE.Q_PREV2] = st[TORQUE_STATE.Q_PREV]
+    st[TORQUE_STATE.Q_PREV] = q
+    st[TORQUE_STATE.N_Q] = min(st[TORQUE_STATE.N_Q] + 1.0, 2.0)
+    if c[TORQUE_CONSTS.DEADBAND] >= 0.0:
+        db = c[TORQUE_CONSTS.DEADBAND]
+    elif st[TORQUE_STATE.N_QMED] >= c[TORQUE_CONSTS.NOISE_WARMUP]:
+        db = c[TORQUE_CONSTS.N_SIGMA] * st[TORQUE_STATE.Q_MED] / MEDIAN_ABS_D2
     else:
         return  # the dead band is not known yet: no flank can be told
-    eng_hi = max(st[S.ENG_LEFT], st[S.ENG_RIGHT])
-    eng_lo = min(st[S.ENG_LEFT], st[S.ENG_RIGHT])
+    eng_hi = max(st[TORQUE_STATE.ENG_LEFT], st[TORQUE_STATE.ENG_RIGHT])
+    eng_lo = min(st[TORQUE_STATE.ENG_LEFT], st[TORQUE_STATE.ENG_RIGHT])
     flank = 1.0 if q > eng_hi + db else (-1.0 if q < eng_lo - db else 0.0)
     if flank == 0.0:
         return
-    reversal = st[S.LAST_FLANK] != 0.0 and flank != st[S.LAST_FLANK]
+    reversal = st[TORQUE_STATE.LAST_FLANK] != 0.0 and flank != st[TORQUE_STATE.LAST_FLANK]
     if reversal:
-        st[S.N_REV] += 1.0
-    st[S.LAST_FLANK] = flank
-    have_prev = st[S.HAVE_PREV]
-    st[S.HAVE_PREV] = 1.0
+        st[TORQUE_STATE.N_REV] += 1.0
+    st[TORQUE_STATE.LAST_FLANK] = flank
+    have_prev = st[TORQUE_STATE.HAVE_PREV]
+    st[TORQUE_STATE.HAVE_PREV] = 1.0
     if have_prev == 0.0:
         return  # the first sample after a gap: a reference, not motion
-    o = S.LEFT if flank < 0.0 else S.RIGHT
-    p = o + F.P
-    if st[o + F.N] == 0.0:  # the flank's first update: its prior, centred here
-        st[o + F.M] = 1.0
-        st[o + F.B] = yc
-        st[o + F.S] = 0.0
-        st[o + F.UC] = uc
+    o = TORQUE_STATE.LEFT if flank < 0.0 else TORQUE_STATE.RIGHT
+    p = o + TORQUE_FLANK.P
+    if st[o + TORQUE_FLANK.N] == 0.0:  # the flank's first update: its prior, centred here
+        st[o + TORQUE_FLANK.M] = 1.0
+        st[o + TORQUE_FLANK.B] = yc
+        st[o + TORQUE_FLANK.S] = 0.0
+        st[o + TORQUE_FLANK.UC] = uc
         for i in range(9):
             st[p + i] = 0.0
-        st[p + 0] = c[KC.P0]
-        st[p + 4] = c[KC.P0]
-        st[p + 8] = c[KC.P0]
-        st[o + F.QMAX] = 0.0
-        st[o + F.QMEAN] = 0.0
-        st[o + F.QM2] = 0.0
-        st[o + F.W] = 0.0
-    elif not (reversal or abs(uc - st[S.U_LAST]) > c[KC.MIN_STEP] or abs(q - st[S.Q_LAST]) > db):
+        st[p + 0] = c[TORQUE_CONSTS.P0]
+        st[p + 4] = c[TORQUE_CONSTS.P0]
+        st[p + 8] = c[TORQUE_CONSTS.P0]
+        st[o + TORQUE_FLANK.QMAX] = 0.0
+        st[o + TORQUE_FLANK.QMEAN] = 0.0
+        st[o + TORQUE_FLANK.QM2] = 0.0
+        st[o + TORQUE_FLANK.W] = 0.0
+    elif not (
+        reversal
+        or abs(uc - st[TORQUE_STATE.U_LAST]) > c[TORQUE_CONSTS.MIN_STEP]
+        or abs(q - st[TORQUE_STATE.Q_LAST]) > db
+    ):
         return  # nothing moved: no information
-    lam = c[KC.LAM] * (c[KC.LAM_REV] if reversal else 1.0)
-    f0 = uc - st[o + F.UC]
+    lam = c[TORQUE_CONSTS.LAM] * (c[TORQUE_CONSTS.LAM_REV] if reversal else 1.0)
+    f0 = uc - st[o + TORQUE_FLANK.UC]
     f2 = -q
-    e = yc - (st[o + F.M] * f0 + st[o + F.B] + st[o + F.S] * f2)
+    e = yc - (st[o + TORQUE_FLANK.M] * f0 + st[o + TORQUE_FLANK.B] + st[o + TORQUE_FLANK.S] * f2)
     v0 = st[p + 0] * f0 + st[p + 1] + st[p + 2] * f2
     v1 = st[p + 3] * f0 + st[p + 4] + st[p + 5] * f2
     v2 = st[p + 6] * f0 + st[p + 7] + st[p + 8] * f2
@@ -163,10 +167,10 @@ def torque_step(st, c, u, y, q):
     k0 = v0 / den
     k1 = v1 / den
     k2 = v2 / den
-    if c[KC.FREEZE] == 0.0:
-        st[o + F.M] += k0 * e
-        st[o + F.B] += k1 * e
-        st[o + F.S] += k2 * e
+    if c[TORQUE_CONSTS.FREEZE] == 0.0:
+        st[o + TORQUE_FLANK.M] += k0 * e
+        st[o + TORQUE_FLANK.B] += k1 * e
+        st[o + TORQUE_FLANK.S] += k2 * e
     # P <- [(I - k phi^T) P (I - k phi^T)^T + lam k k^T] / lam (Joseph form: stays symmetric and
     # positive definite under rounding, where P - k v^T drifts indefinite over long runs with
     # forgetting), bounded by the prior (no windup however long the forgetting runs)
@@ -204,17 +208,17 @@ def torque_step(st, c, u, y, q):
     st[p + 7] = n12
     st[p + 8] = n22
     top = max(n00, max(n11, n22))
-    if top > c[KC.P0]:
-        shrink = c[KC.P0] / top
+    if top > c[TORQUE_CONSTS.P0]:
+        shrink = c[TORQUE_CONSTS.P0] / top
         for i in range(9):
             st[p + i] *= shrink
     # residual variance from the a-priori and a-posteriori errors
-    n = st[S.N_UPD] + 1.0
-    w = 1.0 / min(n, c[KC.NOISE_WINDOW])
-    st[S.NOISE_VAR] += w * (e * e * lam / den - st[S.NOISE_VAR])
+    n = st[TORQUE_STATE.N_UPD] + 1.0
+    w = 1.0 / min(n, c[TORQUE_CONSTS.NOISE_WINDOW])
+    st[TORQUE_STATE.NOISE_VAR] += w * (e * e * lam / den - st[TORQUE_STATE.NOISE_VAR])
     # recentre at this input: b += m d, P <- J P J^T with J = [[1,0,0],[d,1,0],[0,0,1]]
-    d = uc - st[o + F.UC]
-    st[o + F.B] += st[o + F.M] * d
+    d = uc - st[o + TORQUE_FLANK.UC]
+    st[o + TORQUE_FLANK.B] += st[o + TORQUE_FLANK.M] * d
     p00, p01, p02 = st[p + 0], st[p + 1], st[p + 2]
     p11, p12 = st[p + 4], st[p + 5]
     st[p + 4] = p11 + 2.0 * d * p01 + d * d * p00
@@ -222,20 +226,22 @@ def torque_step(st, c, u, y, q):
     st[p + 3] = st[p + 1]
     st[p + 5] = p12 + d * p02
     st[p + 7] = st[p + 5]
-    st[o + F.UC] = uc
-    st[o + F.N] += 1.0
-    st[o + F.W] = lam * st[o + F.W] + 1.0
-    aq = abs(q - (st[S.ENG_LEFT] if flank < 0.0 else st[S.ENG_RIGHT]))  # the torque the flank carries
-    dq = aq - st[o + F.QMEAN]
-    st[o + F.QMEAN] += dq / st[o + F.N]
-    st[o + F.QM2] += dq * (aq - st[o + F.QMEAN])
-    st[o + F.QMAX] = max(st[o + F.QMAX], aq)
-    st[S.N_UPD] = n
-    st[S.U_LAST] = uc
-    st[S.Q_LAST] = q
-    st[S.Y_LEVEL] = yc
-    if math.isnan(st[S.NOISE_VAR]):  # pragma: no cover - guarded by the finite inputs
-        st[S.NOISE_VAR] = 0.0
+    st[o + TORQUE_FLANK.UC] = uc
+    st[o + TORQUE_FLANK.N] += 1.0
+    st[o + TORQUE_FLANK.W] = lam * st[o + TORQUE_FLANK.W] + 1.0
+    aq = abs(
+        q - (st[TORQUE_STATE.ENG_LEFT] if flank < 0.0 else st[TORQUE_STATE.ENG_RIGHT])
+    )  # the torque the flank carries
+    dq = aq - st[o + TORQUE_FLANK.QMEAN]
+    st[o + TORQUE_FLANK.QMEAN] += dq / st[o + TORQUE_FLANK.N]
+    st[o + TORQUE_FLANK.QM2] += dq * (aq - st[o + TORQUE_FLANK.QMEAN])
+    st[o + TORQUE_FLANK.QMAX] = max(st[o + TORQUE_FLANK.QMAX], aq)
+    st[TORQUE_STATE.N_UPD] = n
+    st[TORQUE_STATE.U_LAST] = uc
+    st[TORQUE_STATE.Q_LAST] = q
+    st[TORQUE_STATE.Y_LEVEL] = yc
+    if math.isnan(st[TORQUE_STATE.NOISE_VAR]):  # pragma: no cover - guarded by the finite inputs
+        st[TORQUE_STATE.NOISE_VAR] = 0.0
 
 
 _step_nb = njit(cache=True, nogil=True, error_model="numpy")(torque_step)
@@ -246,6 +252,6 @@ def torque_run(st, c, u, y, q, after_gap):  # pragma: no cover - compiled
     """``learn_many``'s loop: :func:`torque_step` over arrays, honouring gaps."""
     for i in range(u.shape[0]):
         if after_gap[i]:
-            st[S.HAVE_PREV] = 0.0
-            st[S.N_Q] = 0.0
+            st[TORQUE_STATE.HAVE_PREV] = 0.0
+            st[TORQUE_STATE.N_Q] = 0.0
         _step_nb(st, c, u[i], y[i], q[i])

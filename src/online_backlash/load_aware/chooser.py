@@ -23,7 +23,7 @@ import numpy as np
 
 from ..errors import NotExcitedError
 from ..estimators import BacklashRLS
-from ..estimators._base import EstimateAt
+from ..estimators.base import EstimateAt
 from .choice import (
     NO_TORQUE,
     PlayDecision,

@@ -36,8 +36,8 @@ from .flank_lines import FlankLine
 from .segments import check_knots, hinge_columns
 
 __all__ = [
-    "LOST_MOTION_FRACTION", "DatasheetFigures", "HysteresisCurve", "datasheet_figures", "hysteresis_curve", "line_figures",
-    "lost_motion_deg", "torsion_curve", "unloading_mask",
+    "LOST_MOTION_FRACTION", "DatasheetFigures", "HysteresisCurve", "datasheet_figures", "hysteresis_curve",
+    "line_figures", "lost_motion_deg", "torsion_curve", "unloading_mask",
 ]  # fmt: skip
 
 #: Lost motion is the curve's width at +-3 % of the rated torque (data-sheet definition).
@@ -201,7 +201,7 @@ def datasheet_figures(
         float(-carried[est.flank_ == -1].min()) if left is not None else None,
         float(carried[est.flank_ == 1].max()) if right is not None else None,
     )
-    var = tuple(math.inf if f is None else float(f.cov[2, 2]) for f in (est.fits_[-1], est.fits_[1]))
+    var_left, var_right = (math.inf if f is None else float(f.cov[2, 2]) for f in (est.fits_[-1], est.fits_[1]))
     base = line_figures(
         left,
         right,
@@ -210,8 +210,8 @@ def datasheet_figures(
         peaks,
         rated_torque_Nm,
         est.operating_torque_Nm_,
-        var,
-        est.engagement_torques_Nm_,  # type: ignore[arg-type]
+        (var_left, var_right),
+        est.engagement_torques_Nm_,
     )
     lines = left is not None and right is not None
     if base.lost_motion_arcmin is not None and lines and est.stiffness_torques_Nm is not None:

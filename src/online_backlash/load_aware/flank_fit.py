@@ -23,6 +23,7 @@ Units: degrees (load side), N m.
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -48,35 +49,26 @@ MIN_FLANK_SAMPLES = 20
 _MAX_COND = 1e6
 
 
+@dataclass(eq=False, repr=False)
 class FlankFit:
     """The least-squares line of one flank: ``line``, its unscaled covariance ``cov`` (3x3, of
     ``[m, a, s]``; multiply by the residual variance), residual sum of squares, sample count, and
     the mean and standard deviation of the torque the flank carries (N m: the measured torque less
     ``engaged_at``, the torque at which the flank engages)."""
 
-    def __init__(
-        self,
-        line: FlankLine,
-        cov: np.ndarray,
-        rss: float,
-        n: int,
-        slope_fixed: bool,
-        torque_mean: float = 0.0,
-        torque_std: float = 0.0,
-        engaged_at: float = 0.0,
-    ) -> None:
-        self.line = line
-        self.cov = cov
-        self.rss = rss
-        self.n = n
-        self.slope_fixed = slope_fixed
-        self.torque_mean = torque_mean
-        self.torque_std = torque_std
-        self.engaged_at = engaged_at
+    line: FlankLine
+    cov: np.ndarray
+    rss: float
+    n: int
+    slope_fixed: bool
+    torque_mean: float = 0.0
+    torque_std: float = 0.0
+    engaged_at: float = 0.0
 
     @property
     def separable(self) -> bool:
-        """The torque varied enough on this flank to tell its wind-up from its offset (:func:`~.flank_lines.windup_separable`)."""
+        """The torque varied enough on this flank to tell its wind-up from its offset
+        (:func:`~.flank_lines.windup_separable`)."""
         return windup_separable(self.torque_mean, self.torque_std)
 
     def at_operating_torque(self) -> FlankFit:
@@ -256,7 +248,7 @@ class TorqueBacklash(FlankPairFigures):
         transmitted torque (N m). ``engagement_Nm``: the torques (as measured, N m) at which the left
         and the right flank engage (None: zero). InvalidParameterError for unequal lengths or
         non-finite values."""
-        from ..estimators._validation import check_pair  # the estimators' one statement of the input checks
+        from ..estimators.validation import check_pair  # the estimators' one statement of the input checks
 
         u, y = check_pair(u, y)
         q = np.ascontiguousarray(torque_Nm, dtype=float)
@@ -370,6 +362,6 @@ class TorqueBacklash(FlankPairFigures):
     def get_params(self) -> dict[str, Any]:
         """The constructor arguments."""
         return {
-            "deadband_Nm": self.deadband_Nm, "n_sigma": self.n_sigma, "fit_slope": self.fit_slope, "origin": self.origin,
-            "torque_sign": self.torque_sign, "stiffness_torques_Nm": self.stiffness_torques_Nm,
+            "deadband_Nm": self.deadband_Nm, "n_sigma": self.n_sigma, "fit_slope": self.fit_slope,
+            "origin": self.origin, "torque_sign": self.torque_sign, "stiffness_torques_Nm": self.stiffness_torques_Nm,
         }  # fmt: skip

@@ -132,7 +132,8 @@ def sample_offsets(
     y_level_deg: float = 0.0,
     engagement_Nm: tuple[float, float] = NO_ENGAGEMENT_OFFSET,
 ) -> np.ndarray:
-    """The flank offset each engaged sample implies, degrees (for :class:`~online_backlash.estimators.uncertainty.CyclePlays`).
+    """The flank offset each engaged sample implies, degrees (for
+    :class:`~online_backlash.estimators.uncertainty.CyclePlays`).
 
     On a flank ``y = m u - a - s tau``, a sample places the flank, where it carries no torque (at its
     engagement torque ``T``), at ``u* = (y_level + a + s T) / m`` with ``a = m u - y - s tau``; its offset

@@ -141,8 +141,8 @@ def recursive_keys(est: TorqueBacklashRLS, rated_torque_Nm: float | None, taken:
     """The keys of a torque-aware recursive fit (the hysteresis loss needs the whole curve: None)."""
     left, right = est.flank_lines_()
     figures = line_figures(
-        left, right, est.play_observable_, est.deadband_Nm_, est.torque_peaks_Nm_, rated_torque_Nm, est.operating_torque_Nm_,
-        est.compliance_var_, est.engagement_torques_Nm_,
+        left, right, est.play_observable_, est.deadband_Nm_, est.torque_peaks_Nm_, rated_torque_Nm,
+        est.operating_torque_Nm_, est.compliance_var_, est.engagement_torques_Nm_,
     )  # fmt: skip
     covs = est._pair_covs() if est.play_observable_ else (None, None)
     judged = _judged(figures, est.engagement_torques_Nm_, est.torque_sign_, (left, right), covs, est.noise_var_, taken)

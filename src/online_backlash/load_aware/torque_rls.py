@@ -11,17 +11,17 @@ Units: ``u`` and ``y`` degrees (load side), torque N m, times seconds.
 from __future__ import annotations
 
 import math
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from ..bridging import GapPolicy
-from ..errors import InvalidParameterError, NotExcitedError
-from ..estimators._base import RecursiveEstimator, StateField, finite_array, memory_factors
-from ..estimators._layout import pack
-from ..estimators._validation import check_real
+from ..errors import InvalidParameterError
+from ..estimators.base import TORQUE_DEFAULTS, RecursiveEstimator, SharedParams, StateField, memory_factors
+from ..estimators.layout import pack
 from ..estimators.uncertainty import CyclePlays, OutputNoise, model_misfit
-from . import _torque_kernel as K
+from ..estimators.validation import check_real, finite_array
+from . import _torque_kernel as torque_kernel
+from ._torque_kernel import TORQUE_CONSTS, TORQUE_FLANK, TORQUE_STATE
 from .engagement import DEADBAND_SIGMAS, engaged_flank
 from .flank_lines import (
     FlankLine,
@@ -32,9 +32,11 @@ from .flank_lines import (
     windup_separable,
 )
 
+if TYPE_CHECKING:
+    from typing_extensions import Unpack
+
 __all__ = ["TorqueBacklashRLS"]
 
-S, F, KC = K.S, K.F, K.KC
 #: Updates each flank needs before the play is reported.
 MIN_FLANK_UPDATES = 10
 #: Running-median step of the torque noise (log scale per sample) and the median updates before it is trusted.
@@ -137,30 +139,27 @@ class TorqueBacklashRLS(FlankPairFigures, RecursiveEstimator):
     (0.4, True)
     """
 
-    _layout = K.S
-    _consts = K.KC
+    _layout = TORQUE_STATE
+    _consts = TORQUE_CONSTS
     takes_torque = True
+    shared_defaults = TORQUE_DEFAULTS  # memory_reversals None; no warm start (declared there, with the reasons)
+    fixed_params = ("start", "warm_start_samples")
 
     def __init__(
         self,
-        memory_s: float | None = None,
-        memory_reversals: float | None = None,
-        sample_period_s: float = 0.001,
         deadband_Nm: float | None = None,
         n_sigma: float = DEADBAND_SIGMAS,
-        origin: str = "first",
         min_step_deg: float = 0.0,
-        noise_window: int = 10_000,
         prior_var: float = 1e6,
         torque_sign: float = 1.0,
-        gap_policy: GapPolicy | None = None,
+        **shared: Unpack[SharedParams],
     ) -> None:
         self.torque_sign = torque_sign
         self.deadband_Nm = deadband_Nm
         self.n_sigma = n_sigma
         self.min_step_deg = min_step_deg
         self.prior_var = prior_var
-        super().__init__(memory_s, memory_reversals, sample_period_s, "cold", 8, origin, noise_window, gap_policy)
+        super().__init__(**shared)
 
     # -- hooks -------------------------------------------------------------------------------------
     def _reset_own(self) -> None:
@@ -181,27 +180,25 @@ class TorqueBacklashRLS(FlankPairFigures, RecursiveEstimator):
         if self.torque_sign not in (1.0, -1.0):
             raise InvalidParameterError(f"torque_sign must be 1 or -1, got {self.torque_sign!r}")
 
-    def _warm_fit(self, uc: np.ndarray, yc: np.ndarray, terms: np.ndarray) -> tuple[Any, int, bool]:  # pragma: no cover
-        # the start is always cold
-        raise NotExcitedError("TorqueBacklashRLS needs no warm start: the torque gives the switching functions")
-
     def _cold_params(self, u: np.ndarray | None, y: np.ndarray | None) -> None:
         return None  # each flank starts from its prior when first engaged
 
     def _constants(self) -> list[float]:
         lam, lam_rev = memory_factors(self.memory_s, self.memory_reversals, self.sample_period_s)
         return pack(
-            KC, K.N_CONSTS, LAM=lam, LAM_REV=lam_rev, DEADBAND=-1.0 if self.deadband_Nm is None else self.deadband_Nm,
-            N_SIGMA=self.n_sigma, MED_UP=math.exp(_MEDIAN_ETA), MED_DOWN=math.exp(-_MEDIAN_ETA), NOISE_WARMUP=_NOISE_WARMUP,
-            MIN_STEP=self.min_step_deg, NOISE_WINDOW=self.noise_window, ORIGIN_FIRST=self.origin == "first", P0=self.prior_var,
+            TORQUE_CONSTS, torque_kernel.N_CONSTS, LAM=lam, LAM_REV=lam_rev,
+            DEADBAND=-1.0 if self.deadband_Nm is None else self.deadband_Nm, N_SIGMA=self.n_sigma,
+            MED_UP=math.exp(_MEDIAN_ETA), MED_DOWN=math.exp(-_MEDIAN_ETA), NOISE_WARMUP=_NOISE_WARMUP,
+            MIN_STEP=self.min_step_deg, NOISE_WINDOW=self.noise_window, ORIGIN_FIRST=self.origin == "first",
+            P0=self.prior_var,
         )  # fmt: skip
 
     def _initial_state(self, start: Any) -> list[float]:
-        return [0.0] * K.STATE_SIZE
+        return [0.0] * torque_kernel.STATE_SIZE
 
     def _gap_now(self) -> None:
-        self._st[S.HAVE_PREV] = 0.0
-        self._st[S.N_Q] = 0.0
+        self._st[TORQUE_STATE.HAVE_PREV] = 0.0
+        self._st[TORQUE_STATE.N_Q] = 0.0
         self._held["gap_next"] = True
 
     def _hold(self, u: np.ndarray, y: np.ndarray, q: np.ndarray, gap: np.ndarray | None) -> None:
@@ -219,7 +216,7 @@ class TorqueBacklashRLS(FlankPairFigures, RecursiveEstimator):
         held, with the flank from the torque through the dead band and the offsets
         (:func:`~.flank_lines.sample_offsets`) of the lines of the tick before (none before the
         first tick: nothing measured); then take the current lines for the next."""
-        if int(self._st[S.N_SEEN]) % SCATTER_TICK_SAMPLES:
+        if int(self._st[TORQUE_STATE.N_SEEN]) % SCATTER_TICK_SAMPLES:
             return
         held, fz = self._held, self._frozen
         u, y, q = (np.asarray(held[k], dtype=float) for k in ("u", "y", "q"))
@@ -231,7 +228,7 @@ class TorqueBacklashRLS(FlankPairFigures, RecursiveEstimator):
         left, right = (
             (None, None) if fz is None else (None if v is None else FlankLine(*v) for v in (fz["left"], fz["right"]))
         )
-        uc, yc = u - self._st[S.U0], y - self._st[S.Y0]
+        uc, yc = u - self._st[TORQUE_STATE.U0], y - self._st[TORQUE_STATE.Y0]
         # offsets at one output level (0) for the whole run: a level that moved from tick to tick would
         # shift a stretch against the next by the motion between the ticks
         self._cycles.update(side, sample_offsets(uc, yc, q, side, left, right, 0.0, engagement), gap)
@@ -248,7 +245,8 @@ class TorqueBacklashRLS(FlankPairFigures, RecursiveEstimator):
             return  # lines not placed yet: no plays measured until they are
         left, right = self.flank_lines_()
         self._frozen = {
-            "left": None if left is None else [left.m, left.a, left.s], "right": None if right is None else [right.m, right.a, right.s],
+            "left": None if left is None else [left.m, left.a, left.s],
+            "right": None if right is None else [right.m, right.a, right.s],
             "deadband": self.deadband_Nm_ if math.isfinite(self.deadband_Nm_) else None,
             "engagement": list(self.engagement_torques_Nm_),
         }  # fmt: skip
@@ -260,7 +258,7 @@ class TorqueBacklashRLS(FlankPairFigures, RecursiveEstimator):
         return self._cycles
 
     def _raw_pair(self) -> tuple[FlankLine | None, FlankLine | None]:
-        return self._line(S.LEFT), self._line(S.RIGHT)
+        return self._line(TORQUE_STATE.LEFT), self._line(TORQUE_STATE.RIGHT)
 
     def _misfit_deg(self) -> float:
         noise = OutputNoise()  # the blocks' sums, summed
@@ -274,7 +272,7 @@ class TorqueBacklashRLS(FlankPairFigures, RecursiveEstimator):
             )
         q = self.torque_sign * q
         self._hold(np.array([u]), np.array([y]), np.array([q]), None)
-        K.torque_step(self._st, self._c, u, y, q)
+        torque_kernel.torque_step(self._st, self._c, u, y, q)
         self._tick()
 
     def _learn_arrays(
@@ -285,10 +283,10 @@ class TorqueBacklashRLS(FlankPairFigures, RecursiveEstimator):
         q = self.torque_sign * finite_array("torque_Nm", q)
         lo = 0
         while lo < u.size:  # cut at the ticks, where the plays' lines are refreshed
-            hi = min(u.size, lo + SCATTER_TICK_SAMPLES - int(self._st[S.N_SEEN]) % SCATTER_TICK_SAMPLES)
+            hi = min(u.size, lo + SCATTER_TICK_SAMPLES - int(self._st[TORQUE_STATE.N_SEEN]) % SCATTER_TICK_SAMPLES)
             self._hold(u[lo:hi], y[lo:hi], q[lo:hi], gap[lo:hi])
             st = np.asarray(self._st, dtype=float)
-            K.torque_run(st, self._c_arr, u[lo:hi], y[lo:hi], q[lo:hi], gap[lo:hi])
+            torque_kernel.torque_run(st, self._c_arr, u[lo:hi], y[lo:hi], q[lo:hi], gap[lo:hi])
             self._st = st.tolist()
             self._tick()
             lo = hi
@@ -303,7 +301,7 @@ class TorqueBacklashRLS(FlankPairFigures, RecursiveEstimator):
         }
 
     def _restore_extra(self, d: dict[str, Any]) -> None:
-        self._st += [0.0] * (K.STATE_SIZE - len(self._st))  # saved before the engagement torques: zero
+        self._st += [0.0] * (torque_kernel.STATE_SIZE - len(self._st))  # saved before the engagement torques: zero
         self._cycles = CyclePlays.from_state(d["cycle_plays"])
         self._frozen = d["cycle_lines"]
         self._held = d["cycle_held"]
@@ -318,30 +316,32 @@ class TorqueBacklashRLS(FlankPairFigures, RecursiveEstimator):
         of the flank's updates and the online noise variance)."""
         self._check_started()
         st = self._st
-        if st[o + F.N] == 0.0:
+        if st[o + TORQUE_FLANK.N] == 0.0:
             return None
-        theta = np.array([st[o + F.M], st[o + F.B], st[o + F.S]])
-        sigma = st[S.Q_MED] / K.MEDIAN_ABS_D2 if st[S.N_QMED] >= _NOISE_WARMUP else 0.0
-        if sigma > 0.0 and st[o + F.N] > 3.0:
-            P = np.asarray(st[o + F.P : o + F.P + 9]).reshape(3, 3)
+        theta = np.array([st[o + TORQUE_FLANK.M], st[o + TORQUE_FLANK.B], st[o + TORQUE_FLANK.S]])
+        sigma = (
+            st[TORQUE_STATE.Q_MED] / torque_kernel.MEDIAN_ABS_D2 if st[TORQUE_STATE.N_QMED] >= _NOISE_WARMUP else 0.0
+        )
+        if sigma > 0.0 and st[o + TORQUE_FLANK.N] > 3.0:
+            P = np.asarray(st[o + TORQUE_FLANK.P : o + TORQUE_FLANK.P + 9]).reshape(3, 3)
             try:
-                theta = noisy_torque_corrected(np.linalg.inv(P), theta, st[o + F.W], sigma * sigma, 2)
+                theta = noisy_torque_corrected(np.linalg.inv(P), theta, st[o + TORQUE_FLANK.W], sigma * sigma, 2)
             except np.linalg.LinAlgError:
                 pass  # a singular covariance: no information to correct with
         m, b, s = (float(v) for v in theta)
-        return FlankLine(m, m * st[o + F.UC] - b, s)
+        return FlankLine(m, m * st[o + TORQUE_FLANK.UC] - b, s)
 
     def _mean_torque(self, o: int) -> float:
         """The flank's mean torque as measured, signed (N m): the mean torque it carries plus its engagement torque."""
-        carried = self._st[o + F.QMEAN] * (-1.0 if o == S.LEFT else 1.0)
-        return carried + self._st[S.ENG_LEFT if o == S.LEFT else S.ENG_RIGHT]
+        carried = self._st[o + TORQUE_FLANK.QMEAN] * (-1.0 if o == TORQUE_STATE.LEFT else 1.0)
+        return carried + self._st[TORQUE_STATE.ENG_LEFT if o == TORQUE_STATE.LEFT else TORQUE_STATE.ENG_RIGHT]
 
     @property
     def engagement_torques_Nm_(self) -> tuple[float, float]:  # type: ignore[override]
         """The torques (times ``torque_sign``) at which the left and the right flank engage, N m
         (:meth:`set_engagement_torques`)."""
         self._check_started()
-        return float(self._st[S.ENG_LEFT]), float(self._st[S.ENG_RIGHT])
+        return float(self._st[TORQUE_STATE.ENG_LEFT]), float(self._st[TORQUE_STATE.ENG_RIGHT])
 
     def set_engagement_torques(self, left_Nm: float | None, right_Nm: float | None) -> None:
         """The torques at which the left and the right flank engage, as measured (N m; None: zero), from
@@ -354,26 +354,30 @@ class TorqueBacklashRLS(FlankPairFigures, RecursiveEstimator):
             return
         new = [0.0 if t is None else self.torque_sign * float(t) for t in (left_Nm, right_Nm)]
         db = self.deadband_Nm_
-        moved = abs(new[0] - self._st[S.ENG_LEFT]) > db or abs(new[1] - self._st[S.ENG_RIGHT]) > db
-        self._st[S.ENG_LEFT], self._st[S.ENG_RIGHT] = new
+        moved = (
+            abs(new[0] - self._st[TORQUE_STATE.ENG_LEFT]) > db or abs(new[1] - self._st[TORQUE_STATE.ENG_RIGHT]) > db
+        )
+        self._st[TORQUE_STATE.ENG_LEFT], self._st[TORQUE_STATE.ENG_RIGHT] = new
         if moved and math.isfinite(db):
-            for o in (S.LEFT, S.RIGHT):
-                self._st[o + F.N] = 0.0
-            self._st[S.N_REV] = self._st[S.LAST_FLANK] = 0.0
+            for o in (TORQUE_STATE.LEFT, TORQUE_STATE.RIGHT):
+                self._st[o + TORQUE_FLANK.N] = 0.0
+            self._st[TORQUE_STATE.N_REV] = self._st[TORQUE_STATE.LAST_FLANK] = 0.0
             self._cycles = CyclePlays()
             self._frozen = None
 
     def _separable(self, o: int) -> bool:
         st = self._st
-        n = st[o + F.N]
-        return n == 0.0 or windup_separable(st[o + F.QMEAN], math.sqrt(max(st[o + F.QM2], 0.0) / n))
+        n = st[o + TORQUE_FLANK.N]
+        return n == 0.0 or windup_separable(
+            st[o + TORQUE_FLANK.QMEAN], math.sqrt(max(st[o + TORQUE_FLANK.QM2], 0.0) / n)
+        )
 
     @property
     def windup_separable_(self) -> bool:
         """Every engaged flank's torque varied enough to tell its wind-up from its offset
         (:data:`~.flank_lines.MAX_LEVER`); else the lines are taken at their operating torques."""
         self._check_started()
-        return self._separable(S.LEFT) and self._separable(S.RIGHT)
+        return self._separable(TORQUE_STATE.LEFT) and self._separable(TORQUE_STATE.RIGHT)
 
     def _effective(self, o: int) -> FlankLine | None:
         """The flank's line, folded at its operating torque where the wind-up is not separable."""
@@ -385,34 +389,44 @@ class TorqueBacklashRLS(FlankPairFigures, RecursiveEstimator):
     def flank_lines_(self) -> tuple[FlankLine | None, FlankLine | None]:
         """The left and right flank lines the play is measured between (reference coordinates; None
         for a flank never engaged; at the operating torques where the wind-up is not separable)."""
-        return self._effective(S.LEFT), self._effective(S.RIGHT)
+        return self._effective(TORQUE_STATE.LEFT), self._effective(TORQUE_STATE.RIGHT)
 
     @property
     def compliance_var_(self) -> tuple[float, float]:
         """Unscaled variances of the left and right compliance (inf for a flank never engaged)."""
         self._check_started()
-        return tuple(math.inf if self._st[o + F.N] == 0.0 else float(self._st[o + F.P + 8]) for o in (S.LEFT, S.RIGHT))  # type: ignore[return-value]
+        return tuple(
+            math.inf if self._st[o + TORQUE_FLANK.N] == 0.0 else float(self._st[o + TORQUE_FLANK.P + 8])
+            for o in (TORQUE_STATE.LEFT, TORQUE_STATE.RIGHT)
+        )  # type: ignore[return-value]
 
     @property
     def torque_peaks_Nm_(self) -> tuple[float | None, float | None]:
         """The largest torque magnitude the left and right flanks were learned at (None: never engaged), N m."""
         self._check_started()
-        return tuple(None if self._st[o + F.N] == 0.0 else float(self._st[o + F.QMAX]) for o in (S.LEFT, S.RIGHT))  # type: ignore[return-value]
+        return tuple(
+            None if self._st[o + TORQUE_FLANK.N] == 0.0 else float(self._st[o + TORQUE_FLANK.QMAX])
+            for o in (TORQUE_STATE.LEFT, TORQUE_STATE.RIGHT)
+        )  # type: ignore[return-value]
 
     @property
     def operating_torque_Nm_(self) -> float | None:
         """Where the wind-up is not separable: the mean torque magnitude of the engaged flanks, N m; else None."""
         if self.windup_separable_:
             return None
-        means = [self._st[o + F.QMEAN] for o in (S.LEFT, S.RIGHT) if self._st[o + F.N] > 0.0]
+        means = [
+            self._st[o + TORQUE_FLANK.QMEAN]
+            for o in (TORQUE_STATE.LEFT, TORQUE_STATE.RIGHT)
+            if self._st[o + TORQUE_FLANK.N] > 0.0
+        ]
         return float(np.mean(means)) if means else None
 
     def _cov(self, o: int) -> np.ndarray:
         """Unscaled covariance of ``[m, a, s]`` (reference coordinates) of one flank (of the folded
         line's ``[m, a + s tau_mean, 0]`` where the wind-up is not separable)."""
         st = self._st
-        P = np.asarray(st[o + F.P : o + F.P + 9]).reshape(3, 3)
-        J = np.array([[1.0, 0.0, 0.0], [st[o + F.UC], -1.0, 0.0], [0.0, 0.0, 1.0]])
+        P = np.asarray(st[o + TORQUE_FLANK.P : o + TORQUE_FLANK.P + 9]).reshape(3, 3)
+        J = np.array([[1.0, 0.0, 0.0], [st[o + TORQUE_FLANK.UC], -1.0, 0.0], [0.0, 0.0, 1.0]])
         if not self.windup_separable_:
             J = np.array([[1.0, 0.0, 0.0], [0.0, 1.0, self._mean_torque(o)], [0.0, 0.0, 0.0]]) @ J
         return J @ P @ J.T
@@ -422,12 +436,16 @@ class TorqueBacklashRLS(FlankPairFigures, RecursiveEstimator):
         """The torque reversed and both flanks have been updated enough to place them."""
         self._check_started()
         st = self._st
-        return bool(st[S.N_REV] >= 1 and min(st[S.LEFT + F.N], st[S.RIGHT + F.N]) >= MIN_FLANK_UPDATES)
+        return bool(
+            st[TORQUE_STATE.N_REV] >= 1
+            and min(st[TORQUE_STATE.LEFT + TORQUE_FLANK.N], st[TORQUE_STATE.RIGHT + TORQUE_FLANK.N])
+            >= MIN_FLANK_UPDATES
+        )
 
     @property
     def theta_(self) -> np.ndarray:
         out = np.full(6, np.nan)
-        for i, o in enumerate((S.LEFT, S.RIGHT)):
+        for i, o in enumerate((TORQUE_STATE.LEFT, TORQUE_STATE.RIGHT)):
             line = self._line(o)
             if line is not None:
                 out[3 * i : 3 * i + 3] = (line.m, line.a, line.s)
@@ -437,8 +455,8 @@ class TorqueBacklashRLS(FlankPairFigures, RecursiveEstimator):
     def P_(self) -> np.ndarray:
         self._check_started()
         out = np.zeros((6, 6))  # the flanks' lines are independent: block diagonal
-        for i, o in enumerate((S.LEFT, S.RIGHT)):
-            block = self._cov(o) if self._st[o + F.N] > 0.0 else np.full((3, 3), np.nan)
+        for i, o in enumerate((TORQUE_STATE.LEFT, TORQUE_STATE.RIGHT)):
+            block = self._cov(o) if self._st[o + TORQUE_FLANK.N] > 0.0 else np.full((3, 3), np.nan)
             out[3 * i : 3 * i + 3, 3 * i : 3 * i + 3] = block
         return out
 
@@ -446,10 +464,10 @@ class TorqueBacklashRLS(FlankPairFigures, RecursiveEstimator):
         return self.flank_lines_()
 
     def _pair_covs(self) -> tuple[np.ndarray, np.ndarray]:
-        return self._cov(S.LEFT), self._cov(S.RIGHT)
+        return self._cov(TORQUE_STATE.LEFT), self._cov(TORQUE_STATE.RIGHT)
 
     def _y_level(self) -> float:
-        return self._st[S.Y_LEVEL]
+        return self._st[TORQUE_STATE.Y_LEVEL]
 
     @property
     def torque_sign_(self) -> float:
@@ -467,14 +485,18 @@ class TorqueBacklashRLS(FlankPairFigures, RecursiveEstimator):
         if self.deadband_Nm is not None:
             return float(self.deadband_Nm)
         st = self._st
-        return self.n_sigma * st[S.Q_MED] / K.MEDIAN_ABS_D2 if st[S.N_QMED] >= _NOISE_WARMUP else math.nan
+        return (
+            self.n_sigma * st[TORQUE_STATE.Q_MED] / torque_kernel.MEDIAN_ABS_D2
+            if st[TORQUE_STATE.N_QMED] >= _NOISE_WARMUP
+            else math.nan
+        )
 
     def predict_one(self, u: float, torque_Nm: float = 0.0) -> float:
         """The output (deg) of the flank the torque engages (NaN in the dead band or for a flank not yet seen)."""
         self._check_started()
         db = self.deadband_Nm_
         side = engaged_flank(np.array([torque_Nm]), db, self.engagement_torques_Nm_)[0] if math.isfinite(db) else 0
-        o = S.RIGHT if side > 0 else S.LEFT if side < 0 else None
+        o = TORQUE_STATE.RIGHT if side > 0 else TORQUE_STATE.LEFT if side < 0 else None
         line = None if o is None else self._line(o)
         if line is None:
             return math.nan

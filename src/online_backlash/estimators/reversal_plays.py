@@ -24,7 +24,7 @@ import numba
 import numpy as np
 
 from ..errors import InvalidParameterError
-from ._base import finite_array
+from .validation import finite_array
 
 __all__ = ["MIN_SEGMENT_SAMPLES", "CyclePlays", "MotionFlanks", "OutputNoise", "kinematic_offsets", "kinematic_update"]
 
@@ -303,7 +303,8 @@ class CyclePlays:
         """The segments so far as JSON types (for an estimator's saved state; :meth:`from_state`)."""
         return {
             "min_samples": self.min_samples, "closed": [self._as_dict(rec) for rec in self._segs[: self._n]],
-            "open": self._as_dict(self._st[_OPEN:]) if self._st[_HAS_OPEN] else None, "pending_break": bool(self._st[_PENDING]),
+            "open": self._as_dict(self._st[_OPEN:]) if self._st[_HAS_OPEN] else None,
+            "pending_break": bool(self._st[_PENDING]),
         }  # fmt: skip
 
     @classmethod

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 import numbers
+from typing import Any
 
 import numpy as np
 
@@ -14,13 +15,34 @@ from ..errors import InvalidParameterError, NotExcitedError, NotFittedError
 MAX_MAGNITUDE = 1e15
 
 
+def finite(name: str, value: float) -> float:
+    """``value`` as a float; InvalidParameterError if it is not finite (NaN never reaches an estimator)."""
+    v = float(value)
+    if not math.isfinite(v):
+        raise InvalidParameterError(f"{name} must be finite, got {value!r}")
+    return v
+
+
+def finite_array(name: str, value: Any) -> np.ndarray:
+    """``value`` as a contiguous float array; InvalidParameterError naming the first non-finite index."""
+    arr = np.ascontiguousarray(value, dtype=float)
+    # a finite sum (one pass, no temporary) proves every value finite; else look closer
+    if not math.isfinite(float(np.sum(arr))) and not np.all(np.isfinite(arr)):
+        raise InvalidParameterError(
+            f"{name} has non-finite values, first at index {int(np.flatnonzero(~np.isfinite(arr))[0])}"
+        )
+    return arr
+
+
 def check_magnitude(**arrays: np.ndarray) -> None:
-    """Raise InvalidParameterError if a named array holds a value beyond :data:`MAX_MAGNITUDE` (e.g. 1e300: wrong units)."""
+    """Raise InvalidParameterError if a named array holds a value beyond :data:`MAX_MAGNITUDE` (e.g. 1e300:
+    wrong units)."""
     for name, arr in arrays.items():
         big = np.flatnonzero(np.abs(arr) > MAX_MAGNITUDE)
         if big.size:
             raise InvalidParameterError(
-                f"{name} reaches {arr[big[0]]:.3g} at index {big[0]}: values beyond {MAX_MAGNITUDE:g} cannot be fitted in float64; check the units"
+                f"{name} reaches {arr[big[0]]:.3g} at index {big[0]}: values beyond {MAX_MAGNITUDE:g} cannot be "
+                "fitted in float64; check the units"
             )
 
 

@@ -1,12 +1,33 @@
-"""The declared base of the recursive (online) estimators, river style: ``learn_one`` / ``learn_many``.
+"""The public contract of a recursive (online) estimator, river style: ``learn_one`` / ``learn_many``.
 
-:class:`RecursiveEstimator` holds the parameters every recursive estimator shares, the warm-up
-buffer, the dispatch of ``learn_one`` (interpreted) and ``learn_many`` (compiled), gaps (which
-are bridged and which restart: ``gap_policy``, :class:`~online_backlash.bridging.GapPolicy`; the
-tally ``gaps_``), the saved state and ``clone``; an estimator fills in the hooks it declares abstract (its own
-parameters, warm fit, start, the two learning paths, its attributes). All state is created in
-:meth:`RecursiveEstimator.reset` (called by ``__init__``); the parameters are validated on the
-first ``learn_one`` / ``learn_many`` (scikit-learn style).
+:class:`RecursiveEstimator` holds what every recursive estimator shares: the parameters
+(:class:`SharedParams`, their defaults in :data:`SHARED_DEFAULTS`: declared here once), the warm-up buffer,
+the dispatch of ``learn_one`` (interpreted) and ``learn_many`` (compiled where the estimator has a compiled
+loop), gaps (which are bridged and which restart: ``gap_policy``, :class:`~online_backlash.bridging.GapPolicy`;
+the tally ``gaps_``), ``snapshot_at``, the saved state, ``clone`` and the fitted figures derived from the
+paper's parameter vector. All state is created in :meth:`RecursiveEstimator.reset` (called by ``__init__``);
+the parameters are validated on the first ``learn_one`` / ``learn_many`` (scikit-learn style).
+
+**What a new estimator writes** (``docs/estimators.md`` shows one in about 60 lines; the definition of done is
+:func:`online_backlash.estimators.conformance.check_estimator`):
+
+* ``_layout``: its state vector's fields (a :mod:`.layout` of offsets), with at least ``N_SEEN`` (samples
+  learned), ``U0``, ``Y0`` (the reference origin), ``NOISE_VAR`` (the residual variance) and ``N_REV``
+  (reversals seen), which the base reads;
+* :meth:`~RecursiveEstimator._initial_state`: the state vector from start values (those of
+  :meth:`~RecursiveEstimator._warm_fit` or :meth:`~RecursiveEstimator._cold_params`);
+* :meth:`~RecursiveEstimator._learn_py`: one sample (reading the constants ``self._c``, :data:`SHARED_CONSTS`
+  by default, and holding its parameters while ``FREEZE`` is set: the warm start's replay);
+* :meth:`~RecursiveEstimator._gap_now`: the next sample is not read as motion from the last one;
+* ``theta_`` (eq. 8's ``[mL, mL cL, mR, mR cR]``, then any parameters of its own) and ``P_``, its unscaled
+  covariance.
+
+Everything else is derived or defaulted and may be overridden: its own parameters' checks
+(``_validate``), the warm start (:class:`~.batch.VorosBacklash` on the buffer) and the cold start (the
+direction of motion), the constants (:data:`SHARED_CONSTS`), the compiled loop (``_learn_arrays``: by
+default a loop of ``_learn_py``), state beside the vector (``_reset_own``, ``_extra_state``,
+``_restore_extra``), ``c_left_``, ``c_right_`` and ``backlash_`` (eq. 9), ``backlash_std_`` (the delta
+method on ``P_``) and ``predict_one`` (eq. 1-3).
 
 Start: the paper's batch algorithm fitted on the first stretch of data that reverses (a *warm
 start*), or a saved state (:meth:`~RecursiveEstimator.state_dict` /
@@ -14,6 +35,9 @@ start*), or a saved state (:meth:`~RecursiveEstimator.state_dict` /
 with the parameters held at the batch estimate, which gathers their information (covariance,
 residual variance, reversals): none is lost or counted twice, and a few slow, coarsely quantised
 first samples cannot override the fit of the whole buffer.
+
+References: J. Vörös, Automatica 46 (2010) 369-374 (eq. 1-14); the recursive form: J. Vörös, ASME J. Dyn.
+Sys. Meas. Control 135(1) 014504 (2013).
 
 Units: ``u`` and ``y`` share one unit (degrees, load side, in this package); times in seconds;
 torque in N m.
@@ -26,21 +50,45 @@ import inspect
 import itertools
 import math
 from abc import ABC, abstractmethod
-from collections.abc import Callable, Sequence
-from dataclasses import dataclass
-from typing import Any, Generic, TypeVar
+from collections.abc import Callable, Mapping, Sequence
+from types import MappingProxyType
+from typing import TYPE_CHECKING, Any, ClassVar, Generic, NamedTuple, TypedDict, TypeVar
 
 import numpy as np
 
 from ..bridging import UNKNOWN, GapPolicy, GapTally
 from ..effect_terms import EffectTerms
 from ..errors import InvalidParameterError, NotExcitedError, NotFittedError
+from ..model import BacklashParams
 from ._effect_stream import EffectStream, check_effects, effects_from_records
-from ._validation import check_int, check_magnitude, check_option, check_real
+from .batch import VorosBacklash, _direction_guess, _start_params
+from .layout import offsets, pack
+from .snapshots import NOT_STARTED, EstimateAt
+from .validation import check_int, check_magnitude, check_option, check_real, finite, finite_array
+
+if TYPE_CHECKING:
+    from typing_extensions import Unpack
+
+__all__ = [
+    "NOT_STARTED",
+    "SHARED_CONSTS",
+    "SHARED_DEFAULTS",
+    "TORQUE_DEFAULTS",
+    "EstimateAt",
+    "RecursiveEstimator",
+    "SharedParams",
+    "StateField",
+    "WarmStartParams",
+    "finite",
+    "finite_array",
+    "memory_factors",
+]
 
 _STARTS = ("batch", "cold")
 _ORIGINS = ("first", "zero")
 _WARM_ATTEMPTS = 4  # batch attempts (at 1x..4x warm_start_samples) before a cold start
+#: The state fields the base reads (``_layout`` must have them)
+_BASE_FIELDS = ("N_SEEN", "U0", "Y0", "NOISE_VAR", "N_REV")
 
 
 #: 3: effects saved by name and parameters, with the samples that restore their history
@@ -53,6 +101,60 @@ _DEFAULT_GAP_POLICY = GapPolicy()
 T = TypeVar("T")
 
 
+# -- the shared parameters: declared once ---------------------------------------------------------
+class SharedParams(TypedDict, total=False):
+    """The keyword parameters every recursive estimator takes (``**shared``; defaults :data:`SHARED_DEFAULTS`).
+
+    ``memory_s`` (s of motion; None: no forgetting per update), ``memory_reversals`` (reversals; None: no
+    forgetting per reversal), ``sample_period_s`` (s), ``origin`` (``"first"``: the first sample is the
+    reference origin; ``"zero"``), ``noise_window`` (updates the residual variance is averaged over),
+    ``gap_policy`` (which flagged gaps are bridged; None: :class:`~online_backlash.bridging.GapPolicy`'s
+    defaults). See :class:`~.backlash_rls.BacklashRLS` for each in full.
+    """
+
+    memory_s: float | None
+    memory_reversals: float | None
+    sample_period_s: float
+    origin: str
+    noise_window: int
+    gap_policy: GapPolicy | None
+
+
+class WarmStartParams(SharedParams, total=False):
+    """:class:`SharedParams` and the warm start's two, for an estimator that starts from a batch fit:
+    ``start`` (``"batch"``, ``"cold"``) and ``warm_start_samples`` (samples buffered for it)."""
+
+    start: str
+    warm_start_samples: int
+
+
+#: The shared parameters' defaults (read-only).
+SHARED_DEFAULTS: Mapping[str, Any] = MappingProxyType(
+    {
+        "memory_s": None,
+        "memory_reversals": 10.0,
+        "sample_period_s": 0.001,
+        "start": "batch",
+        "warm_start_samples": 10_000,
+        "origin": "first",
+        "noise_window": 10_000,
+        "gap_policy": None,
+    }
+)
+
+#: :class:`~online_backlash.load_aware.TorqueBacklashRLS`'s departures from :data:`SHARED_DEFAULTS`, declared
+#: here with the reasons. ``start`` and ``warm_start_samples`` are fixed, not parameters: the torque gives the
+#: switching functions, so each flank's line is linear in its parameters and one RLS per flank solves it from
+#: the first sample (a cold start; no warm start). ``memory_reversals`` defaults to None (no forgetting per
+#: reversal), as since the estimator was added (6f201fd): its reversals are *torque* reversals (the engaged flank
+#: changing through the torque's dead band), not the motion's, so the kinematic estimators' 10 would not be the
+#: same memory. Not unified: ``estimate``, ``track`` and ``listen`` always pass ``--memory-reversals`` (their
+#: outputs would not change), but ``TorqueBacklashRLS()`` in a user's code would forget where it did not.
+TORQUE_DEFAULTS: Mapping[str, Any] = MappingProxyType(
+    {**SHARED_DEFAULTS, "memory_reversals": None, "start": "cold", "warm_start_samples": 8}
+)
+
+
 def memory_factors(
     memory_s: float | None, memory_reversals: float | None, sample_period_s: float
 ) -> tuple[float, float]:
@@ -60,6 +162,20 @@ def memory_factors(
     lam = 1.0 if memory_s is None else math.exp(-sample_period_s / memory_s)
     lam_rev = 1.0 if memory_reversals is None else math.exp(-1.0 / memory_reversals)
     return lam, lam_rev
+
+
+class SharedConstants(NamedTuple):
+    """The constants vector of an estimator that keeps the default :meth:`RecursiveEstimator._constants`
+    (field sizes; :data:`SHARED_CONSTS` holds the offsets)."""
+
+    LAM: int = 1  # forgetting per update, exp(-sample_period_s / memory_s)
+    LAM_REV: int = 1  # forgetting per reversal, exp(-1 / memory_reversals)
+    NOISE_WINDOW: int = 1  # updates averaged by the residual variance
+    ORIGIN_FIRST: int = 1  # 1: the first sample is the reference origin
+    FREEZE: int = 1  # 1 during the warm start's replay: the parameters held, the information gathered
+
+
+SHARED_CONSTS, N_SHARED_CONSTS = offsets(SharedConstants())
 
 
 def _failure_reason(exc: Exception, n_gaps: int, stretch: int, buffered: int) -> str:
@@ -73,58 +189,10 @@ def _failure_reason(exc: Exception, n_gaps: int, stretch: int, buffered: int) ->
     )
 
 
-def finite(name: str, value: float) -> float:
-    """``value`` as a float; InvalidParameterError if it is not finite (NaN never reaches an estimator)."""
-    v = float(value)
-    if not math.isfinite(v):
-        raise InvalidParameterError(f"{name} must be finite, got {value!r}")
-    return v
-
-
-def finite_array(name: str, value: Any) -> np.ndarray:
-    """``value`` as a contiguous float array; InvalidParameterError naming the first non-finite index."""
-    arr = np.ascontiguousarray(value, dtype=float)
-    # a finite sum (one pass, no temporary) proves every value finite; else look closer
-    if not math.isfinite(float(np.sum(arr))) and not np.all(np.isfinite(arr)):
-        raise InvalidParameterError(
-            f"{name} has non-finite values, first at index {int(np.flatnonzero(~np.isfinite(arr))[0])}"
-        )
-    return arr
-
-
-@dataclass(frozen=True)
-class EstimateAt:
-    """A recursive estimator's estimate as it was at one instant (what the play's per-cycle scatter
-    reads, :class:`~.uncertainty.RecursivePlayScatter`; ``learn_many(..., snapshot_at=)`` records it).
-
-    Attributes
-    ----------
-    started : bool
-        The estimator had started (before that the play and slopes are NaN, not read).
-    backlash_deg : float
-        Its play, degrees (load side).
-    m_left, m_right : float
-        Its flank slopes, eq. (1).
-    level_deg : float
-        The output level (the caller's frame, degrees) its play is read at, where that is not the frame's
-        origin (:class:`~.backlash_rls.BacklashRLS` with ``full_engagement``); 0 otherwise.
-    """
-
-    started: bool
-    backlash_deg: float
-    m_left: float
-    m_right: float
-    level_deg: float = 0.0
-
-
-#: The estimate of an estimator that has not started (:class:`EstimateAt`).
-NOT_STARTED = EstimateAt(False, math.nan, math.nan, math.nan)
-
-
 class StateField(Generic[T]):
     """A fitted attribute that reads one named field of the compiled state vector.
 
-    The field's offset comes from the estimator class's ``_layout`` (:mod:`._layout`), so one
+    The field's offset comes from the estimator class's ``_layout`` (:mod:`.layout`), so one
     declaration serves estimators whose state vectors differ; reading it before the estimator
     has started raises NotFittedError.
     """
@@ -147,12 +215,13 @@ class StateField(Generic[T]):
 class RecursiveEstimator(ABC):
     """Warm-up buffer, learn_one/learn_many dispatch, gaps, saved state and clone.
 
-    Parameters shared by every recursive estimator (see :class:`~.backlash_rls.BacklashRLS`):
-    ``memory_s``, ``memory_reversals``, ``sample_period_s``, ``start``, ``warm_start_samples``,
-    ``origin``, ``noise_window``, ``gap_policy``. A subclass stores its own parameters in ``__init__``, then
-    passes the shared ones to this ``__init__`` (which calls :meth:`reset`), and declares
-    ``_layout`` and ``_consts`` (offsets of its state and constants vectors, with fields
-    ``N_SEEN``, ``U0``, ``Y0``, ``NOISE_VAR``, ``N_REV`` and ``FREEZE``).
+    Parameters shared by every recursive estimator (:class:`SharedParams`, :class:`WarmStartParams`; see
+    :class:`~.backlash_rls.BacklashRLS`): ``memory_s``, ``memory_reversals``, ``sample_period_s``, ``start``,
+    ``warm_start_samples``, ``origin``, ``noise_window``, ``gap_policy``. A subclass stores its own
+    parameters in ``__init__``, then hands the shared ones (``**shared``) to this ``__init__`` (which calls
+    :meth:`reset`); its signature (``inspect.signature``, ``get_params``) lists its own and the shared ones
+    with their defaults (:data:`SHARED_DEFAULTS`, or the class's ``shared_defaults``; ``fixed_params`` are
+    shared ones it does not take). It declares ``_layout`` (the module docstring lists the hooks).
 
     Attributes
     ----------
@@ -175,71 +244,129 @@ class RecursiveEstimator(ABC):
     #: Which gaps are bridged (None: the default :class:`~online_backlash.bridging.GapPolicy`)
     gap_policy: GapPolicy | None = None
     effects: Sequence[EffectTerms] | None = None
-    #: True for an estimator whose model needs the torque of every sample (``_learn_arrays`` then gets it without effects)
+    #: True for an estimator whose model needs the torque of every sample (``_learn_arrays`` then gets it
+    #: without effects)
     takes_torque: bool = False
+    #: The shared parameters' defaults for this class (:data:`SHARED_DEFAULTS`, :data:`TORQUE_DEFAULTS`)
+    shared_defaults: ClassVar[Mapping[str, Any]] = SHARED_DEFAULTS
+    #: Shared parameters this class fixes at their ``shared_defaults`` (not constructor arguments)
+    fixed_params: ClassVar[tuple[str, ...]] = ()
     _layout: Any
-    _consts: Any
+    _consts: Any = SHARED_CONSTS
 
     u_ref_ = StateField("U0", float, 'Reference origin of the input (first input with ``origin="first"``, else 0).')
     y_ref_ = StateField("Y0", float, "Reference origin of the output.")
     noise_var_ = StateField("NOISE_VAR", float, "Online estimate of the output noise variance, output units squared.")
     n_reversals_ = StateField("N_REV", int, "Reversals of the input seen so far.")
 
-    def __init__(
-        self,
-        memory_s: float | None,
-        memory_reversals: float | None,
-        sample_period_s: float,
-        start: str,
-        warm_start_samples: int,
-        origin: str,
-        noise_window: int,
-        gap_policy: GapPolicy | None = None,
-    ) -> None:
+    def __init_subclass__(cls, **kwargs: Any) -> None:
+        """The class's signature: its own ``__init__`` parameters, then the shared ones it takes (keyword-only,
+        with its defaults); and a check that its ``_layout`` has the fields the base reads."""
+        super().__init_subclass__(**kwargs)
+        own = [
+            p
+            for p in inspect.signature(cls.__init__).parameters.values()
+            if p.name != "self" and p.kind not in (p.VAR_KEYWORD, p.VAR_POSITIONAL)
+        ]
+        taken = [n for n in cls.shared_defaults if n not in cls.fixed_params and n not in {p.name for p in own}]
+        shared = [inspect.Parameter(n, inspect.Parameter.KEYWORD_ONLY, default=cls.shared_defaults[n]) for n in taken]
+        cls.__signature__ = inspect.Signature([*own, *shared])  # type: ignore[attr-defined]
+        layout = getattr(cls, "_layout", None)
+        missing = [f for f in _BASE_FIELDS if layout is not None and not hasattr(layout, f)]
+        if missing:
+            raise TypeError(f"{cls.__name__}._layout lacks the fields the base reads: {', '.join(missing)}")
+
+    def __init__(self, **shared: Unpack[WarmStartParams]) -> None:
         """Store the shared parameters (after the subclass stored its own) and :meth:`reset`."""
-        self.gap_policy = gap_policy
-        self.memory_s = memory_s
-        self.memory_reversals = memory_reversals
-        self.sample_period_s = sample_period_s
-        self.start = start
-        self.warm_start_samples = warm_start_samples
-        self.origin = origin
-        self.noise_window = noise_window
+        unknown = [n for n in shared if n not in self.shared_defaults or n in self.fixed_params]
+        if unknown:
+            raise TypeError(f"{type(self).__name__}() got an unexpected keyword argument {unknown[0]!r}")
+        values = {**self.shared_defaults, **shared}
+        self.gap_policy = values["gap_policy"]
+        self.memory_s = values["memory_s"]
+        self.memory_reversals = values["memory_reversals"]
+        self.sample_period_s = values["sample_period_s"]
+        self.start = values["start"]
+        self.warm_start_samples = values["warm_start_samples"]
+        self.origin = values["origin"]
+        self.noise_window = values["noise_window"]
         self.reset()
 
-    # -- hooks -----------------------------------------------------------------------------------
-    @abstractmethod
-    def _validate(self) -> None:
-        """Check the estimator's own parameters (after :meth:`_validate_common`)."""
-
-    @abstractmethod
-    def _warm_fit(self, uc: np.ndarray, yc: np.ndarray, terms: np.ndarray) -> tuple[Any, int, bool]:
-        """The batch fit on the buffer (reference-origin coordinates): ``(start values, n_iter, converged)``,
-        issuing no ConvergenceWarning (see :class:`~online_backlash.estimators.batch.VorosBacklash`'s
-        ``warn_unconverged``: the warnings settings are the process's, not this thread's)."""
-
-    @abstractmethod
-    def _cold_params(self, u: np.ndarray | None, y: np.ndarray | None) -> Any:
-        """Start values without a batch fit (``start="cold"``, or the warm start failed)."""
-
-    @abstractmethod
-    def _constants(self) -> list[float]:
-        """The constants vector of the kernels, from the parameters."""
-
+    # -- hooks a new estimator writes --------------------------------------------------------------
     @abstractmethod
     def _initial_state(self, start: Any) -> list[float]:
-        """The state vector at the start, from start values."""
+        """The state vector at the start, from start values (those of :meth:`_warm_fit` or :meth:`_cold_params`;
+        reference-origin coordinates)."""
 
     @abstractmethod
     def _learn_py(self, u: float, y: float, t: float, q: float) -> None:
-        """One sample by the interpreted step (the readable reference)."""
+        """One sample (the readable reference): input ``u``, output ``y`` (the caller's frame; the step refers
+        them to the origin ``U0``, ``Y0`` and counts ``N_SEEN``), time ``t`` (s) and torque ``q`` (N m; NaN
+        without one)."""
 
     @abstractmethod
+    def _gap_now(self) -> None:
+        """The next sample is not read as motion from the previous one."""
+
+    @property
+    @abstractmethod
+    def theta_(self) -> np.ndarray:
+        """The parameter vector of the paper, eq. (8) ``[mL, mL cL, mR, mR cR]`` first (reference-origin
+        coordinates)."""
+
+    @property
+    @abstractmethod
+    def P_(self) -> np.ndarray:
+        """Unscaled covariance of ``theta_`` (times ``noise_var_``: the covariance)."""
+
+    # -- hooks with defaults -------------------------------------------------------------------------
+    def _validate(self) -> None:  # noqa: B027 (a default hook: nothing to check)
+        """Check the estimator's own parameters (after :meth:`_validate_common`); none by default."""
+
+    def _reset_own(self) -> None:  # noqa: B027 (a default hook: no own state)
+        """Create the estimator's own state beside the shared one; none by default."""
+
+    def _warm_fit(self, uc: np.ndarray, yc: np.ndarray, terms: np.ndarray) -> tuple[Any, int, bool]:
+        """The batch fit on the buffer (reference-origin coordinates): ``(start values, n_iter, converged)``,
+        issuing no ConvergenceWarning (see :class:`~online_backlash.estimators.batch.VorosBacklash`'s
+        ``warn_unconverged``: the warnings settings are the process's, not this thread's). By default the
+        paper's batch algorithm, :class:`~.batch.VorosBacklash` (eq. 12-14), and its ``params_`` (``terms``:
+        the effects' columns, none unless the estimator takes effects)."""
+        batch = VorosBacklash(origin="zero")
+        batch.warn_unconverged = False  # told by converged_ (warm_start_)
+        batch.fit(uc, yc)
+        return batch.params_, int(batch.n_iter_), bool(batch.converged_)
+
+    def _cold_params(self, u: np.ndarray | None, y: np.ndarray | None) -> Any:
+        """Start values without a batch fit (``start="cold"``, or the warm start failed; ``u``, ``y`` None:
+        no data, as when a saved state is restored). By default the paper's start values
+        ``mL = mR = 1, cL = cR = 0.001`` without data, else from the direction of motion."""
+        if u is None or y is None or u.size < 2:
+            return BacklashParams(1.0, 1e-3, 1.0, 1e-3)
+        try:
+            return _direction_guess(u, y)
+        except NotExcitedError:
+            return _start_params(u, y)
+
+    def _constants(self) -> list[float]:
+        """The constants vector of the kernels, from the parameters (by default :data:`SHARED_CONSTS`)."""
+        lam, lam_rev = memory_factors(self.memory_s, self.memory_reversals, self.sample_period_s)
+        return pack(
+            SHARED_CONSTS, N_SHARED_CONSTS, LAM=lam, LAM_REV=lam_rev, NOISE_WINDOW=self.noise_window,
+            ORIGIN_FIRST=self.origin == "first",
+        )  # fmt: skip
+
     def _learn_arrays(
         self, u: np.ndarray, y: np.ndarray, gap: np.ndarray, t: np.ndarray | None, q: np.ndarray | None
     ) -> None:
-        """Consecutive samples by the compiled loop; the same estimates as :meth:`_learn_py`
-        (time ``t`` and torque ``q`` are given where there are effects, else None)."""
+        """Consecutive samples (a compiled loop where the estimator has one); the same estimates as
+        :meth:`_learn_py` (time ``t`` and torque ``q`` are given where there are effects or the estimator
+        takes torque, else None). By default :meth:`_learn_py` sample by sample."""
+        for i in range(u.size):
+            if gap[i]:
+                self._gap_now()
+            ti = math.nan if t is None else float(t[i])
+            self._learn_py(float(u[i]), float(y[i]), ti, math.nan if q is None else float(q[i]))
 
     def _learn_arrays_marked(
         self,
@@ -265,43 +392,11 @@ class RecursiveEstimator(ABC):
             lo = hi
         return out
 
-    @abstractmethod
-    def _gap_now(self) -> None:
-        """The next sample is not read as motion from the previous one."""
-
-    @property
-    @abstractmethod
-    def theta_(self) -> np.ndarray:
-        """The parameter vector of the paper (reference-origin coordinates)."""
-
-    @property
-    @abstractmethod
-    def c_left_(self) -> float:
-        """Distance to the left flank, input units."""
-
-    @property
-    @abstractmethod
-    def c_right_(self) -> float:
-        """Distance to the right flank, input units."""
-
-    @property
-    @abstractmethod
-    def backlash_(self) -> float:
-        """The play, input units."""
-
-    @property
-    @abstractmethod
-    def backlash_std_(self) -> float:
-        """Standard error of ``backlash_``, input units."""
-
-    @abstractmethod
-    def predict_one(self, u: float) -> float:
-        """One-step-ahead output."""
-
     # -- parameters and state --------------------------------------------------------------------
     def get_params(self) -> dict[str, Any]:
-        """The constructor arguments (river's parameters, read from the ``__init__`` signature)."""
-        names = [p for p in inspect.signature(type(self).__init__).parameters if p != "self"]
+        """The constructor arguments (river's parameters, read from the class's signature: its own, then the
+        shared ones it takes)."""
+        names = list(inspect.signature(type(self)).parameters)
         return {name: getattr(self, name) for name in names}
 
     def clone(self) -> RecursiveEstimator:
@@ -328,10 +423,6 @@ class RecursiveEstimator(ABC):
         self._attempts = 0
         self.warm_start_: dict[str, Any] = {}
         self._reset_own()
-
-    @abstractmethod
-    def _reset_own(self) -> None:
-        """Create the estimator's own state beside the shared one."""
 
     def _validate_common(self) -> None:
         if self.memory_s is not None:
@@ -602,12 +693,11 @@ class RecursiveEstimator(ABC):
         self._c_arr = np.asarray(self._c)
 
     # -- saved state -----------------------------------------------------------------------------
-    @abstractmethod
     def _extra_state(self) -> dict[str, Any]:
-        """The estimator's own state beside the state vector, JSON types."""
+        """The estimator's own state beside the state vector, JSON types (none by default)."""
+        return {}
 
-    @abstractmethod
-    def _restore_extra(self, d: dict[str, Any]) -> None:
+    def _restore_extra(self, d: dict[str, Any]) -> None:  # noqa: B027 (a default hook: nothing saved)
         """Restore what :meth:`_extra_state` saved."""
 
     def state_dict(self) -> dict[str, Any]:
@@ -657,7 +747,8 @@ class RecursiveEstimator(ABC):
         """
         if d.get("estimator") != cls.__name__ or d.get("format") not in _READ_FORMATS:
             raise InvalidParameterError(
-                f"not a saved {cls.__name__} state (format {STATE_FORMAT}): estimator={d.get('estimator')!r}, format={d.get('format')!r}"
+                f"not a saved {cls.__name__} state (format {STATE_FORMAT}): "
+                f"estimator={d.get('estimator')!r}, format={d.get('format')!r}"
             )
         params = dict(d["params"])
         if "effects" in params:
@@ -732,6 +823,44 @@ class RecursiveEstimator(ABC):
     def m_right_(self) -> float:
         """Slope of the right flank, eq. (1)."""
         return float(self.theta_[2])
+
+    @property
+    def c_left_(self) -> float:
+        """Distance to the left flank, input units: ``c1 / m1`` of eq. (9)."""
+        th = self.theta_
+        return float(th[1] / th[0])
+
+    @property
+    def c_right_(self) -> float:
+        """Distance to the right flank, input units: ``c2 / m2`` of eq. (9)."""
+        th = self.theta_
+        return float(th[3] / th[2])
+
+    @property
+    def backlash_(self) -> float:
+        """The play, ``c_left_ + c_right_``, input units."""
+        return self.c_left_ + self.c_right_
+
+    @property
+    def backlash_std_(self) -> float:
+        """Standard error of ``backlash_`` from ``P_`` and the residual variance (the delta method on eq. 9)."""
+        th = self.theta_
+        m1, c1, m2, c2 = th[:4]
+        g = np.array([-c1 / m1**2, 1.0 / m1, -c2 / m2**2, 1.0 / m2])
+        return math.sqrt(max(self.noise_var_ * float(g @ self.P_[:4, :4] @ g), 0.0))
+
+    def predict_one(self, u: float) -> float:
+        """One-step-ahead output for input ``u``, eq. (1)-(3) with the lines of ``theta_``, from the last
+        output learned (NaN before one)."""
+        m_left, c_left, m_right, c_right = self.m_left_, self.c_left_, self.m_right_, self.c_right_
+        uc, x_prev = finite("u", u) - self.u_ref_, self._last[2] - self.y_ref_
+        if uc <= x_prev / m_left - c_left:  # eq. (2)
+            x = m_left * (uc + c_left)
+        elif uc >= x_prev / m_right + c_right:  # eq. (3)
+            x = m_right * (uc - c_right)
+        else:
+            x = x_prev
+        return float(x + self.y_ref_)
 
 
 def _marks(snapshot_at: Any, n: int) -> np.ndarray:
