@@ -30,7 +30,7 @@ import numpy as np
 
 from online_backlash.codecs.dbc import RIG_DBC, DbcDecoder
 from online_backlash.drivers.can import CanSource
-from online_backlash.fitting import fit_recursive
+from online_backlash.log_fit import fit_recursive
 from online_backlash.simulation.rig import simulate_rig
 from online_backlash.simulation.rig_logs import rig_can_frames
 

@@ -29,7 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
-from online_backlash.fitting import fit_batch, fit_recursive
+from online_backlash.log_fit import fit_batch, fit_recursive
 from online_backlash.plotting import plot_fit
 from online_backlash.replay import open_log
 from online_backlash.simulation.two_mass_rig import simulate_two_mass

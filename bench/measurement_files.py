@@ -60,11 +60,11 @@ WARM = (
 #: compiled checks still load inside the timing (on the reader thread)
 STEADY = (
     "import importlib\nfor _m in {{'mdf': ['can', 'asammdf'], 'parquet': ['pyarrow.parquet']}}['{kind}']:\n    importlib.import_module(_m)\n"
-    "from online_backlash.fitting import fit_recursive\n"
+    "from online_backlash.log_fit import fit_recursive\n"
     "from online_backlash.simulation.rig import simulate_rig\nfit_recursive([simulate_rig(20.0).to_chunk()], 30.0, ahead=1)"
 )
 ESTIMATE = (
-    "import io, contextlib\nfrom online_backlash.cli import main, build_parser\nimport online_backlash.replay.{kind}, online_backlash.fitting\n"
+    "import io, contextlib\nfrom online_backlash.cli import main, build_parser\nimport online_backlash.replay.{kind}, online_backlash.log_fit\n"
     + WARM,
     "buf = io.StringIO()\nwith contextlib.redirect_stdout(buf):\n    main(['estimate', {path!r}, '--ratio', '30', '--json'{extra}])\n"
     "out = round(json.loads(buf.getvalue())['backlash_deg'], 5)",
@@ -115,7 +115,7 @@ CASES = {
     "`fit_recursive` of the Parquet file on one thread (no read-ahead)": (
         "parquet",
         (
-            "from online_backlash.replay.parquet import ParquetLog\nfrom online_backlash.fitting import fit_recursive\n"
+            "from online_backlash.replay.parquet import ParquetLog\nfrom online_backlash.log_fit import fit_recursive\n"
             + WARM,
             "with ParquetLog({path!r}) as log:\n    out = round(fit_recursive(log.iter_chunks(), 30.0, ahead=0)[0].backlash_deg, 5)",
         ),
@@ -155,7 +155,7 @@ CASES = {
     "`fit_recursive` of the MDF4 file on one thread (no read-ahead)": (
         "mf4",
         (
-            "from online_backlash.replay.mdf import MdfLog\nfrom online_backlash.fitting import fit_recursive\n" + WARM,
+            "from online_backlash.replay.mdf import MdfLog\nfrom online_backlash.log_fit import fit_recursive\n" + WARM,
             "with MdfLog({path!r}, columns={{'motor': 'Motor', 'load': 'Load'}}) as log:\n"
             "    out = round(fit_recursive(log.iter_chunks(), 30.0, ahead=0)[0].backlash_deg, 5)",
         ),

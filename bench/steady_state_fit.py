@@ -31,7 +31,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-import online_backlash.fitting as fitting
+import online_backlash.log_fit as log_fit
 from online_backlash import BacklashRLS
 from online_backlash.replay.mdf import MdfLog
 from online_backlash.replay.parquet import ParquetLog
@@ -69,14 +69,14 @@ def main() -> None:
     for _ in range(args.rounds):
         times.setdefault("`learn_many`, samples in memory (reference)", []).append(_timed(reference))
         for kind, open_log in logs.items():
-            for depth, where in ((0, "on the estimator's thread"), (fitting.BOOKKEEPING_AHEAD, "in the worker thread")):
-                saved, fitting.BOOKKEEPING_AHEAD = fitting.BOOKKEEPING_AHEAD, depth
+            for depth, where in ((0, "on the estimator's thread"), (log_fit.BOOKKEEPING_AHEAD, "in the worker thread")):
+                saved, log_fit.BOOKKEEPING_AHEAD = log_fit.BOOKKEEPING_AHEAD, depth
                 try:
                     times.setdefault(f"{kind}, bookkeeping {where}", []).append(
                         _timed(functools.partial(_fit, open_log))
                     )
                 finally:
-                    fitting.BOOKKEEPING_AHEAD = saved
+                    log_fit.BOOKKEEPING_AHEAD = saved
     references = [t[0] for t in next(iter(times.values()))]
     best_reference = min(references)
     print(
@@ -113,7 +113,7 @@ threading.Thread.run = _run_and_count  # type: ignore[method-assign]
 
 def _fit(open_log: Callable[[], MdfLog | ParquetLog]) -> None:
     with open_log() as log:
-        fitting.fit_recursive(log.iter_chunks(), 30.0, ahead=1)
+        log_fit.fit_recursive(log.iter_chunks(), 30.0, ahead=1)
 
 
 def _timed(call: Callable[[], None]) -> tuple[float, ...]:

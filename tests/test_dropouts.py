@@ -17,14 +17,14 @@ import can
 import numpy as np
 import pytest
 
-from online_backlash.bridging import BRIDGE_S, JUMP_DEG, GapPolicy
 from online_backlash.cli import main
 from online_backlash.cli._common import EXIT_NO_PLAY
 from online_backlash.codecs.dbc import RIG_DBC, DbcDecoder
 from online_backlash.codecs.gaps import GapDetector
 from online_backlash.errors import InvalidParameterError
 from online_backlash.estimators import BacklashRLS
-from online_backlash.fitting import fit_batch, fit_recursive
+from online_backlash.gap_policy import BRIDGE_S, JUMP_DEG, GapPolicy
+from online_backlash.log_fit import fit_batch, fit_recursive
 from online_backlash.pipeline import Pipeline
 from online_backlash.replay import CsvLog, read_csv_arrays
 from online_backlash.simulation.rig import simulate_rig

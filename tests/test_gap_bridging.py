@@ -14,10 +14,10 @@ import numpy as np
 import pytest
 
 from online_backlash import BacklashRLS, CascadeRLS
-from online_backlash.bridging import GapPolicy
 from online_backlash.errors import InvalidParameterError
-from online_backlash.fitting import fit_batch
+from online_backlash.gap_policy import GapPolicy
 from online_backlash.load_aware import TorqueBacklashRLS
+from online_backlash.log_fit import fit_batch
 from online_backlash.model import BacklashParams, simulate_cascade
 from online_backlash.pipeline import Pipeline
 from online_backlash.simulation.rig import simulate_rig

@@ -20,7 +20,6 @@ import pytest
 from online_backlash.cli import main
 from online_backlash.cli._common import EXIT_NO_PLAY
 from online_backlash.errors import InvalidParameterError
-from online_backlash.fitting import fit_batch, fit_recursive
 from online_backlash.load_aware import (
     DwellTracker,
     TorqueBacklash,
@@ -31,6 +30,7 @@ from online_backlash.load_aware import (
     torque_noise_std,
 )
 from online_backlash.load_aware.engagement import either_flank_engaged, torque_orientation
+from online_backlash.log_fit import fit_batch, fit_recursive
 from online_backlash.simulation.two_mass_rig import simulate_two_mass
 
 DAVINCI = Path(__file__).resolve().parents[2] / "shared" / "data" / "davinci_tool_gearhead_backlash"

@@ -29,10 +29,10 @@ from mqtt_server import BrokerCertificates, MosquittoBroker, MosquittoUnavailabl
 from online_backlash.cli import main
 from online_backlash.codecs.dbc import RIG_DBC, DbcDecoder
 from online_backlash.errors import InvalidParameterError
-from online_backlash.fitting import fit_recursive
+from online_backlash.log_fit import fit_recursive
+from online_backlash.output_columns import REPORT_KEYS, EstimateRow
 from online_backlash.publish import PASSWORD_ENV, MqttPublisher, MqttTarget, MqttTls, estimate_message, live_state
 from online_backlash.replay import open_log
-from online_backlash.rows import REPORT_KEYS, EstimateRow
 from online_backlash.simulation.rig import simulate_rig
 from online_backlash.simulation.rig_logs import rig_can_frames
 

@@ -16,7 +16,7 @@ import pytest
 from online_backlash import BacklashRLS, fitting
 from online_backlash.errors import InvalidParameterError
 from online_backlash.estimators.uncertainty import SCATTER_EVERY_S, RecursivePlayScatter
-from online_backlash.fitting import fit_recursive
+from online_backlash.log_fit import fit_recursive
 from online_backlash.pipeline import DataClock, Pipeline
 from online_backlash.simulation.rig import simulate_rig
 from online_backlash.stream import SampleChunk

@@ -19,9 +19,9 @@ import pytest
 
 from online_backlash.cli import main
 from online_backlash.cli._common import EXIT_NO_PLAY
-from online_backlash.fitting import fit_batch, fit_recursive
 from online_backlash.history.store import HistoryStore
 from online_backlash.load_aware import TorqueBacklash
+from online_backlash.log_fit import fit_batch, fit_recursive
 from online_backlash.simulation.rig import simulate_rig
 from online_backlash.simulation.two_mass_rig import simulate_two_mass
 from online_backlash.tracking import GearboxTracker, TrackerState

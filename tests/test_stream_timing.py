@@ -28,7 +28,7 @@ from online_backlash.codecs.gaps import CounterClock
 from online_backlash.codecs.pairing import FramePipeline
 from online_backlash.errors import InvalidParameterError, LogFormatError
 from online_backlash.estimators import _rls_kernels
-from online_backlash.fitting import fit_recursive
+from online_backlash.log_fit import fit_recursive
 from online_backlash.pipeline import read_ahead
 from online_backlash.replay import LOG_READERS
 from online_backlash.replay.mdf import MdfLog

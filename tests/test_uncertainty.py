@@ -21,7 +21,7 @@ from online_backlash.estimators.uncertainty import (
     play_std,
     play_uncertainty,
 )
-from online_backlash.fitting import fit_batch, fit_recursive
+from online_backlash.log_fit import fit_batch, fit_recursive
 from online_backlash.replay import read_csv_arrays
 from online_backlash.simulation.rig import simulate_rig
 from online_backlash.simulation.two_mass_rig import simulate_two_mass

@@ -29,8 +29,8 @@ from online_backlash.history.alarms import plugin_line
 from online_backlash.history.store import SCHEMA_VERSION, resolve_url
 from online_backlash.history.text import wear_figures
 from online_backlash.history.trend import fit_trend
+from online_backlash.output_columns import EstimateRow
 from online_backlash.publish import MqttPublisher
-from online_backlash.rows import EstimateRow
 from online_backlash.simulation.rig import simulate_rig
 from online_backlash.simulation.wear_logs import SnapshotPlan, daily, truth, write_snapshot_logs
 from online_backlash.web.fleet import fleet_row

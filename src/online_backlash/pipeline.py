@@ -13,7 +13,7 @@ all run :class:`Pipeline`:
    source's time and torque passed through for the estimator's effects;
 4. a :class:`PipelineStep` reports the block (samples, referred input), whether a row is due
    after it (``due``) and, where one is due and the pipeline makes rows (``rows=True``), the
-   :class:`~online_backlash.rows.EstimateRow` (a row costs the estimator's standard error: a
+   :class:`~online_backlash.output_columns.EstimateRow` (a row costs the estimator's standard error: a
    caller that only needs the instants, as ``estimate`` without ``--trace``, asks for none; then
    the estimator learns each chunk in one call and records its estimate at the ticks inside it,
    ``learn_many(..., snapshot_at=)``, so the ticks do not cut its compiled loop).
@@ -43,9 +43,9 @@ from typing import Any, NamedTuple, TypeVar
 import numba
 import numpy as np
 
-from .bridging import GapTally
 from .errors import InvalidParameterError, LogFormatError
-from .rows import EstimateRow
+from .gap_policy import GapTally
+from .output_columns import EstimateRow
 from .stream import SampleChunk, refer_to_load
 
 
@@ -421,7 +421,7 @@ class Pipeline:
         ``estimates``): a tick does not cut the compiled loop.
 
     The estimator decides which gaps are bridged (its ``gap_policy``,
-    :class:`~online_backlash.bridging.GapPolicy`) and tallies them (``gaps_``, read here as
+    :class:`~online_backlash.gap_policy.GapPolicy`) and tallies them (``gaps_``, read here as
     :attr:`gap_tally`); the pipeline passes every ``after_gap`` on.
 
     Examples
@@ -459,7 +459,7 @@ class Pipeline:
 
     @property
     def gap_tally(self) -> GapTally:
-        """The gaps seen (:class:`~online_backlash.bridging.GapTally`): the estimator's ``gaps_``."""
+        """The gaps seen (:class:`~online_backlash.gap_policy.GapTally`): the estimator's ``gaps_``."""
         tally: GapTally = self.estimator.gaps_
         return tally
 

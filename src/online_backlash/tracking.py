@@ -76,7 +76,6 @@ from .clocks import (
 from .effect_terms import effect_to_dict
 from .errors import BacklashWarning, HistoryError, InvalidParameterError, LogFormatError, NotExcitedError
 from .estimators import BacklashRLS
-from .fitting import recursive_estimator
 from .history.condition import LoadCondition
 from .history.series import WearSeries
 from .history.store import Gearbox, HistoryStore, Run
@@ -84,9 +83,10 @@ from .history.usage import UsageCounter
 from .hour_meter import METER_TOLERANCE_H, HourMeter, MachineUsage
 from .load_aware import PlayChooser, TorqueBacklashRLS
 from .load_aware.choice import NO_TORQUE, check_play_method
+from .log_fit import recursive_estimator
+from .output_columns import STORE_COLUMNS, EstimateRow, select, source_counts
 from .pipeline import DataClock, Pipeline, check_every, tail
 from .replay import open_log
-from .rows import STORE_COLUMNS, EstimateRow, select, source_counts
 from .stream import SampleChunk, SampleSource, live_clock_offset, refer_to_load
 
 __all__ = [
@@ -451,7 +451,7 @@ class GearboxTracker:
         progress : callable, optional
             ``progress(samples_fed, backlash_deg or None)`` after every block.
         on_row : callable, optional
-            ``on_row(row, time_unix_s)`` with each :class:`~online_backlash.rows.EstimateRow` once committed.
+            ``on_row(row, time_unix_s)`` with each :class:`~online_backlash.output_columns.EstimateRow` once committed.
         hour_meter : callable, optional
             ``hour_meter(first_time_s)``: the machine's hour meter along the data
             (:class:`~online_backlash.hour_meter.HourMeter`), asked for only when there are samples to
@@ -787,7 +787,7 @@ class TrackerState:
         """The state saved in a gearbox's checkpoint, or a new one (with these parameters) if None.
 
         A new gearbox whose first chunk ``first`` has a torque column gets the torque-aware
-        estimator (:func:`~online_backlash.fitting.recursive_estimator`, with ``play_method``); a saved
+        estimator (:func:`~online_backlash.log_fit.recursive_estimator`, with ``play_method``); a saved
         one keeps its class and its path (a checkpoint written before issue 27 gets a new
         :class:`~online_backlash.load_aware.PlayChooser` with ``play_method``).
 
@@ -835,7 +835,7 @@ class TrackerState:
         self.usage.mark_gap()
 
     def store_row(self, row: EstimateRow, sample_index: int, time_unix_s: float) -> dict[str, Any]:
-        """An estimate as a row of the store's ``estimates`` table (:data:`~online_backlash.rows.STORE_COLUMNS`)."""
+        """An estimate as a row of the store's ``estimates`` table (:data:`~online_backlash.output_columns.STORE_COLUMNS`)."""
         usage = {
             "operating_hours": self.usage.operating_hours,
             "load_revolutions": self.usage.load_revolutions,

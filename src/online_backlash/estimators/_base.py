@@ -2,7 +2,7 @@
 
 :class:`RecursiveEstimator` holds the parameters every recursive estimator shares, the warm-up
 buffer, the dispatch of ``learn_one`` (interpreted) and ``learn_many`` (compiled), gaps (which
-are bridged and which restart: ``gap_policy``, :class:`~online_backlash.bridging.GapPolicy`; the
+are bridged and which restart: ``gap_policy``, :class:`~online_backlash.gap_policy.GapPolicy`; the
 tally ``gaps_``), the saved state and ``clone``; an estimator fills in the hooks it declares abstract (its own
 parameters, warm fit, start, the two learning paths, its attributes). All state is created in
 :meth:`RecursiveEstimator.reset` (called by ``__init__``); the parameters are validated on the
@@ -32,9 +32,9 @@ from typing import Any, Generic, TypeVar
 
 import numpy as np
 
-from ..bridging import UNKNOWN, GapPolicy, GapTally
 from ..effect_terms import EffectTerms
 from ..errors import InvalidParameterError, NotExcitedError, NotFittedError
+from ..gap_policy import UNKNOWN, GapPolicy, GapTally
 from ._effect_stream import EffectStream, check_effects, effects_from_records
 from ._validation import check_int, check_magnitude, check_option, check_real
 
@@ -159,7 +159,7 @@ class RecursiveEstimator(ABC):
     gaps_ : GapTally
         The gaps flagged (``after_gap``) since the estimator was made, reset or restored from a
         saved state (like a source's counters, a run's own): count, longest and total time step
-        across them (s) and how many were bridged (:class:`~online_backlash.bridging.GapTally`).
+        across them (s) and how many were bridged (:class:`~online_backlash.gap_policy.GapTally`).
         The last sample's time and angles, which decide whether the next gap is bridged, are
         saved with the state (:meth:`state_dict`), so a resumed run bridges a gap right after
         its checkpoint.
@@ -172,7 +172,7 @@ class RecursiveEstimator(ABC):
     warm_start_samples: int
     origin: str
     noise_window: int
-    #: Which gaps are bridged (None: the default :class:`~online_backlash.bridging.GapPolicy`)
+    #: Which gaps are bridged (None: the default :class:`~online_backlash.gap_policy.GapPolicy`)
     gap_policy: GapPolicy | None = None
     effects: Sequence[EffectTerms] | None = None
     #: True for an estimator whose model needs the torque of every sample (``_learn_arrays`` then gets it without effects)

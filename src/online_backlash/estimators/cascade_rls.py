@@ -16,8 +16,8 @@ from typing import Any
 
 import numpy as np
 
-from ..bridging import GapPolicy
 from ..errors import NotFittedError
+from ..gap_policy import GapPolicy
 from ..model import BacklashParams
 from . import _rls_kernels as K
 from ._base import RecursiveEstimator, finite, memory_factors

@@ -96,8 +96,8 @@ from sqlalchemy.engine import URL, Engine, make_url
 from sqlalchemy.exc import ArgumentError, DBAPIError, SQLAlchemyError
 
 from ..errors import HistoryError
+from ..output_columns import FIELDS, STORE_KEYS
 from ..physical import figure_verdict
-from ..rows import FIELDS, STORE_KEYS
 from .alarms import check_alarm_levels
 
 APPLICATION = "online-backlash"
@@ -237,7 +237,7 @@ runs_table = Table(
     UniqueConstraint("gearbox_id", "log_sha256", name="uq_runs_gearbox_log"),
 )
 
-#: SQL type of each kind of estimate column (online_backlash.rows.RowField.kind).
+#: SQL type of each kind of estimate column (online_backlash.output_columns.RowField.kind).
 _SQL_TYPES: dict[type, Any] = {float: Double, int: BigInteger, bool: Boolean, str: Text}
 
 
@@ -255,7 +255,7 @@ estimates_table = Table(
     Column("id", Integer, primary_key=True, autoincrement=True),
     Column("gearbox_id", String(200), ForeignKey("gearboxes.id"), nullable=False, index=True),
     Column("run_id", Integer, ForeignKey("runs.id"), nullable=False),
-    # the estimate's columns, declared once in online_backlash.rows
+    # the estimate's columns, declared once in online_backlash.output_columns
     *(_estimate_column(k) for k in STORE_KEYS),
     UniqueConstraint("run_id", "sample_index", name="uq_estimates_run_sample"),
 )

@@ -15,12 +15,12 @@ from typing import Any
 
 import numpy as np
 
-from ..bridging import GapPolicy
 from ..errors import InvalidParameterError, NotExcitedError
 from ..estimators._base import RecursiveEstimator, StateField, finite_array, memory_factors
 from ..estimators._layout import pack
 from ..estimators._validation import check_real
 from ..estimators.uncertainty import CyclePlays, OutputNoise, model_misfit
+from ..gap_policy import GapPolicy
 from . import _torque_kernel as K
 from .engagement import DEADBAND_SIGMAS, engaged_flank
 from .flank_lines import (
