@@ -91,7 +91,8 @@ def main() -> None:
             d = diagnosed(DATA / RUNS[run], change, args.blas_threads)
             terms = [e["name"] for e in d["effects"]] + [f"unexplained {e['name']}" for e in d["unexplained"]]
             print(
-                f"| {run} | {change:g} | {', '.join(terms)} | {d['rms_after_deg']:.6f} | {d['backlash_after_deg']:.6f} |"
+                f"| {run} | {change:g} | {', '.join(terms)} | {d['rms_after_deg']:.6f} | "
+                f"{d['backlash_after_deg']:.6f} |"
             )
 
 

@@ -133,7 +133,8 @@ def test_worst_state_puts_unknown_between_warning_and_alarm():
         (
             AlarmStatus("alarm", "", 22.3, 0.0, 18.0, 21.0, 0.0),
             "exceeded since 2026-11-20T08:00:00+00:00",
-            "BACKLASH CRITICAL - GB-7 play 22.3 arcmin, limit 21 exceeded since 2026-11-20T08:00:00+00:00 | play_arcmin=22.3;18;21",
+            "BACKLASH CRITICAL - GB-7 play 22.3 arcmin, limit 21 exceeded since 2026-11-20T08:00:00+00:00 | "
+            "play_arcmin=22.3;18;21",
         ),
         (
             AlarmStatus("unknown", "no observable estimate", None, None, 18.0, 21.0),

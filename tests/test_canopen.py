@@ -65,9 +65,9 @@ def write_eds(
     second: list[tuple[int, int]] | None = None,
     factor_group: dict[int, tuple[int, int]] | None = None,
 ) -> Path:
-    """A servo drive's EDS written by ``canopen.export_od``: TPDO1 (COB-ID $NODEID+0x180) maps ``mapped`` objects (32 bits each),
-    TPDO2 ($NODEID+0x280) the ``second`` ones, both of transmission type ``trans_type``; ``factor_group`` gives the
-    CiA 402 ratio objects 0x6091 (gear ratio) and 0x6092 (feed constant) as (sub 1, sub 2)."""
+    """A servo drive's EDS written by ``canopen.export_od``: TPDO1 (COB-ID $NODEID+0x180) maps ``mapped`` objects (32
+    bits each), TPDO2 ($NODEID+0x280) the ``second`` ones, both of transmission type ``trans_type``; ``factor_group``
+    gives the CiA 402 ratio objects 0x6091 (gear ratio) and 0x6092 (feed constant) as (sub 1, sub 2)."""
     od = canopen.ObjectDictionary()
     u8, u32, i32 = datatypes.UNSIGNED8, datatypes.UNSIGNED32, datatypes.INTEGER32
     if sync:
@@ -151,7 +151,8 @@ def write_eds(
 
 
 class HardwareClock:
-    """The bus a canopen Network sends through, stamping each frame with the simulated time (as an adapter's hardware clock)."""
+    """The bus a canopen Network sends through, stamping each frame with the simulated time (as an adapter's hardware
+    clock)."""
 
     def __init__(self, bus: can.BusABC) -> None:
         self.bus = bus
@@ -174,7 +175,8 @@ def counts(angle_deg: np.ndarray, cpr: int) -> np.ndarray:
 
 
 class Rig:
-    """Drives (canopen ``LocalNode``) on a virtual bus sending their TPDO after each SYNC of the test's SYNC producer."""
+    """Drives (canopen ``LocalNode``) on a virtual bus sending their TPDO after each SYNC of the test's SYNC
+    producer."""
 
     def __init__(self, channel: str, nodes: dict[int, Path]) -> None:
         self.tx = can.Bus(interface="virtual", channel=channel, preserve_timestamps=True)
@@ -211,8 +213,9 @@ class Rig:
         on_change: bool = False,
         t0: float = 1.7e9,
     ) -> None:
-        """Event-driven TPDOs, no SYNC: at sample k each node sends every TPDO on its own timer (``offsets_s[node]`` after the
-        sample, 10 us between its PDOs) or, ``on_change``, only the PDOs whose value changed since they were last sent."""
+        """Event-driven TPDOs, no SYNC: at sample k each node sends every TPDO on its own timer (``offsets_s[node]``
+        after the sample, 10 us between its PDOs) or, ``on_change``, only the PDOs whose value changed since they were
+        last sent."""
         sent: dict[tuple[int, int], list[int]] = {}
         for k, t in enumerate(rec.time_s.tolist()):
             for node_id, node in self.nodes.items():
@@ -251,7 +254,8 @@ def record(channel: str, send, path: Path, extra: list[can.Message] = ()) -> lis
 def drives(tmp_path_factory) -> dict[str, Path]:
     folder = tmp_path_factory.mktemp("eds")
     return {
-        # motor drive: 0x6064 and the load encoder on 0x60E4.1 in one TPDO; 0x608F gives the motor's counts per revolution
+        # motor drive: 0x6064 and the load encoder on 0x60E4.1 in one TPDO; 0x608F gives the motor's counts per
+        # revolution
         "both": write_eds(folder / "drive_both.eds", 3, [(0x6064, 0), (0x60E4, 1)], resolution=2**MOTOR_BITS),
         # two identical drives (one EDS): node 3 the motor, node 4 an encoder on the load shaft
         "motor": write_eds(folder / "drive.eds", 3, [(0x6064, 0)], resolution=2**MOTOR_BITS),
@@ -300,7 +304,8 @@ def test_the_eds_is_the_library_s_and_the_mapping_comes_from_it(drives):
 
 
 def test_a_dcf_s_parameter_values_win_over_the_eds_defaults(tmp_path, drives):
-    """A DCF (the drive as commissioned) written by ``canopen.export_od``: its COB-ID and resolution are the ones used."""
+    """A DCF (the drive as commissioned) written by ``canopen.export_od``: its COB-ID and resolution are the ones
+    used."""
     od = canopen.import_od(str(drives["both"]), 3)
     od[0x1800][1].value = 0x283
     od[0x608F][1].value = 4000
@@ -606,8 +611,10 @@ def test_a_feed_constant_at_its_unit_default_takes_the_encoder_resolution(tmp_pa
     )
     err = capsys.readouterr().err
     assert err == (
-        f"error: {e35_like['no_resolution']}: node 3: no counts per revolution in the dictionary (the feed constant 0x6092 is 1/1, "
-        "the unit default, and no position encoder resolution 0x608F; a set feed constant 0x6092 / gear ratio 0x6091 would give "
+        f"error: {e35_like['no_resolution']}: node 3: no counts per revolution in the dictionary (the feed constant "
+        "0x6092 is 1/1, "
+        "the unit default, and no position encoder resolution 0x608F; a set feed constant 0x6092 / gear ratio "
+        "0x6091 would give "
         "them): give --motor-cpr\n"
     )
 
@@ -694,7 +701,8 @@ def test_sync_pipeline_frame_by_frame_counts_every_frame(drives):
 
 
 def test_track_listen_can_opens_the_canopen_source(tmp_path, capsys, drives):
-    """``track --listen can --eds``: the CANopen live source on the bus (here a silent one: the timeout says where it listened)."""
+    """``track --listen can --eds``: the CANopen live source on the bus (here a silent one: the timeout says where it
+    listened)."""
     argv = [
         "track",
         "--listen",
@@ -760,7 +768,8 @@ def _fuzz(pipe, frames) -> None:
     assert c.frames == len(frames) == c.skipped + c.corrupt + c.unpaired + pipe.frames_per_sample * c.samples
 
 
-# -- event-driven TPDOs (transmission type 254/255): no SYNC, paired in time as the DBC path pairs two messages ---------
+# -- event-driven TPDOs (transmission type 254/255): no SYNC, paired in time as the DBC path pairs two messages
+# ---------
 
 
 @pytest.fixture(scope="module")
@@ -869,7 +878,8 @@ def test_event_driven_tpdos_sent_on_change_count_what_cannot_pair(tmp_path, caps
 
 
 def test_event_driven_pairing_frame_by_frame(event_drives):
-    """The DBC path's pairing rules on PDOs: within max_skew_s a pair, an orphan replaced, SYNC and others skipped, a short PDO corrupt."""
+    """The DBC path's pairing rules on PDOs: within max_skew_s a pair, an orphan replaced, SYNC and others skipped, a
+    short PDO corrupt."""
     layout = CanopenLayout.from_files(event_drives["motor"], 3, load_node=4, load_eds=event_drives["load"])
     assert layout.event_driven and layout.names() == {
         0x183: "TxPDO1_node3: 0x6064.0 Position actual value (motor: 0x6064.0 Position actual value)",
@@ -902,8 +912,8 @@ def test_event_driven_pairing_frame_by_frame(event_drives):
 
 
 def test_inspect_lists_the_tpdo_mapping_of_several_nodes(tmp_path, capsys, rec, drives, event_drives):
-    """``inspect --eds A --node 3 --eds B --node 4``: each node's TPDOs from its own dictionary (no log needed), and with
-    a log its COB-IDs named by them; one --eds serves every --node of identical drives."""
+    """``inspect --eds A --node 3 --eds B --node 4``: each node's TPDOs from its own dictionary (no log needed), and
+    with a log its COB-IDs named by them; one --eds serves every --node of identical drives."""
     nodes = ["--eds", str(event_drives["split"]), "--node", "3", "--eds", str(drives["load"]), "--node", "4"]
     assert main(["inspect", *nodes, "--json"]) == 0
     listed = {n["node"]: n for n in json.loads(capsys.readouterr().out)["nodes"]}

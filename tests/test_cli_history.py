@@ -205,8 +205,8 @@ def test_track_ratio_contradicting_the_store(capsys, history_db, short_log):
     code, _, err = run_cli(capsys, "track", short_log, "--ratio", 35, "--db", history_db, "--gearbox", "g1")
     assert code == 1
     assert (
-        err
-        == "error: gearbox 'g1' is stored with ratio 30; --ratio 35 contradicts it (use another gearbox id for another gearbox)\n"
+        err == "error: gearbox 'g1' is stored with ratio 30; --ratio 35 contradicts it (use another gearbox id for "
+        "another gearbox)\n"
     )
     assert dump(history_db) == before
 

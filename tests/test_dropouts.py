@@ -133,7 +133,8 @@ def test_gap_policy_settings_are_checked(bad):
 
 
 def _burst_times(time_s: np.ndarray, rng: np.random.Generator) -> np.ndarray:
-    """Host timestamps of a USB adapter: each sample stamped at the end of its 1-5 ms burst, frames of a burst 10 us apart."""
+    """Host timestamps of a USB adapter: each sample stamped at the end of its 1-5 ms burst, frames of a burst 10 us
+    apart."""
     ends = np.cumsum(rng.integers(1, 6, size=time_s.size) * 1e-3)
     burst = np.searchsorted(ends, time_s + 1e-9)
     stamped = ends[np.minimum(burst, ends.size - 1)]

@@ -138,8 +138,10 @@ def test_manifest_keys_are_track_options_with_underscores(tmp_path):
     write_simulated_fleet(tmp_path, gearboxes=1, logs=2)
     path = tmp_path / "m.toml"
     path.write_text(
-        '[defaults]\nratio = -30\nskip_bad_rows = true\ndiagnose = false\n\n[[gearbox]]\nid = "GB-0"\nlogs = ["gb0/day01.csv", "gb0/day00.csv"]\n'
-        'columns = { time = "time_s", motor = "motor_deg", load = "load_deg" }\nwarn_arcmin = 18\nlimit_arcmin = 21\nmemory_reversals = 40\n'
+        '[defaults]\nratio = -30\nskip_bad_rows = true\ndiagnose = false\n\n[[gearbox]]\nid = "GB-0"\n'
+        'logs = ["gb0/day01.csv", "gb0/day00.csv"]\n'
+        'columns = { time = "time_s", motor = "motor_deg", load = "load_deg" }\nwarn_arcmin = 18\n'
+        "limit_arcmin = 21\nmemory_reversals = 40\n"
     )
     seen = []
 
@@ -156,8 +158,9 @@ def test_manifest_keys_are_track_options_with_underscores(tmp_path):
     assert job.id == "GB-0" and job.logs == (str(tmp_path / "gb0" / "day01.csv"), str(tmp_path / "gb0" / "day00.csv"))
     assert seen == [list(job.argv)]
     assert job.argv == (
-        "--db", "w.db", "--gearbox=GB-0", "--ratio=-30", "--skip-bad-rows", "--columns=time=time_s,motor=motor_deg,load=load_deg",
-        "--warn-arcmin=18", "--limit-arcmin=21", "--memory-reversals=40", "--", *job.logs,
+        "--db", "w.db", "--gearbox=GB-0", "--ratio=-30", "--skip-bad-rows",
+        "--columns=time=time_s,motor=motor_deg,load=load_deg", "--warn-arcmin=18", "--limit-arcmin=21",
+        "--memory-reversals=40", "--", *job.logs,
     )  # fmt: skip
 
 
@@ -431,7 +434,8 @@ def test_track_takes_the_raw_log_folder_listen_wrote(tmp_path, capsys):
 
 
 def test_runs_of_an_older_store_keyed_by_the_files_bytes_are_found(tmp_path, two_days):
-    """A store written when a log's key was its file's SHA-256: its interrupted run resumes, its complete one is complete."""
+    """A store written when a log's key was its file's SHA-256: its interrupted run resumes, its complete one is
+    complete."""
     from online_backlash.replay import open_log
     from online_backlash.tracking import file_sha256, log_clock
 

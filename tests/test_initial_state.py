@@ -268,7 +268,8 @@ def test_the_measured_run49_start_is_a_kick_from_rest_that_waits_in_the_gap(caps
     assert 0.005 <= state["starts_moving_after_s"] <= 0.012
     assert state["stops_after_s"] < 0.05 and 100 <= state["samples"] <= 200
     assert state["rms_at_rest_deg"] > 0.5 and state["rms_deg"] < 0.1
-    # the steps' figures take the start as the whole does: each step starts where the last ended, the last ends at the whole's
+    # the steps' figures take the start as the whole does: each step starts where the last ended, the last ends at the
+    # whole's
     steps = out["effects"] + out["unexplained"]
     assert steps and steps[0]["rms_before_deg"] == out["rms_before_deg"]
     assert all(a["rms_after_deg"] == b["rms_before_deg"] for a, b in itertools.pairwise(steps))

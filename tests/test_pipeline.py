@@ -164,9 +164,10 @@ def test_the_contracts_keep_their_names_and_order():
         "m_right",
     )
     assert REPORT_KEYS == (
-        "backlash_deg", "backlash_arcmin", "c_left_deg", "c_right_deg", "m_left", "m_right", "samples", "residual_rms_deg", "method",
-        "play_observable", "torque_reversals", "backlash_lower_bound_deg", "stiffness_nm_per_arcmin", "stiffness_left_nm_per_arcmin",
-        "stiffness_right_nm_per_arcmin", "lost_motion_arcmin", "hysteresis_loss_arcmin",
+        "backlash_deg", "backlash_arcmin", "c_left_deg", "c_right_deg", "m_left", "m_right", "samples",
+        "residual_rms_deg", "method", "play_observable", "torque_reversals", "backlash_lower_bound_deg",
+        "stiffness_nm_per_arcmin", "stiffness_left_nm_per_arcmin", "stiffness_right_nm_per_arcmin",
+        "lost_motion_arcmin", "hysteresis_loss_arcmin",
         # issue 27: the path of the play and the verdict on it
         "backlash_upper_bound_deg", "reason", "play_method", "play_method_reason",
     )  # fmt: skip

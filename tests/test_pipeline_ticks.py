@@ -196,7 +196,8 @@ def test_the_compiled_referral_gives_the_numbers_of_sample_chunk_referred(dtype,
     """The pipeline divides and checks in one compiled pass: the same ``u`` as ``SampleChunk.referred``, bit for bit,
     whatever the motor column's dtype (numpy divides float32 in float32) and layout, with and without rows."""
     chunk = simulate_rig(duration_s=15.0, ratio=30.0, seed=3).to_chunk()
-    motor = {"float64": chunk.motor_deg, "float32": chunk.motor_deg.astype(np.float32), "int64": np.rint(chunk.motor_deg * 100).astype(np.int64),
+    motor = {"float64": chunk.motor_deg, "float32": chunk.motor_deg.astype(np.float32),
+             "int64": np.rint(chunk.motor_deg * 100).astype(np.int64),
              "strided": np.repeat(chunk.motor_deg, 2)[::2]}[dtype]  # fmt: skip
     source = SampleChunk(chunk.time_s, motor, chunk.load_deg, chunk.torque_Nm, chunk.after_gap)
     want = np.asarray(source.referred(ratio)[0], dtype=float)

@@ -177,7 +177,8 @@ def test_the_registry_names_every_python_can_log_format_without_importing_python
 
 # -- time from the counter ----------------------------------------------------------------------
 def burst_times(n: int, rng: np.random.Generator) -> np.ndarray:
-    """Host timestamps of a USB adapter at 1 kHz: each sample stamped at the end of its 1-5 ms burst (frames 20 us apart)."""
+    """Host timestamps of a USB adapter at 1 kHz: each sample stamped at the end of its 1-5 ms burst (frames 20 us
+    apart)."""
     ends = np.cumsum(rng.integers(1, 6, size=n) * 1e-3)
     nominal = np.arange(n) * 1e-3
     burst = np.searchsorted(ends, nominal + 1e-9)
@@ -354,7 +355,10 @@ def test_parse_wrap_deg_for_both_or_per_signal():
         wrap_per_signal({"torque": 360.0})
 
 
-SHAFTS = 'BO_ 256 Angles: 8 RIG\n SG_ Motor : 0|32@1- (0.001,0) [-2000000|2000000] "{unit}" RIG\n SG_ Load : 32|16@1+ (0.01,0) [0|655.35] "{unit}" RIG\n'
+SHAFTS = (
+    'BO_ 256 Angles: 8 RIG\n SG_ Motor : 0|32@1- (0.001,0) [-2000000|2000000] "{unit}" RIG\n'
+    ' SG_ Load : 32|16@1+ (0.01,0) [0|655.35] "{unit}" RIG\n'
+)
 
 
 def shaft_frames(db, rec):

@@ -1,8 +1,8 @@
 """Wear against the machine's own clock (issue 28): the hour meter given or recorded, the trend's clock, snapshot
 logs one point each, the forecast in machine hours and as a date, one wording for every reader, old stores.
 
-The logs are written by :mod:`online_backlash.simulation.wear_logs` from the two-mass rig (a compliant drive with contact
-dynamics, not the model the estimator assumes) or the simulated rig, and tracked through the command line.
+The logs are written by :mod:`online_backlash.simulation.wear_logs` from the two-mass rig (a compliant drive with
+contact dynamics, not the model the estimator assumes) or the simulated rig, and tracked through the command line.
 """
 
 from __future__ import annotations
@@ -229,7 +229,8 @@ def test_regular_and_irregular_snapshots_give_the_same_forecast_within_its_inter
         low, high = d["forecast_hours_to_limit_interval"]
         # Within 10 % of the truth (issue 28). The interval is the trend's scatter, not the estimator's bias: since
         # the flank lines are fitted where fully engaged (issue 27) the snapshots' plays scatter 0.025 arcmin about a
-        # bias of -0.22 arcmin (it was 0.11 about the same bias), so the truth can fall just outside (docs/benchmarks.md).
+        # bias of -0.22 arcmin (it was 0.11 about the same bias), so the truth can fall just outside
+        # (docs/benchmarks.md).
         assert low <= d["forecast_hours_to_limit"] <= high
         assert d["forecast_hours_to_limit"] == pytest.approx(true_hours, rel=0.10)
         at_limit.append(last["machine_hours"] + d["forecast_hours_to_limit"])  # the hour meter's reading at the limit

@@ -509,7 +509,8 @@ def _load_lines(report: BacklashReport) -> list[str]:
         lines.append(f"torque:         {report.torque_reversals} reversals through a dead band of {deadband:.4g} N m")
     if report.stiffness_nm_per_arcmin is not None:
         lines.append(
-            f"stiffness:      {report.stiffness_nm_per_arcmin:.4g} N m/arcmin (left {_fmt(report.stiffness_left_nm_per_arcmin)}, "
+            f"stiffness:      {report.stiffness_nm_per_arcmin:.4g} N m/arcmin (left "
+            f"{_fmt(report.stiffness_left_nm_per_arcmin)}, "
             f"right {_fmt(report.stiffness_right_nm_per_arcmin)})"
         )
     fitted = values.get("stiffness_segments_fitted") or []

@@ -103,7 +103,8 @@ FIELDS: dict[str, RowField] = {
             "play_observable",
             bool,
             "",
-            "the data show the play: the torque reversed (with torque), or the load held still while the motor crossed the gap (without)",
+            "the data show the play: the torque reversed (with torque), or the load held still while the motor "
+            "crossed the gap (without)",
         ),
         _field(
             "torque_reversals",
@@ -172,7 +173,8 @@ FIELDS: dict[str, RowField] = {
             "lost_motion_arcmin",
             float,
             "arcmin",
-            "width of the hysteresis curve at +-3 % of the rated torque (else at the smaller peak torque of the two directions)",
+            "width of the hysteresis curve at +-3 % of the rated torque (else at the smaller peak torque of the two "
+            "directions)",
             nullable=True,
         ),
         _field(
@@ -271,7 +273,8 @@ REPORT_KEYS = _view(
 )
 #: Columns of the estimate-over-time trace (``estimate --trace``), in this order.
 TRACE_COLUMNS = _view("time_s", "backlash_deg", "backlash_std_deg", "c_left_deg", "c_right_deg", "m_left", "m_right")
-#: Columns of the store's ``estimates`` table that a tracker writes (besides ``gearbox_id``, ``run_id``), in table order.
+#: Columns of the store's ``estimates`` table that a tracker writes (besides ``gearbox_id``, ``run_id``), in table
+#: order.
 STORE_KEYS = (
     "sample_index",
     "time_unix_s",

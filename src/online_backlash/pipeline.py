@@ -172,8 +172,8 @@ class DataClock:
         prev = math.nan if self.prev_time_s is None else self.prev_time_s
         has_due = self.next_due_ns is not None
         ends, dues, data_ns, next_ns = _cut(
-            np.ascontiguousarray(time_s, dtype=float), np.ascontiguousarray(after_gap, dtype=np.bool_), prev, self.data_ns, has_due,
-            self.next_due_ns or 0, self.every_ns or 0,
+            np.ascontiguousarray(time_s, dtype=float), np.ascontiguousarray(after_gap, dtype=np.bool_),
+            prev, self.data_ns, has_due, self.next_due_ns or 0, self.every_ns or 0,
         )  # fmt: skip
         return ends, dues, data_ns, next_ns, has_due
 

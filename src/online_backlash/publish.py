@@ -311,7 +311,8 @@ class MqttPublisher:
         return self
 
     def close(self) -> None:
-        """Say ``offline`` (retained; waited for up to ``connect_wait_s``), disconnect cleanly, stop the network thread."""
+        """Say ``offline`` (retained; waited for up to ``connect_wait_s``), disconnect cleanly, stop the network
+        thread."""
         self._closing = True
         if self._connected.is_set():
             message = status_message(self.gearbox_id, "offline", "stopped")

@@ -84,7 +84,8 @@ class WearReport:
         }
 
     def status_dict(self) -> dict:
-        """``state``, ``state_reason``, ``play_arcmin``, ``warn_arcmin``, ``limit_exceeded_since`` (ISO, UTC), ``checked_at``."""
+        """``state``, ``state_reason``, ``play_arcmin``, ``warn_arcmin``, ``limit_exceeded_since`` (ISO, UTC),
+        ``checked_at``."""
         s = self.status
         return {
             "state": s.state,
@@ -171,7 +172,8 @@ def wear_report(
         check_alarm_levels(warn, limit)
     except InvalidParameterError as exc:
         raise InvalidParameterError(
-            f"gearbox {gearbox.id!r} in {store.name}: {exc} (store valid levels with track --warn-arcmin/--limit-arcmin)"
+            f"gearbox {gearbox.id!r} in {store.name}: {exc} (store valid levels with track "
+            "--warn-arcmin/--limit-arcmin)"
         ) from exc
     names = ("time_unix_s", "operating_hours", "load_revolutions", "backlash_deg", "backlash_std_deg", "machine_hours")
     arrays = {name: estimate_column(estimates, name) for name in names}

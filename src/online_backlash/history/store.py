@@ -166,10 +166,10 @@ def _add_play_method(conn: Connection) -> None:
     """Version 4 -> 5: each estimate's path and verdict (issue 27), and the verdict of the plays stored before.
 
     Adds ``play_method``, ``play_method_reason``, ``reason``, ``backlash_lower_bound_deg`` and
-    ``backlash_upper_bound_deg`` (NULL: not known). Then applies the rule of :mod:`online_backlash.physical` to every stored play:
-    a play below zero, or whose standard error exceeds half its value, was never a play -- its
-    ``backlash_deg`` becomes NULL, ``play_observable`` false, and ``reason`` keeps what it was
-    (the encoders' resolution of those rows is not known, so a measured zero is not told apart here).
+    ``backlash_upper_bound_deg`` (NULL: not known). Then applies the rule of :mod:`online_backlash.physical` to every
+    stored play: a play below zero, or whose standard error exceeds half its value, was never a play -- its
+    ``backlash_deg`` becomes NULL, ``play_observable`` false, and ``reason`` keeps what it was (the encoders' resolution
+    of those rows is not known, so a measured zero is not told apart here).
     """
     _add_estimate_columns(
         conn, ("play_method", "play_method_reason", "reason", "backlash_lower_bound_deg", "backlash_upper_bound_deg")
@@ -456,8 +456,8 @@ class HistoryStore:
             engine = create_engine(url)
         except ImportError as exc:  # the database driver is an extra: say which one
             raise HistoryError(
-                f"{self.name}: {url.get_backend_name()} needs the driver {exc.name or 'psycopg'}, which is not installed; "
-                "pip install 'online-backlash[postgres]'"
+                f"{self.name}: {url.get_backend_name()} needs the driver {exc.name or 'psycopg'}, which is not "
+                "installed; pip install 'online-backlash[postgres]'"
             ) from exc
         if self._sqlite:
             # pysqlite opens transactions lazily and not before DDL; take over BEGIN so that every
@@ -725,7 +725,8 @@ class HistoryStore:
             ).rowcount
             if moved != 1 or advanced != 1:
                 raise HistoryError(
-                    f"gearbox {gearbox.id!r} was updated by another process meanwhile; track one source per gearbox at a time"
+                    f"gearbox {gearbox.id!r} was updated by another process meanwhile; track one source per gearbox "
+                    "at a time"
                 )
             if rows:
                 conn.execute(estimates_table.insert(), rows)
