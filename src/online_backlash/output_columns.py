@@ -273,22 +273,11 @@ REPORT_KEYS = _view(
 )
 #: Columns of the estimate-over-time trace (``estimate --trace``), in this order.
 TRACE_COLUMNS = _view("time_s", "backlash_deg", "backlash_std_deg", "c_left_deg", "c_right_deg", "m_left", "m_right")
-#: Columns of the store's ``estimates`` table that a tracker writes (besides ``gearbox_id``, ``run_id``), in table
-#: order.
-STORE_KEYS = (
-    "sample_index",
-    "time_unix_s",
-    "backlash_deg",
-    "backlash_std_deg",
-    "c_left_deg",
-    "c_right_deg",
-    "m_left",
-    "m_right",
-    "residual_rms_deg",
-    "n_samples",
-    "operating_hours",
-    "load_revolutions",
-    "reversals",
+#: The fitted lines of eq. (1), their one-step residual and the samples learned: in this order in the store's table
+#: and in ``history --csv``.
+_FIT_KEYS = ("c_left_deg", "c_right_deg", "m_left", "m_right", "residual_rms_deg", "n_samples")
+#: The columns the store gained from schema 3 on, in the order its table and ``history --csv`` both carry them.
+_SINCE_SCHEMA_3 = (
     # schema 3: the load condition of each estimate (the wear trend uses only observable ones)
     "play_observable",
     "torque_mean_nm",
@@ -304,6 +293,19 @@ STORE_KEYS = (
     "backlash_lower_bound_deg",
     "backlash_upper_bound_deg",
 )
+#: Columns of the store's ``estimates`` table that a tracker writes (besides ``gearbox_id``, ``run_id``), in table
+#: order.
+STORE_KEYS = (
+    "sample_index",
+    "time_unix_s",
+    "backlash_deg",
+    "backlash_std_deg",
+    *_FIT_KEYS,
+    "operating_hours",
+    "load_revolutions",
+    "reversals",
+    *_SINCE_SCHEMA_3,
+)
 STORE_COLUMNS = _view(*STORE_KEYS)
 #: Columns of ``history --csv``, in this order.
 HISTORY_CSV_COLUMNS = _view(
@@ -316,27 +318,11 @@ HISTORY_CSV_COLUMNS = _view(
     "backlash_std_deg",
     "backlash_arcmin",
     "backlash_std_arcmin",
-    "c_left_deg",
-    "c_right_deg",
-    "m_left",
-    "m_right",
-    "residual_rms_deg",
-    "n_samples",
+    *_FIT_KEYS,
     "run_id",
     "sample_index",
-    "play_observable",
-    "torque_mean_nm",
-    "torque_rms_nm",
-    "torque_reversals",
-    "stiffness_nm_per_arcmin",
-    "machine_hours",
-    "play_method",
-    "play_method_reason",
-    "reason",
-    "backlash_lower_bound_deg",
-    "backlash_upper_bound_deg",
+    *_SINCE_SCHEMA_3,
 )
-
 
 #: The source's counters in every result (``estimate --json``, ``track``, ``diagnose``), in this order.
 COUNTER_KEYS = _view("frames", "samples", "corrupt", "skipped", "gaps", "unpaired")
