@@ -265,6 +265,16 @@ def drives(tmp_path_factory) -> dict[str, Path]:
     }
 
 
+def one_drive(eds: Path, load_cpr: int = 2**LOAD_BITS) -> list[str]:
+    """The options of a log of one drive, node 3, whose load encoder (0x60E4.1) has ``load_cpr`` counts per turn."""
+    return ["--eds", str(eds), "--node", "3", "--load-cpr", str(load_cpr)]
+
+
+def two_drives(motor_eds: Path, load_eds: Path) -> list[str]:
+    """The options of a log of two drives: the motor's, node 3, and the load encoder's, node 4, each its dictionary."""
+    return ["--eds", str(motor_eds), "--node", "3", "--load-node", "4", "--load-eds", str(load_eds)]
+
+
 def one_node_values(rec: RigRecording) -> dict[tuple[int, int, int], list[int]]:
     return {
         (3, 0x6064, 0): int32(counts(rec.motor_deg, 2**MOTOR_BITS)),
@@ -325,19 +335,7 @@ def test_estimate_a_recorded_log_of_one_drive_with_0x60e4(tmp_path, capsys, rec,
     finally:
         rig.close()
     assert len(frames) == 2 * rec.time_s.size
-    argv = [
-        "estimate",
-        str(log),
-        "--eds",
-        str(drives["both"]),
-        "--node",
-        "3",
-        "--load-cpr",
-        str(2**LOAD_BITS),
-        "--ratio",
-        "30",
-        "--json",
-    ]
+    argv = ["estimate", str(log), *one_drive(drives["both"]), "--ratio", "30", "--json"]
     assert main(argv) == 0
     out = json.loads(capsys.readouterr().out)
     assert out["backlash_deg"] == pytest.approx(0.5, abs=0.02)
@@ -383,21 +381,7 @@ def test_a_second_node_as_load_encoder_and_damaged_frames_counted(tmp_path, caps
     with can.Logger(str(log)) as writer:
         for msg in frames:
             writer.on_message_received(msg)
-    argv = [
-        "estimate",
-        str(log),
-        "--eds",
-        str(drives["motor"]),
-        "--node",
-        "3",
-        "--load-node",
-        "4",
-        "--load-eds",
-        str(drives["load"]),
-        "--ratio",
-        "30",
-        "--json",
-    ]
+    argv = ["estimate", str(log), *two_drives(drives["motor"], drives["load"]), "--ratio", "30", "--json"]
     assert main(argv) == 0
     out = json.loads(capsys.readouterr().out)
     assert out["backlash_deg"] == pytest.approx(0.5, abs=0.02)
@@ -438,24 +422,7 @@ def test_a_second_node_as_load_encoder_and_damaged_frames_counted(tmp_path, caps
     assert main(["diagnose", str(log), *nodes, "--ratio", "30", "--json"]) == 0
     assert json.loads(capsys.readouterr().out)["corrupt"] == 1
     # the CAN IDs of inspect, named by the dictionaries
-    assert (
-        main(
-            [
-                "inspect",
-                str(log),
-                "--eds",
-                str(drives["motor"]),
-                "--node",
-                "3",
-                "--load-node",
-                "4",
-                "--load-eds",
-                str(drives["load"]),
-                "--json",
-            ]
-        )
-        == 0
-    )
+    assert main(["inspect", str(log), *two_drives(drives["motor"], drives["load"]), "--json"]) == 0
     ids = {i["id"]: i for i in json.loads(capsys.readouterr().out)["can_ids"]}
     assert ids["0x080"]["message"] == "SYNC" and ids["0x080"]["frames"] == n - 1
     assert ids["0x183"]["message"] == "TxPDO1_node3: 0x6064.0 Position actual value"
@@ -488,12 +455,7 @@ def test_listen_can_live_on_a_virtual_bus_replays_to_the_same_estimate(
         "virtual",
         "--channel",
         channel,
-        "--eds",
-        str(eds),
-        "--node",
-        "3",
-        "--load-cpr",
-        str(2**LOAD_BITS),
+        *one_drive(eds),
         "--ratio",
         "30",
         "--raw-log",
@@ -507,24 +469,7 @@ def test_listen_can_live_on_a_virtual_bus_replays_to_the_same_estimate(
         live["samples"] == rec.time_s.size and live["frames"] == per_sample * rec.time_s.size and live["unpaired"] == 0
     )
     assert live["backlash_deg"] == pytest.approx(0.5, abs=0.02)
-    assert (
-        main(
-            [
-                "estimate",
-                str(raw),
-                "--eds",
-                str(eds),
-                "--node",
-                "3",
-                "--load-cpr",
-                str(2**LOAD_BITS),
-                "--ratio",
-                "30",
-                "--json",
-            ]
-        )
-        == 0
-    )
+    assert main(["estimate", str(raw), *one_drive(eds), "--ratio", "30", "--json"]) == 0
     replayed = json.loads(capsys.readouterr().out)
     assert replayed["backlash_deg"] == live["backlash_deg"] and replayed["samples"] == live["samples"]
 
@@ -573,42 +518,9 @@ def test_a_feed_constant_at_its_unit_default_takes_the_encoder_resolution(tmp_pa
         record("co-e35", lambda: rig.play(rec, values), log)
     finally:
         rig.close()
-    assert (
-        main(
-            [
-                "estimate",
-                str(log),
-                "--eds",
-                str(e35_like["e35"]),
-                "--node",
-                "3",
-                "--load-cpr",
-                str(2**LOAD_BITS),
-                "--ratio",
-                "30",
-                "--json",
-            ]
-        )
-        == 0
-    )
+    assert main(["estimate", str(log), *one_drive(e35_like["e35"]), "--ratio", "30", "--json"]) == 0
     assert json.loads(capsys.readouterr().out)["backlash_deg"] == pytest.approx(0.5, abs=0.05)
-    assert (
-        main(
-            [
-                "estimate",
-                str(log),
-                "--eds",
-                str(e35_like["no_resolution"]),
-                "--node",
-                "3",
-                "--load-cpr",
-                "4096",
-                "--ratio",
-                "30",
-            ]
-        )
-        == 1
-    )
+    assert main(["estimate", str(log), *one_drive(e35_like["no_resolution"], 4096), "--ratio", "30"]) == 1
     err = capsys.readouterr().err
     assert err == (
         f"error: {e35_like['no_resolution']}: node 3: no counts per revolution in the dictionary (the feed constant "
@@ -711,12 +623,7 @@ def test_track_listen_can_opens_the_canopen_source(tmp_path, capsys, drives):
         "virtual",
         "--channel",
         "co-silent",
-        "--eds",
-        str(drives["both"]),
-        "--node",
-        "3",
-        "--load-cpr",
-        str(2**LOAD_BITS),
+        *one_drive(drives["both"]),
         "--ratio",
         "30",
         "--db",
@@ -855,21 +762,7 @@ def test_event_driven_tpdos_sent_on_change_count_what_cannot_pair(tmp_path, caps
     log, frames = _event_log(
         tmp_path, "on-change", rec, paths, two_node_values(rec), {3: 5e-5, 4: 6.3e-4}, on_change=True
     )
-    argv = [
-        "estimate",
-        str(log),
-        "--eds",
-        str(paths[3]),
-        "--node",
-        "3",
-        "--load-node",
-        "4",
-        "--load-eds",
-        str(paths[4]),
-        "--ratio",
-        "30",
-        "--json",
-    ]
+    argv = ["estimate", str(log), *two_drives(paths[3], paths[4]), "--ratio", "30", "--json"]
     assert main(argv) == 0
     out = json.loads(capsys.readouterr().out)
     assert len(frames) < 2 * rec.time_s.size and out["unpaired"] > 0 and out["samples"] > 0.9 * rec.time_s.size
