@@ -16,6 +16,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from davinci_runs import DAVINCI, UNITS, WITH_TORQUE
 
 from online_backlash.cli import main
 from online_backlash.cli._common import EXIT_NO_PLAY
@@ -33,10 +34,9 @@ from online_backlash.load_aware.engagement import either_flank_engaged, torque_o
 from online_backlash.log_fit import fit_batch, fit_recursive
 from online_backlash.simulation.two_mass_rig import simulate_two_mass
 
-DAVINCI = Path(__file__).resolve().parents[2] / "shared" / "data" / "davinci_tool_gearhead_backlash"
+#: A run read with the gear ratio folded into the motor's counts per revolution (4096 x 35, ratio -1)
 DAVINCI_ARGS = [
-    "--ratio", "-1", "--columns", "time=time_s,motor=motor_counts,load=spindle_counts,torque=backend_torque_Nm",
-    "--units", "counts", "--motor-cpr", str(4096 * 35), "--load-cpr", "8192",
+    "--ratio", "-1", "--columns", WITH_TORQUE, "--units", "counts", "--motor-cpr", str(4096 * 35), "--load-cpr", "8192",
 ]  # fmt: skip
 PLAY = 0.4
 STIFFNESS = 0.1  # N m/arcmin, the simulator's default
@@ -275,9 +275,7 @@ def test_a_play_the_torque_path_cannot_resolve_is_not_reported(capsys):
     per flank confounds wind-up and play; the torque path's play is not resolved (before issue 27 it
     came out negative, with a warning): null, with the reason and the bounds the data support."""
     log = DAVINCI / "tool4_L_run20_0.3Hz_torque10pct.csv"
-    argv = ["estimate", str(log), "--ratio", "-35",
-            "--columns", "time=time_s,motor=motor_counts,load=spindle_counts,torque=backend_torque_Nm",
-            "--units", "counts", "--motor-cpr", "4096", "--load-cpr", "8192", "--json"]  # fmt: skip
+    argv = ["estimate", str(log), *UNITS, "--columns", WITH_TORQUE, "--json"]
     assert main([*argv, "--play-method", "torque"]) == EXIT_NO_PLAY  # the report, without a play
     out, err = capsys.readouterr()
     report = json.loads(out)

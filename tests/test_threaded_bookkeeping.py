@@ -13,10 +13,10 @@ from __future__ import annotations
 import json
 import threading
 import time
-from pathlib import Path
 
 import numpy as np
 import pytest
+from davinci_runs import DAVINCI
 
 from online_backlash import log_fit
 from online_backlash.estimators import uncertainty
@@ -28,7 +28,6 @@ from online_backlash.replay.csv import CsvLog
 from online_backlash.simulation.rig import simulate_rig
 from online_backlash.stream import SampleChunk
 
-DAVINCI = Path(__file__).resolve().parents[2] / "shared" / "data" / "davinci_tool_gearhead_backlash"
 COUNTS = {"units": "counts", "motor_cpr": 4096 * 35, "load_cpr": 8192}
 
 
