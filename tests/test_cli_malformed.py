@@ -30,6 +30,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from rig_can import RIG_CAN
 
 from online_backlash.cli import main
 from online_backlash.cli._common import EXIT_NO_PLAY, run_command
@@ -193,7 +194,7 @@ TRACK = ("--ratio", "30", "--db", "{db}", "--gearbox", "g", "--quiet")
 SIGNALS = ("--motor-signal", "A.a", "--load-signal", "B.b")
 OPCUA = ("opcua", "--db", "{db}", "--allow-anonymous")
 INS, H, S = ("inspect",), ("history",), ("serve",)
-RIG = ("--dbc", "rig", "--motor-signal", "MotorAngle.Count", "--load-signal", "LoadAngle.Count")
+RIG = tuple(RIG_CAN)
 TDMS = ("--columns", "motor=Motor,load=Load")
 MF4 = ("--columns", "motor=EncMotor,load=EncLoad")
 WINDOWS = ("--columns", "time=time [s],motor=motor [°],load=load [°]")

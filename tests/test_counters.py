@@ -13,6 +13,7 @@ import json
 import can
 import numpy as np
 import pytest
+from rig_can import RIG_CAN
 
 from online_backlash.cli import main
 from online_backlash.codecs.dbc import RIG_DBC, DbcDecoder
@@ -21,15 +22,7 @@ from online_backlash.replay import open_log
 from online_backlash.simulation.rig import simulate_rig
 from online_backlash.simulation.rig_logs import rig_can_frames, write_rig_serial_capture
 
-CAN_OPTIONS = [
-    "--dbc",
-    "rig",
-    "--motor-signal",
-    "MotorAngle.Count",
-    "--load-signal",
-    "LoadAngle.Count",
-    "--skip-bad-rows",
-]
+CAN_OPTIONS = [*RIG_CAN, "--skip-bad-rows"]
 BAD_ROWS = (100, 2000, 7001)  # data rows (0-based) made unparsable
 DROPPED = range(5000, 5004)  # data rows removed: one gap of 5 periods at 1 kHz
 

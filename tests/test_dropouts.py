@@ -16,6 +16,7 @@ import json
 import can
 import numpy as np
 import pytest
+from rig_can import RIG_CAN
 
 from online_backlash.cli import main
 from online_backlash.cli._common import EXIT_NO_PLAY
@@ -160,7 +161,7 @@ def burst_blf(tmp_path_factory):
 @pytest.mark.parametrize("period", [None, "0.001"])
 def test_timestamp_bursts_with_a_continuous_counter_are_not_gaps(capsys, burst_blf, period):
     argv = ["estimate", str(burst_blf), "--ratio", "30", "--json", "--bridge-s", "0"]  # no bridging: the codec alone
-    argv += ["--dbc", "rig", "--motor-signal", "MotorAngle.Count", "--load-signal", "LoadAngle.Count"]
+    argv += RIG_CAN
     assert main(argv + ([] if period is None else ["--period", period])) == 0
     out = json.loads(capsys.readouterr().out)
     assert (out["gaps"], out["samples"], out["corrupt"], out["unpaired"]) == (0, 20000, 0, 0)

@@ -17,6 +17,7 @@ import time
 
 import pytest
 from live_run import kill_mid_work, run_live, send_frames, wait_until
+from rig_can import RIG_CAN
 
 from online_backlash.cli import main
 from online_backlash.cli.track import track_gearbox
@@ -406,16 +407,7 @@ def test_track_sorts_the_logs_of_one_call_by_their_first_sample(tmp_path, capsys
 def test_track_takes_the_raw_log_folder_listen_wrote(tmp_path, capsys):
     rec = simulate_rig(duration_s=16.0, rate_hz=1000.0, seed=12)
     frames = list(rig_can_frames(rec, DbcDecoder(RIG_DBC, "MotorAngle.Count", "LoadAngle.Count"), T0))
-    can_opts = [
-        "--dbc",
-        "rig",
-        "--motor-signal",
-        "MotorAngle.Count",
-        "--load-signal",
-        "LoadAngle.Count",
-        "--ratio",
-        "30",
-    ]
+    can_opts = [*RIG_CAN, "--ratio", "30"]
 
     raw = tmp_path / "raw"
     argv = ["listen", "can", "--interface", "virtual", "--channel", "fleet-raw", *can_opts, "--raw-log", raw, "--json"]

@@ -19,6 +19,7 @@ import can
 import numpy as np
 import pytest
 from live_run import run_live, send_frames
+from rig_can import RIG_CAN
 from test_dbc_units import dbc, frame
 
 from online_backlash.cli import main
@@ -38,7 +39,6 @@ from online_backlash.simulation.rig_logs import rig_can_frames
 from online_backlash.stream import SampleChunk
 
 T0 = 1.7e9
-RIG_SIGNALS = ["--dbc", "rig", "--motor-signal", "MotorAngle.Count", "--load-signal", "LoadAngle.Count"]
 
 
 def chunk_of(values: np.ndarray) -> SampleChunk:
@@ -279,7 +279,7 @@ def trace_rows(tmp_path, capsys, log, *extra):
                 "1",
                 "--trace",
                 str(trace),
-                *RIG_SIGNALS,
+                *RIG_CAN,
                 *extra,
             ]
         )
@@ -312,7 +312,7 @@ def test_listen_can_with_bursts_and_period_replays_to_the_same_estimate(tmp_path
         "virtual",
         "--channel",
         "burst-can",
-        *RIG_SIGNALS,
+        *RIG_CAN,
         "--ratio",
         "30",
         "--period",
@@ -326,7 +326,7 @@ def test_listen_can_with_bursts_and_period_replays_to_the_same_estimate(tmp_path
     assert run_live(argv, lambda _: send_frames("burst-can", messages)) == 0
     live = json.loads(capsys.readouterr().out)
     assert live["samples"] == 4000 and live["gaps"] == 0
-    assert main(["estimate", str(tmp_path / "raw"), *RIG_SIGNALS, "--ratio", "30", "--period", "0.001", "--json"]) == 0
+    assert main(["estimate", str(tmp_path / "raw"), *RIG_CAN, "--ratio", "30", "--period", "0.001", "--json"]) == 0
     replayed = json.loads(capsys.readouterr().out)
     keys = (
         "backlash_deg",
