@@ -30,6 +30,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from measurement_cases import rig_mdf
 from rig_can import RIG_CAN
 
 from online_backlash.cli import main
@@ -138,7 +139,6 @@ def _binary_logs(d: Path, rec) -> None:
     """Measurement files and CAN logs written by their libraries, then cut in half, emptied or replaced by random
     bytes."""
     import can
-    from asammdf import MDF, Signal
     from nptdms import ChannelObject, TdmsWriter
 
     from online_backlash.simulation.rig_logs import write_rig_can_log
@@ -148,15 +148,7 @@ def _binary_logs(d: Path, rec) -> None:
             ChannelObject("Enc", name, values, properties={"wf_increment": 1e-3, "unit_string": "deg"})
             for name, values in (("Motor", rec.motor_deg), ("Load", rec.load_deg))
         ])  # fmt: skip
-    mdf = MDF(version="4.10")
-    mdf.append(
-        [
-            Signal(rec.motor_deg, rec.time_s, name="EncMotor", unit="deg"),
-            Signal(rec.load_deg, rec.time_s, name="EncLoad", unit="deg"),
-        ]
-    )
-    mdf.save(d / "rig.mf4", overwrite=True)
-    mdf.close()
+    rig_mdf(d / "rig.mf4", rec, names=("EncMotor", "EncLoad"))
     write_rig_can_log(str(d / "rig.blf"), duration_s=2.0)
     for name in ("bench.tdms", "rig.mf4", "rig.blf"):
         data = (d / name).read_bytes()

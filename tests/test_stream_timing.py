@@ -19,6 +19,7 @@ import can
 import numpy as np
 import pytest
 from live_run import run_live, send_frames
+from measurement_cases import rig_mdf
 from rig_can import RIG_CAN
 from test_dbc_units import dbc, frame
 
@@ -129,7 +130,6 @@ def measurement_files(tmp_path_factory):
     """The rig (60 s at 1 kHz, 0.5 deg of play) as Parquet (pyarrow, row groups of 7,000) and MDF4 (asammdf)."""
     import pyarrow as pa
     import pyarrow.parquet as pq
-    from asammdf import MDF, Signal
 
     rec = simulate_rig(duration_s=60.0, ratio=30.0, play_deg=0.5, seed=21)
     folder = tmp_path_factory.mktemp("ahead")
@@ -137,15 +137,7 @@ def measurement_files(tmp_path_factory):
     pq.write_table(
         pa.table({"time": rec.time_s, "motor": rec.motor_deg, "load": rec.load_deg}), parquet, row_group_size=7000
     )
-    mdf = MDF(version="4.10")
-    mdf.append(
-        [
-            Signal(rec.motor_deg, rec.time_s, name="Motor", unit="deg"),
-            Signal(rec.load_deg, rec.time_s, name="Load", unit="deg"),
-        ]
-    )
-    mdf.save(mf4, overwrite=True)
-    mdf.close()
+    rig_mdf(mf4, rec)
     return {
         "parquet": lambda: ParquetLog(parquet, block_rows=4096),
         "mf4": lambda: MdfLog(mf4, columns={"motor": "Motor", "load": "Load"}, fragment_bytes=1 << 16),

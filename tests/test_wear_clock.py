@@ -17,8 +17,9 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from asammdf import MDF, Signal
+from asammdf import Signal
 from matplotlib.figure import Figure
+from measurement_cases import rig_mdf
 from scipy import stats
 from sqlalchemy import MetaData, create_engine
 
@@ -164,17 +165,7 @@ def test_the_meter_of_an_mdf4_channel_in_minutes(tmp_path, capsys):
     """An MDF4 file written by asammdf whose hour meter is a channel in minutes (--hours-unit min)."""
     rec = simulate_rig(duration_s=30.0, play_deg=0.3, seed=4)
     minutes = 60.0 * (1234.0 + rec.time_s / 3600.0)
-    mdf = MDF(version="4.10")
-    mdf.append(
-        [
-            Signal(rec.motor_deg, rec.time_s, name="Motor", unit="deg"),
-            Signal(rec.load_deg, rec.time_s, name="Load", unit="deg"),
-            Signal(minutes, rec.time_s, name="Meter", unit="min"),
-        ]
-    )
-    path = tmp_path / "rig.mf4"
-    mdf.save(path, overwrite=True)
-    mdf.close()
+    path = rig_mdf(tmp_path / "rig.mf4", rec, Signal(minutes, rec.time_s, name="Meter", unit="min"))
     track(
         capsys,
         [path],
