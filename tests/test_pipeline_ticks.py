@@ -13,7 +13,7 @@ import math
 import numpy as np
 import pytest
 
-from online_backlash import BacklashRLS, fitting
+from online_backlash import BacklashRLS, log_fit
 from online_backlash.errors import InvalidParameterError
 from online_backlash.estimators.uncertainty import SCATTER_EVERY_S, RecursivePlayScatter
 from online_backlash.log_fit import fit_recursive
@@ -128,7 +128,7 @@ def test_the_std_does_not_depend_on_whether_rows_are_traced(monkeypatch, size, a
     estimator's loop); with one they do: the per-cycle plays and the whole report are the same, bit for bit."""
     scatters: list[RecursivePlayScatter] = []
     monkeypatch.setattr(
-        fitting, "RecursivePlayScatter", lambda est: scatters.append(RecursivePlayScatter(est)) or scatters[-1]
+        log_fit, "RecursivePlayScatter", lambda est: scatters.append(RecursivePlayScatter(est)) or scatters[-1]
     )
     chunk = simulate_rig(duration_s=90.0, ratio=30.0, play_deg=0.5, seed=4).to_chunk()
     parts = [chunk] if size is None else [chunk.slice(a, min(a + size, len(chunk))) for a in range(0, len(chunk), size)]
