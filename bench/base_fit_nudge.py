@@ -23,31 +23,20 @@ import json
 from pathlib import Path
 from typing import Any
 
+from same_results import DAVINCI, SHARED  # the README's call of the measured runs, as the outputs compared
 from threadpoolctl import threadpool_limits
 
 from online_backlash.cli import main as cli
 from online_backlash.diagnostics import loop
 from online_backlash.model import BacklashParams
 
-DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "davinci_tool_gearhead_backlash"
+DATA = SHARED
 RUNS = {
     "run00": "tool4_L_run00_0.1Hz_torque10pct.csv",
     "run20": "tool4_L_run20_0.3Hz_torque10pct.csv",
     "run49": "tool4_L_run49_0.5Hz_torque100pct.csv",
 }
-ARGS = [
-    "--ratio",
-    "-35",
-    "--units",
-    "counts",
-    "--motor-cpr",
-    "4096",
-    "--load-cpr",
-    "8192",
-    "--columns",
-    "time=time_s,motor=motor_counts,load=spindle_counts,torque=backend_torque_Nm",
-    "--json",
-]
+ARGS = [*DAVINCI, "--json"]
 
 
 def diagnosed(path: Path, change: float, blas_threads: int | None = None) -> dict[str, Any]:
@@ -91,7 +80,8 @@ def main() -> None:
             d = diagnosed(DATA / RUNS[run], change, args.blas_threads)
             terms = [e["name"] for e in d["effects"]] + [f"unexplained {e['name']}" for e in d["unexplained"]]
             print(
-                f"| {run} | {change:g} | {', '.join(terms)} | {d['rms_after_deg']:.6f} | {d['backlash_after_deg']:.6f} |"
+                f"| {run} | {change:g} | {', '.join(terms)} | {d['rms_after_deg']:.6f} | "
+                f"{d['backlash_after_deg']:.6f} |"
             )
 
 

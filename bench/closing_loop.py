@@ -179,7 +179,8 @@ def main() -> None:
         "--generator",
         choices=("two_mass", "rig"),
         default="two_mass",
-        help="two_mass: the two-mass rig, a simulator the estimator does not assume; rig: the estimator's own model plus the effect",
+        help="two_mass: the two-mass rig, a simulator the estimator does not assume; rig: the estimator's own model "
+        "plus the effect",
     )
     parser.add_argument("--tracker", action="store_true", help="run the recursive-estimator check instead")
     args = parser.parse_args()
@@ -188,13 +189,15 @@ def main() -> None:
         tracker(args.seeds, args.duration_s)
         return
     print(
-        f"machine: {platform.processor() or platform.machine()}, {os.cpu_count()} CPUs, Python {platform.python_version()}"
+        f"machine: {platform.processor() or platform.machine()}, {os.cpu_count()} CPUs, Python "
+        f"{platform.python_version()}"
     )
     print(
         f"logs: {args.generator}, {args.duration_s:.0f} s at 1 kHz, play {PLAY_DEG} deg, seeds {_seed_range(seeds)}\n"
     )
     print(
-        "| case | named first | <= 1.5 floor | <= 1.1 clean | <= 1/2 before | play 2 % | dead band motion | RMS before, deg | RMS after, deg | floor, deg "
+        "| case | named first | <= 1.5 floor | <= 1.1 clean | <= 1/2 before | play 2 % | dead band motion | RMS "
+        "before, deg | RMS after, deg | floor, deg "
         "| after / floor past start | play before, deg | play after, deg | terms found (seed 0) | s per log |"
     )
     print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
@@ -203,7 +206,8 @@ def main() -> None:
         if args.verbose:
             for r in rows:
                 print(
-                    f"<!-- {name} seed {r['seed']}: found {r['found']} rms {r['rms_before_deg']:.5f}->{r['rms_after_deg']:.5f} "
+                    f"<!-- {name} seed {r['seed']}: found {r['found']} rms "
+                    f"{r['rms_before_deg']:.5f}->{r['rms_after_deg']:.5f} "
                     f"floor {r['noise_floor_deg']:.5f} past start {r['after_floor_past_start']:.2f}x"
                     f" play {r['backlash_before_deg']:.4f}->{r['backlash_after_deg']:.4f} -->"
                 )
@@ -216,10 +220,13 @@ def main() -> None:
             return f"{min(v):{fmt}}..{max(v):{fmt}}"
 
         print(
-            f"| {name} | {count(rows, 'named')} | {count(rows, 'floor_ok')} | {count(rows, 'clean_ok')} | {count(rows, 'half_ok')} | {count(rows, 'play_ok')} "
-            f"| {count(rows, 'dead_band')} | {med('rms_before_deg', '.5f')} | {med('rms_after_deg', '.5f')} | {med('noise_floor_deg', '.5f')} "
+            f"| {name} | {count(rows, 'named')} | {count(rows, 'floor_ok')} | {count(rows, 'clean_ok')} | "
+            f"{count(rows, 'half_ok')} | {count(rows, 'play_ok')} "
+            f"| {count(rows, 'dead_band')} | {med('rms_before_deg', '.5f')} | {med('rms_after_deg', '.5f')} | "
+            f"{med('noise_floor_deg', '.5f')} "
             f"| {span('after_floor_past_start', fmt='.2f')}"
-            f" | {span('backlash_before_deg')} | {span('backlash_after_deg')} | {', '.join(rows[0]['found']) or '-'} | {med('seconds', '.1f')} |",
+            f" | {span('backlash_before_deg')} | {span('backlash_after_deg')} | "
+            f"{', '.join(rows[0]['found']) or '-'} | {med('seconds', '.1f')} |",
             flush=True,
         )
 

@@ -98,11 +98,13 @@ def main() -> None:
     warm = write_log(WARM_MINUTES, directory)
     load = ", ".join(f"{v:.2f}" for v in os.getloadavg())
     print(
-        f"machine: {platform.processor() or platform.machine()}, {os.cpu_count()} CPUs, Python {platform.python_version()}, "
+        f"machine: {platform.processor() or platform.machine()}, {os.cpu_count()} CPUs, Python "
+        f"{platform.python_version()}, "
         f"OPENBLAS_NUM_THREADS={os.environ.get('OPENBLAS_NUM_THREADS', 'unset')}, load average {load}\n"
     )
     print(
-        "| log | samples | batch wall, s (1st, 2nd) | diagnose wall, s (1st, 2nd) | ratio wall (1st, 2nd) | ratio CPU (1st, 2nd) "
+        "| log | samples | batch wall, s (1st, 2nd) | diagnose wall, s (1st, 2nd) | ratio wall (1st, 2nd) | ratio "
+        "CPU (1st, 2nd) "
         "| terms found | load after |"
     )
     print("|---|---|---|---|---|---|---|---|")
@@ -117,7 +119,8 @@ def main() -> None:
 
         print(
             f"| {minutes:g} min | {d['samples']} | {pair(batch['wall'])} | {pair(diag['wall'])} "
-            f"| {pair([a / b for a, b in zip(diag['wall'], batch['wall'])])} | {pair([a / b for a, b in zip(diag['cpu'], batch['cpu'])])} "
+            f"| {pair([a / b for a, b in zip(diag['wall'], batch['wall'])])} | "
+            f"{pair([a / b for a, b in zip(diag['cpu'], batch['cpu'])])} "
             f"| {', '.join(found) or '-'} | {os.getloadavg()[0]:.1f} |",
             flush=True,
         )

@@ -11,7 +11,7 @@ same order every round (one process at a time, so the compared things meet the s
   peak RSS of the process;
 * the reference, in a fresh process: ``BacklashRLS().learn_many(u, y)`` on the samples of the big file
   in memory (read before the timing; numba's compiled loop loaded on 20,000 other samples first), and the
-  same with the estimator as ``estimate`` sets it up (``fitting.KINEMATIC``: ``full_engagement``, issue 27,
+  same with the estimator as ``estimate`` sets it up (``log_fit.KINEMATIC``: ``full_engagement``, issue 27,
   judges every sample's engagement in a second compiled pass);
 * the library's own decode of the snappy Parquet file alone (``ParquetFile.iter_batches`` of the three
   columns, as the reader calls it, the values taken without a copy), in a fresh process, timed after
@@ -60,7 +60,7 @@ REFERENCE = """
 import json, sys, time
 import numpy as np, pyarrow.parquet as pq
 from online_backlash import BacklashRLS
-from online_backlash.fitting import KINEMATIC
+from online_backlash.log_fit import KINEMATIC
 options = KINEMATIC if sys.argv[2] == "estimate's" else {}
 table = pq.read_table(sys.argv[1])
 u = np.ascontiguousarray(table.column("motor").to_numpy()) / 30.0

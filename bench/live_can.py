@@ -30,7 +30,7 @@ import numpy as np
 
 from online_backlash.codecs.dbc import RIG_DBC, DbcDecoder
 from online_backlash.drivers.can import CanSource
-from online_backlash.fitting import fit_recursive
+from online_backlash.log_fit import fit_recursive
 from online_backlash.simulation.rig import simulate_rig
 from online_backlash.simulation.rig_logs import rig_can_frames
 
@@ -101,17 +101,20 @@ def main() -> None:
 
     c = source.counters
     print(
-        f"python {platform.python_version()}, python-can {can.__version__}; {args.duration:g} s at {2 * args.rate:g} frames/s; "
+        f"python {platform.python_version()}, python-can {can.__version__}; {args.duration:g} s at "
+        f"{2 * args.rate:g} frames/s; "
         f"switch interval {sys.getswitchinterval() * 1e3:g} ms"
     )
     print(f"frames sent               {len(frames)}")
     print(
-        f"frames counted by source  {c.frames}  (samples {c.samples}, corrupt {c.corrupt}, skipped {c.skipped}, unpaired {c.unpaired}, gaps {c.gaps})"
+        f"frames counted by source  {c.frames}  (samples {c.samples}, corrupt {c.corrupt}, skipped {c.skipped}, "
+        f"unpaired {c.unpaired}, gaps {c.gaps})"
     )
     print(f"frames in the raw log     {read_back}  ({len(source.raw_log.files)} file(s))")
     print(f"lost                      {len(frames) - read_back}")
     print(
-        f"estimate                  {report.backlash_deg * 60:.3f} arcmin ± {report.extra['backlash_std_deg'] * 60:.3f} (true {rec.play_deg[-1] * 60:.3f})"
+        f"estimate                  {report.backlash_deg * 60:.3f} arcmin ± "
+        f"{report.extra['backlash_std_deg'] * 60:.3f} (true {rec.play_deg[-1] * 60:.3f})"
     )
     for name, lat in (("all samples", latency_ms), ("after warm start + 1 s", after)):
         p50, p99, p999 = np.percentile(lat, [50, 99, 99.9])

@@ -29,7 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
-from online_backlash.fitting import fit_batch, fit_recursive
+from online_backlash.log_fit import fit_batch, fit_recursive
 from online_backlash.plotting import plot_fit
 from online_backlash.replay import open_log
 from online_backlash.simulation.two_mass_rig import simulate_two_mass
@@ -70,7 +70,8 @@ def sweep(seeds: int, duration_s: float) -> None:
     print(
         "| external torque N m | torque reverses | observable (batch, recursive) | play err % batch (median / worst) "
         "| play err % recursive | stiffness err % (mean of both) | stiffness err % per direction (worst) "
-        "| kinematic batch play deg (median; reported null where not observable) | kinematic recursive play deg | kinematic observable |"
+        "| kinematic batch play deg (median; reported null where not observable) | kinematic recursive play deg | "
+        "kinematic observable |"
     )
     print("|---|---|---|---|---|---|---|---|---|---|")
     for ext in TORQUES:
@@ -136,7 +137,8 @@ def measured(plot_dir: Path | None) -> None:
                 f"| {d['torque_reversals']} "
                 f"| {_value(d, 'backlash_deg')} {why_not} "
                 f"| {_value(d, 'lost_motion_arcmin', digits=1)} ({_value(d, 'lost_motion_torque_Nm', digits=3)}) "
-                f"| {_value(d, 'stiffness_left_nm_per_arcmin', digits=4)}, {_value(d, 'stiffness_right_nm_per_arcmin', digits=4)} "
+                f"| {_value(d, 'stiffness_left_nm_per_arcmin', digits=4)}, "
+                f"{_value(d, 'stiffness_right_nm_per_arcmin', digits=4)} "
                 f"| {_value(d, 'hysteresis_loss_arcmin', digits=1)} |"
             )
         if plot_dir is not None:

@@ -22,8 +22,8 @@ written once as a Parquet file (pyarrow, row groups of 1,000,000) and as an MDF 
 
 Rates use the time of the call (imports excluded; they are printed separately: for the
 reference they include reading the file and numba's compilation); peak RSS is the process's
-``VmHWM`` (for the reference, with the whole recording in memory). Targets: ``estimate`` at >= 80 % of ``learn_many``'s rate, peak RSS
-under 300 MB.
+``VmHWM`` (for the reference, with the whole recording in memory). Targets: ``estimate`` at >= 80 % of ``learn_many``'s
+rate, peak RSS under 300 MB.
 
     python bench/measurement_files.py [--samples 10000000] [--dir /tmp] [--repeat 3]
 """
@@ -59,25 +59,31 @@ WARM = (
 #: 20 s of simulated samples (the estimator, the data clock, the play's scatter, the dwells); the reader's own
 #: compiled checks still load inside the timing (on the reader thread)
 STEADY = (
-    "import importlib\nfor _m in {{'mdf': ['can', 'asammdf'], 'parquet': ['pyarrow.parquet']}}['{kind}']:\n    importlib.import_module(_m)\n"
-    "from online_backlash.fitting import fit_recursive\n"
-    "from online_backlash.simulation.rig import simulate_rig\nfit_recursive([simulate_rig(20.0).to_chunk()], 30.0, ahead=1)"
+    "import importlib\nfor _m in {{'mdf': ['can', 'asammdf'], 'parquet': ['pyarrow.parquet']}}['{kind}']:\n"
+    "    importlib.import_module(_m)\n"
+    "from online_backlash.log_fit import fit_recursive\n"
+    "from online_backlash.simulation.rig import simulate_rig\n"
+    "fit_recursive([simulate_rig(20.0).to_chunk()], 30.0, ahead=1)"
 )
 ESTIMATE = (
-    "import io, contextlib\nfrom online_backlash.cli import main, build_parser\nimport online_backlash.replay.{kind}, online_backlash.fitting\n"
-    + WARM,
-    "buf = io.StringIO()\nwith contextlib.redirect_stdout(buf):\n    main(['estimate', {path!r}, '--ratio', '30', '--json'{extra}])\n"
+    "import io, contextlib\nfrom online_backlash.cli import main, build_parser\n"
+    "import online_backlash.replay.{kind}, online_backlash.log_fit\n" + WARM,
+    "buf = io.StringIO()\nwith contextlib.redirect_stdout(buf):\n"
+    "    main(['estimate', {path!r}, '--ratio', '30', '--json'{extra}])\n"
     "out = round(json.loads(buf.getvalue())['backlash_deg'], 5)",
 )
 COLD = "import io, contextlib\nfrom online_backlash.cli import main"
 ESTIMATE_STEADY = (ESTIMATE[0] + "\n" + STEADY, ESTIMATE[1])
 LEARN_MANY = (
     "import numpy as np, pyarrow.parquet as pq\nfrom online_backlash import BacklashRLS\n"
-    "table = pq.read_table({path!r})\nu = table.column('motor').to_numpy() / 30.0\ny = table.column('load').to_numpy()\n"
+    "table = pq.read_table({path!r})\nu = table.column('motor').to_numpy() / 30.0\n"
+    "y = table.column('load').to_numpy()\n"
     "BacklashRLS().learn_many(u[:20000], y[:20000])  # numba's compilation (or cache load), outside the timing",
-    "est = BacklashRLS()\nfor i in range(0, u.size, 262144):\n    est.learn_many(u[i:i + 262144], y[i:i + 262144])\nout = round(est.backlash_, 5)",
+    "est = BacklashRLS()\nfor i in range(0, u.size, 262144):\n    est.learn_many(u[i:i + 262144], y[i:i + 262144])\n"
+    "out = round(est.backlash_, 5)",
 )
-#: the reader's compiled checks loaded (numba's cache) outside the timing, as they are in ``estimate``: its first chunk read
+#: the reader's compiled checks loaded (numba's cache) outside the timing, as they are in ``estimate``: its first
+#: chunk read
 FIRST_CHUNK = "with {reader} as _log:\n    next(iter(_log.iter_chunks()))"
 #: the per-block checks of every column reader, on the samples in memory: one compiled pass over each block
 #: (finiteness, angle limit, time order, repeats; the samples copied out where needed) and the gap rule
@@ -115,9 +121,10 @@ CASES = {
     "`fit_recursive` of the Parquet file on one thread (no read-ahead)": (
         "parquet",
         (
-            "from online_backlash.replay.parquet import ParquetLog\nfrom online_backlash.fitting import fit_recursive\n"
+            "from online_backlash.replay.parquet import ParquetLog\nfrom online_backlash.log_fit import fit_recursive\n"
             + WARM,
-            "with ParquetLog({path!r}) as log:\n    out = round(fit_recursive(log.iter_chunks(), 30.0, ahead=0)[0].backlash_deg, 5)",
+            "with ParquetLog({path!r}) as log:\n"
+            "    out = round(fit_recursive(log.iter_chunks(), 30.0, ahead=0)[0].backlash_deg, 5)",
         ),
         "",
     ),
@@ -155,7 +162,7 @@ CASES = {
     "`fit_recursive` of the MDF4 file on one thread (no read-ahead)": (
         "mf4",
         (
-            "from online_backlash.replay.mdf import MdfLog\nfrom online_backlash.fitting import fit_recursive\n" + WARM,
+            "from online_backlash.replay.mdf import MdfLog\nfrom online_backlash.log_fit import fit_recursive\n" + WARM,
             "with MdfLog({path!r}, columns={{'motor': 'Motor', 'load': 'Load'}}) as log:\n"
             "    out = round(fit_recursive(log.iter_chunks(), 30.0, ahead=0)[0].backlash_deg, 5)",
         ),
@@ -166,7 +173,8 @@ CASES = {
         (
             "from online_backlash.replay.mdf import MdfLog\n"
             + FIRST_CHUNK.format(reader="MdfLog({path!r}, columns={{'motor': 'Motor', 'load': 'Load'}})"),
-            "with MdfLog({path!r}, columns={{'motor': 'Motor', 'load': 'Load'}}) as log:\n    out = sum(len(c) for c in log.iter_chunks())",
+            "with MdfLog({path!r}, columns={{'motor': 'Motor', 'load': 'Load'}}) as log:\n"
+            "    out = sum(len(c) for c in log.iter_chunks())",
         ),
         "",
     ),
@@ -260,7 +268,8 @@ def main() -> None:
     for name, res in results.items():
         rate = args.samples / res["seconds"]
         print(
-            f"| {name} | {res['seconds']:.2f} | {rate:,.0f} | {rate / reference:.0%} | {res['max_rss_mb']:.0f} | {res['import_s']:.1f} | {res['out']} |"
+            f"| {name} | {res['seconds']:.2f} | {rate:,.0f} | {rate / reference:.0%} | {res['max_rss_mb']:.0f} | "
+            f"{res['import_s']:.1f} | {res['out']} |"
         )
 
 

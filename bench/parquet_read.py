@@ -3,11 +3,11 @@
 Reads the 10-million-row rig file of ``bench/measurement_files.py`` (pyarrow with its defaults:
 snappy, dictionary pages falling back to plain, row groups of 1,000,000 rows; written there if
 absent) in each of the ways pyarrow offers, beside snappy's decompression of the same values
-alone and an uncompressed copy of the file (what the decode costs without snappy), every case in a fresh interpreter (peak RSS is the
-process's ``VmHWM``; ``RSS over base`` subtracts the ``VmRSS`` after the imports), the cases
-interleaved ``--repeat`` times, the lowest CPU time reported with the highest peak RSS. CPU is
-``time.process_time()`` (all threads of the process): on a loaded machine it is the steadier
-figure, and on two cores it is what bounds a reader thread running beside the estimator.
+alone and an uncompressed copy of the file (what the decode costs without snappy), every case in a fresh interpreter
+(peak RSS is the process's ``VmHWM``; ``RSS over base`` subtracts the ``VmRSS`` after the imports), the cases
+interleaved ``--repeat`` times, the lowest CPU time reported with the highest peak RSS. CPU is ``time.process_time()``
+(all threads of the process): on a loaded machine it is the steadier figure, and on two cores it is what bounds a reader
+thread running beside the estimator.
 
     python bench/parquet_read.py [--samples 10000000] [--dir /tmp] [--repeat 3] [--only WORD]
 """
@@ -46,7 +46,8 @@ def iter_batches(
     buffer_size: int = 1 << 20,
 ) -> str:
     return (
-        f"source = {source}\nfile = pq.ParquetFile(source, pre_buffer={pre_buffer}, buffer_size={buffer_size})\nrows = 0\n"
+        f"source = {source}\nfile = pq.ParquetFile(source, pre_buffer={pre_buffer}, buffer_size={buffer_size})\n"
+        "rows = 0\n"
         f"for batch in file.iter_batches(batch_size={batch_rows}, columns=NAMES, use_threads={threads}):\n"
         f"    rows += len({VALUES.format(batch='batch')}[0])\nsource.close()"
     )
@@ -56,7 +57,8 @@ def row_groups(
     threads: bool, source: str = "pa.OSFile(PATH, 'rb')", pre_buffer: bool = False, buffer_size: int = 0
 ) -> str:
     return (
-        f"source = {source}\nfile = pq.ParquetFile(source, pre_buffer={pre_buffer}, buffer_size={buffer_size})\nrows = 0\n"
+        f"source = {source}\nfile = pq.ParquetFile(source, pre_buffer={pre_buffer}, buffer_size={buffer_size})\n"
+        "rows = 0\n"
         f"for i in range(file.num_row_groups):\n"
         f"    table = file.read_row_group(i, columns=NAMES, use_threads={threads})\n"
         f"    rows += sum(len(c) for c in table.column(0).chunks)\n    del table\nsource.close()"
@@ -66,7 +68,8 @@ def row_groups(
 def scanner(batch_rows: int, threads: bool, batch_readahead: int, fragment_readahead: int, pre_buffer: bool) -> str:
     return (
         "import pyarrow.dataset as ds\n"
-        f"fmt = ds.ParquetFileFormat(default_fragment_scan_options=ds.ParquetFragmentScanOptions(pre_buffer={pre_buffer}))\n"
+        "fmt = ds.ParquetFileFormat(default_fragment_scan_options="
+        f"ds.ParquetFragmentScanOptions(pre_buffer={pre_buffer}))\n"
         "data = ds.dataset(PATH, format=fmt)\nrows = 0\n"
         f"for batch in data.to_batches(columns=NAMES, batch_size={batch_rows}, use_threads={threads}, "
         f"batch_readahead={batch_readahead}, fragment_readahead={fragment_readahead}):\n"
@@ -117,7 +120,8 @@ CASES: dict[str, tuple[str, str, dict[str, str]]] = {
     ),
     "snappy's decompression alone, the same values as 1 MiB pages (`pa.Codec('snappy').decompress`)": (
         SNAPPY,
-        "size = 0\nfor page, n in pages:\n    size += len(codec.decompress(page, decompressed_size=n))\nrows = size // 24",
+        "size = 0\nfor page, n in pages:\n    size += len(codec.decompress(page, decompressed_size=n))\n"
+        "rows = size // 24",
         {},
     ),
     "the same rows written uncompressed (`compression='none'`), `iter_batches(65536)`": (
@@ -132,7 +136,8 @@ CASES: dict[str, tuple[str, str, dict[str, str]]] = {
     ),
     "`read_table` (whole file), defaults": ("", "rows = pq.read_table(PATH, columns=NAMES).num_rows", {}),
     "`ParquetLog.iter_chunks()` (the reader, with its checks)": (
-        "from online_backlash.replay.parquet import ParquetLog\nwith ParquetLog({path!r}) as _log:\n    next(iter(_log.iter_chunks()))",
+        "from online_backlash.replay.parquet import ParquetLog\nwith ParquetLog({path!r}) as _log:\n"
+        "    next(iter(_log.iter_chunks()))",
         "with ParquetLog(PATH) as log:\n    rows = sum(len(c) for c in log.iter_chunks())",
         {},
     ),
@@ -188,7 +193,8 @@ def main() -> None:
     print("|---|---:|---:|---:|---:|")
     for name, res in best.items():
         print(
-            f"| {name} | {res['wall']:.2f} | {res['cpu']:.2f} | {res['hwm_mb']:.0f} | {res['hwm_mb'] - res['base_mb']:.0f} |"
+            f"| {name} | {res['wall']:.2f} | {res['cpu']:.2f} | {res['hwm_mb']:.0f} | "
+            f"{res['hwm_mb'] - res['base_mb']:.0f} |"
         )
 
 

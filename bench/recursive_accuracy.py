@@ -137,7 +137,8 @@ def main() -> None:
 
     print("## Wear: play 0.50 -> 0.60 deg over 2 h of rig data (after the first 5 min; 1 load count = 0.00275 deg)\n")
     print(
-        "| settings | seed | RMS error (deg) | RMS / play | RMS (counts) | max (counts) | truth within +-3 std | mean std (counts) |"
+        "| settings | seed | RMS error (deg) | RMS / play | RMS (counts) | max (counts) | truth within +-3 std | "
+        "mean std (counts) |"
     )
     print("|---|---:|---:|---:|---:|---:|---:|---:|")
     memories = (
@@ -149,7 +150,8 @@ def main() -> None:
         for seed in seeds:
             r = wear_case(seed, settings)
             print(
-                f"| {label} | {seed} | {r['rms_deg']:.2e} | {r['rms_pct']:.3f} % | {r['rms_counts']:.3f} | {r['max_counts']:.2f} "
+                f"| {label} | {seed} | {r['rms_deg']:.2e} | {r['rms_pct']:.3f} % | {r['rms_counts']:.3f} | "
+                f"{r['max_counts']:.2f} "
                 f"| {100 * r['coverage']:.1f} % | {r['mean_std_counts']:.3f} |"
             )
 
@@ -164,7 +166,8 @@ def main() -> None:
             for seed in seeds:
                 r = idle_case(seed, dither, settings)
                 print(
-                    f"| {label} | {what} | {seed} | {r['change_counts']:.4f} | {r['std_before_counts']:.3f} / {r['std_after_counts']:.3f} "
+                    f"| {label} | {what} | {seed} | {r['change_counts']:.4f} | {r['std_before_counts']:.3f} / "
+                    f"{r['std_after_counts']:.3f} "
                     f"| {r['max_P_local']:.3g} | {r['finite']} | {r['final_error_counts']:+.3f} |"
                 )
 

@@ -9,8 +9,8 @@ CRC-8 checksum), so 1,000,000 frames are 500,000 samples. The loops run interlea
 ``CanLog.iter_chunks()`` is what ``estimate`` and the estimators' ``learn_many`` use (the block
 path: arrays, vectorised decoding and checksum, compiled pairing); iterating ``CanLog`` gives
 ``Sample`` objects from the same path; ``strict=True`` takes the per-frame path (held equal
-to the block path by ``tests/test_can_blocks.py``). The first block-path run of a process also loads numba's compiled pairing loop
-(printed separately; the best-of times exclude it after the first repeat).
+to the block path by ``tests/test_can_blocks.py``). The first block-path run of a process also loads numba's compiled
+pairing loop (printed separately; the best-of times exclude it after the first repeat).
 
     python bench/replay_blf.py [--frames 1000000] [--repeat 3] [--path /tmp/rig-1M.blf]
 """
@@ -84,7 +84,8 @@ def main() -> None:
     t0 = time.perf_counter()
     chunks(args.path, "Checksum")
     print(
-        f"first block-path run in this process (includes loading or compiling the numba loop): {time.perf_counter() - t0:.2f} s"
+        "first block-path run in this process (includes loading or compiling the numba loop): "
+        f"{time.perf_counter() - t0:.2f} s"
     )
     best: dict[str, float] = {}
     counts: dict[str, tuple[int, int]] = {}
@@ -96,7 +97,8 @@ def main() -> None:
     base = best["bare can.LogReader loop"]
     print(f"python {platform.python_version()}, python-can {can.__version__}, best of {args.repeat}")
     print(
-        f"{'loop':36s} {'frames':>9s} {'samples':>9s} {'time s':>8s} {'frames/s':>10s} {'samples/s':>10s} {'vs bare':>8s}"
+        f"{'loop':36s} {'frames':>9s} {'samples':>9s} {'time s':>8s} {'frames/s':>10s} {'samples/s':>10s} "
+        f"{'vs bare':>8s}"
     )
     for name, t in best.items():
         frames, samples = counts[name]

@@ -11,10 +11,10 @@ thread (``BOOKKEEPING_AHEAD = 0``) and in its ordered worker thread (the default
 file read one block ahead in a reader thread, after one untimed fit of each file (the readers'
 compiled checks loaded). Prints the fastest, median and slowest of each, the share of
 ``learn_many``'s rate in the fastest run and in the worst round (each run against the reference
-of its own round; the target is every round), and the median CPU seconds of each part (``time.thread_time`` of the estimator's thread, of the
-reader thread and of the bookkeeping thread; the rest of the process's CPU time is the readers'
-libraries' own threads: pyarrow decodes in its pool). Against the wall time, the CPU time says how
-well the parts overlapped: on a loaded machine (the load average is printed) they cannot.
+of its own round; the target is every round), and the median CPU seconds of each part (``time.thread_time`` of the
+estimator's thread, of the reader thread and of the bookkeeping thread; the rest of the process's CPU time is the
+readers' libraries' own threads: pyarrow decodes in its pool). Against the wall time, the CPU time says how well the
+parts overlapped: on a loaded machine (the load average is printed) they cannot.
 
     python bench/measurement_files.py --repeat 1   # writes the files once (kept in /tmp)
     python bench/steady_state_fit.py [--rounds 4] [--dir /tmp] [--samples 10000000]
@@ -31,7 +31,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-import online_backlash.fitting as fitting
+import online_backlash.log_fit as log_fit
 from online_backlash import BacklashRLS
 from online_backlash.replay.mdf import MdfLog
 from online_backlash.replay.parquet import ParquetLog
@@ -69,18 +69,19 @@ def main() -> None:
     for _ in range(args.rounds):
         times.setdefault("`learn_many`, samples in memory (reference)", []).append(_timed(reference))
         for kind, open_log in logs.items():
-            for depth, where in ((0, "on the estimator's thread"), (fitting.BOOKKEEPING_AHEAD, "in the worker thread")):
-                saved, fitting.BOOKKEEPING_AHEAD = fitting.BOOKKEEPING_AHEAD, depth
+            for depth, where in ((0, "on the estimator's thread"), (log_fit.BOOKKEEPING_AHEAD, "in the worker thread")):
+                saved, log_fit.BOOKKEEPING_AHEAD = log_fit.BOOKKEEPING_AHEAD, depth
                 try:
                     times.setdefault(f"{kind}, bookkeeping {where}", []).append(
                         _timed(functools.partial(_fit, open_log))
                     )
                 finally:
-                    fitting.BOOKKEEPING_AHEAD = saved
+                    log_fit.BOOKKEEPING_AHEAD = saved
     references = [t[0] for t in next(iter(times.values()))]
     best_reference = min(references)
     print(
-        f"{os.cpu_count()} cores, load average {load_start:.1f} at the start, {os.getloadavg()[0]:.1f} at the end, {args.rounds} rounds"
+        f"{os.cpu_count()} cores, load average {load_start:.1f} at the start, {os.getloadavg()[0]:.1f} at the end, "
+        f"{args.rounds} rounds"
     )
     print(
         "| what | fastest, s | median, s | slowest, s | vs learn_many (fastest) | (worst round) "
@@ -91,7 +92,8 @@ def main() -> None:
         walls = sorted(t[0] for t in rounds)
         cpu = [sorted(t[i] for t in rounds)[len(rounds) // 2] for i in range(1, 6)]
         print(
-            f"| {name} | {walls[0]:.3f} | {walls[len(walls) // 2]:.3f} | {walls[-1]:.3f} | {best_reference / walls[0]:.0%} "
+            f"| {name} | {walls[0]:.3f} | {walls[len(walls) // 2]:.3f} | {walls[-1]:.3f} | "
+            f"{best_reference / walls[0]:.0%} "
             f"| {min(r / t[0] for r, t in zip(references, rounds)):.0%} | " + " | ".join(f"{c:.3f}" for c in cpu) + " |"
         )
 
@@ -113,7 +115,7 @@ threading.Thread.run = _run_and_count  # type: ignore[method-assign]
 
 def _fit(open_log: Callable[[], MdfLog | ParquetLog]) -> None:
     with open_log() as log:
-        fitting.fit_recursive(log.iter_chunks(), 30.0, ahead=1)
+        log_fit.fit_recursive(log.iter_chunks(), 30.0, ahead=1)
 
 
 def _timed(call: Callable[[], None]) -> tuple[float, ...]:

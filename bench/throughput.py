@@ -300,7 +300,8 @@ CSV_CASES = {
         "out = json.loads(buf.getvalue())['backlash_deg']"
     ),
     "`CsvLog.iter_chunks()` alone (the reader of `estimate`)": (
-        "from online_backlash.replay import CsvLog\nwith CsvLog({path!r}) as log:\n    out = sum(len(c) for c in log.iter_chunks())"
+        "from online_backlash.replay import CsvLog\nwith CsvLog({path!r}) as log:\n"
+        "    out = sum(len(c) for c in log.iter_chunks())"
     ),
     "`pandas.read_csv` (whole file)": "import pandas\nout = len(pandas.read_csv({path!r}))",
     "`numpy.loadtxt` (whole file)": "import numpy\nout = len(numpy.loadtxt({path!r}, delimiter=',', skiprows=1))",
@@ -375,7 +376,8 @@ def main() -> None:
     rate_cascade = (n - warm) / t.cpu
     rows.append((
         "`CascadeRLS.learn_many` n_a = n_b = 2 (compiled)", n - warm, t,
-        f"mL {cas.m_left_:.3f} cL {cas.c_left_:.3f} mR {cas.m_right_:.3f} cR {cas.c_right_:.3f} b {np.round(cas.b_, 3).tolist()}"
+        f"mL {cas.m_left_:.3f} cL {cas.c_left_:.3f} mR {cas.m_right_:.3f} cR {cas.c_right_:.3f} "
+        f"b {np.round(cas.b_, 3).tolist()}"
         " (truth 1.3 0.6 2.0 0.7 [-0.2, 0.35])",
     ))  # fmt: skip
 
@@ -447,7 +449,8 @@ def main() -> None:
 
     load = os.getloadavg()
     print(
-        f"# throughput ({platform.machine()}, {os.cpu_count()} cores, Python {platform.python_version()}; load average {load[0]:.1f})\n"
+        f"# throughput ({platform.machine()}, {os.cpu_count()} cores, Python {platform.python_version()}; load "
+        f"average {load[0]:.1f})\n"
     )
     print(f"command: `python bench/throughput.py --samples {n} --slow-samples {m} --csv-rows {args.csv_rows}`\n")
     print("samples/s from CPU time (one core's work); wall-clock beside it (the machine is shared)\n")
@@ -456,7 +459,8 @@ def main() -> None:
     for name, count, tm, note in rows:
         print(f"| {name} | {count:,} | {tm.cpu:.3f} | {count / tm.cpu:,.0f} | {count / tm.wall:,.0f} | {note} |")
     print(
-        f"\nlearn_many / filterpy loop: {rate_many / rate_filterpy:,.0f}x; cascade / filterpy loop: {rate_cascade / rate_filterpy:,.0f}x"
+        f"\nlearn_many / filterpy loop: {rate_many / rate_filterpy:,.0f}x; cascade / filterpy loop: "
+        f"{rate_cascade / rate_filterpy:,.0f}x"
     )
     print(f"a week at 1 kHz (604,800,000 samples) by learn_many: {604_800_000 / rate_many:.0f} s of CPU")
 
@@ -481,7 +485,8 @@ def main() -> None:
         for name, body in CSV_CASES.items():
             res = run_child(body.format(path=args.csv))
             print(
-                f"| {name} | {res['seconds']:.1f} | {args.csv_rows / res['seconds']:,.0f} | {res['max_rss_mb']:.0f} | {res['out']} |"
+                f"| {name} | {res['seconds']:.1f} | {args.csv_rows / res['seconds']:,.0f} | {res['max_rss_mb']:.0f} "
+                f"| {res['out']} |"
             )
         print("\n(wall-clock seconds inside each process, imports included; peak RSS = VmHWM of that process)")
 

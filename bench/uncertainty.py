@@ -41,7 +41,7 @@ from typing import Any
 
 import numpy as np
 
-from online_backlash.fitting import fit_batch, fit_recursive
+from online_backlash.log_fit import fit_batch, fit_recursive
 from online_backlash.replay import read_csv_arrays
 from online_backlash.simulation.rig import simulate_rig
 from online_backlash.simulation.two_mass_rig import simulate_two_mass

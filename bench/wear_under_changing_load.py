@@ -30,7 +30,8 @@ def main() -> None:
             forecast_truth = (0.5 - last_play) / truth
             trend, forecast = report["trend_deg_per_hour"], report["forecast_hours_to_limit"]
             print(
-                f"| {name} | {method} | {trend:.4f} ({truth:.4f}) | {trend / truth - 1:+.1%} | {forecast:.4f} ({forecast_truth:.4f}) "
+                f"| {name} | {method} | {trend:.4f} ({truth:.4f}) | {trend / truth - 1:+.1%} | {forecast:.4f} "
+                f"({forecast_truth:.4f}) "
                 f"| {forecast / forecast_truth - 1:+.1%} | {report['n_not_observable']} |"
             )
 

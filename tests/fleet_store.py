@@ -1,4 +1,5 @@
-"""A history store filled the way ``track`` fills it, for the tests of the readers of a store (``serve``, ``opcua``)."""
+"""A history store filled the way ``track`` fills it, for the tests of the readers of a store (``serve``, ``opcua``,
+``check``)."""
 
 from __future__ import annotations
 
@@ -7,10 +8,12 @@ import hashlib
 HOUR = 3600.0
 
 
-def fill_gearbox(store, gearbox_id, play_arcmin, end_unix_s, with_parameters, warn=18.0, limit=21.0, **columns):
-    """Hourly estimates of ``play_arcmin`` ending at ``end_unix_s`` in one complete run; with
-    ``with_parameters`` each also stores eq. (1)'s slopes and dead-band widths (play split evenly); ``columns``
-    are more stored columns of every estimate (``stiffness_nm_per_arcmin=4.25``)."""
+def fill_gearbox(
+    store, gearbox_id, play_arcmin, end_unix_s, with_parameters, warn=18.0, limit=21.0, std_deg=0.004, **columns
+):
+    """Hourly estimates of ``play_arcmin`` ending at ``end_unix_s`` in one complete run, each with the standard error
+    ``std_deg``; with ``with_parameters`` each also stores eq. (1)'s slopes and dead-band widths (play split evenly);
+    ``columns`` are more stored columns of every estimate (``stiffness_nm_per_arcmin=4.25``)."""
     store.set_alarm_levels(gearbox_id, 30.0, warn_arcmin=warn, limit_arcmin=limit)
     gearbox, run = store.begin_run(
         gearbox_id, 30.0, "log.csv", hashlib.sha256(gearbox_id.encode()).hexdigest(), end_unix_s
@@ -25,7 +28,7 @@ def fill_gearbox(store, gearbox_id, play_arcmin, end_unix_s, with_parameters, wa
                 sample_index=1000 * (i + 1),
                 time_unix_s=end_unix_s - (n - 1 - i) * HOUR,
                 backlash_deg=p / 60.0,
-                backlash_std_deg=0.004,
+                backlash_std_deg=std_deg,
                 c_left_deg=half,
                 c_right_deg=half,
                 m_left=slope,

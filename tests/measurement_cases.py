@@ -30,6 +30,21 @@ def rig_recording(duration_s: float = 20.0):
     return simulate_rig(duration_s=duration_s, ratio=30.0, play_deg=0.5, seed=5)
 
 
+def rig_mdf(path: Path, rec, *more, names=("Motor", "Load"), units=("deg", "deg"), start=None) -> Path:
+    """The rig recording ``rec`` written by asammdf as an MDF 4.10 file: its motor and load angles as the channels
+    ``names`` (in ``units``) of one channel group, with the Signals ``more``; ``start``: the header's start time."""
+    from asammdf import MDF, Signal
+
+    mdf = MDF(version="4.10")
+    if start is not None:
+        mdf.header.start_time = start
+    angles = (rec.motor_deg, rec.load_deg)
+    mdf.append([*(Signal(a, rec.time_s, name=n, unit=u) for a, n, u in zip(angles, names, units)), *more])
+    mdf.save(path, overwrite=True)
+    mdf.close()
+    return path
+
+
 def estimate_json(capsys, path: Path, *argv: str) -> dict:
     """``online-backlash estimate PATH --ratio 30 ARGV --json`` as a dict (exit code 0 asserted)."""
     assert main(["estimate", str(path), "--ratio", "30", *argv, "--json"]) == 0, capsys.readouterr().err

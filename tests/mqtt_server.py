@@ -123,7 +123,8 @@ class MosquittoBroker:
         self.process: subprocess.Popen | None = None
         self.tls = tls
         folder.mkdir(parents=True, exist_ok=True)
-        # run as whoever runs the tests (as root, mosquitto would switch to the user 'mosquitto' and lose the test's files)
+        # run as whoever runs the tests (as root, mosquitto would switch to the user 'mosquitto' and lose the test's
+        # files)
         self._settings = ["persistence false", "log_dest stderr", f"user {getpass.getuser()}"]
         if tls is not None:  # TLS on this listener: the server certificate signed by the test CA
             self._settings += [f"cafile {tls.ca}", f"certfile {tls.server_cert}", f"keyfile {tls.server_key}"]

@@ -8,6 +8,7 @@ import time
 
 import numpy as np
 import pytest
+from fleet_store import fill_gearbox
 from sqlalchemy import create_engine, inspect, text
 
 from online_backlash.cli import main
@@ -133,7 +134,8 @@ def test_worst_state_puts_unknown_between_warning_and_alarm():
         (
             AlarmStatus("alarm", "", 22.3, 0.0, 18.0, 21.0, 0.0),
             "exceeded since 2026-11-20T08:00:00+00:00",
-            "BACKLASH CRITICAL - GB-7 play 22.3 arcmin, limit 21 exceeded since 2026-11-20T08:00:00+00:00 | play_arcmin=22.3;18;21",
+            "BACKLASH CRITICAL - GB-7 play 22.3 arcmin, limit 21 exceeded since 2026-11-20T08:00:00+00:00 | "
+            "play_arcmin=22.3;18;21",
         ),
         (
             AlarmStatus("unknown", "no observable estimate", None, None, 18.0, 21.0),
@@ -185,34 +187,9 @@ def test_migration_from_schema_1_adds_warn_arcmin(store_db):
 # -- the command line ----------------------------------------------------------------------------
 
 
-def _fill(store, gearbox_id, play_arcmin, end_unix_s, warn=18.0, limit=21.0, hours_per_step=1.0):
-    """Hourly estimates of ``play_arcmin`` ending at ``end_unix_s``, one run."""
-    store.set_alarm_levels(gearbox_id, 30.0, warn_arcmin=warn, limit_arcmin=limit)
-    gearbox, run = store.begin_run(gearbox_id, 30.0, "log.csv", f"{abs(hash(gearbox_id)):064x}"[:64], end_unix_s)
-    rows = []
-    n = len(play_arcmin)
-    for i, p in enumerate(play_arcmin):
-        rows.append(
-            dict(
-                sample_index=1000 * (i + 1),
-                time_unix_s=end_unix_s - (n - 1 - i) * HOUR,
-                backlash_deg=p / 60.0,
-                backlash_std_deg=0.002,
-                c_left_deg=None,
-                c_right_deg=None,
-                m_left=None,
-                m_right=None,
-                residual_rms_deg=None,
-                n_samples=1000 * (i + 1),
-                operating_hours=hours_per_step * (i + 1),
-                load_revolutions=100.0 * (i + 1),
-                reversals=50 * (i + 1),
-            )
-        )
-    gearbox, run = store.commit(gearbox, run, 1000 * n, {"format": 1}, rows)
-    store.commit(
-        gearbox, run, 1000 * n, {"format": 1}, counters=dict(frames=1, samples=1, corrupt=0, skipped=0, gaps=0)
-    )
+def _fill(store, gearbox_id, play_arcmin, end_unix_s):
+    """Hourly estimates of ``play_arcmin`` ending at ``end_unix_s``, one run (standard error 0.002 deg)."""
+    fill_gearbox(store, gearbox_id, play_arcmin, end_unix_s, with_parameters=False, std_deg=0.002)
 
 
 @pytest.fixture

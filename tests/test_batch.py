@@ -2,10 +2,9 @@
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import numpy as np
 import pytest
+from davinci_runs import DAVINCI, READ
 
 from online_backlash import VorosBacklash, VorosCascade
 from online_backlash.errors import ConvergenceWarning, InvalidParameterError, NotExcitedError, NotFittedError
@@ -13,14 +12,6 @@ from online_backlash.model import PAPER_EXAMPLES, BacklashParams, simulate_backl
 from online_backlash.replay import read_csv_arrays
 from online_backlash.simulation.rig import simulate_rig
 from online_backlash.stream import refer_to_load
-
-SHARED = Path(__file__).resolve().parents[2] / "shared" / "data" / "davinci_tool_gearhead_backlash"
-DAVINCI = {
-    "columns": {"time": "time_s", "motor": "motor_counts", "load": "spindle_counts"},
-    "units": "counts",
-    "motor_cpr": 4096,
-    "load_cpr": 8192,
-}
 
 ESTIMATORS = [VorosBacklash, VorosCascade]
 
@@ -115,7 +106,7 @@ def test_paper_examples_keep_the_paper_start():
 def test_stretch_moving_one_way_is_not_excited():
     # the last 4977 samples of a measured gearhead run: one reversal, but the input falls on
     # only 7 samples (never with the load), so no start engages the left flank
-    chunk = read_csv_arrays(SHARED / "tool4_L_run00_0.1Hz_torque10pct.csv", **DAVINCI)
+    chunk = read_csv_arrays(DAVINCI / "tool4_L_run00_0.1Hz_torque10pct.csv", **READ)
     u, y = chunk.motor_deg[-4977:] / -35.0, chunk.load_deg[-4977:]
     with pytest.raises(NotExcitedError, match="1366 samples with the input rising and 0 with it falling"):
         VorosBacklash(origin="first").fit(u, y)

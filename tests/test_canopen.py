@@ -65,9 +65,9 @@ def write_eds(
     second: list[tuple[int, int]] | None = None,
     factor_group: dict[int, tuple[int, int]] | None = None,
 ) -> Path:
-    """A servo drive's EDS written by ``canopen.export_od``: TPDO1 (COB-ID $NODEID+0x180) maps ``mapped`` objects (32 bits each),
-    TPDO2 ($NODEID+0x280) the ``second`` ones, both of transmission type ``trans_type``; ``factor_group`` gives the
-    CiA 402 ratio objects 0x6091 (gear ratio) and 0x6092 (feed constant) as (sub 1, sub 2)."""
+    """A servo drive's EDS written by ``canopen.export_od``: TPDO1 (COB-ID $NODEID+0x180) maps ``mapped`` objects (32
+    bits each), TPDO2 ($NODEID+0x280) the ``second`` ones, both of transmission type ``trans_type``; ``factor_group``
+    gives the CiA 402 ratio objects 0x6091 (gear ratio) and 0x6092 (feed constant) as (sub 1, sub 2)."""
     od = canopen.ObjectDictionary()
     u8, u32, i32 = datatypes.UNSIGNED8, datatypes.UNSIGNED32, datatypes.INTEGER32
     if sync:
@@ -151,7 +151,8 @@ def write_eds(
 
 
 class HardwareClock:
-    """The bus a canopen Network sends through, stamping each frame with the simulated time (as an adapter's hardware clock)."""
+    """The bus a canopen Network sends through, stamping each frame with the simulated time (as an adapter's hardware
+    clock)."""
 
     def __init__(self, bus: can.BusABC) -> None:
         self.bus = bus
@@ -174,7 +175,8 @@ def counts(angle_deg: np.ndarray, cpr: int) -> np.ndarray:
 
 
 class Rig:
-    """Drives (canopen ``LocalNode``) on a virtual bus sending their TPDO after each SYNC of the test's SYNC producer."""
+    """Drives (canopen ``LocalNode``) on a virtual bus sending their TPDO after each SYNC of the test's SYNC
+    producer."""
 
     def __init__(self, channel: str, nodes: dict[int, Path]) -> None:
         self.tx = can.Bus(interface="virtual", channel=channel, preserve_timestamps=True)
@@ -211,8 +213,9 @@ class Rig:
         on_change: bool = False,
         t0: float = 1.7e9,
     ) -> None:
-        """Event-driven TPDOs, no SYNC: at sample k each node sends every TPDO on its own timer (``offsets_s[node]`` after the
-        sample, 10 us between its PDOs) or, ``on_change``, only the PDOs whose value changed since they were last sent."""
+        """Event-driven TPDOs, no SYNC: at sample k each node sends every TPDO on its own timer (``offsets_s[node]``
+        after the sample, 10 us between its PDOs) or, ``on_change``, only the PDOs whose value changed since they were
+        last sent."""
         sent: dict[tuple[int, int], list[int]] = {}
         for k, t in enumerate(rec.time_s.tolist()):
             for node_id, node in self.nodes.items():
@@ -251,7 +254,8 @@ def record(channel: str, send, path: Path, extra: list[can.Message] = ()) -> lis
 def drives(tmp_path_factory) -> dict[str, Path]:
     folder = tmp_path_factory.mktemp("eds")
     return {
-        # motor drive: 0x6064 and the load encoder on 0x60E4.1 in one TPDO; 0x608F gives the motor's counts per revolution
+        # motor drive: 0x6064 and the load encoder on 0x60E4.1 in one TPDO; 0x608F gives the motor's counts per
+        # revolution
         "both": write_eds(folder / "drive_both.eds", 3, [(0x6064, 0), (0x60E4, 1)], resolution=2**MOTOR_BITS),
         # two identical drives (one EDS): node 3 the motor, node 4 an encoder on the load shaft
         "motor": write_eds(folder / "drive.eds", 3, [(0x6064, 0)], resolution=2**MOTOR_BITS),
@@ -259,6 +263,16 @@ def drives(tmp_path_factory) -> dict[str, Path]:
         "rtr": write_eds(folder / "rtr.eds", 3, [(0x6064, 0)], resolution=2**MOTOR_BITS, trans_type=253),
         "no_cpr": write_eds(folder / "no_cpr.eds", 3, [(0x6064, 0)], resolution=None),
     }
+
+
+def one_drive(eds: Path, load_cpr: int = 2**LOAD_BITS) -> list[str]:
+    """The options of a log of one drive, node 3, whose load encoder (0x60E4.1) has ``load_cpr`` counts per turn."""
+    return ["--eds", str(eds), "--node", "3", "--load-cpr", str(load_cpr)]
+
+
+def two_drives(motor_eds: Path, load_eds: Path) -> list[str]:
+    """The options of a log of two drives: the motor's, node 3, and the load encoder's, node 4, each its dictionary."""
+    return ["--eds", str(motor_eds), "--node", "3", "--load-node", "4", "--load-eds", str(load_eds)]
 
 
 def one_node_values(rec: RigRecording) -> dict[tuple[int, int, int], list[int]]:
@@ -300,7 +314,8 @@ def test_the_eds_is_the_library_s_and_the_mapping_comes_from_it(drives):
 
 
 def test_a_dcf_s_parameter_values_win_over_the_eds_defaults(tmp_path, drives):
-    """A DCF (the drive as commissioned) written by ``canopen.export_od``: its COB-ID and resolution are the ones used."""
+    """A DCF (the drive as commissioned) written by ``canopen.export_od``: its COB-ID and resolution are the ones
+    used."""
     od = canopen.import_od(str(drives["both"]), 3)
     od[0x1800][1].value = 0x283
     od[0x608F][1].value = 4000
@@ -320,19 +335,7 @@ def test_estimate_a_recorded_log_of_one_drive_with_0x60e4(tmp_path, capsys, rec,
     finally:
         rig.close()
     assert len(frames) == 2 * rec.time_s.size
-    argv = [
-        "estimate",
-        str(log),
-        "--eds",
-        str(drives["both"]),
-        "--node",
-        "3",
-        "--load-cpr",
-        str(2**LOAD_BITS),
-        "--ratio",
-        "30",
-        "--json",
-    ]
+    argv = ["estimate", str(log), *one_drive(drives["both"]), "--ratio", "30", "--json"]
     assert main(argv) == 0
     out = json.loads(capsys.readouterr().out)
     assert out["backlash_deg"] == pytest.approx(0.5, abs=0.02)
@@ -378,21 +381,7 @@ def test_a_second_node_as_load_encoder_and_damaged_frames_counted(tmp_path, caps
     with can.Logger(str(log)) as writer:
         for msg in frames:
             writer.on_message_received(msg)
-    argv = [
-        "estimate",
-        str(log),
-        "--eds",
-        str(drives["motor"]),
-        "--node",
-        "3",
-        "--load-node",
-        "4",
-        "--load-eds",
-        str(drives["load"]),
-        "--ratio",
-        "30",
-        "--json",
-    ]
+    argv = ["estimate", str(log), *two_drives(drives["motor"], drives["load"]), "--ratio", "30", "--json"]
     assert main(argv) == 0
     out = json.loads(capsys.readouterr().out)
     assert out["backlash_deg"] == pytest.approx(0.5, abs=0.02)
@@ -433,24 +422,7 @@ def test_a_second_node_as_load_encoder_and_damaged_frames_counted(tmp_path, caps
     assert main(["diagnose", str(log), *nodes, "--ratio", "30", "--json"]) == 0
     assert json.loads(capsys.readouterr().out)["corrupt"] == 1
     # the CAN IDs of inspect, named by the dictionaries
-    assert (
-        main(
-            [
-                "inspect",
-                str(log),
-                "--eds",
-                str(drives["motor"]),
-                "--node",
-                "3",
-                "--load-node",
-                "4",
-                "--load-eds",
-                str(drives["load"]),
-                "--json",
-            ]
-        )
-        == 0
-    )
+    assert main(["inspect", str(log), *two_drives(drives["motor"], drives["load"]), "--json"]) == 0
     ids = {i["id"]: i for i in json.loads(capsys.readouterr().out)["can_ids"]}
     assert ids["0x080"]["message"] == "SYNC" and ids["0x080"]["frames"] == n - 1
     assert ids["0x183"]["message"] == "TxPDO1_node3: 0x6064.0 Position actual value"
@@ -483,12 +455,7 @@ def test_listen_can_live_on_a_virtual_bus_replays_to_the_same_estimate(
         "virtual",
         "--channel",
         channel,
-        "--eds",
-        str(eds),
-        "--node",
-        "3",
-        "--load-cpr",
-        str(2**LOAD_BITS),
+        *one_drive(eds),
         "--ratio",
         "30",
         "--raw-log",
@@ -502,24 +469,7 @@ def test_listen_can_live_on_a_virtual_bus_replays_to_the_same_estimate(
         live["samples"] == rec.time_s.size and live["frames"] == per_sample * rec.time_s.size and live["unpaired"] == 0
     )
     assert live["backlash_deg"] == pytest.approx(0.5, abs=0.02)
-    assert (
-        main(
-            [
-                "estimate",
-                str(raw),
-                "--eds",
-                str(eds),
-                "--node",
-                "3",
-                "--load-cpr",
-                str(2**LOAD_BITS),
-                "--ratio",
-                "30",
-                "--json",
-            ]
-        )
-        == 0
-    )
+    assert main(["estimate", str(raw), *one_drive(eds), "--ratio", "30", "--json"]) == 0
     replayed = json.loads(capsys.readouterr().out)
     assert replayed["backlash_deg"] == live["backlash_deg"] and replayed["samples"] == live["samples"]
 
@@ -568,46 +518,15 @@ def test_a_feed_constant_at_its_unit_default_takes_the_encoder_resolution(tmp_pa
         record("co-e35", lambda: rig.play(rec, values), log)
     finally:
         rig.close()
-    assert (
-        main(
-            [
-                "estimate",
-                str(log),
-                "--eds",
-                str(e35_like["e35"]),
-                "--node",
-                "3",
-                "--load-cpr",
-                str(2**LOAD_BITS),
-                "--ratio",
-                "30",
-                "--json",
-            ]
-        )
-        == 0
-    )
+    assert main(["estimate", str(log), *one_drive(e35_like["e35"]), "--ratio", "30", "--json"]) == 0
     assert json.loads(capsys.readouterr().out)["backlash_deg"] == pytest.approx(0.5, abs=0.05)
-    assert (
-        main(
-            [
-                "estimate",
-                str(log),
-                "--eds",
-                str(e35_like["no_resolution"]),
-                "--node",
-                "3",
-                "--load-cpr",
-                "4096",
-                "--ratio",
-                "30",
-            ]
-        )
-        == 1
-    )
+    assert main(["estimate", str(log), *one_drive(e35_like["no_resolution"], 4096), "--ratio", "30"]) == 1
     err = capsys.readouterr().err
     assert err == (
-        f"error: {e35_like['no_resolution']}: node 3: no counts per revolution in the dictionary (the feed constant 0x6092 is 1/1, "
-        "the unit default, and no position encoder resolution 0x608F; a set feed constant 0x6092 / gear ratio 0x6091 would give "
+        f"error: {e35_like['no_resolution']}: node 3: no counts per revolution in the dictionary (the feed constant "
+        "0x6092 is 1/1, "
+        "the unit default, and no position encoder resolution 0x608F; a set feed constant 0x6092 / gear ratio "
+        "0x6091 would give "
         "them): give --motor-cpr\n"
     )
 
@@ -694,7 +613,8 @@ def test_sync_pipeline_frame_by_frame_counts_every_frame(drives):
 
 
 def test_track_listen_can_opens_the_canopen_source(tmp_path, capsys, drives):
-    """``track --listen can --eds``: the CANopen live source on the bus (here a silent one: the timeout says where it listened)."""
+    """``track --listen can --eds``: the CANopen live source on the bus (here a silent one: the timeout says where it
+    listened)."""
     argv = [
         "track",
         "--listen",
@@ -703,12 +623,7 @@ def test_track_listen_can_opens_the_canopen_source(tmp_path, capsys, drives):
         "virtual",
         "--channel",
         "co-silent",
-        "--eds",
-        str(drives["both"]),
-        "--node",
-        "3",
-        "--load-cpr",
-        str(2**LOAD_BITS),
+        *one_drive(drives["both"]),
         "--ratio",
         "30",
         "--db",
@@ -760,7 +675,8 @@ def _fuzz(pipe, frames) -> None:
     assert c.frames == len(frames) == c.skipped + c.corrupt + c.unpaired + pipe.frames_per_sample * c.samples
 
 
-# -- event-driven TPDOs (transmission type 254/255): no SYNC, paired in time as the DBC path pairs two messages ---------
+# -- event-driven TPDOs (transmission type 254/255): no SYNC, paired in time as the DBC path pairs two messages
+# ---------
 
 
 @pytest.fixture(scope="module")
@@ -846,21 +762,7 @@ def test_event_driven_tpdos_sent_on_change_count_what_cannot_pair(tmp_path, caps
     log, frames = _event_log(
         tmp_path, "on-change", rec, paths, two_node_values(rec), {3: 5e-5, 4: 6.3e-4}, on_change=True
     )
-    argv = [
-        "estimate",
-        str(log),
-        "--eds",
-        str(paths[3]),
-        "--node",
-        "3",
-        "--load-node",
-        "4",
-        "--load-eds",
-        str(paths[4]),
-        "--ratio",
-        "30",
-        "--json",
-    ]
+    argv = ["estimate", str(log), *two_drives(paths[3], paths[4]), "--ratio", "30", "--json"]
     assert main(argv) == 0
     out = json.loads(capsys.readouterr().out)
     assert len(frames) < 2 * rec.time_s.size and out["unpaired"] > 0 and out["samples"] > 0.9 * rec.time_s.size
@@ -869,7 +771,8 @@ def test_event_driven_tpdos_sent_on_change_count_what_cannot_pair(tmp_path, caps
 
 
 def test_event_driven_pairing_frame_by_frame(event_drives):
-    """The DBC path's pairing rules on PDOs: within max_skew_s a pair, an orphan replaced, SYNC and others skipped, a short PDO corrupt."""
+    """The DBC path's pairing rules on PDOs: within max_skew_s a pair, an orphan replaced, SYNC and others skipped, a
+    short PDO corrupt."""
     layout = CanopenLayout.from_files(event_drives["motor"], 3, load_node=4, load_eds=event_drives["load"])
     assert layout.event_driven and layout.names() == {
         0x183: "TxPDO1_node3: 0x6064.0 Position actual value (motor: 0x6064.0 Position actual value)",
@@ -902,8 +805,8 @@ def test_event_driven_pairing_frame_by_frame(event_drives):
 
 
 def test_inspect_lists_the_tpdo_mapping_of_several_nodes(tmp_path, capsys, rec, drives, event_drives):
-    """``inspect --eds A --node 3 --eds B --node 4``: each node's TPDOs from its own dictionary (no log needed), and with
-    a log its COB-IDs named by them; one --eds serves every --node of identical drives."""
+    """``inspect --eds A --node 3 --eds B --node 4``: each node's TPDOs from its own dictionary (no log needed), and
+    with a log its COB-IDs named by them; one --eds serves every --node of identical drives."""
     nodes = ["--eds", str(event_drives["split"]), "--node", "3", "--eds", str(drives["load"]), "--node", "4"]
     assert main(["inspect", *nodes, "--json"]) == 0
     listed = {n["node"]: n for n in json.loads(capsys.readouterr().out)["nodes"]}

@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import csv
 import json
-from pathlib import Path
 
 import pytest
+from davinci_runs import DAVINCI, UNITS, WITH_TORQUE
 
 from online_backlash.cli import main
 from online_backlash.simulation import synthetic
@@ -22,12 +22,7 @@ KEYS = {
     "unexplained",
 }
 EFFECT_KEYS = {"name", "parameters", "rms_before_deg", "rms_after_deg", "evidence"}
-DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "davinci_tool_gearhead_backlash"
-RUN49 = DATA / "tool4_L_run49_0.5Hz_torque100pct.csv"
-DAVINCI = [
-    "--ratio", "-35", "--units", "counts", "--motor-cpr", "4096", "--load-cpr", "8192",
-    "--columns", "time=time_s,motor=motor_counts,load=spindle_counts,torque=backend_torque_Nm",
-]  # fmt: skip
+RUN49 = DAVINCI / "tool4_L_run49_0.5Hz_torque100pct.csv"
 
 
 @pytest.fixture(scope="module")
@@ -91,7 +86,7 @@ def test_errors_are_one_line(tmp_path, capsys):
 
 def test_measured_recording(capsys):
     assert RUN49.exists(), f"measured data missing: {RUN49}"
-    assert main(["diagnose", str(RUN49), *DAVINCI, "--json"]) == 0
+    assert main(["diagnose", str(RUN49), *UNITS, "--columns", WITH_TORQUE, "--json"]) == 0
     out = json.loads(capsys.readouterr().out)
     assert out["backlash_before_deg"] == pytest.approx(1.74, abs=0.05)
     assert 0.15 < out["rms_before_deg"] < 0.25

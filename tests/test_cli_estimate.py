@@ -10,7 +10,7 @@ import pytest
 
 from online_backlash import BacklashRLS
 from online_backlash.cli import main
-from online_backlash.fitting import TRACE_COLUMNS, fit_recursive
+from online_backlash.log_fit import TRACE_COLUMNS, fit_recursive
 from online_backlash.replay import CsvLog, read_csv_arrays
 from online_backlash.simulation.rig import simulate_rig
 
@@ -95,7 +95,7 @@ def test_streaming_fit_reads_chunks_and_passes_gaps(log30, tmp_path):
     assert small.as_dict() == large.as_dict()  # the chunk size changes nothing
     whole = read_csv_arrays(path)
     assert np.flatnonzero(whole.after_gap).tolist() == [20000]
-    direct = BacklashRLS(full_engagement=True)  # the kinematic path's estimator (fitting.KINEMATIC)
+    direct = BacklashRLS(full_engagement=True)  # the kinematic path's estimator (log_fit.KINEMATIC)
     direct.learn_many(whole.motor_deg / 30.0, whole.load_deg, after_gap=whole.after_gap)
     assert est.estimator.state_dict()["state"] == direct.state_dict()["state"]
     assert est.n_samples_seen_ == small.samples == keep.size

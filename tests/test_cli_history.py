@@ -12,6 +12,7 @@ import sqlite3
 import numpy as np
 import pytest
 from live_run import run_live, send_frames
+from rig_can import RIG_CAN
 
 from online_backlash.cli import main
 from online_backlash.codecs.dbc import RIG_DBC, DbcDecoder
@@ -205,8 +206,8 @@ def test_track_ratio_contradicting_the_store(capsys, history_db, short_log):
     code, _, err = run_cli(capsys, "track", short_log, "--ratio", 35, "--db", history_db, "--gearbox", "g1")
     assert code == 1
     assert (
-        err
-        == "error: gearbox 'g1' is stored with ratio 30; --ratio 35 contradicts it (use another gearbox id for another gearbox)\n"
+        err == "error: gearbox 'g1' is stored with ratio 30; --ratio 35 contradicts it (use another gearbox id for "
+        "another gearbox)\n"
     )
     assert dump(history_db) == before
 
@@ -265,7 +266,6 @@ def test_track_live_can_then_the_raw_log_gives_the_same_history(capsys, tmp_path
     rec = simulate_rig(duration_s=14.0, play_deg=0.3, seed=12)
     frames = list(rig_can_frames(rec, DbcDecoder(RIG_DBC, "MotorAngle.Count", "LoadAngle.Count"), T0))
     channel = "track-live"
-    can_options = ["--dbc", "rig", "--motor-signal", "MotorAngle.Count", "--load-signal", "LoadAngle.Count"]
     live_db, replay_db = tmp_path / "live.db", tmp_path / "replay.db"
     argv = [
         "track",
@@ -275,7 +275,7 @@ def test_track_live_can_then_the_raw_log_gives_the_same_history(capsys, tmp_path
         "virtual",
         "--channel",
         channel,
-        *can_options,
+        *RIG_CAN,
         "--raw-log",
         tmp_path / "raw",
         "--ratio",
@@ -292,7 +292,7 @@ def test_track_live_can_then_the_raw_log_gives_the_same_history(capsys, tmp_path
     assert code == 0 and out.startswith(f"g1: can virtual {channel}: {rec.time_s.size} samples, 4 estimates added")
     (raw,) = sorted((tmp_path / "raw").iterdir())
     code, out, _ = run_cli(
-        capsys, "track", raw, *can_options, "--ratio", 30, "--db", replay_db, "--gearbox", "g1", "--every", 1
+        capsys, "track", raw, *RIG_CAN, "--ratio", 30, "--db", replay_db, "--gearbox", "g1", "--every", 1
     )
     assert code == 0
     live, replayed = dump(live_db), dump(replay_db)

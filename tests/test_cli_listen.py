@@ -13,6 +13,7 @@ import tty
 
 import pytest
 from live_run import LIMIT_S, run_live, send_frames, wait_until
+from rig_can import RIG_CAN
 
 from online_backlash.cli import main
 from online_backlash.cli._live import CTRL_C_READY, ctrl_c_ends_the_run
@@ -51,12 +52,7 @@ def test_listen_can_until_ctrl_c_then_estimate_the_raw_log(tmp_path, capsys, rec
         "virtual",
         "--channel",
         "cli-can",
-        "--dbc",
-        "rig",
-        "--motor-signal",
-        "MotorAngle.Count",
-        "--load-signal",
-        "LoadAngle.Count",
+        *RIG_CAN,
         "--ratio",
         "30",
         "--raw-log",
@@ -76,24 +72,7 @@ def test_listen_can_until_ctrl_c_then_estimate_the_raw_log(tmp_path, capsys, rec
     assert f"{live['samples']} samples," in out.err and "samples/s" in out.err  # the status line
 
     assert len(list((tmp_path / "raw").iterdir())) == 1
-    assert (
-        main(
-            [
-                "estimate",
-                str(tmp_path / "raw"),
-                "--dbc",
-                "rig",
-                "--motor-signal",
-                "MotorAngle.Count",
-                "--load-signal",
-                "LoadAngle.Count",
-                "--ratio",
-                "30",
-                "--json",
-            ]
-        )
-        == 0
-    )
+    assert main(["estimate", str(tmp_path / "raw"), *RIG_CAN, "--ratio", "30", "--json"]) == 0
     replayed = json.loads(capsys.readouterr().out)
     assert {k: replayed[k] for k in ESTIMATE_KEYS} == {k: live[k] for k in ESTIMATE_KEYS}
 
@@ -148,20 +127,8 @@ def test_listen_serial_on_a_pty_then_estimate_the_capture(tmp_path, capsys, rec,
 
 
 def test_listen_serial_duration_and_no_data_is_a_clear_error(tmp_path, capsys):
-    argv = [
-        "listen",
-        "serial",
-        "--port",
-        "loop://",
-        "--format",
-        "ascii",
-        "--ratio",
-        "30",
-        "--raw-log",
-        str(tmp_path),
-        "--duration",
-        "0.3",
-    ]
+    argv = ["listen", "serial", "--port", "loop://", "--format", "ascii", "--ratio", "30", "--raw-log", str(tmp_path)]
+    argv += ["--duration", "0.3"]
     assert main(argv) == 1
     assert "error: serial loop://: no samples received (frames 0" in capsys.readouterr().err
 

@@ -30,6 +30,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from measurement_cases import rig_mdf
+from rig_can import RIG_CAN
 
 from online_backlash.cli import main
 from online_backlash.cli._common import EXIT_NO_PLAY, run_command
@@ -134,9 +136,9 @@ def _files_people_have(d: Path, lines: list[str]) -> None:
 
 
 def _binary_logs(d: Path, rec) -> None:
-    """Measurement files and CAN logs written by their libraries, then cut in half, emptied or replaced by random bytes."""
+    """Measurement files and CAN logs written by their libraries, then cut in half, emptied or replaced by random
+    bytes."""
     import can
-    from asammdf import MDF, Signal
     from nptdms import ChannelObject, TdmsWriter
 
     from online_backlash.simulation.rig_logs import write_rig_can_log
@@ -146,15 +148,7 @@ def _binary_logs(d: Path, rec) -> None:
             ChannelObject("Enc", name, values, properties={"wf_increment": 1e-3, "unit_string": "deg"})
             for name, values in (("Motor", rec.motor_deg), ("Load", rec.load_deg))
         ])  # fmt: skip
-    mdf = MDF(version="4.10")
-    mdf.append(
-        [
-            Signal(rec.motor_deg, rec.time_s, name="EncMotor", unit="deg"),
-            Signal(rec.load_deg, rec.time_s, name="EncLoad", unit="deg"),
-        ]
-    )
-    mdf.save(d / "rig.mf4", overwrite=True)
-    mdf.close()
+    rig_mdf(d / "rig.mf4", rec, names=("EncMotor", "EncLoad"))
     write_rig_can_log(str(d / "rig.blf"), duration_s=2.0)
     for name in ("bench.tdms", "rig.mf4", "rig.blf"):
         data = (d / name).read_bytes()
@@ -192,7 +186,7 @@ TRACK = ("--ratio", "30", "--db", "{db}", "--gearbox", "g", "--quiet")
 SIGNALS = ("--motor-signal", "A.a", "--load-signal", "B.b")
 OPCUA = ("opcua", "--db", "{db}", "--allow-anonymous")
 INS, H, S = ("inspect",), ("history",), ("serve",)
-RIG = ("--dbc", "rig", "--motor-signal", "MotorAngle.Count", "--load-signal", "LoadAngle.Count")
+RIG = tuple(RIG_CAN)
 TDMS = ("--columns", "motor=Motor,load=Load")
 MF4 = ("--columns", "motor=EncMotor,load=EncLoad")
 WINDOWS = ("--columns", "time=time [s],motor=motor [°],load=load [°]")
@@ -273,7 +267,8 @@ CASES = {
     "a header naming radians read as degrees": Case(
         (*E, "{d}/named_rad.csv", *R, "--columns", "motor=motor [rad]"),
         0,
-        r"warning: {d}/named_rad.csv: column 'motor \[rad\]' names its unit 'rad', but the motor angles are read as deg: give --units rad",
+        r"warning: {d}/named_rad.csv: column 'motor \[rad\]' names its unit 'rad', but the motor angles are read as "
+        r"deg: give --units rad",
     ),
     # -- estimate: options
     "--columns without =": Case(
@@ -587,7 +582,8 @@ CASES = {
     "an EDS with the feed constant at its default and no 0x608F": Case(
         (*E, "{d}/run.asc", *R, "--eds", "{d}/feed_default.eds", "--node", "3", "--load-cpr", "4096"),
         1,
-        r"error: {d}/feed_default.eds: node 3: no counts per revolution in the dictionary \(the feed constant 0x6092 is 1/1, the unit "
+        r"error: {d}/feed_default.eds: node 3: no counts per revolution in the dictionary \(the feed constant "
+        r"0x6092 is 1/1, the unit "
         r"default, and no position encoder resolution 0x608F.*\): give --motor-cpr$",
     ),
     # -- inspect: what is readable, in the file's own terms
@@ -600,7 +596,8 @@ CASES = {
     "inspect: a TDMS file cut in half": Case(
         (*INS, "{d}/half_bench.tdms"),
         0,
-        r"warning: {d}/half_bench.tdms: truncated: the file ends inside its last segment \(readable values: Enc/Motor \d+",
+        r"warning: {d}/half_bench.tdms: truncated: the file ends inside its last segment \(readable values: "
+        r"Enc/Motor \d+",
         r"Enc/Motor",
     ),
     "inspect: a BLF cut in half": Case(
@@ -800,7 +797,8 @@ def test_postgresql_without_psycopg_names_the_extra(files, tmp_path, capsys, mon
         code, _, err = run_cli(argv, capsys)
         assert code == 1 and "Traceback" not in err
         assert re.fullmatch(
-            r"error: .*postgresql.* needs the driver psycopg, which is not installed; pip install 'online-backlash\[postgres\]'\n",
+            r"error: .*postgresql.* needs the driver psycopg, which is not installed; pip install "
+            r"'online-backlash\[postgres\]'\n",
             err,
         )
 

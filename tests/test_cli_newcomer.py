@@ -11,7 +11,8 @@ import pytest
 from online_backlash.cli import main
 from online_backlash.simulation.two_mass_rig import simulate_two_mass
 
-#: Suffixes every log-reading command reads (one of each reader: CSV and delimited text, MDF, TDMS, Parquet, CAN, serial).
+#: Suffixes every log-reading command reads (one of each reader: CSV and delimited text, MDF, TDMS, Parquet, CAN,
+#: serial).
 READ_BY_EVERY_COMMAND = (".csv", ".txt", ".mf4", ".tdms", ".parquet", ".arrow", ".blf", ".serial")
 
 

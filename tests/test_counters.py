@@ -1,7 +1,7 @@
 """Issue 11 item 2: the source counters and gap figures in every result (estimate, diagnose, track).
 
 Each result carries ``frames``, ``samples``, ``corrupt``, ``skipped``, ``gaps``, ``unpaired``
-(``rows.COUNTER_KEYS``) and the gap figures (``rows.GAP_KEYS``); the text report shows the non-zero
+(``output_columns.COUNTER_KEYS``) and the gap figures (``output_columns.GAP_KEYS``); the text report shows the non-zero
 ones. The expected values come from the source's own counters read independently (``open_log``), and
 from the damage each test does to a generated log.
 """
@@ -13,23 +13,16 @@ import json
 import can
 import numpy as np
 import pytest
+from rig_can import RIG_CAN
 
 from online_backlash.cli import main
 from online_backlash.codecs.dbc import RIG_DBC, DbcDecoder
+from online_backlash.output_columns import COUNTER_KEYS, FIELDS, GAP_KEYS, describe_counts, source_counts
 from online_backlash.replay import open_log
-from online_backlash.rows import COUNTER_KEYS, FIELDS, GAP_KEYS, describe_counts, source_counts
 from online_backlash.simulation.rig import simulate_rig
 from online_backlash.simulation.rig_logs import rig_can_frames, write_rig_serial_capture
 
-CAN_OPTIONS = [
-    "--dbc",
-    "rig",
-    "--motor-signal",
-    "MotorAngle.Count",
-    "--load-signal",
-    "LoadAngle.Count",
-    "--skip-bad-rows",
-]
+CAN_OPTIONS = [*RIG_CAN, "--skip-bad-rows"]
 BAD_ROWS = (100, 2000, 7001)  # data rows (0-based) made unparsable
 DROPPED = range(5000, 5004)  # data rows removed: one gap of 5 periods at 1 kHz
 

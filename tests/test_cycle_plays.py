@@ -77,8 +77,8 @@ class RefCyclePlays:
         sq = np.add.reduceat(d2, starts)
         lasts = values[np.append(starts[1:], s.size) - 1]
         for k, i in enumerate(range(starts.size)):
-            piece = _Seg(int(s[starts[i]]), float(totals[i]), int(counts[i]), float(sq[i]), int(counts[i]) - 1, self.pending,
-                         float(values[starts[i]]), float(lasts[i]))  # fmt: skip
+            piece = _Seg(int(s[starts[i]]), float(totals[i]), int(counts[i]), float(sq[i]), int(counts[i]) - 1,
+                         self.pending, float(values[starts[i]]), float(lasts[i]))  # fmt: skip
             if self.open is not None and self.open.side == piece.side:
                 self.open.absorb(piece, adjacent=k == 0)
             else:
@@ -101,7 +101,8 @@ class RefCyclePlays:
 
     def state_dict(self) -> dict:
         return {"min_samples": self.min_samples, "closed": [vars(s).copy() for s in self.closed],
-                "open": None if self.open is None else vars(self.open).copy(), "pending_break": self.pending}  # fmt: skip
+                "open": None if self.open is None else vars(self.open).copy(),
+                "pending_break": self.pending}  # fmt: skip
 
     def pairs(self):
         segs = [_Seg(**vars(s)) for s in self.closed]

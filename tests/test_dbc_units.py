@@ -29,7 +29,8 @@ def dbc(*messages: str) -> cantools.database.can.Database:
 
 
 def one_message(motor: str, load: str, frame_id: int = 256, length: int = 8) -> cantools.database.can.Database:
-    """Message ``Angles`` with signals ``Motor`` and ``Load`` given as ``start|len@order sign (scale,offset) [min|max] "unit"``."""
+    """Message ``Angles`` with signals ``Motor`` and ``Load`` given as ``start|len@order sign (scale,offset)
+    [min|max] "unit"``."""
     return dbc(f"BO_ {frame_id} Angles: {length} RIG\n SG_ Motor : {motor} RIG\n SG_ Load : {load} RIG\n")
 
 
@@ -71,7 +72,8 @@ def test_an_angle_unit_gives_degrees_from_the_scaled_physical_value(unit):
 def test_the_issue_signal_reads_its_play_not_zero():
     """``SG_ ShaftPos : 8|24@1+ (0.01,0) [0|167772.15] "deg"``: multi-turn degrees, not single-turn counts."""
     db = dbc(
-        'BO_ 300 Shaft: 4 RIG\n SG_ ShaftPos : 8|24@1+ (0.01,0) [0|167772.15] "deg" RIG\n SG_ Seq : 0|8@1+ (1,0) [0|255] "" RIG\n'
+        'BO_ 300 Shaft: 4 RIG\n SG_ ShaftPos : 8|24@1+ (0.01,0) [0|167772.15] "deg" RIG\n'
+        ' SG_ Seq : 0|8@1+ (1,0) [0|255] "" RIG\n'
     )
     angles = [100.0, 100.25, 120000.5, 167772.15, 0.0]
     frames = [frame(db, "Shaft", {"ShaftPos": a, "Seq": 0}, T0 + i) for i, a in enumerate(angles)]
@@ -141,7 +143,8 @@ def test_an_angle_wraps_only_when_told():
 
 def test_float_signals_are_read_and_non_finite_values_never_leave_the_decoder():
     db = dbc(
-        'BO_ 256 Angles: 8 RIG\n SG_ Motor : 0|32@1- (1,0) [0|0] "rad" RIG\n SG_ Load : 32|32@1- (1,0) [0|0] "rad" RIG\n'
+        'BO_ 256 Angles: 8 RIG\n SG_ Motor : 0|32@1- (1,0) [0|0] "rad" RIG\n'
+        ' SG_ Load : 32|32@1- (1,0) [0|0] "rad" RIG\n'
         "SIG_VALTYPE_ 256 Motor : 1;\nSIG_VALTYPE_ 256 Load : 1;\n"
     )
     values = [(0.5, -0.25), (float("nan"), 0.0), (1.0, float("inf")), (1.5, 0.75)]
@@ -157,7 +160,8 @@ def test_float_signals_are_read_and_non_finite_values_never_leave_the_decoder():
 # -- frame kinds ------------------------------------------------------------------------------
 def test_extended_29_bit_ids():
     db = dbc(
-        'BO_ 2566844926 Ext: 8 RIG\n SG_ Motor : 0|32@1- (0.001,0) [-2000|2000] "deg" RIG\n SG_ Load : 32|32@1- (0.001,0) [-2000|2000] "deg" RIG\n'
+        'BO_ 2566844926 Ext: 8 RIG\n SG_ Motor : 0|32@1- (0.001,0) [-2000|2000] "deg" RIG\n'
+        ' SG_ Load : 32|32@1- (0.001,0) [-2000|2000] "deg" RIG\n'
     )
     message = db.get_message_by_name("Ext")
     assert message.is_extended_frame and message.frame_id > 0x7FF
@@ -198,7 +202,8 @@ def test_can_fd_frames_take_the_per_frame_path():
 def test_multiplexed_message_reads_the_frames_that_carry_the_signals():
     db = dbc(
         'BO_ 500 Mux: 8 RIG\n SG_ Page M : 0|8@1+ (1,0) [0|255] "" RIG\n'
-        ' SG_ Motor m1 : 8|24@1- (0.01,0) [-80000|80000] "deg" RIG\n SG_ Load m1 : 32|24@1- (0.01,0) [-80000|80000] "deg" RIG\n'
+        ' SG_ Motor m1 : 8|24@1- (0.01,0) [-80000|80000] "deg" RIG\n'
+        ' SG_ Load m1 : 32|24@1- (0.01,0) [-80000|80000] "deg" RIG\n'
         ' SG_ Temp m2 : 8|16@1+ (0.1,0) [0|6553.5] "degC" RIG\n'
     )
     frames = []
@@ -240,8 +245,10 @@ def test_big_endian_signed_signals_on_both_paths():
 
 def test_two_signals_from_two_messages_pair_by_counter_on_both_paths():
     db = dbc(
-        'BO_ 700 MotorMsg: 8 RIG\n SG_ Pos : 0|32@1- (0.0001,0) [-200000|200000] "rev" RIG\n SG_ Counter : 32|8@1+ (1,0) [0|255] "" RIG\n'
-        'BO_ 701 LoadMsg: 8 RIG\n SG_ Pos : 0|32@1- (0.001,0) [-2000000|2000000] "deg" RIG\n SG_ Counter : 32|8@1+ (1,0) [0|255] "" RIG\n'
+        'BO_ 700 MotorMsg: 8 RIG\n SG_ Pos : 0|32@1- (0.0001,0) [-200000|200000] "rev" RIG\n'
+        ' SG_ Counter : 32|8@1+ (1,0) [0|255] "" RIG\n'
+        'BO_ 701 LoadMsg: 8 RIG\n SG_ Pos : 0|32@1- (0.001,0) [-2000000|2000000] "deg" RIG\n'
+        ' SG_ Counter : 32|8@1+ (1,0) [0|255] "" RIG\n'
     )
     frames = []
     for i in range(500):

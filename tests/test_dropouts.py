@@ -16,15 +16,16 @@ import json
 import can
 import numpy as np
 import pytest
+from rig_can import RIG_CAN
 
-from online_backlash.bridging import BRIDGE_S, JUMP_DEG, GapPolicy
 from online_backlash.cli import main
 from online_backlash.cli._common import EXIT_NO_PLAY
 from online_backlash.codecs.dbc import RIG_DBC, DbcDecoder
 from online_backlash.codecs.gaps import GapDetector
 from online_backlash.errors import InvalidParameterError
 from online_backlash.estimators import BacklashRLS
-from online_backlash.fitting import fit_batch, fit_recursive
+from online_backlash.gap_policy import BRIDGE_S, JUMP_DEG, GapPolicy
+from online_backlash.log_fit import fit_batch, fit_recursive
 from online_backlash.pipeline import Pipeline
 from online_backlash.replay import CsvLog, read_csv_arrays
 from online_backlash.simulation.rig import simulate_rig
@@ -133,7 +134,8 @@ def test_gap_policy_settings_are_checked(bad):
 
 
 def _burst_times(time_s: np.ndarray, rng: np.random.Generator) -> np.ndarray:
-    """Host timestamps of a USB adapter: each sample stamped at the end of its 1-5 ms burst, frames of a burst 10 us apart."""
+    """Host timestamps of a USB adapter: each sample stamped at the end of its 1-5 ms burst, frames of a burst 10 us
+    apart."""
     ends = np.cumsum(rng.integers(1, 6, size=time_s.size) * 1e-3)
     burst = np.searchsorted(ends, time_s + 1e-9)
     stamped = ends[np.minimum(burst, ends.size - 1)]
@@ -159,7 +161,7 @@ def burst_blf(tmp_path_factory):
 @pytest.mark.parametrize("period", [None, "0.001"])
 def test_timestamp_bursts_with_a_continuous_counter_are_not_gaps(capsys, burst_blf, period):
     argv = ["estimate", str(burst_blf), "--ratio", "30", "--json", "--bridge-s", "0"]  # no bridging: the codec alone
-    argv += ["--dbc", "rig", "--motor-signal", "MotorAngle.Count", "--load-signal", "LoadAngle.Count"]
+    argv += RIG_CAN
     assert main(argv + ([] if period is None else ["--period", period])) == 0
     out = json.loads(capsys.readouterr().out)
     assert (out["gaps"], out["samples"], out["corrupt"], out["unpaired"]) == (0, 20000, 0, 0)

@@ -15,7 +15,7 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
-from asammdf import MDF, Signal
+from measurement_cases import rig_mdf
 from nptdms import ChannelObject, TdmsWriter
 
 from online_backlash.cli import main
@@ -41,21 +41,6 @@ def first_chunk_origin(path, **options) -> tuple[float | None, str]:
     with open_log(path, **options) as log:
         next(iter(log.iter_chunks()))
         return log.time_origin_unix_s, log.time_origin_name
-
-
-def write_mdf(path, rec, start: dt.datetime | None):
-    mdf = MDF(version="4.10")
-    if start is not None:
-        mdf.header.start_time = start
-    mdf.append(
-        [
-            Signal(rec.motor_deg, rec.time_s, name="Motor", unit="deg"),
-            Signal(rec.load_deg, rec.time_s, name="Load", unit="deg"),
-        ]
-    )
-    mdf.save(path, overwrite=True)
-    mdf.close()
-    return path
 
 
 def write_tdms(path, rec, start):
@@ -88,13 +73,13 @@ TDMS_COLUMNS = {"columns": {"motor": "Rig/Motor", "load": "Rig/Load"}}
 
 @pytest.mark.parametrize("start", [START, BERLIN], ids=["utc", "utc+1"])
 def test_an_mdf4_header_start_time_is_the_files_clock(tmp_path, rec, start):
-    path = write_mdf(tmp_path / "rig.mf4", rec, start)
+    path = rig_mdf(tmp_path / "rig.mf4", rec, start=start)
     origin, name = first_chunk_origin(path, **MDF_COLUMNS)
     assert origin == pytest.approx(START.timestamp(), abs=1e-6) and name == "MDF header start time"
 
 
 def test_an_mdf4_header_in_local_time_without_zone_is_read_as_utc(tmp_path, rec):
-    path = write_mdf(tmp_path / "rig.mf4", rec, START.replace(tzinfo=None))
+    path = rig_mdf(tmp_path / "rig.mf4", rec, start=START.replace(tzinfo=None))
     assert first_chunk_origin(path, **MDF_COLUMNS)[0] == pytest.approx(START.timestamp(), abs=1e-6)
 
 
@@ -117,7 +102,7 @@ def test_a_parquet_timestamp_column_is_the_files_clock(tmp_path, rec):
 @pytest.mark.parametrize("kind", ["mdf", "tdms", "parquet"])
 def test_track_places_a_measurement_file_by_its_own_clock_not_its_mtime(tmp_path, capsys, rec, kind):
     path, columns = {
-        "mdf": (write_mdf(tmp_path / "rig.mf4", rec, BERLIN), "motor=Motor,load=Load"),
+        "mdf": (rig_mdf(tmp_path / "rig.mf4", rec, start=BERLIN), "motor=Motor,load=Load"),
         "tdms": (
             write_tdms(tmp_path / "rig.tdms", rec, np.datetime64(START.replace(tzinfo=None), "us")),
             "motor=Rig/Motor,load=Rig/Load",

@@ -17,6 +17,7 @@ import time
 
 import pytest
 from live_run import kill_mid_work, run_live, send_frames, wait_until
+from rig_can import RIG_CAN
 
 from online_backlash.cli import main
 from online_backlash.cli.track import track_gearbox
@@ -138,8 +139,10 @@ def test_manifest_keys_are_track_options_with_underscores(tmp_path):
     write_simulated_fleet(tmp_path, gearboxes=1, logs=2)
     path = tmp_path / "m.toml"
     path.write_text(
-        '[defaults]\nratio = -30\nskip_bad_rows = true\ndiagnose = false\n\n[[gearbox]]\nid = "GB-0"\nlogs = ["gb0/day01.csv", "gb0/day00.csv"]\n'
-        'columns = { time = "time_s", motor = "motor_deg", load = "load_deg" }\nwarn_arcmin = 18\nlimit_arcmin = 21\nmemory_reversals = 40\n'
+        '[defaults]\nratio = -30\nskip_bad_rows = true\ndiagnose = false\n\n[[gearbox]]\nid = "GB-0"\n'
+        'logs = ["gb0/day01.csv", "gb0/day00.csv"]\n'
+        'columns = { time = "time_s", motor = "motor_deg", load = "load_deg" }\nwarn_arcmin = 18\n'
+        "limit_arcmin = 21\nmemory_reversals = 40\n"
     )
     seen = []
 
@@ -156,8 +159,9 @@ def test_manifest_keys_are_track_options_with_underscores(tmp_path):
     assert job.id == "GB-0" and job.logs == (str(tmp_path / "gb0" / "day01.csv"), str(tmp_path / "gb0" / "day00.csv"))
     assert seen == [list(job.argv)]
     assert job.argv == (
-        "--db", "w.db", "--gearbox=GB-0", "--ratio=-30", "--skip-bad-rows", "--columns=time=time_s,motor=motor_deg,load=load_deg",
-        "--warn-arcmin=18", "--limit-arcmin=21", "--memory-reversals=40", "--", *job.logs,
+        "--db", "w.db", "--gearbox=GB-0", "--ratio=-30", "--skip-bad-rows",
+        "--columns=time=time_s,motor=motor_deg,load=load_deg", "--warn-arcmin=18", "--limit-arcmin=21",
+        "--memory-reversals=40", "--", *job.logs,
     )  # fmt: skip
 
 
@@ -403,16 +407,7 @@ def test_track_sorts_the_logs_of_one_call_by_their_first_sample(tmp_path, capsys
 def test_track_takes_the_raw_log_folder_listen_wrote(tmp_path, capsys):
     rec = simulate_rig(duration_s=16.0, rate_hz=1000.0, seed=12)
     frames = list(rig_can_frames(rec, DbcDecoder(RIG_DBC, "MotorAngle.Count", "LoadAngle.Count"), T0))
-    can_opts = [
-        "--dbc",
-        "rig",
-        "--motor-signal",
-        "MotorAngle.Count",
-        "--load-signal",
-        "LoadAngle.Count",
-        "--ratio",
-        "30",
-    ]
+    can_opts = [*RIG_CAN, "--ratio", "30"]
 
     raw = tmp_path / "raw"
     argv = ["listen", "can", "--interface", "virtual", "--channel", "fleet-raw", *can_opts, "--raw-log", raw, "--json"]
@@ -431,7 +426,8 @@ def test_track_takes_the_raw_log_folder_listen_wrote(tmp_path, capsys):
 
 
 def test_runs_of_an_older_store_keyed_by_the_files_bytes_are_found(tmp_path, two_days):
-    """A store written when a log's key was its file's SHA-256: its interrupted run resumes, its complete one is complete."""
+    """A store written when a log's key was its file's SHA-256: its interrupted run resumes, its complete one is
+    complete."""
     from online_backlash.replay import open_log
     from online_backlash.tracking import file_sha256, log_clock
 

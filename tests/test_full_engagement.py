@@ -18,8 +18,8 @@ import pytest
 
 from online_backlash import BacklashRLS, VorosBacklash
 from online_backlash.estimators.full_engagement import FOLLOWING, NO_FLANK, RESTING, FullEngagement
-from online_backlash.fitting import fit_batch, fit_recursive
 from online_backlash.history.store import HistoryStore
+from online_backlash.log_fit import fit_batch, fit_recursive
 from online_backlash.simulation.rig import simulate_rig
 from online_backlash.simulation.two_mass_rig import simulate_two_mass
 from online_backlash.stream import SampleChunk

@@ -14,10 +14,10 @@ import numpy as np
 import pytest
 
 from online_backlash import BacklashRLS, CascadeRLS
-from online_backlash.bridging import GapPolicy
 from online_backlash.errors import InvalidParameterError
-from online_backlash.fitting import fit_batch
+from online_backlash.gap_policy import GapPolicy
 from online_backlash.load_aware import TorqueBacklashRLS
+from online_backlash.log_fit import fit_batch
 from online_backlash.model import BacklashParams, simulate_cascade
 from online_backlash.pipeline import Pipeline
 from online_backlash.simulation.rig import simulate_rig
@@ -207,7 +207,8 @@ def test_the_gap_policy_is_a_saved_parameter():
 
 
 def test_a_tracker_checkpoint_just_before_a_short_gap_bridges_it_when_the_run_resumes(dropouts):
-    """``track`` resumes a run from the gearbox's checkpoint (the same log, no mark_gap): the gap right after it is bridged."""
+    """``track`` resumes a run from the gearbox's checkpoint (the same log, no mark_gap): the gap right after it is
+    bridged."""
     gap_at = int(np.flatnonzero(dropouts.after_gap)[3])
     state = TrackerState.load(None, 30.0, 1.0, first=dropouts)
     list(state.pipeline.feed(dropouts.slice(0, gap_at)))

@@ -28,7 +28,7 @@ from online_backlash.history.condition import LoadCondition
 from online_backlash.history.plot import plot_wear
 from online_backlash.history.report import wear_report
 from online_backlash.history.store import SCHEMA_VERSION, HistoryStore, resolve_url
-from online_backlash.rows import HISTORY_CSV_COLUMNS, STORE_COLUMNS
+from online_backlash.output_columns import HISTORY_CSV_COLUMNS, STORE_COLUMNS
 from online_backlash.simulation.two_mass_rig import simulate_two_mass
 from online_backlash.tracking import GearboxTracker
 

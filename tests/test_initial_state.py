@@ -6,10 +6,10 @@ from __future__ import annotations
 
 import itertools
 import json
-from pathlib import Path
 
 import numpy as np
 import pytest
+from davinci_runs import DAVINCI, UNITS, WITH_TORQUE
 
 from online_backlash.cli import main
 from online_backlash.diagnostics import loop
@@ -243,32 +243,16 @@ def test_a_load_kicked_from_rest_is_estimated_with_the_time_it_starts_to_move(mo
 def test_the_measured_run49_start_is_a_kick_from_rest_that_waits_in_the_gap(capsys):
     # the tool's run at full reaction torque: the spindle rests for 8 ms, is thrown 1 deg ahead of the motor,
     # stops there, and waits until the motor's reversal brings the other flank to it (0.155 s)
-    data = Path(__file__).resolve().parents[2] / "shared" / "data" / "davinci_tool_gearhead_backlash"
-    path = next(data.glob("tool4_L_run49_*.csv"))
-    columns = "time=time_s,motor=motor_counts,load=spindle_counts,torque=backend_torque_Nm"
-    args = [
-        "diagnose",
-        str(path),
-        "--ratio",
-        "-35",
-        "--units",
-        "counts",
-        "--motor-cpr",
-        "4096",
-        "--load-cpr",
-        "8192",
-        "--columns",
-        columns,
-        "--json",
-    ]
-    assert main(args) == 0
+    path = next(DAVINCI.glob("tool4_L_run49_*.csv"))
+    assert main(["diagnose", str(path), *UNITS, "--columns", WITH_TORQUE, "--json"]) == 0
     out = json.loads(capsys.readouterr().out)
     state = out["initial_state"]
     assert state["estimated"] and state["delta_bic"] < -100
     assert 0.005 <= state["starts_moving_after_s"] <= 0.012
     assert state["stops_after_s"] < 0.05 and 100 <= state["samples"] <= 200
     assert state["rms_at_rest_deg"] > 0.5 and state["rms_deg"] < 0.1
-    # the steps' figures take the start as the whole does: each step starts where the last ended, the last ends at the whole's
+    # the steps' figures take the start as the whole does: each step starts where the last ended, the last ends at the
+    # whole's
     steps = out["effects"] + out["unexplained"]
     assert steps and steps[0]["rms_before_deg"] == out["rms_before_deg"]
     assert all(a["rms_after_deg"] == b["rms_before_deg"] for a, b in itertools.pairwise(steps))

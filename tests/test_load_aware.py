@@ -16,11 +16,11 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from davinci_runs import DAVINCI, UNITS, WITH_TORQUE
 
 from online_backlash.cli import main
 from online_backlash.cli._common import EXIT_NO_PLAY
 from online_backlash.errors import InvalidParameterError
-from online_backlash.fitting import fit_batch, fit_recursive
 from online_backlash.load_aware import (
     DwellTracker,
     TorqueBacklash,
@@ -31,12 +31,12 @@ from online_backlash.load_aware import (
     torque_noise_std,
 )
 from online_backlash.load_aware.engagement import either_flank_engaged, torque_orientation
+from online_backlash.log_fit import fit_batch, fit_recursive
 from online_backlash.simulation.two_mass_rig import simulate_two_mass
 
-DAVINCI = Path(__file__).resolve().parents[2] / "shared" / "data" / "davinci_tool_gearhead_backlash"
+#: A run read with the gear ratio folded into the motor's counts per revolution (4096 x 35, ratio -1)
 DAVINCI_ARGS = [
-    "--ratio", "-1", "--columns", "time=time_s,motor=motor_counts,load=spindle_counts,torque=backend_torque_Nm",
-    "--units", "counts", "--motor-cpr", str(4096 * 35), "--load-cpr", "8192",
+    "--ratio", "-1", "--columns", WITH_TORQUE, "--units", "counts", "--motor-cpr", str(4096 * 35), "--load-cpr", "8192",
 ]  # fmt: skip
 PLAY = 0.4
 STIFFNESS = 0.1  # N m/arcmin, the simulator's default
@@ -205,7 +205,8 @@ def test_a_preloaded_drive_reports_no_play(capsys, logs):
 def test_the_report_keys_exist_with_and_without_torque(capsys, logs, tmp_path):
     out, loaded = logs
     keys = {"play_observable", "torque_reversals", "n_reversals", "backlash_lower_bound_deg", "stiffness_nm_per_arcmin",
-            "stiffness_left_nm_per_arcmin", "stiffness_right_nm_per_arcmin", "lost_motion_arcmin", "hysteresis_loss_arcmin"}  # fmt: skip
+            "stiffness_left_nm_per_arcmin", "stiffness_right_nm_per_arcmin", "lost_motion_arcmin",
+            "hysteresis_loss_arcmin"}  # fmt: skip
     with_torque = _estimate(capsys, out / "loaded.csv", "--ratio", "30", "--rated-torque", "2")
     assert keys <= set(with_torque) and with_torque["play_observable"] is True and with_torque["torque_reversals"] > 0
     assert with_torque["backlash_deg"] == pytest.approx(PLAY, rel=0.02)
@@ -274,8 +275,7 @@ def test_a_play_the_torque_path_cannot_resolve_is_not_reported(capsys):
     per flank confounds wind-up and play; the torque path's play is not resolved (before issue 27 it
     came out negative, with a warning): null, with the reason and the bounds the data support."""
     log = DAVINCI / "tool4_L_run20_0.3Hz_torque10pct.csv"
-    argv = ["estimate", str(log), "--ratio", "-35", "--columns", "time=time_s,motor=motor_counts,load=spindle_counts,torque=backend_torque_Nm",
-            "--units", "counts", "--motor-cpr", "4096", "--load-cpr", "8192", "--json"]  # fmt: skip
+    argv = ["estimate", str(log), *UNITS, "--columns", WITH_TORQUE, "--json"]
     assert main([*argv, "--play-method", "torque"]) == EXIT_NO_PLAY  # the report, without a play
     out, err = capsys.readouterr()
     report = json.loads(out)

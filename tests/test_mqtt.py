@@ -25,28 +25,20 @@ import paho.mqtt.client as mqtt
 import pytest
 from live_run import LIMIT_S, run_live, send_frames
 from mqtt_server import BrokerCertificates, MosquittoBroker, MosquittoUnavailable
+from rig_can import RIG_CAN
 
 from online_backlash.cli import main
 from online_backlash.codecs.dbc import RIG_DBC, DbcDecoder
 from online_backlash.errors import InvalidParameterError
-from online_backlash.fitting import fit_recursive
+from online_backlash.log_fit import fit_recursive
+from online_backlash.output_columns import REPORT_KEYS, EstimateRow
 from online_backlash.publish import PASSWORD_ENV, MqttPublisher, MqttTarget, MqttTls, estimate_message, live_state
 from online_backlash.replay import open_log
-from online_backlash.rows import REPORT_KEYS, EstimateRow
 from online_backlash.simulation.rig import simulate_rig
 from online_backlash.simulation.rig_logs import rig_can_frames
 
 T0 = 1.75e9  # the frames' clock: UNIX seconds
-CAN_OPTIONS = [
-    "--interface",
-    "virtual",
-    "--dbc",
-    "rig",
-    "--motor-signal",
-    "MotorAngle.Count",
-    "--load-signal",
-    "LoadAngle.Count",
-]
+CAN_OPTIONS = ["--interface", "virtual", *RIG_CAN]
 #: The line ``listen --mqtt`` writes on stderr when the publisher has connected.
 CONNECTED = r"mqtt: 127\.0\.0\.1:\d+: connected$"
 MESSAGE_KEYS = set(REPORT_KEYS) | {"backlash_std_deg", "n_reversals", "time", "time_unix_s", "gearbox", "state"}
@@ -326,20 +318,8 @@ def test_track_listen_publishes_with_the_stored_levels(mqtt_broker, tmp_path, ca
 
 
 def test_mqtt_needs_a_gearbox_and_a_well_formed_url(tmp_path, capsys):
-    base = [
-        "listen",
-        "serial",
-        "--port",
-        "loop://",
-        "--format",
-        "ascii",
-        "--ratio",
-        "30",
-        "--raw-log",
-        str(tmp_path),
-        "--duration",
-        "0.1",
-    ]
+    base = ["listen", "serial", "--port", "loop://", "--format", "ascii", "--ratio", "30", "--raw-log", str(tmp_path)]
+    base += ["--duration", "0.1"]
     assert main([*base, "--mqtt", "mqtt://127.0.0.1:1883/p"]) == 1
     assert "give --gearbox ID" in capsys.readouterr().err
     assert main([*base, "--mqtt", "http://127.0.0.1/p", "--gearbox", "g"]) == 1

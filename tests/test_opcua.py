@@ -97,8 +97,9 @@ def _serving(folder: Path, *argv: str):
 
 @pytest.fixture(scope="module")
 def plant(tmp_path_factory):
-    """A store with the first seven snapshots of GB-7 (12-12.6 arcmin; warning 13, limit 21 arcmin: ok), a trusted and an untrusted client
-    certificate, and ``online-backlash opcua`` serving the store; yields a dict of what the tests need."""
+    """A store with the first seven snapshots of GB-7 (12-12.6 arcmin; warning 13, limit 21 arcmin: ok), a trusted and
+    an untrusted client certificate, and ``online-backlash opcua`` serving the store; yields a dict of what the tests
+    need."""
     d = tmp_path_factory.mktemp("opcua")
     db = d / "wear.db"
     _track(db, *range(7), levels=("--warn-arcmin", "13", "--limit-arcmin", "21"))

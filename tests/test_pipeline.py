@@ -17,8 +17,15 @@ from online_backlash import BacklashRLS
 from online_backlash.cli import main
 from online_backlash.errors import InvalidParameterError, LogFormatError
 from online_backlash.history.store import ESTIMATE_FIELDS, Estimate, HistoryStore, estimates_table
+from online_backlash.output_columns import (
+    FIELDS,
+    HISTORY_CSV_COLUMNS,
+    REPORT_KEYS,
+    STORE_COLUMNS,
+    TRACE_COLUMNS,
+    EstimateRow,
+)
 from online_backlash.pipeline import DataClock, Pipeline
-from online_backlash.rows import FIELDS, HISTORY_CSV_COLUMNS, REPORT_KEYS, STORE_COLUMNS, TRACE_COLUMNS, EstimateRow
 from online_backlash.simulation import synthetic
 from online_backlash.simulation.rig import simulate_rig
 from online_backlash.stream import SampleChunk
@@ -157,9 +164,10 @@ def test_the_contracts_keep_their_names_and_order():
         "m_right",
     )
     assert REPORT_KEYS == (
-        "backlash_deg", "backlash_arcmin", "c_left_deg", "c_right_deg", "m_left", "m_right", "samples", "residual_rms_deg", "method",
-        "play_observable", "torque_reversals", "backlash_lower_bound_deg", "stiffness_nm_per_arcmin", "stiffness_left_nm_per_arcmin",
-        "stiffness_right_nm_per_arcmin", "lost_motion_arcmin", "hysteresis_loss_arcmin",
+        "backlash_deg", "backlash_arcmin", "c_left_deg", "c_right_deg", "m_left", "m_right", "samples",
+        "residual_rms_deg", "method", "play_observable", "torque_reversals", "backlash_lower_bound_deg",
+        "stiffness_nm_per_arcmin", "stiffness_left_nm_per_arcmin", "stiffness_right_nm_per_arcmin",
+        "lost_motion_arcmin", "hysteresis_loss_arcmin",
         # issue 27: the path of the play and the verdict on it
         "backlash_upper_bound_deg", "reason", "play_method", "play_method_reason",
     )  # fmt: skip
@@ -241,6 +249,6 @@ def test_track_diagnose_keeps_the_effects_in_the_checkpoint(te_logs, tmp_path, c
 
 
 def test_the_pipeline_modules_never_print():
-    for name in ("pipeline.py", "rows.py", "tracking.py", "fitting.py"):
+    for name in ("pipeline.py", "output_columns.py", "tracking.py", "log_fit.py"):
         calls = [n for n in ast.walk(ast.parse((PACKAGE / name).read_text())) if isinstance(n, ast.Call)]
         assert not [c for c in calls if isinstance(c.func, ast.Name) and c.func.id == "print"], name

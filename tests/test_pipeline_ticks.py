@@ -13,10 +13,10 @@ import math
 import numpy as np
 import pytest
 
-from online_backlash import BacklashRLS, fitting
+from online_backlash import BacklashRLS, log_fit
 from online_backlash.errors import InvalidParameterError
 from online_backlash.estimators.uncertainty import SCATTER_EVERY_S, RecursivePlayScatter
-from online_backlash.fitting import fit_recursive
+from online_backlash.log_fit import fit_recursive
 from online_backlash.pipeline import DataClock, Pipeline
 from online_backlash.simulation.rig import simulate_rig
 from online_backlash.stream import SampleChunk
@@ -128,7 +128,7 @@ def test_the_std_does_not_depend_on_whether_rows_are_traced(monkeypatch, size, a
     estimator's loop); with one they do: the per-cycle plays and the whole report are the same, bit for bit."""
     scatters: list[RecursivePlayScatter] = []
     monkeypatch.setattr(
-        fitting, "RecursivePlayScatter", lambda est: scatters.append(RecursivePlayScatter(est)) or scatters[-1]
+        log_fit, "RecursivePlayScatter", lambda est: scatters.append(RecursivePlayScatter(est)) or scatters[-1]
     )
     chunk = simulate_rig(duration_s=90.0, ratio=30.0, play_deg=0.5, seed=4).to_chunk()
     parts = [chunk] if size is None else [chunk.slice(a, min(a + size, len(chunk))) for a in range(0, len(chunk), size)]
@@ -196,7 +196,8 @@ def test_the_compiled_referral_gives_the_numbers_of_sample_chunk_referred(dtype,
     """The pipeline divides and checks in one compiled pass: the same ``u`` as ``SampleChunk.referred``, bit for bit,
     whatever the motor column's dtype (numpy divides float32 in float32) and layout, with and without rows."""
     chunk = simulate_rig(duration_s=15.0, ratio=30.0, seed=3).to_chunk()
-    motor = {"float64": chunk.motor_deg, "float32": chunk.motor_deg.astype(np.float32), "int64": np.rint(chunk.motor_deg * 100).astype(np.int64),
+    motor = {"float64": chunk.motor_deg, "float32": chunk.motor_deg.astype(np.float32),
+             "int64": np.rint(chunk.motor_deg * 100).astype(np.int64),
              "strided": np.repeat(chunk.motor_deg, 2)[::2]}[dtype]  # fmt: skip
     source = SampleChunk(chunk.time_s, motor, chunk.load_deg, chunk.torque_Nm, chunk.after_gap)
     want = np.asarray(source.referred(ratio)[0], dtype=float)

@@ -12,23 +12,20 @@ from __future__ import annotations
 
 import json
 import math
-from pathlib import Path
 
 import numpy as np
 import pytest
+from davinci_runs import DAVINCI, UNITS, WITH_TORQUE, WITHOUT_TORQUE
 
 from online_backlash.cli import main
 from online_backlash.cli._common import EXIT_NO_PLAY
-from online_backlash.fitting import fit_batch, fit_recursive
 from online_backlash.history.store import HistoryStore
 from online_backlash.load_aware import TorqueBacklash
+from online_backlash.log_fit import fit_batch, fit_recursive
 from online_backlash.simulation.rig import simulate_rig
 from online_backlash.simulation.two_mass_rig import simulate_two_mass
 from online_backlash.tracking import GearboxTracker, TrackerState
 
-DAVINCI = Path(__file__).resolve().parents[2] / "shared" / "data" / "davinci_tool_gearhead_backlash"
-UNITS = ["--ratio", "-35", "--units", "counts", "--motor-cpr", "4096", "--load-cpr", "8192"]
-WITH_TORQUE = "time=time_s,motor=motor_counts,load=spindle_counts,torque=backend_torque_Nm"
 PLAY = 0.4
 T0 = 1.7e9
 #: Friction torque between the sensor and the flanks, the sensor's zero offset (N m), and the rig they sit in.
@@ -151,9 +148,9 @@ def test_a_column_merely_named_torque_is_read_only_when_mapped(capsys, tmp_path,
 @pytest.mark.skipif(not DAVINCI.is_dir(), reason="the shared measured runs are not beside the checkout")
 def test_the_report_says_when_torque_like_columns_were_left_out(capsys):
     run = str(DAVINCI / "tool4_L_run20_0.3Hz_torque10pct.csv")
-    d = _json(capsys, "estimate", run, *UNITS, "--columns", "time=time_s,motor=motor_counts,load=spindle_counts")
+    d = _json(capsys, "estimate", run, *UNITS, "--columns", WITHOUT_TORQUE)
     assert d["unused_torque_columns"] == ["backend_torque_Nm", "frontend_torque_Nm"] and d["play_method"] == "kinematic"
-    assert main(["estimate", run, *UNITS, "--columns", "time=time_s,motor=motor_counts,load=spindle_counts"]) == 0
+    assert main(["estimate", run, *UNITS, "--columns", WITHOUT_TORQUE]) == 0
     assert (
         "torque:         column(s) backend_torque_Nm, frontend_torque_Nm present but not used"
         in capsys.readouterr().out

@@ -11,34 +11,16 @@ input has not moved (:func:`online_backlash.model.simulate_switching`).
 from __future__ import annotations
 
 import json
-from pathlib import Path
 
 import pytest
+from davinci_runs import DAVINCI, UNITS, WITH_TORQUE
 
 from online_backlash.cli import main
 from online_backlash.diagnostics import loop
 from online_backlash.model import BacklashParams
 
-RUN20 = (
-    Path(__file__).resolve().parents[2]
-    / "shared"
-    / "data"
-    / "davinci_tool_gearhead_backlash"
-    / "tool4_L_run20_0.3Hz_torque10pct.csv"
-)
-ARGS = [
-    "--ratio",
-    "-35",
-    "--units",
-    "counts",
-    "--motor-cpr",
-    "4096",
-    "--load-cpr",
-    "8192",
-    "--columns",
-    "time=time_s,motor=motor_counts,load=spindle_counts,torque=backend_torque_Nm",
-    "--json",
-]
+RUN20 = DAVINCI / "tool4_L_run20_0.3Hz_torque10pct.csv"
+ARGS = [*UNITS, "--columns", WITH_TORQUE, "--json"]
 
 
 def _diagnosed(capsys, monkeypatch, change: float) -> dict:

@@ -7,10 +7,10 @@ from __future__ import annotations
 import json
 import threading
 import warnings
-from pathlib import Path
 
 import numpy as np
 import pytest
+from davinci_runs import DAVINCI, READ
 
 from online_backlash import BacklashRLS, CascadeRLS, VorosBacklash, VorosCascade
 from online_backlash.diagnostics.effects import TransmissionError
@@ -298,17 +298,9 @@ def test_cold_start_from_the_papers_start_values():
 
 # -- measured data -------------------------------------------------------------------------------
 
-DAVINCI = Path(__file__).resolve().parents[2] / "shared" / "data" / "davinci_tool_gearhead_backlash"
-
 
 def _davinci(name: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    log = read_csv_arrays(
-        DAVINCI / name,
-        columns={"time": "time_s", "motor": "motor_counts", "load": "spindle_counts"},
-        units="counts",
-        motor_cpr=4096,
-        load_cpr=8192,
-    )
+    log = read_csv_arrays(DAVINCI / name, **READ)
     return log.motor_deg / -35.0, log.load_deg, log.after_gap
 
 

@@ -11,6 +11,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from davinci_runs import DAVINCI, READ
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
@@ -19,14 +20,6 @@ from online_backlash.errors import BacklashWarning, InvalidParameterError, LogFo
 from online_backlash.replay import CsvLog, open_log, read_csv_arrays, read_log_arrays
 from online_backlash.replay.csv import CsvDialect, sniff_dialect
 from online_backlash.stream import Sample
-
-SHARED = Path(__file__).resolve().parents[2] / "shared" / "data" / "davinci_tool_gearhead_backlash"
-DAVINCI = {
-    "columns": {"time": "time_s", "motor": "motor_counts", "load": "spindle_counts", "torque": "backend_torque_Nm"},
-    "units": "counts",
-    "motor_cpr": 4096,
-    "load_cpr": 8192,
-}
 
 
 def write(tmp_path: Path, text: str, name: str = "log.csv") -> Path:
@@ -347,7 +340,7 @@ RECORDINGS = [
 def test_measured_recordings_load_and_fit_sensibly(name):
     from online_backlash import VorosBacklash
 
-    chunk = read_csv_arrays(SHARED / name, **DAVINCI)
+    chunk = read_csv_arrays(DAVINCI / name, **{**READ, "columns": {**READ["columns"], "torque": "backend_torque_Nm"}})
     assert len(chunk) > 19_000 and not chunk.after_gap.any()
     est = VorosBacklash(origin="first").fit(
         chunk.motor_deg / -35.0, chunk.load_deg

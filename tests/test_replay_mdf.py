@@ -8,7 +8,15 @@ import pytest
 from asammdf import MDF, Signal
 from hypothesis import given
 from hypothesis import strategies as st
-from measurement_cases import FUZZ, assert_same_estimate_as_csv, check_damaged_file, damaged, read_all, rig_recording
+from measurement_cases import (
+    FUZZ,
+    assert_same_estimate_as_csv,
+    check_damaged_file,
+    damaged,
+    read_all,
+    rig_mdf,
+    rig_recording,
+)
 
 from online_backlash.errors import InvalidParameterError, LogFormatError
 from online_backlash.replay import open_log
@@ -27,19 +35,6 @@ def write_mdf(path, groups):
     mdf.save(path, overwrite=True)
     mdf.close()
     return path
-
-
-def rig_mdf(path, rec, motor_unit="deg", load_unit="deg"):
-    t = rec.time_s
-    return write_mdf(
-        path,
-        [
-            [
-                Signal(rec.motor_deg, t, name="Motor", unit=motor_unit),
-                Signal(rec.load_deg, t, name="Load", unit=load_unit),
-            ]
-        ],
-    )
 
 
 @pytest.fixture(scope="module")

@@ -19,6 +19,8 @@ import can
 import numpy as np
 import pytest
 from live_run import run_live, send_frames
+from measurement_cases import rig_mdf
+from rig_can import RIG_CAN
 from test_dbc_units import dbc, frame
 
 from online_backlash.cli import main
@@ -28,7 +30,7 @@ from online_backlash.codecs.gaps import CounterClock
 from online_backlash.codecs.pairing import FramePipeline
 from online_backlash.errors import InvalidParameterError, LogFormatError
 from online_backlash.estimators import _rls_kernels
-from online_backlash.fitting import fit_recursive
+from online_backlash.log_fit import fit_recursive
 from online_backlash.pipeline import read_ahead
 from online_backlash.replay import LOG_READERS
 from online_backlash.replay.mdf import MdfLog
@@ -38,7 +40,6 @@ from online_backlash.simulation.rig_logs import rig_can_frames
 from online_backlash.stream import SampleChunk
 
 T0 = 1.7e9
-RIG_SIGNALS = ["--dbc", "rig", "--motor-signal", "MotorAngle.Count", "--load-signal", "LoadAngle.Count"]
 
 
 def chunk_of(values: np.ndarray) -> SampleChunk:
@@ -129,7 +130,6 @@ def measurement_files(tmp_path_factory):
     """The rig (60 s at 1 kHz, 0.5 deg of play) as Parquet (pyarrow, row groups of 7,000) and MDF4 (asammdf)."""
     import pyarrow as pa
     import pyarrow.parquet as pq
-    from asammdf import MDF, Signal
 
     rec = simulate_rig(duration_s=60.0, ratio=30.0, play_deg=0.5, seed=21)
     folder = tmp_path_factory.mktemp("ahead")
@@ -137,15 +137,7 @@ def measurement_files(tmp_path_factory):
     pq.write_table(
         pa.table({"time": rec.time_s, "motor": rec.motor_deg, "load": rec.load_deg}), parquet, row_group_size=7000
     )
-    mdf = MDF(version="4.10")
-    mdf.append(
-        [
-            Signal(rec.motor_deg, rec.time_s, name="Motor", unit="deg"),
-            Signal(rec.load_deg, rec.time_s, name="Load", unit="deg"),
-        ]
-    )
-    mdf.save(mf4, overwrite=True)
-    mdf.close()
+    rig_mdf(mf4, rec)
     return {
         "parquet": lambda: ParquetLog(parquet, block_rows=4096),
         "mf4": lambda: MdfLog(mf4, columns={"motor": "Motor", "load": "Load"}, fragment_bytes=1 << 16),
@@ -177,7 +169,8 @@ def test_the_registry_names_every_python_can_log_format_without_importing_python
 
 # -- time from the counter ----------------------------------------------------------------------
 def burst_times(n: int, rng: np.random.Generator) -> np.ndarray:
-    """Host timestamps of a USB adapter at 1 kHz: each sample stamped at the end of its 1-5 ms burst (frames 20 us apart)."""
+    """Host timestamps of a USB adapter at 1 kHz: each sample stamped at the end of its 1-5 ms burst (frames 20 us
+    apart)."""
     ends = np.cumsum(rng.integers(1, 6, size=n) * 1e-3)
     nominal = np.arange(n) * 1e-3
     burst = np.searchsorted(ends, nominal + 1e-9)
@@ -278,7 +271,7 @@ def trace_rows(tmp_path, capsys, log, *extra):
                 "1",
                 "--trace",
                 str(trace),
-                *RIG_SIGNALS,
+                *RIG_CAN,
                 *extra,
             ]
         )
@@ -311,7 +304,7 @@ def test_listen_can_with_bursts_and_period_replays_to_the_same_estimate(tmp_path
         "virtual",
         "--channel",
         "burst-can",
-        *RIG_SIGNALS,
+        *RIG_CAN,
         "--ratio",
         "30",
         "--period",
@@ -325,7 +318,7 @@ def test_listen_can_with_bursts_and_period_replays_to_the_same_estimate(tmp_path
     assert run_live(argv, lambda _: send_frames("burst-can", messages)) == 0
     live = json.loads(capsys.readouterr().out)
     assert live["samples"] == 4000 and live["gaps"] == 0
-    assert main(["estimate", str(tmp_path / "raw"), *RIG_SIGNALS, "--ratio", "30", "--period", "0.001", "--json"]) == 0
+    assert main(["estimate", str(tmp_path / "raw"), *RIG_CAN, "--ratio", "30", "--period", "0.001", "--json"]) == 0
     replayed = json.loads(capsys.readouterr().out)
     keys = (
         "backlash_deg",
@@ -354,7 +347,10 @@ def test_parse_wrap_deg_for_both_or_per_signal():
         wrap_per_signal({"torque": 360.0})
 
 
-SHAFTS = 'BO_ 256 Angles: 8 RIG\n SG_ Motor : 0|32@1- (0.001,0) [-2000000|2000000] "{unit}" RIG\n SG_ Load : 32|16@1+ (0.01,0) [0|655.35] "{unit}" RIG\n'
+SHAFTS = (
+    'BO_ 256 Angles: 8 RIG\n SG_ Motor : 0|32@1- (0.001,0) [-2000000|2000000] "{unit}" RIG\n'
+    ' SG_ Load : 32|16@1+ (0.01,0) [0|655.35] "{unit}" RIG\n'
+)
 
 
 def shaft_frames(db, rec):

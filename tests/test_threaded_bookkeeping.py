@@ -13,22 +13,21 @@ from __future__ import annotations
 import json
 import threading
 import time
-from pathlib import Path
 
 import numpy as np
 import pytest
+from davinci_runs import DAVINCI
 
-from online_backlash import fitting
+from online_backlash import log_fit
 from online_backlash.estimators import uncertainty
 from online_backlash.estimators.uncertainty import RecursivePlayScatter
-from online_backlash.fitting import fit_recursive
+from online_backlash.log_fit import fit_recursive
+from online_backlash.output_columns import EstimateRow
 from online_backlash.pipeline import OrderedWorker, Pipeline
 from online_backlash.replay.csv import CsvLog
-from online_backlash.rows import EstimateRow
 from online_backlash.simulation.rig import simulate_rig
 from online_backlash.stream import SampleChunk
 
-DAVINCI = Path(__file__).resolve().parents[2] / "shared" / "data" / "davinci_tool_gearhead_backlash"
 COUNTS = {"units": "counts", "motor_cpr": 4096 * 35, "load_cpr": 8192}
 
 
@@ -61,14 +60,14 @@ def _fit(chunks, ahead: int, every_s: float | None = 0.7, ratio: float = 30.0) -
 
 def _slow_books(monkeypatch, threads: set[str], delay_s: float = 0.002) -> None:
     """Make the bookkeeping slow (so the worker lags) and note the threads it runs on."""
-    keep = fitting._keep_books
+    keep = log_fit._update_scatter
 
     def slow(*args, **kwargs):
         threads.add(threading.current_thread().name)
         time.sleep(delay_s)
         keep(*args, **kwargs)
 
-    monkeypatch.setattr(fitting, "_keep_books", slow)
+    monkeypatch.setattr(log_fit, "_update_scatter", slow)
 
 
 @pytest.mark.parametrize("every_s", [0.7, None], ids=["trace", "ticks-only"])
@@ -93,7 +92,7 @@ def _scatters(monkeypatch) -> list[RecursivePlayScatter]:
         made.append(RecursivePlayScatter(est))
         return made[-1]
 
-    monkeypatch.setattr(fitting, "RecursivePlayScatter", keep)
+    monkeypatch.setattr(log_fit, "RecursivePlayScatter", keep)
     return made
 
 
@@ -103,7 +102,7 @@ def test_a_worker_far_behind_the_estimator_still_reads_the_estimate_of_its_tick(
     expected = _fit(chunks, 0)
     threads: set[str] = set()
     _slow_books(monkeypatch, threads)
-    monkeypatch.setattr(fitting, "BOOKKEEPING_AHEAD", 64)  # the estimator runs up to 64 blocks ahead
+    monkeypatch.setattr(log_fit, "BOOKKEEPING_AHEAD", 64)  # the estimator runs up to 64 blocks ahead
     assert _fit(chunks, 1) == expected
     assert threads == {"online-backlash-bookkeeping"}  # not the caller's thread: the threaded path ran
     inline, threaded = scatters
@@ -121,7 +120,7 @@ def test_the_scatter_gives_up_before_the_start_as_inline_does(monkeypatch):
     scatters = _scatters(monkeypatch)
     expected = _fit(chunks, 0, every_s=None)
     _slow_books(monkeypatch, set())
-    monkeypatch.setattr(fitting, "BOOKKEEPING_AHEAD", 64)
+    monkeypatch.setattr(log_fit, "BOOKKEEPING_AHEAD", 64)
     assert _fit(chunks, 1, every_s=None) == expected
     assert [s.scatter.plays_deg.size for s in scatters] == [0, 0]  # given up in both
 
@@ -129,7 +128,7 @@ def test_the_scatter_gives_up_before_the_start_as_inline_does(monkeypatch):
 def test_a_late_reader_of_the_estimator_would_differ():
     """The snapshot matters: measured with the final estimate instead of each tick's, the plays differ."""
     chunks = _gapped_chunks()
-    est = fitting.recursive_estimator(chunks[0], 30.0)
+    est = log_fit.recursive_estimator(chunks[0], 30.0)
     pipeline = Pipeline(est, 30.0, 0.7)
     on_time, late = RecursivePlayScatter(est), RecursivePlayScatter(est)
     steps = []
@@ -164,7 +163,7 @@ def test_an_error_in_the_worker_is_raised_on_the_callers_thread(monkeypatch):
         if len(calls) == 3:
             raise RuntimeError("bookkeeping failed at block 3")
 
-    monkeypatch.setattr(fitting, "_keep_books", broken)
+    monkeypatch.setattr(log_fit, "_update_scatter", broken)
     with pytest.raises(RuntimeError, match="block 3"):
         fit_recursive(_gapped_chunks(), 30.0, ahead=1)
     assert calls[0] == "online-backlash-bookkeeping" and len(calls) == 3  # the blocks after the failure are skipped

@@ -165,6 +165,31 @@ class Interrupt(Exception):
     pass
 
 
+def stop_at(call: int):
+    """A ``progress`` callback of ``track_log`` that raises :class:`Interrupt` at its ``call``-th call (between
+    blocks), counting across the logs it is handed to."""
+    calls = 0
+
+    def stop(samples, backlash):
+        nonlocal calls
+        calls += 1
+        if calls == call:
+            raise Interrupt
+
+    return stop
+
+
+def interrupted_then_tracked(store, wear_logs, stop_after: int) -> list:
+    """``wear_logs`` tracked into ``store`` as gearbox g1, interrupted at the ``stop_after``-th progress call, then
+    all of them tracked again (the results of the second pass)."""
+    tracker = GearboxTracker(store, "g1", 30.0, every_s=7.0)
+    stop = stop_at(stop_after)
+    with pytest.raises(Interrupt):
+        for p in wear_logs:
+            tracker.track_log(p, progress=stop)
+    return [tracker.track_log(p) for p in wear_logs]
+
+
 @pytest.mark.parametrize("stop_after", [1, 3, 6, 11])
 def test_resume_after_an_interruption_equals_an_uninterrupted_run(tmp_path, wear_logs, stop_after):
     """Stop inside ``track`` at the n-th progress call (between blocks), then run again."""
@@ -173,20 +198,8 @@ def test_resume_after_an_interruption_equals_an_uninterrupted_run(tmp_path, wear
         for p in wear_logs:
             GearboxTracker(store, "g1", 30.0, every_s=7.0).track_log(p)
     db = tmp_path / "interrupted.db"
-    calls = 0
-
-    def stop(samples, backlash):
-        nonlocal calls
-        calls += 1
-        if calls == stop_after:
-            raise Interrupt
-
     with HistoryStore(db, create=True) as store:
-        tracker = GearboxTracker(store, "g1", 30.0, every_s=7.0)
-        with pytest.raises(Interrupt):
-            for p in wear_logs:
-                tracker.track_log(p, progress=stop)
-        results = [tracker.track_log(p) for p in wear_logs]
+        results = interrupted_then_tracked(store, wear_logs, stop_after)
     # the first block ends before the estimator's warm start, so nothing was committed to resume from
     assert any(r.resumed_from > 0 for r in results) == (stop_after > 1)
     assert snapshot(db) == snapshot(reference)
@@ -312,20 +325,8 @@ def test_interrupted_tracking_on_each_backend_equals_uninterrupted_sqlite(tmp_pa
         for p in wear_logs:
             GearboxTracker(store, "g1", 30.0, every_s=7.0).track_log(p)
         reference = [dataclasses.replace(e, run_id=0) for e in store.estimates("g1")]
-    calls = 0
-
-    def stop(samples, backlash):
-        nonlocal calls
-        calls += 1
-        if calls == 8:
-            raise Interrupt
-
     with HistoryStore(store_db, create=True) as store:
-        tracker = GearboxTracker(store, "g1", 30.0, every_s=7.0)
-        with pytest.raises(Interrupt):
-            for p in wear_logs:
-                tracker.track_log(p, progress=stop)
-        results = [tracker.track_log(p) for p in wear_logs]
+        results = interrupted_then_tracked(store, wear_logs, 8)
         assert [r.already_imported for r in results] == [True, False, False] and results[1].resumed_from > 0
         assert [dataclasses.replace(e, run_id=0) for e in store.estimates("g1")] == reference
         assert [r.status for r in store.runs("g1")] == ["complete"] * 3
@@ -353,18 +354,10 @@ def test_the_bundled_wear_series_shows_its_true_wear(tmp_path):
 
 def test_a_run_resumed_after_another_log_does_not_join_their_samples(tmp_path, wear_logs):
     """Interrupt log A, track log B, then resume A: A's next sample follows a gap, not B's last sample."""
-    calls = 0
-
-    def stop(samples, backlash):
-        nonlocal calls
-        calls += 1
-        if calls == 4:
-            raise Interrupt
-
     with HistoryStore(tmp_path / "w.db", create=True) as store:
         tracker = GearboxTracker(store, "g1", 30.0, every_s=7.0)
         with pytest.raises(Interrupt):
-            tracker.track_log(wear_logs[0], progress=stop)
+            tracker.track_log(wear_logs[0], progress=stop_at(4))
         tracker.track_log(wear_logs[1])
         resumed = tracker.track_log(wear_logs[0])
         checkpoint = store.gearbox("g1").checkpoint

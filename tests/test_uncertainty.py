@@ -5,10 +5,10 @@ from __future__ import annotations
 
 import itertools
 import math
-from pathlib import Path
 
 import numpy as np
 import pytest
+from davinci_runs import DAVINCI, READ
 
 from online_backlash.errors import InvalidParameterError
 from online_backlash.estimators import VorosBacklash
@@ -21,14 +21,11 @@ from online_backlash.estimators.uncertainty import (
     play_std,
     play_uncertainty,
 )
-from online_backlash.fitting import fit_batch, fit_recursive
+from online_backlash.log_fit import fit_batch, fit_recursive
 from online_backlash.replay import read_csv_arrays
 from online_backlash.simulation.rig import simulate_rig
 from online_backlash.simulation.two_mass_rig import simulate_two_mass
 from online_backlash.stream import SampleChunk
-
-DAVINCI = Path(__file__).resolve().parents[2] / "shared" / "data" / "davinci_tool_gearhead_backlash"
-
 
 # -- per-cycle plays -----------------------------------------------------------------------------
 
@@ -176,13 +173,7 @@ def test_measured_runs_at_one_torque_setting_agree_within_the_stated_std():
     (the flank is not a line: compliance under a torque that changes along the stroke)."""
     out = []
     for name in ("tool4_L_run00_0.1Hz_torque10pct.csv", "tool4_L_run20_0.3Hz_torque10pct.csv"):
-        log = read_csv_arrays(
-            DAVINCI / name,
-            columns={"time": "time_s", "motor": "motor_counts", "load": "spindle_counts"},
-            units="counts",
-            motor_cpr=4096,
-            load_cpr=8192,
-        )
+        log = read_csv_arrays(DAVINCI / name, **READ)
         report, est = fit_batch(log, -35.0)
         out.append((report.backlash_deg, report.extra["backlash_std_deg"], est.backlash_white_std_))
     (a, sa, wa), (b, sb, wb) = out

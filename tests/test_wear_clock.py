@@ -1,8 +1,8 @@
 """Wear against the machine's own clock (issue 28): the hour meter given or recorded, the trend's clock, snapshot
 logs one point each, the forecast in machine hours and as a date, one wording for every reader, old stores.
 
-The logs are written by :mod:`online_backlash.simulation.wear_logs` from the two-mass rig (a compliant drive with contact
-dynamics, not the model the estimator assumes) or the simulated rig, and tracked through the command line.
+The logs are written by :mod:`online_backlash.simulation.wear_logs` from the two-mass rig (a compliant drive with
+contact dynamics, not the model the estimator assumes) or the simulated rig, and tracked through the command line.
 """
 
 from __future__ import annotations
@@ -17,8 +17,9 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from asammdf import MDF, Signal
+from asammdf import Signal
 from matplotlib.figure import Figure
+from measurement_cases import rig_mdf
 from scipy import stats
 from sqlalchemy import MetaData, create_engine
 
@@ -29,8 +30,8 @@ from online_backlash.history.alarms import plugin_line
 from online_backlash.history.store import SCHEMA_VERSION, resolve_url
 from online_backlash.history.text import wear_figures
 from online_backlash.history.trend import fit_trend
+from online_backlash.output_columns import EstimateRow
 from online_backlash.publish import MqttPublisher
-from online_backlash.rows import EstimateRow
 from online_backlash.simulation.rig import simulate_rig
 from online_backlash.simulation.wear_logs import SnapshotPlan, daily, truth, write_snapshot_logs
 from online_backlash.web.fleet import fleet_row
@@ -164,17 +165,7 @@ def test_the_meter_of_an_mdf4_channel_in_minutes(tmp_path, capsys):
     """An MDF4 file written by asammdf whose hour meter is a channel in minutes (--hours-unit min)."""
     rec = simulate_rig(duration_s=30.0, play_deg=0.3, seed=4)
     minutes = 60.0 * (1234.0 + rec.time_s / 3600.0)
-    mdf = MDF(version="4.10")
-    mdf.append(
-        [
-            Signal(rec.motor_deg, rec.time_s, name="Motor", unit="deg"),
-            Signal(rec.load_deg, rec.time_s, name="Load", unit="deg"),
-            Signal(minutes, rec.time_s, name="Meter", unit="min"),
-        ]
-    )
-    path = tmp_path / "rig.mf4"
-    mdf.save(path, overwrite=True)
-    mdf.close()
+    path = rig_mdf(tmp_path / "rig.mf4", rec, Signal(minutes, rec.time_s, name="Meter", unit="min"))
     track(
         capsys,
         [path],
@@ -229,7 +220,8 @@ def test_regular_and_irregular_snapshots_give_the_same_forecast_within_its_inter
         low, high = d["forecast_hours_to_limit_interval"]
         # Within 10 % of the truth (issue 28). The interval is the trend's scatter, not the estimator's bias: since
         # the flank lines are fitted where fully engaged (issue 27) the snapshots' plays scatter 0.025 arcmin about a
-        # bias of -0.22 arcmin (it was 0.11 about the same bias), so the truth can fall just outside (docs/benchmarks.md).
+        # bias of -0.22 arcmin (it was 0.11 about the same bias), so the truth can fall just outside
+        # (docs/benchmarks.md).
         assert low <= d["forecast_hours_to_limit"] <= high
         assert d["forecast_hours_to_limit"] == pytest.approx(true_hours, rel=0.10)
         at_limit.append(last["machine_hours"] + d["forecast_hours_to_limit"])  # the hour meter's reading at the limit

@@ -22,7 +22,8 @@ That suits a command that reads a record, processes it and ends (``estimate``, `
 fleet worker's task (``track --manifest``: a worker tracks one log after another in blocks of the same
 sizes; Dask's nanny starts workers with ``MALLOC_TRIM_THRESHOLD_=65536``, which made glibc return every
 freed block and fault the next one in anew), not a long-running service whose peak is rare, and it is a
-setting of the whole process: the library never calls it by itself. Elsewhere than glibc (macOS, musl, Windows) only NumPy's advice is changed.
+setting of the whole process: the library never calls it by itself. Elsewhere than glibc (macOS, musl, Windows) only
+NumPy's advice is changed.
 """
 
 from __future__ import annotations

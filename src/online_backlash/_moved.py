@@ -7,14 +7,17 @@ import sys
 import warnings
 from types import ModuleType
 
-#: old name -> new name of every module moved (issue 29: the simulators into ``simulation/``); each old
-#: name's file calls :func:`alias_moved_module`
+#: old name -> new name of every module moved or renamed (issue 29: the simulators into ``simulation/``, and
+#: three top-level modules to names that say what they hold); each old name's file calls :func:`alias_moved_module`
 MOVED_MODULES = {
     "online_backlash.rig": "online_backlash.simulation.rig",
     "online_backlash.rig_logs": "online_backlash.simulation.rig_logs",
     "online_backlash.two_mass_rig": "online_backlash.simulation.two_mass_rig",
     "online_backlash.wear_logs": "online_backlash.simulation.wear_logs",
     "online_backlash.diagnostics.synthetic": "online_backlash.simulation.synthetic",
+    "online_backlash.rows": "online_backlash.output_columns",
+    "online_backlash.fitting": "online_backlash.log_fit",
+    "online_backlash.bridging": "online_backlash.gap_policy",
 }
 
 

@@ -114,13 +114,14 @@ def sensitivity_step(u, prev, mL, cL, mR, cR, d0, d1, d2, d3):  # pragma: no cov
 
 @njit(cache=True)
 def _backlash_loop(u, mL, cL, mR, cR, x0):  # pragma: no cover - compiled
+    """Eq. (1)-(3) along ``u``; ``cL``, ``cR`` one value a sample (a play that varies) or one value for all."""
     n = u.shape[0]
     x = np.empty(n)
     prev = x0
+    step = 1 if cL.shape[0] > 1 else 0  # the flanks' index moves with t, or stays at the one value
     for t in range(n):
-        prev = sensitivity_step(u[t], prev, mL, cL, mR, cR, 0.0, 0.0, 0.0, 0.0)[
-            0
-        ]  # eq. (1)-(3); the derivatives unused
+        # eq. (1)-(3) with cL(t), cR(t); the derivatives unused
+        prev = sensitivity_step(u[t], prev, mL, cL[t * step], mR, cR[t * step], 0.0, 0.0, 0.0, 0.0)[0]
         x[t] = prev
     return x
 
@@ -167,19 +168,6 @@ def _switching_loop(u, mL, cL, mR, cR, x0, u_prev, a_prev, b_prev):  # pragma: n
     return x, f1, f2
 
 
-@njit(cache=True)
-def _backlash_varying_loop(u, mL, cL, mR, cR, x0):  # pragma: no cover - compiled
-    n = u.shape[0]
-    x = np.empty(n)
-    prev = x0
-    for t in range(n):
-        prev = sensitivity_step(u[t], prev, mL, cL[t], mR, cR[t], 0.0, 0.0, 0.0, 0.0)[
-            0
-        ]  # eq. (1)-(3) with cL(t), cR(t)
-        x[t] = prev
-    return x
-
-
 def simulate_backlash_varying(
     u: np.ndarray, m_left: float, c_left: np.ndarray, m_right: float, c_right: np.ndarray, x0: float = 0.0
 ) -> np.ndarray:
@@ -193,7 +181,7 @@ def simulate_backlash_varying(
     if cL.shape != u.shape or cR.shape != u.shape:
         raise InvalidParameterError("c_left and c_right must be arrays as long as u")
     BacklashParams(m_left, 0.0, m_right, 0.0)  # validates the slopes
-    return _backlash_varying_loop(u, float(m_left), cL, float(m_right), cR, float(x0))
+    return _backlash_loop(u, float(m_left), cL, float(m_right), cR, float(x0))
 
 
 def _as_input(u: np.ndarray) -> np.ndarray:
@@ -228,7 +216,8 @@ def simulate_backlash(u: np.ndarray, params: BacklashParams, x0: float = 0.0) ->
     x : array, shape (n,)
     """
     _check_band(params)
-    return _backlash_loop(_as_input(u), params.m_left, params.c_left, params.m_right, params.c_right, float(x0))
+    cL, cR = np.array([params.c_left], dtype=float), np.array([params.c_right], dtype=float)  # one value for all
+    return _backlash_loop(_as_input(u), params.m_left, cL, params.m_right, cR, float(x0))
 
 
 def simulate_switching(

@@ -13,7 +13,7 @@ all run :class:`Pipeline`:
    source's time and torque passed through for the estimator's effects;
 4. a :class:`PipelineStep` reports the block (samples, referred input), whether a row is due
    after it (``due``) and, where one is due and the pipeline makes rows (``rows=True``), the
-   :class:`~online_backlash.rows.EstimateRow` (a row costs the estimator's standard error: a
+   :class:`~online_backlash.output_columns.EstimateRow` (a row costs the estimator's standard error: a
    caller that only needs the instants, as ``estimate`` without ``--trace``, asks for none; then
    the estimator learns each chunk in one call and records its estimate at the ticks inside it,
    ``learn_many(..., snapshot_at=)``, so the ticks do not cut its compiled loop).
@@ -42,9 +42,9 @@ from typing import Any, Generic, NamedTuple, Protocol, TypeVar
 import numba
 import numpy as np
 
-from .bridging import GapTally
 from .errors import InvalidParameterError, LogFormatError
-from .rows import EstimateRow
+from .gap_policy import GapTally
+from .output_columns import EstimateRow
 from .stream import SampleChunk, refer_to_load
 
 
@@ -106,7 +106,7 @@ class LearningEstimator(Protocol):
     through); with ``assume_finite=True`` it skips its own finiteness check (the pipeline checked the chunk
     once); with ``snapshot_at`` (ascending sample counts of the block) it returns its estimate after each,
     else None. A row reads the estimator's fitted figures (:meth:`EstimateRow.from_estimator
-    <online_backlash.rows.EstimateRow.from_estimator>`).
+    <online_backlash.output_columns.EstimateRow.from_estimator>`).
     """
 
     @property
@@ -209,8 +209,8 @@ class DataClock:
         prev = math.nan if self.prev_time_s is None else self.prev_time_s
         has_due = self.next_due_ns is not None
         ends, dues, data_ns, next_ns = _cut(
-            np.ascontiguousarray(time_s, dtype=float), np.ascontiguousarray(after_gap, dtype=np.bool_), prev, self.data_ns, has_due,
-            self.next_due_ns or 0, self.every_ns or 0,
+            np.ascontiguousarray(time_s, dtype=float), np.ascontiguousarray(after_gap, dtype=np.bool_),
+            prev, self.data_ns, has_due, self.next_due_ns or 0, self.every_ns or 0,
         )  # fmt: skip
         return ends, dues, data_ns, next_ns, has_due
 
@@ -457,7 +457,7 @@ class Pipeline(Generic[E]):
         the compiled loop.
 
     The estimator decides which gaps are bridged (its ``gap_policy``,
-    :class:`~online_backlash.bridging.GapPolicy`) and tallies them (``gaps_``, read here as
+    :class:`~online_backlash.gap_policy.GapPolicy`) and tallies them (``gaps_``, read here as
     :attr:`gap_tally`); the pipeline passes every ``after_gap`` on.
 
     Examples
@@ -494,7 +494,7 @@ class Pipeline(Generic[E]):
 
     @property
     def gap_tally(self) -> GapTally:
-        """The gaps seen (:class:`~online_backlash.bridging.GapTally`): the estimator's ``gaps_``."""
+        """The gaps seen (:class:`~online_backlash.gap_policy.GapTally`): the estimator's ``gaps_``."""
         tally: GapTally = self.estimator.gaps_
         return tally
 

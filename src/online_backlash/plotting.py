@@ -126,14 +126,14 @@ def plot_fit(
     (:func:`plot_hysteresis`), else the backlash characteristic (:func:`plot_characteristic`).
 
     ``chunk`` is the whole log as a :class:`~online_backlash.stream.SampleChunk`; ``ratio`` motor:load;
-    ``fitted`` the ``(report, estimator)`` of :func:`~online_backlash.fitting.fit_batch` on it, when
+    ``fitted`` the ``(report, estimator)`` of :func:`~online_backlash.log_fit.fit_batch` on it, when
     already made (else it is fitted here, with ``choice``: ``play_method`` and ``no_torque_why`` of
-    :func:`~online_backlash.fitting.fit_batch`). Returns that report: the curve's lost motion is the
+    :func:`~online_backlash.log_fit.fit_batch`). Returns that report: the curve's lost motion is the
     report's, computed once, so that a text and the plot show one figure.
     """
-    from .fitting import fit_batch  # the fit, only when a plot is asked for
     from .load_aware import TorqueBacklash
     from .load_aware.datasheet import DatasheetFigures, hysteresis_curve
+    from .log_fit import fit_batch  # the fit, only when a plot is asked for
 
     report, est = fitted if fitted is not None else fit_batch(chunk, ratio, rated_torque_Nm=rated_torque_Nm, **choice)
     u, y = chunk.referred(ratio)

@@ -2,7 +2,7 @@
 
 Every estimate the pipeline emits (every ``--every`` seconds of *data*) goes, as one JSON
 object, to ``PREFIX/GEARBOX/estimate``: the keys of ``estimate --json``
-(:data:`~online_backlash.rows.REPORT_KEYS`, ``samples`` counting every sample the estimator
+(:data:`~online_backlash.output_columns.REPORT_KEYS`, ``samples`` counting every sample the estimator
 learned) plus ``backlash_std_deg``, ``n_reversals``, ``time`` (ISO 8601, UTC), ``time_unix_s``,
 ``gearbox`` and ``state``. The alarm state (:func:`online_backlash.history.alarms.evaluate_alarm`
 applied to the latest estimate, with the gearbox's warning level and limit in arcmin:
@@ -29,7 +29,7 @@ to 30 s); an estimate due while it is not connected is *dropped and counted*
 (:attr:`MqttPublisher.dropped`), never queued, and paho's own queue is bounded too. A state
 change while disconnected waits in one slot (the newest state) and goes out on reconnection.
 
-This module sits above :mod:`online_backlash.rows` and :mod:`online_backlash.pipeline` (it
+This module sits above :mod:`online_backlash.output_columns` and :mod:`online_backlash.pipeline` (it
 publishes their rows) and below the CLI; drivers, replay, codecs and history never import it.
 """
 
@@ -50,7 +50,7 @@ import numpy as np
 
 from .errors import InvalidParameterError
 from .history.alarms import AlarmStatus, check_alarm_levels, evaluate_alarm
-from .rows import ARCMIN_PER_DEG, REPORT_KEYS, EstimateRow, select
+from .output_columns import ARCMIN_PER_DEG, REPORT_KEYS, EstimateRow, select
 from .stream import live_clock_offset
 
 #: Default MQTT port (unencrypted).
@@ -311,7 +311,8 @@ class MqttPublisher:
         return self
 
     def close(self) -> None:
-        """Say ``offline`` (retained; waited for up to ``connect_wait_s``), disconnect cleanly, stop the network thread."""
+        """Say ``offline`` (retained; waited for up to ``connect_wait_s``), disconnect cleanly, stop the network
+        thread."""
         self._closing = True
         if self._connected.is_set():
             message = status_message(self.gearbox_id, "offline", "stopped")

@@ -3,10 +3,10 @@
 One gearbox has one :class:`~online_backlash.pipeline.Pipeline` (its estimator,
 :class:`~online_backlash.estimators.BacklashRLS`, the recursive form of Vörös 2013, and its data
 clock) and one :class:`~online_backlash.history.usage.UsageCounter` for its whole life: every
-log continues from the state the previous one left, so the estimate follows the wear. Each log is a *run* of the store, keyed by its
-samples (:func:`sample_key`: the SHA-256 of the first :data:`IDENTITY_SAMPLES` times and angles, decoded), not by its
-bytes: ``day01.csv.gz`` and its unzipped copy are one log, and a copy with a bad row fixed
-after the first samples is the log already tracked.
+log continues from the state the previous one left, so the estimate follows the wear. Each log is a *run* of the store,
+keyed by its samples (:func:`sample_key`: the SHA-256 of the first :data:`IDENTITY_SAMPLES` times and angles, decoded),
+not by its bytes: ``day01.csv.gz`` and its unzipped copy are one log, and a copy with a bad row fixed after the first
+samples is the log already tracked.
 
 A gearbox's logs are tracked in time order: a new log that starts before a stored run of the
 gearbox ends (an overlapping copy, a log placed by a wrong clock, an older log given after a
@@ -76,7 +76,6 @@ from .clocks import (
 from .effect_terms import effect_to_dict
 from .errors import BacklashWarning, HistoryError, InvalidParameterError, LogFormatError, NotExcitedError
 from .estimators import BacklashRLS
-from .fitting import recursive_estimator
 from .history.condition import LoadCondition
 from .history.series import WearSeries
 from .history.store import Gearbox, HistoryStore, Run
@@ -84,9 +83,10 @@ from .history.usage import UsageCounter
 from .hour_meter import METER_TOLERANCE_H, HourMeter, MachineUsage
 from .load_aware import PlayChooser, TorqueBacklashRLS
 from .load_aware.choice import NO_TORQUE, check_play_method
+from .log_fit import recursive_estimator
+from .output_columns import STORE_COLUMNS, EstimateRow, select, source_counts
 from .pipeline import DataClock, Pipeline, check_every, tail
 from .replay import open_log
-from .rows import STORE_COLUMNS, EstimateRow, select, source_counts
 from .stream import SampleChunk, SampleSource, live_clock_offset, refer_to_load
 
 __all__ = [
@@ -451,7 +451,7 @@ class GearboxTracker:
         progress : callable, optional
             ``progress(samples_fed, backlash_deg or None)`` after every block.
         on_row : callable, optional
-            ``on_row(row, time_unix_s)`` with each :class:`~online_backlash.rows.EstimateRow` once committed.
+            ``on_row(row, time_unix_s)`` with each :class:`~online_backlash.output_columns.EstimateRow` once committed.
         hour_meter : callable, optional
             ``hour_meter(first_time_s)``: the machine's hour meter along the data
             (:class:`~online_backlash.hour_meter.HourMeter`), asked for only when there are samples to
@@ -658,7 +658,10 @@ def why_no_estimate(estimator: Any, every_s: float) -> str:
     """Why a run added no estimate: the estimator has not started (the reason its warm start would
     fail now, tried on a copy) or less than ``every_s`` seconds of data came since the last row."""
     if estimator.started:
-        return f"less than --every {every_s:g} s of data since the gearbox's last estimate; the next log continues the count"
+        return (
+            f"less than --every {every_s:g} s of data since the gearbox's last estimate; the next log continues "
+            "the count"
+        )
     probe = copy.deepcopy(estimator)
     try:
         probe.force_start()
@@ -697,7 +700,8 @@ def check_time_order(runs: Iterable[Run], key: str, source: str, start_unix_s: f
         raise HistoryError(mtime_overlap(source, start_unix_s, run.source, inside))
     if start_unix_s >= began:
         raise HistoryError(
-            f"{source}: starts {_utc(start_unix_s)}{by}, inside run {run.id} ({run.source}, {_utc(began)} to {_utc(end)}) "
+            f"{source}: starts {_utc(start_unix_s)}{by}, inside run {run.id} ({run.source}, {_utc(began)} to "
+            f"{_utc(end)}) "
             "already tracked for this gearbox; an overlapping log is refused, nothing was added (a corrected copy of a "
             "tracked log cannot be added again: track it into a new gearbox id; if the clock is wrong, give --start)"
         )
@@ -787,7 +791,7 @@ class TrackerState:
         """The state saved in a gearbox's checkpoint, or a new one (with these parameters) if None.
 
         A new gearbox whose first chunk ``first`` has a torque column gets the torque-aware
-        estimator (:func:`~online_backlash.fitting.recursive_estimator`, with ``play_method``); a saved
+        estimator (:func:`~online_backlash.log_fit.recursive_estimator`, with ``play_method``); a saved
         one keeps its class and its path (a checkpoint written before issue 27 gets a new
         :class:`~online_backlash.load_aware.PlayChooser` with ``play_method``).
 
@@ -835,7 +839,8 @@ class TrackerState:
         self.usage.mark_gap()
 
     def store_row(self, row: EstimateRow, sample_index: int, time_unix_s: float) -> dict[str, Any]:
-        """An estimate as a row of the store's ``estimates`` table (:data:`~online_backlash.rows.STORE_COLUMNS`)."""
+        """An estimate as a row of the store's ``estimates`` table
+        (:data:`~online_backlash.output_columns.STORE_COLUMNS`)."""
         usage = {
             "operating_hours": self.usage.operating_hours,
             "load_revolutions": self.usage.load_revolutions,

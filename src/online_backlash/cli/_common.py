@@ -188,7 +188,7 @@ def _delimiter(text: str) -> str:
 
 def warn_if_implausible(note: str | None, source: str) -> None:
     """Print one line ``warning: SOURCE: note`` on stderr when a fit's plausibility check
-    (:func:`~online_backlash.fitting.plausibility`) found likely wrong units or ratio."""
+    (:func:`~online_backlash.log_fit.plausibility`) found likely wrong units or ratio."""
     if note is not None:
         print(f"warning: {source}: {note}", file=sys.stderr)
 

@@ -12,8 +12,8 @@ from ..errors import InvalidParameterError
 
 if TYPE_CHECKING:
     from ..history.store import HistoryStore
+    from ..output_columns import EstimateRow
     from ..publish import MqttPublisher, MqttTarget, MqttTls
-    from ..rows import EstimateRow
 
 MQTT_HELP = (
     "publish every estimate as JSON to PREFIX/GEARBOX/estimate and the alarm state, retained, to PREFIX/GEARBOX/state "

@@ -14,7 +14,7 @@ import time
 from importlib import resources
 from pathlib import Path
 
-from ..fitting import describe, fit_batch, fit_recursive
+from ..log_fit import fit_batch, fit_recursive, report_text
 from ..plotting import plot_fit
 from .history import describe_trend
 
@@ -48,7 +48,7 @@ def run(args: argparse.Namespace) -> int:
         report, _ = fit_recursive([chunk], DEMO_RATIO, source=path.name)
         batch = fit_batch(chunk, DEMO_RATIO)
         print(f"bundled recording: 30:1 gearbox, true play 0.500 deg ({DEMO_LOG})")
-        print(describe(report, path.name))
+        print(report_text(report, path.name))
         print(f"batch fit:      {batch[0].backlash_deg:.4f} deg (the paper's algorithm on the whole log; plotted)")
     plot_fit(chunk, DEMO_RATIO, args.plot, title="online-backlash demo: 30:1 gearbox", fitted=batch)
     print(f"plot:           {args.plot}")

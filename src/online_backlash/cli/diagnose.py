@@ -5,9 +5,9 @@ from __future__ import annotations
 import argparse
 
 from .._allocator import keep_freed_memory
-from ..bridging import GapTally
-from ..fitting import plausibility
-from ..rows import describe_counts, source_counts
+from ..gap_policy import GapTally
+from ..log_fit import plausibility
+from ..output_columns import describe_counts, source_counts
 from ._common import (
     LOG_FORMATS,
     add_can_decoding_options,

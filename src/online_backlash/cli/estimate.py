@@ -9,11 +9,11 @@ from collections.abc import Iterable
 from typing import Any
 
 from .._allocator import keep_freed_memory
-from ..bridging import BRIDGE_S, JUMP_DEG, GapPolicy
 from ..errors import InvalidParameterError
-from ..fitting import BacklashReport, describe, fit_batch, fit_recursive
+from ..gap_policy import BRIDGE_S, JUMP_DEG, GapPolicy
+from ..log_fit import BacklashReport, fit_batch, fit_recursive, report_text
+from ..output_columns import TRACE_COLUMNS, EstimateRow
 from ..pipeline import READ_AHEAD
-from ..rows import TRACE_COLUMNS, EstimateRow
 from ..stream import SampleChunk, SampleSource, read_all
 from ._common import (
     LOG_FORMATS,
@@ -199,7 +199,7 @@ def run(args: argparse.Namespace) -> int:
         )
         if fitted is None:  # the data-sheet figures of the curve drawn, not a second set from the recursive fit
             report.take_datasheet(drawn)
-    print_report(report.as_dict() if args.json else describe(report, args.log), files_written(args))
+    print_report(report.as_dict() if args.json else report_text(report, args.log), files_written(args))
     warn_if_implausible(report.plausibility(args.ratio), args.log)
     return play_exit_code(report.backlash_deg, args.log, report.no_play_reason())
 

@@ -9,7 +9,7 @@ import sys
 from typing import TYPE_CHECKING
 
 from ..errors import BacklashError, InvalidParameterError
-from ..rows import ARCMIN_PER_DEG, HISTORY_CSV_COLUMNS
+from ..output_columns import ARCMIN_PER_DEG, HISTORY_CSV_COLUMNS
 from ._common import check_plot_path, nonempty_text, print_json
 
 if TYPE_CHECKING:

@@ -18,8 +18,8 @@ import time
 from typing import Any
 
 from ..errors import LogFormatError, SourceError
-from ..fitting import describe, fit_recursive
-from ..rows import EstimateRow, arcmin
+from ..log_fit import fit_recursive, report_text
+from ..output_columns import EstimateRow, arcmin
 from ._common import (
     add_can_decoding_options,
     add_counts_options,
@@ -171,7 +171,7 @@ def run(args: argparse.Namespace) -> int:
     if args.json:
         print_json(summary)
     else:
-        print(describe(report, label))
+        print(report_text(report, label))
         print(
             f"received:       {_counts(source.counters.as_dict())} in {summary['duration_s']:.1f} s; raw log in {args.raw_log}"
         )

@@ -23,7 +23,7 @@ from .._allocator import keep_freed_memory
 from ..clocks import TIME_UNITS as TIME_UNIT_NAMES
 from ..errors import BacklashError, InvalidParameterError
 from ..fleet import GearboxJob, GearboxOutcome
-from ..rows import describe_counts
+from ..output_columns import describe_counts
 from ._common import (
     LOG_FORMATS,
     add_can_decoding_options,

@@ -146,9 +146,9 @@ class BacklashRLS(RecursiveEstimator):
         ``"model"`` left a 3 % bias in ``tests/test_diagnostics.py``).
     gap_policy : GapPolicy or None
         Which flagged gaps (``after_gap``) are bridged, the state kept across them, and which
-        restart the reading of the motion (:class:`~online_backlash.bridging.GapPolicy`; None:
+        restart the reading of the motion (:class:`~online_backlash.gap_policy.GapPolicy`; None:
         its defaults, gaps up to 0.1 s without a jump over 5 deg are bridged). Tallied in ``gaps_``
-        (:class:`~online_backlash.bridging.GapTally`: gaps since made, reset or restored).
+        (:class:`~online_backlash.gap_policy.GapTally`: gaps since made, reset or restored).
     full_engagement : bool
         Update a flank line only where the data show the flanks fully engaged: a sample of a partial
         crossing of the gap (:class:`~.full_engagement.FullEngagement`, issue 27) updates neither line.

@@ -3,7 +3,7 @@
 :class:`RecursiveEstimator` holds what every recursive estimator shares: the parameters
 (:class:`SharedParams`, their defaults in :data:`SHARED_DEFAULTS`: declared here once), the warm-up buffer,
 the dispatch of ``learn_one`` (interpreted) and ``learn_many`` (compiled where the estimator has a compiled
-loop), gaps (which are bridged and which restart: ``gap_policy``, :class:`~online_backlash.bridging.GapPolicy`;
+loop), gaps (which are bridged and which restart: ``gap_policy``, :class:`~online_backlash.gap_policy.GapPolicy`;
 the tally ``gaps_``), ``snapshot_at``, the saved state, ``clone`` and the fitted figures derived from the
 paper's parameter vector. All state is created in :meth:`RecursiveEstimator.reset` (called by ``__init__``);
 the parameters are validated on the first ``learn_one`` / ``learn_many`` (scikit-learn style).
@@ -56,9 +56,9 @@ from typing import TYPE_CHECKING, Any, ClassVar, Generic, NamedTuple, TypedDict,
 
 import numpy as np
 
-from ..bridging import UNKNOWN, GapPolicy, GapTally
 from ..effect_terms import EffectTerms
 from ..errors import InvalidParameterError, NotExcitedError, NotFittedError
+from ..gap_policy import UNKNOWN, GapPolicy, GapTally
 from ..model import BacklashParams
 from ._effect_stream import EffectStream, check_effects, effects_from_records
 from .batch import VorosBacklash, _direction_guess, _start_params
@@ -108,7 +108,7 @@ class SharedParams(TypedDict, total=False):
     ``memory_s`` (s of motion; None: no forgetting per update), ``memory_reversals`` (reversals; None: no
     forgetting per reversal), ``sample_period_s`` (s), ``origin`` (``"first"``: the first sample is the
     reference origin; ``"zero"``), ``noise_window`` (updates the residual variance is averaged over),
-    ``gap_policy`` (which flagged gaps are bridged; None: :class:`~online_backlash.bridging.GapPolicy`'s
+    ``gap_policy`` (which flagged gaps are bridged; None: :class:`~online_backlash.gap_policy.GapPolicy`'s
     defaults). See :class:`~.backlash_rls.BacklashRLS` for each in full.
     """
 
@@ -228,7 +228,7 @@ class RecursiveEstimator(ABC):
     gaps_ : GapTally
         The gaps flagged (``after_gap``) since the estimator was made, reset or restored from a
         saved state (like a source's counters, a run's own): count, longest and total time step
-        across them (s) and how many were bridged (:class:`~online_backlash.bridging.GapTally`).
+        across them (s) and how many were bridged (:class:`~online_backlash.gap_policy.GapTally`).
         The last sample's time and angles, which decide whether the next gap is bridged, are
         saved with the state (:meth:`state_dict`), so a resumed run bridges a gap right after
         its checkpoint.
@@ -241,7 +241,7 @@ class RecursiveEstimator(ABC):
     warm_start_samples: int
     origin: str
     noise_window: int
-    #: Which gaps are bridged (None: the default :class:`~online_backlash.bridging.GapPolicy`)
+    #: Which gaps are bridged (None: the default :class:`~online_backlash.gap_policy.GapPolicy`)
     gap_policy: GapPolicy | None = None
     effects: Sequence[EffectTerms] | None = None
     #: True for an estimator whose model needs the torque of every sample (``_learn_arrays`` then gets it

@@ -139,7 +139,8 @@ def load_manifest(
     for key in tables:
         if key not in TABLES:
             raise ManifestError(
-                f"{name}: unknown table {key!r}{_closest(key, TABLES)}; a manifest has [defaults] and [[gearbox]] tables"
+                f"{name}: unknown table {key!r}{_closest(key, TABLES)}; a manifest has [defaults] and [[gearbox]] "
+                "tables"
             )
     defaults = tables.get("defaults", {})
     gearboxes = tables.get("gearbox")
@@ -190,7 +191,8 @@ def _check_keys(table: Mapping[str, Any], options: Collection[str], where: str) 
             continue
         if key in NOT_PER_GEARBOX:
             raise ManifestError(
-                f"{where}: {key!r} is not a per-gearbox option (the store and the fleet's run are given on the command line)"
+                f"{where}: {key!r} is not a per-gearbox option (the store and the fleet's run are given on the "
+                "command line)"
             )
         if key not in options:
             hint = _closest(key, [*options, "id", "logs"])

@@ -12,7 +12,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from ..rows import arcmin
+from ..output_columns import arcmin
 from .report import WearReport
 
 #: The plugin exit code of each state (``history --check``): a number for systems that want one.

@@ -19,7 +19,7 @@ from dataclasses import asdict, dataclass
 import numpy as np
 
 from ..errors import InvalidParameterError
-from ..rows import ARCMIN_PER_DEG, HISTORY_CSV_COLUMNS, arcmin
+from ..output_columns import ARCMIN_PER_DEG, HISTORY_CSV_COLUMNS, arcmin
 from .alarms import DEFAULT_MAX_AGE_H, AlarmStatus, check_alarm_levels, evaluate_alarm
 from .clock import Recording, recording
 from .kalman import estimator_lag_hours
@@ -39,7 +39,7 @@ __all__ = [
 
 def estimate_dict(e: Estimate) -> dict:
     """An estimate as a flat dict: ISO time, the stored columns, backlash also in arcmin
-    (every column of ``history --csv``, :data:`~online_backlash.rows.HISTORY_CSV_COLUMNS`)."""
+    (every column of ``history --csv``, :data:`~online_backlash.output_columns.HISTORY_CSV_COLUMNS`)."""
     d = asdict(e)
     d.pop("gearbox_id")
     return {
@@ -84,7 +84,8 @@ class WearReport:
         }
 
     def status_dict(self) -> dict:
-        """``state``, ``state_reason``, ``play_arcmin``, ``warn_arcmin``, ``limit_exceeded_since`` (ISO, UTC), ``checked_at``."""
+        """``state``, ``state_reason``, ``play_arcmin``, ``warn_arcmin``, ``limit_exceeded_since`` (ISO, UTC),
+        ``checked_at``."""
         s = self.status
         return {
             "state": s.state,
@@ -171,7 +172,8 @@ def wear_report(
         check_alarm_levels(warn, limit)
     except InvalidParameterError as exc:
         raise InvalidParameterError(
-            f"gearbox {gearbox.id!r} in {store.name}: {exc} (store valid levels with track --warn-arcmin/--limit-arcmin)"
+            f"gearbox {gearbox.id!r} in {store.name}: {exc} (store valid levels with track "
+            "--warn-arcmin/--limit-arcmin)"
         ) from exc
     names = ("time_unix_s", "operating_hours", "load_revolutions", "backlash_deg", "backlash_std_deg", "machine_hours")
     arrays = {name: estimate_column(estimates, name) for name in names}

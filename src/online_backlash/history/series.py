@@ -1,4 +1,5 @@
-"""The multi-day wear series bundled with the package (:func:`online_backlash.tracking.track_series` replays it into a store).
+"""The multi-day wear series bundled with the package (:func:`online_backlash.tracking.track_series` replays it into a
+store).
 
 ``src/online_backlash/data/wear/`` holds daily snapshot logs of one synthetic gearbox wearing,
 with the machine's hour meter as a column, and ``series.json`` describing them (gearbox id,
@@ -45,7 +46,8 @@ class WearSeries:
         return dt.datetime.fromisoformat(start).timestamp()
 
     def shift_to_end_before(self, now_unix_s: float) -> float:
-        """Whole days to move the series by so that its last log starts at most one day before ``now_unix_s``, seconds."""
+        """Whole days to move the series by so that its last log starts at most one day before ``now_unix_s``,
+        seconds."""
         last = self.start_unix_s(self.files[-1])
         return math.floor((now_unix_s - last) / 86400.0) * 86400.0
 

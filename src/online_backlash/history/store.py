@@ -96,8 +96,8 @@ from sqlalchemy.engine import URL, Engine, make_url
 from sqlalchemy.exc import ArgumentError, DBAPIError, SQLAlchemyError
 
 from ..errors import HistoryError
+from ..output_columns import FIELDS, STORE_KEYS
 from ..physical import figure_verdict
-from ..rows import FIELDS, STORE_KEYS
 from .alarms import check_alarm_levels
 
 APPLICATION = "online-backlash"
@@ -166,10 +166,10 @@ def _add_play_method(conn: Connection) -> None:
     """Version 4 -> 5: each estimate's path and verdict (issue 27), and the verdict of the plays stored before.
 
     Adds ``play_method``, ``play_method_reason``, ``reason``, ``backlash_lower_bound_deg`` and
-    ``backlash_upper_bound_deg`` (NULL: not known). Then applies the rule of :mod:`online_backlash.physical` to every stored play:
-    a play below zero, or whose standard error exceeds half its value, was never a play -- its
-    ``backlash_deg`` becomes NULL, ``play_observable`` false, and ``reason`` keeps what it was
-    (the encoders' resolution of those rows is not known, so a measured zero is not told apart here).
+    ``backlash_upper_bound_deg`` (NULL: not known). Then applies the rule of :mod:`online_backlash.physical` to every
+    stored play: a play below zero, or whose standard error exceeds half its value, was never a play -- its
+    ``backlash_deg`` becomes NULL, ``play_observable`` false, and ``reason`` keeps what it was (the encoders' resolution
+    of those rows is not known, so a measured zero is not told apart here).
     """
     _add_estimate_columns(
         conn, ("play_method", "play_method_reason", "reason", "backlash_lower_bound_deg", "backlash_upper_bound_deg")
@@ -237,7 +237,7 @@ runs_table = Table(
     UniqueConstraint("gearbox_id", "log_sha256", name="uq_runs_gearbox_log"),
 )
 
-#: SQL type of each kind of estimate column (online_backlash.rows.RowField.kind).
+#: SQL type of each kind of estimate column (online_backlash.output_columns.RowField.kind).
 _SQL_TYPES: dict[type, Any] = {float: Double, int: BigInteger, bool: Boolean, str: Text}
 
 
@@ -255,7 +255,7 @@ estimates_table = Table(
     Column("id", Integer, primary_key=True, autoincrement=True),
     Column("gearbox_id", String(200), ForeignKey("gearboxes.id"), nullable=False, index=True),
     Column("run_id", Integer, ForeignKey("runs.id"), nullable=False),
-    # the estimate's columns, declared once in online_backlash.rows
+    # the estimate's columns, declared once in online_backlash.output_columns
     *(_estimate_column(k) for k in STORE_KEYS),
     UniqueConstraint("run_id", "sample_index", name="uq_estimates_run_sample"),
 )
@@ -456,8 +456,8 @@ class HistoryStore:
             engine = create_engine(url)
         except ImportError as exc:  # the database driver is an extra: say which one
             raise HistoryError(
-                f"{self.name}: {url.get_backend_name()} needs the driver {exc.name or 'psycopg'}, which is not installed; "
-                "pip install 'online-backlash[postgres]'"
+                f"{self.name}: {url.get_backend_name()} needs the driver {exc.name or 'psycopg'}, which is not "
+                "installed; pip install 'online-backlash[postgres]'"
             ) from exc
         if self._sqlite:
             # pysqlite opens transactions lazily and not before DDL; take over BEGIN so that every
@@ -725,7 +725,8 @@ class HistoryStore:
             ).rowcount
             if moved != 1 or advanced != 1:
                 raise HistoryError(
-                    f"gearbox {gearbox.id!r} was updated by another process meanwhile; track one source per gearbox at a time"
+                    f"gearbox {gearbox.id!r} was updated by another process meanwhile; track one source per gearbox "
+                    "at a time"
                 )
             if rows:
                 conn.execute(estimates_table.insert(), rows)

@@ -17,7 +17,7 @@ from __future__ import annotations
 import math
 from dataclasses import asdict, dataclass
 
-from ..rows import ARCMIN_PER_DEG
+from ..output_columns import ARCMIN_PER_DEG
 from .clock import TrendClock
 from .report import WearReport
 from .trend import iso_date

@@ -125,7 +125,8 @@ class UsageCounter:
         gaps = np.zeros(time_s.size, dtype=bool) if after_gap is None else np.ascontiguousarray(after_gap, dtype=bool)
         if not (time_s.shape == u_deg.shape == gaps.shape) or time_s.ndim != 1:
             raise InvalidParameterError(
-                f"time_s, u_deg and after_gap must be 1-D of equal length, got {time_s.shape}, {u_deg.shape}, {gaps.shape}"
+                f"time_s, u_deg and after_gap must be 1-D of equal length, got {time_s.shape}, {u_deg.shape}, "
+                f"{gaps.shape}"
             )
         _count(self._state, time_s, u_deg, gaps, float(self.reversal_deg), float(self.idle_after_s))
 

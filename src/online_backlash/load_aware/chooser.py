@@ -222,7 +222,7 @@ class PlayChooser:
 
     # -- what a row carries -------------------------------------------------------------------------
     def row_fields(self) -> dict[str, Any] | None:
-        """The columns of an :class:`~online_backlash.rows.EstimateRow` (but its time): the path taken,
+        """The columns of an :class:`~online_backlash.output_columns.EstimateRow` (but its time): the path taken,
         why, and its play as :func:`~online_backlash.physical.play_verdict` lets it be reported; None
         while that path has no estimate at all (no row is due)."""
         decision = self.decide()

@@ -30,7 +30,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import InvalidParameterError
-from ..rows import ARCMIN_PER_DEG
+from ..output_columns import ARCMIN_PER_DEG
 from .flank_fit import TorqueBacklash
 from .flank_lines import FlankLine
 from .segments import check_knots, hinge_columns

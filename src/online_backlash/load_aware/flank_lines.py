@@ -26,7 +26,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from ..estimators.uncertainty import CyclePlays, PlayUncertainty, forgetting_weights, play_uncertainty
-from ..rows import ARCMIN_PER_DEG
+from ..output_columns import ARCMIN_PER_DEG
 
 __all__ = [
     "MAX_LEVER",

@@ -1,7 +1,7 @@
 """The load-aware keys of a fit's report: the play's path and verdict, torque reversals, the data-sheet figures.
 
 One place turns a fitted torque estimator (batch or recursive) into the keys ``estimate --json`` carries
-beside the path's (:meth:`~.choice.PlayDecision.keys`) (:data:`online_backlash.rows.REPORT_KEYS`).
+beside the path's (:meth:`~.choice.PlayDecision.keys`) (:data:`online_backlash.output_columns.REPORT_KEYS`).
 Lost motion and stiffness follow the play's rule (:func:`online_backlash.physical.figure_verdict`):
 a figure below zero, or whose standard error (the delta method on the flank lines' covariance and
 residual variance: white noise only, so it flags only figures the data plainly do not hold) exceeds
@@ -17,8 +17,8 @@ from typing import Any
 import numpy as np
 
 from ..errors import InvalidParameterError
+from ..output_columns import ARCMIN_PER_DEG
 from ..physical import figure_verdict
-from ..rows import ARCMIN_PER_DEG
 from .datasheet import DatasheetFigures, datasheet_figures, line_figures
 from .flank_fit import TorqueBacklash
 from .segments import check_knots, segment_keys

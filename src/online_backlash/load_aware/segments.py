@@ -29,8 +29,8 @@ from typing import Any
 import numpy as np
 
 from ..errors import InvalidParameterError
+from ..output_columns import ARCMIN_PER_DEG
 from ..physical import figure_verdict
-from ..rows import ARCMIN_PER_DEG
 from .flank_lines import FlankLine
 
 __all__ = ["SEGMENTS", "SegmentFit", "check_knots", "fit_segments", "hinge_columns", "segment_keys"]

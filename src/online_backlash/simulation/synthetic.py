@@ -75,7 +75,8 @@ def compliance(
     load_bits: int = 17,
     seed: int = 0,
 ) -> Record:
-    """A load torque (Coulomb + viscous in the speed) twists the shaft by ``compliance * torque``; the torque is logged with noise."""
+    """A load torque (Coulomb + viscous in the speed) twists the shaft by ``compliance * torque``; the torque is
+    logged with noise."""
     rng = np.random.default_rng(seed)
     v = velocity_deg_s(rec.u_true_deg, rec.time_s, 10)
     torque = coulomb_Nm * np.tanh(v / 2.0) + viscous_Nm_s_per_deg * v
@@ -279,7 +280,8 @@ def two_tone_motion(
     return t, angle, acc
 
 
-#: the prescribed motions of :func:`inertial_twist`: ``(duration_s, seed=...) -> (time_s, angle_deg, acceleration_deg_s2)``
+#: the prescribed motions of :func:`inertial_twist`: ``(duration_s, seed=...) -> (time_s, angle_deg,
+#: acceleration_deg_s2)``
 MOTIONS: dict[str, Callable[..., tuple[np.ndarray, np.ndarray, np.ndarray]]] = {
     "two_tone": two_tone_motion,
     "point_to_point": point_to_point_motion,

@@ -366,7 +366,8 @@ def simulate_two_mass(
     natural_rad_s = math.sqrt(max([k, *ks.tolist()]) / lightest)
     if natural_rad_s / (rate_hz * substeps) > 0.2:
         raise InvalidParameterError(
-            f"the gear's natural frequency ({natural_rad_s / 2 / math.pi:.0f} Hz) needs more than {substeps} substeps at {rate_hz} Hz"
+            f"the gear's natural frequency ({natural_rad_s / 2 / math.pi:.0f} Hz) needs more than {substeps} "
+            f"substeps at {rate_hz} Hz"
         )
     fine_t = np.arange(t.size * substeps) / (rate_hz * substeps)
     u_fine = np.radians(np.interp(fine_t, t, u_deg))
