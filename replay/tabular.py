@@ -32,7 +32,7 @@ from online_backlash.codecs.units import ANGLE_UNITS, COUNT_UNITS
 from online_backlash.errors import BacklashWarning, InvalidParameterError, LogFormatError
 from online_backlash.stream import SampleChunk, SampleSource, StreamCounters, rechunk
 
-from .screen import Screened, screen_block
+from .block_checks import Screened, screen_block
 from .signatures import check_signature, library_failure
 from .unit_hints import radian_counts, unit_mismatch
 
@@ -307,7 +307,7 @@ class TabularSource(SampleSource):
         each row's line or row number for messages (an int: the first row's, the others
         following it); ``scales`` the motor and load degrees per unit (default: the attributes
         ``motor_scale``/``load_scale``). Returns the block and the last kept time. The checks
-        are one compiled pass over the block (:func:`~online_backlash.replay.screen.screen_block`);
+        are one compiled pass over the block (:func:`~online_backlash.replay.block_checks.screen_block`);
         a clean block (all finite, in time order) is passed on without copies where its columns
         already are contiguous float64 in degrees, unless ``copy`` (the columns' memory is reused).
         """
@@ -403,7 +403,7 @@ class TabularSource(SampleSource):
                 )
 
     def _reject(self, columns: list[np.ndarray], numbers: np.ndarray | int, found: Screened) -> None:
-        """The bad rows :func:`~online_backlash.replay.screen.screen_block` found: LogFormatError naming the first
+        """The bad rows :func:`~online_backlash.replay.block_checks.screen_block` found: LogFormatError naming the first
         (by value before by time, as row-by-row checks find them), or with ``skip_bad`` counted in ``counters.corrupt``."""
         if self.skip_bad:
             self.counters.corrupt += found.bad

@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 
 from online_backlash.cli import main
-from online_backlash.cli._common import EXIT_NO_PLAY
+from online_backlash.cli._output import EXIT_NO_PLAY
 from online_backlash.fitting import fit_batch, fit_recursive
 from online_backlash.history.store import HistoryStore
 from online_backlash.load_aware import TorqueBacklash

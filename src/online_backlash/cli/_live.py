@@ -12,7 +12,7 @@ from contextlib import contextmanager
 from typing import TYPE_CHECKING, Any
 
 from ..errors import InvalidParameterError
-from ._common import can_decoding_options
+from ._options import can_decoding_options
 
 if TYPE_CHECKING:
     from ..drivers.live import LiveSource

@@ -8,19 +8,15 @@ from .._allocator import keep_freed_memory
 from ..bridging import GapTally
 from ..fitting import plausibility
 from ..rows import describe_counts, source_counts
-from ._common import (
+from ._options import (
     LOG_FORMATS,
     add_can_decoding_options,
     add_log_options,
     add_ratio_option,
-    check_plot_path,
     count_type,
-    files_written,
-    play_exit_code,
     positive_float,
-    print_report,
-    warn_if_implausible,
 )
+from ._output import check_plot_path, files_written, play_exit_code, print_report, warn_if_implausible
 from .estimate import read_counted, write_trace
 
 

@@ -15,21 +15,17 @@ from ..fitting import BacklashReport, describe, fit_batch, fit_recursive
 from ..pipeline import READ_AHEAD
 from ..rows import TRACE_COLUMNS, EstimateRow
 from ..stream import SampleChunk, SampleSource, read_all
-from ._common import (
+from ._options import (
     LOG_FORMATS,
     add_can_decoding_options,
     add_log_options,
     add_play_method_option,
     add_ratio_option,
-    check_plot_path,
-    files_written,
     nonnegative_float,
-    play_exit_code,
     positive_float,
-    print_report,
     reader_options,
-    warn_if_implausible,
 )
+from ._output import check_plot_path, files_written, play_exit_code, print_report, warn_if_implausible
 
 
 def add_subparser(subparsers: argparse._SubParsersAction) -> None:

@@ -10,7 +10,8 @@ from typing import TYPE_CHECKING
 
 from ..errors import BacklashError, InvalidParameterError
 from ..rows import ARCMIN_PER_DEG, HISTORY_CSV_COLUMNS
-from ._common import check_plot_path, nonempty_text, print_json
+from ._options import nonempty_text
+from ._output import check_plot_path, print_json
 
 if TYPE_CHECKING:
     from ..history.report import WearReport

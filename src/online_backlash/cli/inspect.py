@@ -8,7 +8,8 @@ import sys
 from dataclasses import replace
 from typing import TYPE_CHECKING, Any
 
-from ._common import add_csv_dialect_options, csv_dialect_options, node_id_type, print_json
+from ._options import add_csv_dialect_options, csv_dialect_options, node_id_type
+from ._output import print_json
 
 if TYPE_CHECKING:
     from ..codecs.canopen import NodeMapping

@@ -20,16 +20,10 @@ from typing import Any
 from ..errors import LogFormatError, SourceError
 from ..fitting import describe, fit_recursive
 from ..rows import EstimateRow, arcmin
-from ._common import (
-    add_can_decoding_options,
-    add_counts_options,
-    add_ratio_option,
-    play_exit_code,
-    positive_float,
-    print_json,
-)
 from ._live import ctrl_c_ends_the_run, open_can_source, open_serial_source
 from ._mqtt import add_listen_mqtt_options, mqtt_publisher, mqtt_summary_line, mqtt_tls, row_sink
+from ._options import add_can_decoding_options, add_counts_options, add_ratio_option, positive_float
+from ._output import play_exit_code, print_json
 
 
 def add_subparser(subparsers: argparse._SubParsersAction) -> None:

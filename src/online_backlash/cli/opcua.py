@@ -13,7 +13,7 @@ from typing import TYPE_CHECKING
 from urllib.parse import urlsplit
 
 from ..errors import BacklashWarning, InvalidParameterError
-from ._common import positive_float
+from ._options import positive_float
 
 if TYPE_CHECKING:
     from ..history.gauges import GearboxGauges

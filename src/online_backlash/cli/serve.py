@@ -9,7 +9,7 @@ import socket
 from types import FrameType
 
 from ..errors import InvalidParameterError
-from ._common import port_type
+from ._options import port_type
 
 
 def add_subparser(subparsers: argparse._SubParsersAction) -> None:

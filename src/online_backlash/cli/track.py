@@ -24,17 +24,17 @@ from ..clocks import TIME_UNITS as TIME_UNIT_NAMES
 from ..errors import BacklashError, InvalidParameterError
 from ..fleet import GearboxJob, GearboxOutcome
 from ..rows import describe_counts
-from ._common import (
+from ._live import ctrl_c_ends_the_run, open_can_source, open_serial_source
+from ._mqtt import add_mqtt_option, history_figures, mqtt_publisher, mqtt_summary_line, mqtt_tls
+from ._options import (
     LOG_FORMATS,
     add_can_decoding_options,
     add_log_options,
     add_play_method_option,
     add_ratio_option,
     positive_float,
-    print_json,
 )
-from ._live import ctrl_c_ends_the_run, open_can_source, open_serial_source
-from ._mqtt import add_mqtt_option, history_figures, mqtt_publisher, mqtt_summary_line, mqtt_tls
+from ._output import print_json
 from .estimate import log_options, no_torque_reason
 from .history import add_db_options
 

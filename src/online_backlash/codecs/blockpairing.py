@@ -2,7 +2,7 @@
 
 Frames come in blocks (1,024 frames read from a log) and are decoded into arrays (:mod:`~online_backlash.codecs.blockdecode`); this module
 pairs them, unwraps the counts (:class:`~online_backlash.codecs.unwrap.Unwrapper`), applies
-:class:`~online_backlash.codecs.assemble.SampleAssembler`'s checks and
+:class:`~online_backlash.codecs.sample_checks.SampleAssembler`'s checks and
 :class:`~online_backlash.codecs.gaps.GapDetector`'s rule in one numba loop whose state carries
 over from block to block, so the samples, counters, gaps and pair skew are those of the per-frame
 path, bit for bit (``tests/test_can_blocks.py`` compares them over generated damaged inputs).

@@ -57,9 +57,9 @@ from canopen.objectdictionary.datatypes import INTEGER_TYPES, SIGNED_TYPES
 from online_backlash.errors import FrameError, InvalidParameterError, LogFormatError
 from online_backlash.stream import Row
 
-from .assemble import SampleAssembler
 from .dbc import LOAD, MOTOR, DecodedFrame
 from .pairing import CanCounters, FramePipeline, PerFramePipeline
+from .sample_checks import SampleAssembler
 from .unwrap import Unwrapper
 
 #: Default COB-ID of the SYNC object (CiA 301), used when the dictionary has no 0x1005.

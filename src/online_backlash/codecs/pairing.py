@@ -36,8 +36,8 @@ import can
 from online_backlash.errors import FrameError, InvalidParameterError
 from online_backlash.stream import Row, Sample, SampleChunk, StreamCounters, rows_to_chunk
 
-from .assemble import SampleAssembler
 from .dbc import BOTH, MOTOR, DecodedFrame
+from .sample_checks import SampleAssembler
 from .unwrap import Unwrapper
 
 

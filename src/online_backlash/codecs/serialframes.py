@@ -32,7 +32,7 @@ from crccheck.crc import Crc16CcittFalse
 from online_backlash.errors import FrameError, InvalidParameterError
 from online_backlash.stream import Row, Sample, SampleChunk, StreamCounters, rows_to_chunk
 
-from .assemble import SampleAssembler
+from .sample_checks import SampleAssembler
 from .unwrap import Unwrapper
 
 #: What a record parses to: time (s), motor and load angles (deg), sequence number (None: none).
