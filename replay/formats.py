@@ -16,6 +16,7 @@ from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from typing import Any
 
+from online_backlash.codecs.options import FrameRules, gather_options
 from online_backlash.errors import InvalidParameterError
 from online_backlash.stream import SampleSource
 
@@ -87,14 +88,16 @@ def _describe_csv(path: str, dbc: Any = None, **dialect: str | None) -> FileSumm
 
 def _can_log(path: str | os.PathLike[str], **options: Any) -> SampleSource:
     """A CAN log in a python-can format, decoded with a DBC (:class:`~online_backlash.replay.canlog.CanLog`)
-    or, given ``eds``, with a CANopen drive's object dictionary (:class:`~online_backlash.replay.canopenlog.CanopenLog`)."""
-    if options.get("eds") is not None:
+    or, given ``eds``, with a CANopen drive's object dictionary (:class:`~online_backlash.replay.canopenlog.CanopenLog`);
+    ``options`` are the fields of its options (:func:`~online_backlash.codecs.options.gather_options`)."""
+    given = gather_options(options, decoding=CanDecoding, counts=Counts, frames=FrameRules)
+    if given["decoding"].canopen is not None:
         from .canopenlog import CanopenLog  # imported on use: canopen loads only for CANopen logs
 
-        return CanopenLog(path, **options)
+        return CanopenLog(path, **given)
     from .canlog import CanLog  # imported on use: cantools loads only for CAN logs
 
-    return CanLog(path, **options)
+    return CanLog(path, **given)
 
 
 def _describe_can(path: str, dbc: str | os.PathLike[str] | None = None, **_: Any) -> FileSummary:
@@ -104,10 +107,11 @@ def _describe_can(path: str, dbc: str | os.PathLike[str] | None = None, **_: Any
 
 
 def _open_serial(path: str | os.PathLike[str], **options: Any) -> SampleSource:
-    """A raw serial capture (:class:`~online_backlash.replay.serialcapture.SerialCapture`)."""
+    """A raw serial capture (:class:`~online_backlash.replay.serialcapture.SerialCapture`); ``options`` are the fields
+    of its options (:func:`~online_backlash.codecs.options.gather_options`)."""
     from .serialcapture import SerialCapture
 
-    return SerialCapture(path, **options)
+    return SerialCapture(path, **gather_options(options, counts=Counts, frames=FrameRules))
 
 
 def _open_mdf(path: str | os.PathLike[str], **options: Any) -> SampleSource:

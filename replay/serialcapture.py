@@ -14,6 +14,7 @@ import time
 from collections.abc import Iterator
 from pathlib import Path
 
+from online_backlash.codecs.options import DEFAULT_COUNTS, DEFAULT_FRAMES, Counts, FrameRules
 from online_backlash.codecs.rawfiles import SERIAL_SUFFIX, raw_log_files
 from online_backlash.codecs.serialframes import FrameParser, make_parser
 from online_backlash.errors import InvalidParameterError, LogFormatError
@@ -32,8 +33,11 @@ class SerialCapture(SampleSource):
         A ``.serial`` file or a directory of them.
     serial_format : {"ascii", "binary"}
         How the bytes are framed (required: a capture is bytes only).
-    motor_cpr, load_cpr, period_s, strict
-        See :func:`~online_backlash.codecs.serialframes.make_parser`.
+    counts : Counts
+        Counts per revolution (``binary`` only).
+    frames : FrameRules
+        The nominal period for the gap rule (learnt if None) and ``strict`` (raise at a corrupt frame); see
+        :func:`~online_backlash.codecs.serialframes.make_parser`.
     skip_bad : bool
         Count a truncated last frame as corrupt instead of raising.
     realtime : bool
@@ -47,10 +51,8 @@ class SerialCapture(SampleSource):
         path: str | os.PathLike[str],
         serial_format: str | None = None,
         *,
-        motor_cpr: float | None = None,
-        load_cpr: float | None = None,
-        period_s: float | None = None,
-        strict: bool = False,
+        counts: Counts = DEFAULT_COUNTS,
+        frames: FrameRules = DEFAULT_FRAMES,
         skip_bad: bool = False,
         realtime: bool = False,
         block_bytes: int = 1 << 16,
@@ -58,12 +60,16 @@ class SerialCapture(SampleSource):
         if serial_format is None:
             raise InvalidParameterError("a serial capture needs serial_format 'ascii' or 'binary' (--serial-format)")
         self.path = os.fspath(path)
-        self._parser_args = (serial_format, motor_cpr, load_cpr, period_s, strict)
-        self.parser: FrameParser = make_parser(*self._parser_args)
+        self._parser_args = (serial_format, counts.kwargs() | frames.kwargs())
+        self.parser: FrameParser = self._new_parser()
         self.counters: StreamCounters = self.parser.counters
         self.skip_bad = skip_bad
         self.realtime = realtime
         self.block_bytes = int(block_bytes)
+
+    def _new_parser(self) -> FrameParser:
+        serial_format, options = self._parser_args
+        return make_parser(serial_format, **options)
 
     def close(self) -> None:
         """Nothing stays open between iterations."""
@@ -83,7 +89,7 @@ class SerialCapture(SampleSource):
 
     def _blocks(self) -> Iterator[SampleChunk]:
         """Per block of bytes read: the samples it completes."""
-        self.parser = parser = make_parser(*self._parser_args)
+        self.parser = parser = self._new_parser()
         self.counters = parser.counters
         pace = _Pacer() if self.realtime else None
         files = self.files()

@@ -11,7 +11,7 @@ from typing import TYPE_CHECKING, Any
 from ..errors import InvalidParameterError
 
 if TYPE_CHECKING:
-    from ..replay.options import CanDecoding, ReaderOption
+    from ..codecs.options import CanDecoding, ReaderOption
 
 
 #: The formats a log may be in, as ``estimate``, ``diagnose`` and ``track`` read them (the help of their LOG argument).
@@ -230,26 +230,22 @@ def add_canopen_options(parser: argparse.ArgumentParser) -> None:
     )
 
 
-def can_decoding_options(args: argparse.Namespace) -> dict[str, Any]:
-    """Keyword arguments of the CAN sources (``CanSource``, ``CanLog``) from :func:`add_can_decoding_options`."""
-    return can_decoding(args).kwargs()
-
-
 def can_decoding(args: argparse.Namespace) -> CanDecoding:
     """How CAN frames become angles, from :func:`add_can_decoding_options` (and :func:`add_canopen_options`)."""
     from ..codecs.dbc import RIG_DBC
-    from ..replay.options import CanDecoding, Canopen
+    from ..codecs.options import CanDecoding, Canopen
 
     def optional(name: str) -> str | None:
         return None if name.lower() == "none" else name
 
+    skew = {} if args.max_skew is None else {"max_skew_s": args.max_skew}  # None: the pairing's own default
     if getattr(args, "eds", None) is not None:
         if args.node is None:
             raise InvalidParameterError(f"--eds {args.eds}: give --node N, the node-ID of the motor drive")
         if getattr(args, "dbc", None) is not None:
             raise InvalidParameterError("--dbc and --eds both given: a CAN log is decoded with one of them")
         where = Canopen(args.eds, args.node, args.load_node, args.load_eds, args.load_subindex)
-        return CanDecoding(max_skew_s=args.max_skew, canopen=where)
+        return CanDecoding(canopen=where, **skew)
     return CanDecoding(
         RIG_DBC if args.dbc == "rig" else args.dbc,
         args.motor_signal,
@@ -258,7 +254,7 @@ def can_decoding(args: argparse.Namespace) -> CanDecoding:
         optional(args.checksum_signal),
         getattr(args, "units", None),
         args.wrap_deg,
-        args.max_skew,
+        **skew,
     )
 
 
