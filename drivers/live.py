@@ -20,6 +20,10 @@ from online_backlash.errors import SourceTimeoutError
 from online_backlash.stream import SampleChunk, SampleSource, rechunk
 
 
+#: The formats of a raw CAN log (python-can writers).
+CAN_RAW_FORMATS = ("blf", "asc", "log")
+
+
 @dataclass(frozen=True)
 class LiveOptions:
     """What a live source is told besides its frame rules (:mod:`online_backlash.codecs.options`).

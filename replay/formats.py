@@ -60,6 +60,9 @@ class LogFormat:
         (None: every file of its suffixes is its own).
     directories : bool
         Whether a directory of its files is read as one stream (``listen --raw-log`` folders).
+    title : str
+        What a user calls its files, and what reading one needs (the CLI's help of a log argument,
+        :meth:`help_text`).
     """
 
     kind: str
@@ -69,6 +72,11 @@ class LogFormat:
     describe: Callable[..., FileSummary] | None = None
     recognises: Callable[[str | os.PathLike[str]], bool] | None = None
     directories: bool = False
+    title: str = ""
+
+    def help_text(self) -> str:
+        """Its suffixes and title, as the CLI's help lists it: ``.tdms (TDMS, channels by --columns)``."""
+        return " ".join(self.suffixes) + (f" ({self.title})" if self.title else "")
 
     def reader_kwargs(self, options: Iterable[ReaderOption]) -> dict[str, Any]:
         """The reader's keyword arguments from ``options``, each of a type this format takes (else InvalidParameterError)."""
@@ -196,13 +204,32 @@ MF4 = ".mf4"
 #: What a file of columns or channels takes: the roles' names, the angles' units, bad rows skipped or not.
 _TABULAR = (Columns, Units, Counts, BadRows)
 
-CSV = LogFormat("csv", CSV_SUFFIXES, CsvLog, (*_TABULAR, Timing, CsvDialect), _describe_csv)
-MDF = LogFormat("mdf", (MF4, ".mdf"), _open_mdf, _TABULAR, _describe_mdf, recognises=_holds_signals)
-TDMS = LogFormat("tdms", (".tdms",), _open_tdms, _TABULAR, _describe_tdms)
-PARQUET = LogFormat("parquet", (".parquet", ".pq"), _open_table, _TABULAR, _table_describer("parquet"))
-ARROW = LogFormat("arrow", (".arrow", ".feather", ".ipc"), _open_table, _TABULAR, _table_describer("arrow"))
-MAT = LogFormat("mat", (".mat",), _open_mat, _TABULAR, _describe_mat)
-HDF5 = LogFormat("hdf5", (".h5", ".hdf5"), _open_hdf5, _TABULAR, _describe_hdf5)
+_CHANNELS = "channels by --columns"
+CSV = LogFormat(
+    "csv",
+    CSV_SUFFIXES,
+    CsvLog,
+    (*_TABULAR, Timing, CsvDialect),
+    _describe_csv,
+    title="CSV or delimited text, also .gz; a torque column is used when mapped",
+)
+MDF = LogFormat(
+    "mdf", (MF4, ".mdf"), _open_mdf, _TABULAR, _describe_mdf, recognises=_holds_signals, title=f"MDF, {_CHANNELS}"
+)
+TDMS = LogFormat("tdms", (".tdms",), _open_tdms, _TABULAR, _describe_tdms, title=f"TDMS, {_CHANNELS}")
+PARQUET = LogFormat(
+    "parquet", (".parquet", ".pq"), _open_table, _TABULAR, _table_describer("parquet"), title=f"Parquet, {_CHANNELS}"
+)
+ARROW = LogFormat(
+    "arrow",
+    (".arrow", ".feather", ".ipc"),
+    _open_table,
+    _TABULAR,
+    _table_describer("arrow"),
+    title=f"Arrow IPC, {_CHANNELS}",
+)
+MAT = LogFormat("mat", (".mat",), _open_mat, _TABULAR, _describe_mat, title=f"MATLAB v4-v7.3, {_CHANNELS}")
+HDF5 = LogFormat("hdf5", (".h5", ".hdf5"), _open_hdf5, _TABULAR, _describe_hdf5, title=f"HDF5, {_CHANNELS}")
 #: Every format python-can's LogReader reads (``can.io.player.MESSAGE_READERS``) but ``.csv``, which is ours; named
 #: here so python-can (and the asammdf and pandas it loads, 55 MB) is imported only when a CAN log is read. A test
 #: holds it equal to python-can's table. Its ``.mf4`` files are those :data:`MDF` does not recognise.
@@ -213,7 +240,13 @@ CAN = LogFormat(
     (CanDecoding, WholeCounts, BadRows, Pace, Timing),
     _describe_can,
     directories=True,
+    title="a CAN log, also .gz, with --dbc or --eds",
 )
 SERIAL = LogFormat(
-    "serial", (".serial",), _open_serial, (SerialFraming, Counts, BadRows, Pace, Timing), directories=True
+    "serial",
+    (".serial",),
+    _open_serial,
+    (SerialFraming, Counts, BadRows, Pace, Timing),
+    directories=True,
+    title="a serial capture, with --serial-format",
 )

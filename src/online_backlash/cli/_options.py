@@ -14,12 +14,30 @@ if TYPE_CHECKING:
     from ..codecs.options import CanDecoding, ReaderOption
 
 
-#: The formats a log may be in, as ``estimate``, ``diagnose`` and ``track`` read them (the help of their LOG argument).
-LOG_FORMATS = (
-    ".csv[.gz] or delimited .txt/.tsv (a torque column is used when mapped); a measurement file "
-    "(.mf4 .mdf .tdms .parquet .arrow .feather, channels by --columns); a CAN log (.asc .blf .log .trc .mf4 ..., "
-    "with --dbc or --eds); a serial capture (.serial, with --serial-format)"
-)
+def log_formats(inspected: bool = False) -> str:
+    """The formats a log may be in (the help of a LOG argument), from the one table
+    (:data:`~online_backlash.replay.registry.FORMATS`); ``inspected``: those ``inspect`` describes."""
+    from ..replay.registry import FORMATS
+
+    return "; ".join(f.help_text() for f in FORMATS if f.describe is not None or not inspected)
+
+
+def add_store_option(parser: argparse._ActionsContainer) -> None:
+    """``--db DB``: the history store (``track``, ``history``, ``serve``, ``opcua``)."""
+    parser.add_argument(
+        "--db", required=True, help="history store: an SQLite file path or postgresql://user@host/dbname"
+    )
+
+
+def add_max_age_option(parser: argparse._ActionsContainer) -> None:
+    """``--max-age-h H``: when a gearbox's state becomes unknown (``history``, ``serve``, ``opcua``)."""
+    parser.add_argument(
+        "--max-age-h",
+        type=float,
+        default=168.0,
+        metavar="H",
+        help="a gearbox's state is unknown when its latest observable estimate is older than H calendar hours",
+    )
 
 
 def add_log_options(parser: argparse.ArgumentParser) -> None:
@@ -30,14 +48,108 @@ def add_log_options(parser: argparse.ArgumentParser) -> None:
         metavar="MAP",
         help="map the log's column names, e.g. time=time_s,motor=motor_counts,load=spindle_counts[,torque=T]",
     )
-    group.add_argument(
-        "--units",
-        choices=("deg", "rad", "rev", "arcmin", "counts"),
-        help="unit of the motor and load columns or DBC signals (default: deg for CSV; a measurement file's channel units; the DBC signals' units)",
-    )
+    add_units_option(group)
     add_counts_options(group)
     group.add_argument("--skip-bad-rows", action="store_true", help="count and skip malformed rows instead of stopping")
     add_csv_dialect_options(group)
+
+
+def add_units_option(group: argparse._ActionsContainer) -> None:
+    """``--units U``: the unit of the motor and load angles (:class:`~online_backlash.replay.options.Units`,
+    ``CanDecoding.units``), declared once for the logs and ``listen can``."""
+    group.add_argument(
+        "--units",
+        choices=("deg", "rad", "rev", "arcmin", "counts"),
+        help="unit of the motor and load columns or DBC signals (default: deg for CSV; a measurement file's channel "
+        "units; the DBC signals' units)",
+    )
+
+
+def add_period_option(group: argparse._ActionsContainer) -> None:
+    """``--period S``: the nominal sample period (:class:`~online_backlash.codecs.options.Timing`), declared once for
+    the logs of ``estimate``, ``diagnose`` and ``track`` and the live sources of ``listen`` and ``track --listen``.
+    A value that is not a positive number is argparse's usage error (exit 2), as every option's bad value."""
+    group.add_argument(
+        "--period",
+        type=positive_float,
+        metavar="S",
+        help="nominal sample period, seconds, for gap detection (CSV, CAN log or bus, serial capture or port); learnt "
+        "if not given. With a frame counter (CAN, serial, CANopen), sample times are then first time + counter "
+        "periods x S, not the jittery timestamps",
+    )
+
+
+def add_serial_format_option(
+    group: argparse._ActionsContainer, flag: str = "--serial-format", **required: bool
+) -> None:
+    """``--serial-format ascii|binary`` (``listen serial``: ``--format``, required): how a serial capture's or port's
+    bytes are framed (:class:`~online_backlash.codecs.options.SerialFraming`)."""
+    from ..codecs.options import SERIAL_FORMATS
+
+    group.add_argument(
+        flag,
+        dest="serial_format",
+        choices=SERIAL_FORMATS,
+        help="frame format of a serial capture (.serial) or port: 'ascii' lines time,motor,load (s, deg, deg) or "
+        "'binary' COBS frames with CRC-16",
+        **required,
+    )
+
+
+def add_estimator_options(group: argparse._ActionsContainer, new_gearbox: bool = False) -> None:
+    """``--memory-reversals N [--memory-s S] --sample-period S``: the recursive estimator's memory and sampling period,
+    seconds; ``new_gearbox`` (``track``): a new gearbox's, without defaults (a gearbox already tracked keeps its own;
+    no ``--memory-s``)."""
+    if new_gearbox:
+        memory = ("memory of a new gearbox's estimator, in reversals (shorter follows fast wear with less lag, more "
+                  "noise); default: BacklashRLS's")  # fmt: skip
+        period = "sampling period of a new gearbox's logs, seconds; default: BacklashRLS's (0.001)"
+    else:
+        memory, period = "memory of the estimator, in reversals", "sampling period of the log or source, seconds"
+    defaults = (None, None) if new_gearbox else (10.0, 0.001)
+    group.add_argument("--memory-reversals", type=positive_float, default=defaults[0], metavar="N", help=memory)
+    if not new_gearbox:
+        group.add_argument(
+            "--memory-s",
+            type=positive_float,
+            metavar="S",
+            help="memory in seconds of motion (instead of / besides reversals)",
+        )
+    group.add_argument("--sample-period", type=positive_float, default=defaults[1], metavar="S", help=period)
+
+
+def add_can_bus_options(group: argparse._ActionsContainer, required: bool) -> None:
+    """``--interface I --channel C --bitrate B --raw-format F``: a live CAN bus (``listen can``, ``track --listen can``)."""
+    from ..drivers.live import CAN_RAW_FORMATS
+
+    group.add_argument(
+        "--interface", required=required, help="python-can interface: socketcan, pcan, kvaser, vector, virtual, ..."
+    )
+    group.add_argument("--channel", required=required, help="channel of the interface, e.g. can0")
+    group.add_argument("--bitrate", type=int, help="bit rate, bit/s (where the interface sets it)")
+    group.add_argument("--raw-format", choices=CAN_RAW_FORMATS, default="blf", help="format of the raw CAN log")
+
+
+def add_serial_port_options(group: argparse._ActionsContainer, required: bool) -> None:
+    """``--port URL --baud B``: a live serial port (``listen serial``, ``track --listen serial``)."""
+    group.add_argument(
+        "--port", required=required, help="pyserial URL: /dev/ttyUSB0, COM3, socket://host:port, loop://"
+    )
+    group.add_argument("--baud", type=int, default=115200, help="baud rate")
+
+
+def add_live_run_options(group: argparse._ActionsContainer, raw_log_required: bool) -> None:
+    """``--raw-log DIR --duration S --timeout S``: where a live source's raw capture goes and how long it runs
+    (:class:`~online_backlash.drivers.live.LiveOptions`; ``track``: required with ``--listen``)."""
+    group.add_argument(
+        "--raw-log",
+        required=raw_log_required,
+        metavar="DIR",
+        help="directory for the raw captures, written before decoding"
+        + ("" if raw_log_required else " (required with --listen)"),
+    )
+    group.add_argument("--duration", type=positive_float, metavar="S", help="stop after S seconds; else at Ctrl-C")
+    group.add_argument("--timeout", type=positive_float, metavar="S", help="fail when nothing arrives for S seconds")
 
 
 def add_counts_options(group: argparse._ActionsContainer) -> None:
@@ -224,7 +336,7 @@ def add_canopen_options(parser: argparse.ArgumentParser) -> None:
     group.add_argument("--load-eds", metavar="FILE", help="EDS or DCF of --load-node, if it is not the --eds one")
     group.add_argument(
         "--load-subindex",
-        type=_integer_in(1, 254),
+        type=subindex_type,
         metavar="K",
         help="sub-index of 0x60E4 (additional position actual value); default: the first mapped",
     )
@@ -297,6 +409,8 @@ def _integer_in(low: int, high: int) -> Callable[[str], int]:
 node_id_type = _integer_in(1, 127)
 
 
+#: argparse type of a CANopen object's sub-index (1..254).
+subindex_type = _integer_in(1, 254)
 #: argparse type of a TCP port (0: any free one).
 port_type = _integer_in(0, 65535)
 

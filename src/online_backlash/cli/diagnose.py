@@ -9,11 +9,12 @@ from ..bridging import GapTally
 from ..fitting import plausibility
 from ..rows import describe_counts, source_counts
 from ._options import (
-    LOG_FORMATS,
     add_can_decoding_options,
     add_log_options,
     add_ratio_option,
+    add_serial_format_option,
     count_type,
+    log_formats,
     positive_float,
 )
 from ._output import check_plot_path, files_written, play_exit_code, print_report, warn_if_implausible
@@ -31,7 +32,7 @@ def add_subparser(subparsers: argparse._SubParsersAction) -> None:
         ),
         formatter_class=argparse.ArgumentDefaultsHelpFormatter,
     )
-    parser.add_argument("log", help=f"recorded log: {LOG_FORMATS}")
+    parser.add_argument("log", help=f"recorded log: {log_formats()}")
     add_ratio_option(parser)
     parser.add_argument("--json", action="store_true", help="print one JSON object")
     parser.add_argument("--plot", metavar="FILE.png", help="write the residual before/after plot")
@@ -63,9 +64,7 @@ def add_subparser(subparsers: argparse._SubParsersAction) -> None:
     )
     add_log_options(parser)
     add_can_decoding_options(parser, required=False)
-    parser.add_argument(
-        "--serial-format", choices=("ascii", "binary"), help="frame format of a serial capture (.serial)"
-    )
+    add_serial_format_option(parser)
     parser.set_defaults(func=run)
 
 

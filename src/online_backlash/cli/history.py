@@ -10,7 +10,7 @@ from typing import TYPE_CHECKING
 
 from ..errors import BacklashError, InvalidParameterError
 from ..rows import ARCMIN_PER_DEG, HISTORY_CSV_COLUMNS
-from ._options import nonempty_text
+from ._options import add_max_age_option, add_store_option, nonempty_text
 from ._output import check_plot_path, print_json
 
 if TYPE_CHECKING:
@@ -19,9 +19,7 @@ if TYPE_CHECKING:
 
 def add_db_options(parser: argparse.ArgumentParser, gearbox_required: bool = True) -> None:
     """``--db`` and ``--gearbox``, shared with ``track``."""
-    parser.add_argument(
-        "--db", required=True, help="history store: an SQLite file path or postgresql://user@host/dbname"
-    )
+    add_store_option(parser)
     parser.add_argument(
         "--gearbox", type=nonempty_text, required=gearbox_required, metavar="ID", help="the gearbox's id in the store"
     )
@@ -56,13 +54,7 @@ def add_subparser(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument(
         "--warn-arcmin", type=float, metavar="X", help="warning level of the play; without it, the gearbox's stored one"
     )
-    parser.add_argument(
-        "--max-age-h",
-        type=float,
-        default=168.0,
-        metavar="H",
-        help="the state is UNKNOWN when the latest observable estimate is older than H calendar hours",
-    )
+    add_max_age_option(parser)
     parser.add_argument(
         "--trend",
         choices=("theil-sen", "kalman"),

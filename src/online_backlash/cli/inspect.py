@@ -8,7 +8,7 @@ import sys
 from dataclasses import replace
 from typing import TYPE_CHECKING, Any
 
-from ._options import add_csv_dialect_options, csv_dialect_options, node_id_type
+from ._options import add_csv_dialect_options, csv_dialect_options, log_formats, node_id_type
 from ._output import print_json
 
 if TYPE_CHECKING:
@@ -33,8 +33,7 @@ def add_subparser(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument(
         "file",
         nargs="?",
-        help="a .csv[.gz] (or delimited .txt .tsv), .parquet, .arrow/.feather, .mf4/.mdf, .tdms, .mat, .h5/.hdf5 file "
-        "or a CAN log (.asc .blf .log .trc .mf4 ...)",
+        help=f"a recorded file: {log_formats(inspected=True)}",
     )
     parser.add_argument(
         "--dbc", metavar="FILE", help="name the CAN IDs of a CAN log by this DBC ('rig' for the shipped rig.dbc)"

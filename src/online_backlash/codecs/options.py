@@ -20,6 +20,8 @@ if TYPE_CHECKING:
     from .canopen import CanopenLayout
     from .dbc import DbcDecoder
 
+#: How a serial capture's or port's bytes are framed (:mod:`~online_backlash.codecs.serialframes`).
+SERIAL_FORMATS = ("ascii", "binary")
 #: Event-driven frames: the largest time between the motor's and the load's frame of one sample, seconds.
 MAX_SKEW_S = 1e-3
 
