@@ -19,7 +19,6 @@ from dataclasses import dataclass
 from online_backlash.errors import SourceTimeoutError
 from online_backlash.stream import SampleChunk, SampleSource, rechunk
 
-
 #: The formats of a raw CAN log (python-can writers).
 CAN_RAW_FORMATS = ("blf", "asc", "log")
 
