@@ -98,15 +98,10 @@ class MdfLog(MeasurementLog):
     ----------
     path : str or os.PathLike
         The file (``.mf4``, ``.mdf``).
-    columns : dict, optional
-        Role -> channel name for ``motor``, ``load``, ``torque`` (optional) and ``time``
-        (optional: default the motor group's master channel).
-    units : str, optional
-        Overrides the motor and load channels' units (``deg``, ``rad``, ``rev``, ``counts``, ...).
-    motor_cpr, load_cpr : float, optional
-        Counts per revolution of channels in encoder counts.
-    skip_bad : bool
-        Count and skip non-finite or out-of-order samples instead of raising.
+    *args, **kwargs
+        Those of :class:`~online_backlash.replay.tabular.TabularSource`: ``columns`` (role -> channel name for
+        ``motor``, ``load``, ``torque`` (optional) and ``time`` (optional: default the motor group's master
+        channel)), ``units`` (overrides the channels' units), ``motor_cpr``, ``load_cpr``, ``skip_bad``.
     fragment_bytes : int
         Size hint of the blocks read from the file (memory stays bounded by it). 2 MiB (87,381
         samples of motor, load and time in 24-byte records): fewer blocks than 1 MiB cost less
@@ -121,17 +116,8 @@ class MdfLog(MeasurementLog):
         The median time step of the first block, seconds.
     """
 
-    def __init__(
-        self,
-        path: str | os.PathLike[str],
-        columns: dict[str, str] | None = None,
-        units: str | None = None,
-        motor_cpr: float | None = None,
-        load_cpr: float | None = None,
-        skip_bad: bool = False,
-        fragment_bytes: int = 2 << 20,
-    ) -> None:
-        super().__init__(path, columns, units, motor_cpr, load_cpr, skip_bad)
+    def __init__(self, path: str | os.PathLike[str], *args: Any, fragment_bytes: int = 2 << 20, **kwargs: Any) -> None:
+        super().__init__(path, *args, **kwargs)
         self.fragment_bytes = int(fragment_bytes)
         self._mdf: Any = None
 
@@ -196,10 +182,10 @@ class MdfLog(MeasurementLog):
         motor_group = where["motor"][0]  # type: ignore[index]
         aligned = {r: where[r][1] for r in present if where[r][0] == motor_group}  # type: ignore[index]
         foreign = {
-            r: Resampler(((t, v) for t, v, _ in self._fragments(r, where[r])), self.path, self.columns[r])
+            r: Resampler(((t, v) for t, v, _ in self._fragments(r, where[r])), self.path, self.columns[r])  # type: ignore[arg-type]
             for r in present
             if r not in aligned
-        }  # type: ignore[arg-type]
+        }
         units: dict[str, str | None] = {r: self._unit_of((motor_group, i)) or "" for r, i in aligned.items()}
         units.update({r: self._unit_of(where[r]) for r in foreign})  # type: ignore[arg-type]
         if "time" not in self.mapped:

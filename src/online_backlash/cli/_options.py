@@ -80,7 +80,7 @@ def add_period_option(group: argparse._ActionsContainer) -> None:
 
 
 def add_serial_format_option(
-    group: argparse._ActionsContainer, flag: str = "--serial-format", **required: bool
+    group: argparse._ActionsContainer, flag: str = "--serial-format", required: bool = False
 ) -> None:
     """``--serial-format ascii|binary`` (``listen serial``: ``--format``, required): how a serial capture's or port's
     bytes are framed (:class:`~online_backlash.codecs.options.SerialFraming`)."""
@@ -92,7 +92,7 @@ def add_serial_format_option(
         choices=SERIAL_FORMATS,
         help="frame format of a serial capture (.serial) or port: 'ascii' lines time,motor,load (s, deg, deg) or "
         "'binary' COBS frames with CRC-16",
-        **required,
+        required=required,
     )
 
 
