@@ -61,7 +61,8 @@ class RowPipeline(Protocol):
 
 
 class _RowListener(can.Listener):
-    """Decode in the notifier thread; hand the checked samples as rows (or the error that stopped it) to the consumer."""
+    """Decode in the notifier thread; hand the checked samples as rows (or the error that stopped it) to the
+    consumer."""
 
     def __init__(self, pipeline: RowPipeline, out: queue.SimpleQueue) -> None:
         self.pipeline = pipeline
@@ -101,13 +102,10 @@ class CanSource(LiveSource):
     ----------
     bus : can.BusABC
         An open bus (see :func:`open_bus`); shut down by :meth:`close` if ``live.own_bus``.
-    decoding : CanDecoding
-        The DBC and its signals (:class:`~online_backlash.codecs.dbc.DbcDecoder`), ``max_skew_s`` for pairing by time
-        (:class:`~online_backlash.codecs.pairing.FramePipeline`).
-    counts : Counts
-        Encoder counts per revolution (None: the DBC's).
-    frames : FrameRules
-        The nominal period for the gap rule (learnt if None) and ``strict`` (raise at a corrupt frame).
+    decoding, counts, frames
+        How the frames become samples, as a recorded log's (:class:`~online_backlash.replay.canlog.CanLog`):
+        :class:`~online_backlash.codecs.options.CanDecoding`, :class:`~online_backlash.codecs.options.Counts`,
+        :class:`~online_backlash.codecs.options.FrameRules`.
     live : LiveOptions
         The raw log (written first), ``duration_s``, ``timeout_s``, ``own_bus``.
 
@@ -142,7 +140,8 @@ class CanSource(LiveSource):
         self._listen(bus, pipeline, live)
 
     def _new_pipeline(self, decoding: CanDecoding, counts: Counts, frames: FrameRules) -> RowPipeline:
-        """The frame rules: the DBC's signals paired frame by frame (a subclass with other frame rules overrides this)."""
+        """The frame rules: the DBC's signals paired frame by frame (a subclass with other frame rules overrides
+        this)."""
         pipeline = FramePipeline(decoding.dbc_decoder(counts), frames.period_s, decoding.max_skew_s, frames.strict)
         self.pipeline: CanPipeline = pipeline
         return pipeline

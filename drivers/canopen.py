@@ -1,4 +1,5 @@
-"""Live CANopen servo drives: the bus and notifier of :class:`~online_backlash.drivers.can.CanSource`, the frame rules of
+"""Live CANopen servo drives: the bus and notifier of :class:`~online_backlash.drivers.can.CanSource`, the frame rules
+of
 :func:`~online_backlash.codecs.canopen.canopen_pipeline` (SYNC grouping, or event-driven TPDOs paired in time).
 
 ::

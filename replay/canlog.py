@@ -102,7 +102,8 @@ class CanLog(SampleSource):
         self.decoder = decoding.dbc_decoder(counts)
 
     def _setup(self, path: str | os.PathLike[str], skip_bad: bool, realtime: bool) -> None:
-        """The reading state every CAN log shares (a subclass with other frame rules calls this and overrides :meth:`_new_pipeline`)."""
+        """The reading state every CAN log shares (a subclass with other frame rules calls this and overrides
+        :meth:`_new_pipeline`)."""
         self.path = os.fspath(path)
         self.skip_bad = skip_bad
         self.realtime = realtime

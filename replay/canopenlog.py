@@ -1,4 +1,5 @@
-"""Recorded CAN logs of CANopen servo drives (every format python-can's ``LogReader`` reads), decoded with the drive's EDS/DCF.
+"""Recorded CAN logs of CANopen servo drives (every format python-can's ``LogReader`` reads), decoded with the drive's
+EDS/DCF.
 
 The file handling of :class:`~online_backlash.replay.canlog.CanLog` (directories of raw logs in
 name order, ``.gz``, truncated files, ``skip_bad``, ``realtime``) with the frame rules of

@@ -145,7 +145,8 @@ def check_dialect(delimiter: str | None, decimal: str | None, comment: str | Non
         len(delimiter) != 1 or delimiter in '"\r\n' or delimiter.isalnum() or delimiter in "+-."
     ):
         raise InvalidParameterError(
-            f"delimiter must be one character such as , ; | or a tab, not a quote, sign, point or letter; got {delimiter!r}"
+            "delimiter must be one character such as , ; | or a tab, not a quote, sign, point or letter; got "
+            f"{delimiter!r}"
         )
     if decimal is not None and decimal not in DECIMALS:
         raise InvalidParameterError(f"decimal must be one of {DECIMALS}, got {decimal!r}")

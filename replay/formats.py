@@ -47,7 +47,8 @@ class LogFormat:
     kind : str
         Its name, as ``inspect --json`` prints it (``"csv"``, ``"mdf"``, ``"can"``, ...).
     suffixes : tuple of str
-        The suffixes it reads (``.gz`` is looked through for text formats, :func:`~online_backlash.replay.paths.file_suffix`).
+        The suffixes it reads (``.gz`` is looked through for text formats,
+        :func:`~online_backlash.replay.paths.file_suffix`).
     open : callable
         ``open(path, **kwargs) -> SampleSource``: the reader, with the keyword arguments of its options.
     options : tuple of ReaderOption types
@@ -79,7 +80,8 @@ class LogFormat:
         return " ".join(self.suffixes) + (f" ({self.title})" if self.title else "")
 
     def reader_kwargs(self, options: Iterable[ReaderOption]) -> dict[str, Any]:
-        """The reader's keyword arguments from ``options``, each of a type this format takes (else InvalidParameterError)."""
+        """The reader's keyword arguments from ``options``, each of a type this format takes (else
+        InvalidParameterError)."""
         kwargs: dict[str, Any] = {}
         for option in options:
             if type(option) not in self.options:
@@ -96,7 +98,8 @@ def _describe_csv(path: str, dbc: Any = None, **dialect: str | None) -> FileSumm
 
 def _can_log(path: str | os.PathLike[str], **options: Any) -> SampleSource:
     """A CAN log in a python-can format, decoded with a DBC (:class:`~online_backlash.replay.canlog.CanLog`)
-    or, given ``eds``, with a CANopen drive's object dictionary (:class:`~online_backlash.replay.canopenlog.CanopenLog`);
+    or, given ``eds``, with a CANopen drive's object dictionary
+    (:class:`~online_backlash.replay.canopenlog.CanopenLog`);
     ``options`` are the fields of its options (:func:`~online_backlash.codecs.options.gather_options`)."""
     given = gather_options(options, decoding=CanDecoding, counts=Counts, frames=FrameRules)
     if given["decoding"].canopen is not None:

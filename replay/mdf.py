@@ -219,7 +219,8 @@ class MdfLog(MeasurementLog):
     def _group_records(
         self, group: int, channels: dict[str, int]
     ) -> Iterator[tuple[np.ndarray, dict[str, np.ndarray], np.ndarray | None]]:
-        """(master time, role -> values, valid) per fragment of one channel group, its records read once for all its channels.
+        """(master time, role -> values, valid) per fragment of one channel group, its records read once for all its
+        channels.
 
         ``valid`` is False for the records in which one of the channels is marked invalid (MDF4
         invalidation bits; None when none of them has any).

@@ -114,5 +114,6 @@ def open_log(path: str | os.PathLike[str], **options: Any) -> SampleSource:
 
 
 def read_log_arrays(path: str | os.PathLike[str], **options: Any) -> SampleChunk:
-    """Read a whole log of any registered format (or a directory, see :func:`open_log`) into one :class:`SampleChunk` (for batch fits)."""
+    """Read a whole log of any registered format (or a directory, see :func:`open_log`) into one :class:`SampleChunk`
+    (for batch fits)."""
     return read_all(open_log(path, **options), path)

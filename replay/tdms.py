@@ -152,7 +152,8 @@ class TdmsLog(MeasurementLog):
             raise LogFormatError(
                 self.path,
                 None,
-                f"{role} channel {self.columns[role]!r} has no wf_increment property: map a time channel with columns=/--columns time=GROUP/CHANNEL",
+                f"{role} channel {self.columns[role]!r} has no wf_increment property: map a time channel with "
+                "columns=/--columns time=GROUP/CHANNEL",
             )
         try:
             increment, start = float(props["wf_increment"]), float(props.get("wf_start_offset", 0.0))

@@ -17,7 +17,8 @@ from ._options import can_decoding
 
 
 def open_can_source(args: argparse.Namespace) -> LiveSource:
-    """A :class:`~online_backlash.drivers.can.CanSource` (``--dbc``) or :class:`~online_backlash.drivers.canopen.CanopenSource`
+    """A :class:`~online_backlash.drivers.can.CanSource` (``--dbc``) or
+    :class:`~online_backlash.drivers.canopen.CanopenSource`
     (``--eds``) from the options of ``listen can``."""
     from ..drivers.can import CanSource, open_bus
 
@@ -29,7 +30,8 @@ def open_can_source(args: argparse.Namespace) -> LiveSource:
         source = CanopenSource
     elif not (args.dbc and args.motor_signal and args.load_signal):
         raise InvalidParameterError(
-            "listen can decodes frames with --dbc FILE --motor-signal S --load-signal S, or with --eds FILE --node N (CANopen)"
+            "listen can decodes frames with --dbc FILE --motor-signal S --load-signal S, or with --eds FILE --node N "
+            "(CANopen)"
         )
     counts = WholeCounts(args.motor_cpr, args.load_cpr)  # a DBC's or dictionary's counts are whole
     live = _live_options(args, args.raw_format)

@@ -40,6 +40,13 @@ def add_max_age_option(parser: argparse._ActionsContainer) -> None:
     )
 
 
+def add_play_level_options(group: argparse._ActionsContainer, limit_help: str, warn_help: str) -> None:
+    """``--limit-arcmin X --warn-arcmin X``: the play's limit and warning level, arcmin (``track`` stores them with the
+    gearbox, ``listen`` publishes the state against them, ``history`` forecasts against them)."""
+    group.add_argument("--limit-arcmin", type=float, metavar="X", help=limit_help)
+    group.add_argument("--warn-arcmin", type=float, metavar="X", help=warn_help)
+
+
 def add_log_options(parser: argparse.ArgumentParser) -> None:
     """Options that say how to read a recorded log: columns, units, counts per revolution."""
     group = parser.add_argument_group("log format")
@@ -119,7 +126,8 @@ def add_estimator_options(group: argparse._ActionsContainer, new_gearbox: bool =
 
 
 def add_can_bus_options(group: argparse._ActionsContainer, required: bool) -> None:
-    """``--interface I --channel C --bitrate B --raw-format F``: a live CAN bus (``listen can``, ``track --listen can``)."""
+    """``--interface I --channel C --bitrate B --raw-format F``: a live CAN bus (``listen can``, ``track --listen
+    can``)."""
     from ..drivers.live import CAN_RAW_FORMATS
 
     group.add_argument(
@@ -158,12 +166,14 @@ def add_counts_options(group: argparse._ActionsContainer) -> None:
     group.add_argument(
         "--motor-cpr",
         type=positive_float,
-        help="motor encoder counts per motor revolution (with --units counts; CAN: from the DBC or dictionary if not given)",
+        help="motor encoder counts per motor revolution (with --units counts; CAN: from the DBC or dictionary if not "
+        "given)",
     )
     group.add_argument(
         "--load-cpr",
         type=positive_float,
-        help="load encoder counts per load revolution (with --units counts; CAN: from the DBC or dictionary if not given)",
+        help="load encoder counts per load revolution (with --units counts; CAN: from the DBC or dictionary if not "
+        "given)",
     )
 
 
@@ -294,7 +304,8 @@ def add_can_decoding_options(parser: argparse.ArgumentParser, required: bool) ->
         "--wrap-deg",
         type=wrap_deg_type,
         metavar="DEG",
-        help="angle signals (deg, rad...) wrap every DEG degrees, e.g. 360, or per signal: motor=360,load=none; default: multi-turn as given",
+        help="angle signals (deg, rad...) wrap every DEG degrees, e.g. 360, or per signal: motor=360,load=none; "
+        "default: multi-turn as given",
     )
     group.add_argument(
         "--counter-signal",
@@ -416,7 +427,8 @@ port_type = _integer_in(0, 65535)
 
 
 def wrap_deg_type(text: str) -> Any:
-    """argparse type of ``--wrap-deg``: ``DEG`` or ``motor=DEG,load=DEG`` (:func:`~online_backlash.codecs.dbc.parse_wrap_deg`)."""
+    """argparse type of ``--wrap-deg``: ``DEG`` or ``motor=DEG,load=DEG``
+    (:func:`~online_backlash.codecs.dbc.parse_wrap_deg`)."""
     from ..codecs.dbc import parse_wrap_deg
 
     return _checked(text, parse_wrap_deg)[0]

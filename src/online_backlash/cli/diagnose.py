@@ -49,8 +49,10 @@ def add_subparser(subparsers: argparse._SubParsersAction) -> None:
         "--screen-cycles",
         type=count_type,
         metavar="N",
-        help="on a record of at least 3N reversal cycles and 300,000 samples, score and refit the candidates on N cycles "
-        "spread over it (more if N hold fewer than 100,000 samples), then configure and fit the terms chosen on every sample "
+        help="on a record of at least 3N reversal cycles and 300,000 samples, score and refit the candidates on N "
+        "cycles "
+        "spread over it (more if N hold fewer than 100,000 samples), then configure and fit the terms chosen on every "
+        "sample "
         "(the loop's default: 10; 0: every cycle, slower on long logs)",
     )
     parser.add_argument(

@@ -51,7 +51,8 @@ def add_subparser(subparsers: argparse._SubParsersAction) -> None:
         "--rated-torque",
         metavar="NM",
         type=positive_float,
-        help="rated torque of the gearbox, N m: with a torque column, lost motion is taken at +-3 %% of it (else at the torque dead band)",
+        help="rated torque of the gearbox, N m: with a torque column, lost motion is taken at +-3 %% of it (else at "
+        "the torque dead band)",
     )
     parser.add_argument(
         "--stiffness-torques",

@@ -26,7 +26,8 @@ def add_subparser(subparsers: argparse._SubParsersAction) -> None:
             "TDMS group/channels (unit, length, rate); MATLAB and HDF5 variables (shape, type, length, unit); "
             "CAN log IDs (frames, rate, DBC message names with --dbc). "
             "With --eds/--node (repeated: one pair per node, or one --eds for every --node), each CANopen node's TPDO "
-            "mapping (COB-ID, transmission type, mapped objects), and a CAN log's COB-IDs named by it; FILE may then be omitted."
+            "mapping (COB-ID, transmission type, mapped objects), and a CAN log's COB-IDs named by it; FILE may then "
+            "be omitted."
         ),
         formatter_class=argparse.ArgumentDefaultsHelpFormatter,
     )
@@ -42,7 +43,8 @@ def add_subparser(subparsers: argparse._SubParsersAction) -> None:
         "--eds",
         action="append",
         metavar="FILE",
-        help="a CANopen EDS/DCF: list its TPDO mapping and name a CAN log's COB-IDs by it (with --node; repeat both for several nodes)",
+        help="a CANopen EDS/DCF: list its TPDO mapping and name a CAN log's COB-IDs by it (with --node; repeat both "
+        "for several nodes)",
     )
     parser.add_argument(
         "--node",

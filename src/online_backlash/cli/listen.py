@@ -6,7 +6,8 @@ result later. Once Ctrl-C is handled, a line on stderr says so (``SOURCE: listen
 run with its summary``); then a status line shows the estimate with its standard error, the samples it
 has learned, samples/s, corrupt frames and gaps. The summary comes when ``--duration`` is reached or on
 Ctrl-C, after everything read by then is learned (on CAN, also the frames still waiting on the bus);
-with ``--json`` it is one JSON object on stdout, the keys of ``estimate --json`` and the source's counters. With ``--mqtt
+with ``--json`` it is one JSON object on stdout, the keys of ``estimate --json`` and the source's counters. With
+``--mqtt
 mqtt://HOST:PORT/PREFIX --gearbox ID`` every estimate is also published (:mod:`online_backlash.publish`).
 """
 
@@ -50,7 +51,8 @@ def add_subparser(subparsers: argparse._SubParsersAction) -> None:
     can_parser = sources.add_parser(
         "can",
         help="a CAN bus (any python-can interface)",
-        description="Listen to a CAN bus; frames are decoded with a DBC (--dbc) or a CANopen drive's EDS/DCF (--eds --node).",
+        description="Listen to a CAN bus; frames are decoded with a DBC (--dbc) or a CANopen drive's EDS/DCF (--eds "
+        "--node).",
         formatter_class=argparse.ArgumentDefaultsHelpFormatter,
     )
     add_can_bus_options(can_parser, required=True)
@@ -63,7 +65,8 @@ def add_subparser(subparsers: argparse._SubParsersAction) -> None:
     serial_parser = sources.add_parser(
         "serial",
         help="a serial port (pyserial URL)",
-        description="Listen to a serial port: 'ascii' lines time,motor,load (s, deg, deg) or 'binary' COBS frames with CRC-16.",
+        description="Listen to a serial port: 'ascii' lines time,motor,load (s, deg, deg) or 'binary' COBS frames with "
+        "CRC-16.",
         formatter_class=argparse.ArgumentDefaultsHelpFormatter,
     )
     add_serial_port_options(serial_parser, required=True)
@@ -153,7 +156,8 @@ def run(args: argparse.Namespace) -> int:
     else:
         print(describe(report, label))
         print(
-            f"received:       {_counts(source.counters.as_dict())} in {summary['duration_s']:.1f} s; raw log in {args.raw_log}"
+            f"received:       {_counts(source.counters.as_dict())} in {summary['duration_s']:.1f} s; raw log in "
+            f"{args.raw_log}"
         )
         if publisher is not None:
             print(mqtt_summary_line(publisher))

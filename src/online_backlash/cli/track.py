@@ -33,6 +33,7 @@ from ._options import (
     add_live_run_options,
     add_log_options,
     add_period_option,
+    add_play_level_options,
     add_play_method_option,
     add_ratio_option,
     add_serial_format_option,
@@ -94,12 +95,10 @@ def add_subparser(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument(
         "--every", type=positive_float, default=60.0, metavar="S", help="seconds of data between estimates"
     )
-    parser.add_argument("--limit-arcmin", type=float, metavar="X", help="store this backlash limit with the gearbox")
-    parser.add_argument(
-        "--warn-arcmin",
-        type=float,
-        metavar="X",
-        help="store this warning level of the play with the gearbox (not above the limit)",
+    add_play_level_options(
+        parser,
+        "store this backlash limit with the gearbox",
+        "store this warning level of the play with the gearbox (not above the limit)",
     )
     clocks = parser.add_argument_group(
         "clocks: where a log lies in time and in the machine's use (see docs/wear-trend.md)"
@@ -177,7 +176,8 @@ def add_subparser(subparsers: argparse._SubParsersAction) -> None:
         "--workers",
         type=int,
         metavar="N",
-        help="with --manifest: Dask worker processes on this machine (default: its cores); 0: gearboxes one by one here",
+        help="with --manifest: Dask worker processes on this machine (default: its cores); 0: gearboxes one by one "
+        "here",
     )
     fleet.add_argument(
         "--scheduler",
@@ -250,7 +250,8 @@ def run(args: argparse.Namespace) -> int:
 
 
 def gearbox_tracker(store: HistoryStore, args: argparse.Namespace, logs: list[str]) -> GearboxTracker:
-    """The tracker of the gearbox ``args`` name, its alarm levels stored (``--diagnose`` reads the first of ``logs``)."""
+    """The tracker of the gearbox ``args`` name, its alarm levels stored (``--diagnose`` reads the first of
+    ``logs``)."""
     from ..tracking import GearboxTracker
 
     given = {"memory_reversals": args.memory_reversals, "sample_period_s": args.sample_period}

@@ -1,6 +1,7 @@
 """The rules of :class:`~online_backlash.codecs.pairing.FramePipeline` on decoded blocks of frames, compiled.
 
-Frames come in blocks (1,024 frames read from a log) and are decoded into arrays (:mod:`~online_backlash.codecs.blockdecode`); this module
+Frames come in blocks (1,024 frames read from a log) and are decoded into arrays
+(:mod:`~online_backlash.codecs.blockdecode`); this module
 pairs them, unwraps the counts (:class:`~online_backlash.codecs.unwrap.Unwrapper`), applies
 :class:`~online_backlash.codecs.sample_checks.SampleAssembler`'s checks and
 :class:`~online_backlash.codecs.gaps.GapDetector`'s rule in one numba loop whose state carries
@@ -260,7 +261,8 @@ class BlockPipeline(CanPipeline):
         n_samples, n_gaps, corrupt, unpaired = _pair_block(
             block.status, block.role, block.counter, block.motor, block.load, time_s,
             dec.paired, self.max_skew_s, dec.motor.modulus or 0, dec.load.modulus or 0,
-            dec.motor.deg_per_raw, dec.load.deg_per_raw, dec.motor.offset_deg, dec.load.offset_deg, self._modulus, self._gap_periods,
+            dec.motor.deg_per_raw, dec.load.deg_per_raw, dec.motor.offset_deg, dec.load.offset_deg,
+            self._modulus, self._gap_periods,
             self._ist, self._fst, self._steps, *out, *gaps,
         )  # fmt: skip
         c.samples += n_samples

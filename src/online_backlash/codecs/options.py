@@ -150,7 +150,8 @@ class CanDecoding(ReaderOption):
         )  # fmt: skip
 
     def canopen_layout(self, counts: Counts) -> CanopenLayout:
-        """The CANopen drive's encoder objects and PDOs (:meth:`~online_backlash.codecs.canopen.CanopenLayout.from_files`),
+        """The CANopen drive's encoder objects and PDOs
+        (:meth:`~online_backlash.codecs.canopen.CanopenLayout.from_files`),
         with ``counts`` per revolution."""
         from .canopen import CanopenLayout  # canopen loads only for CANopen drives
 

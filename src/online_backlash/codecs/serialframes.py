@@ -227,7 +227,8 @@ class BinaryParser(FrameParser):
 
 
 def require_cpr(name: str, cpr: float | None) -> float:
-    """``cpr`` (counts per revolution of the binary format's ``name`` encoder) if positive, else InvalidParameterError."""
+    """``cpr`` (counts per revolution of the binary format's ``name`` encoder) if positive, else
+    InvalidParameterError."""
     if cpr is None or not cpr > 0:
         raise InvalidParameterError(f"the binary serial format needs {name} (counts per revolution > 0), got {cpr!r}")
     return cpr

@@ -190,7 +190,8 @@ def _check_keys(table: Mapping[str, Any], options: Collection[str], where: str) 
             continue
         if key in NOT_PER_GEARBOX:
             raise ManifestError(
-                f"{where}: {key!r} is not a per-gearbox option (the store and the fleet's run are given on the command line)"
+                f"{where}: {key!r} is not a per-gearbox option (the store and the fleet's run are given on the "
+                "command line)"
             )
         if key not in options:
             hint = _closest(key, [*options, "id", "logs"])
