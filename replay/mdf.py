@@ -38,6 +38,9 @@ from online_backlash.errors import LogFormatError
 from online_backlash.stream import UNIX_TIME_MIN, SampleChunk, StreamCounters
 
 from . import tabular
+from .formats import CHANNELS, MF4, TABULAR, LogFormat
+from .paths import file_suffix
+from .summary import FileSummary
 from .tabular import ChannelInfo, MeasurementLog, Resampler, channel_scales, missing_channel, open_with
 
 #: One fragment of a channel: time (s), values, unit string.
@@ -409,3 +412,16 @@ def _group_rate(mdf: Any, group: int, records: int) -> float | None:
     steps = np.diff(np.asarray(master, dtype=float))
     steps = steps[steps > 0]
     return float(f"{1.0 / np.median(steps):.6g}") if steps.size else None
+
+
+def _describe(path: str, **_: Any) -> FileSummary:
+    return FileSummary(path, "mdf", describe(path))
+
+
+def _holds_signals(path: str | os.PathLike[str]) -> bool:
+    """An ``.mdf`` is always measured signals; an ``.mf4`` only when it is a file not of CAN bus logging."""
+    return file_suffix(path) != MF4 or (os.path.isfile(path) and not is_bus_logging(path))
+
+
+#: MDF measured signals (an ``.mf4`` of CAN bus logging is :data:`~online_backlash.replay.formats.CAN`'s).
+MDF = LogFormat("mdf", (MF4, ".mdf"), MdfLog, TABULAR, _describe, recognises=_holds_signals, title=f"MDF, {CHANNELS}")

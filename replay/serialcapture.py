@@ -13,12 +13,16 @@ import os
 import time
 from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
-from online_backlash.codecs.options import DEFAULT_COUNTS, DEFAULT_FRAMES, Counts, FrameRules
+from online_backlash.codecs.options import DEFAULT_COUNTS, DEFAULT_FRAMES, Counts, FrameRules, gather_options
 from online_backlash.codecs.rawfiles import SERIAL_SUFFIX, raw_log_files
 from online_backlash.codecs.serialframes import FrameParser, make_parser
 from online_backlash.errors import InvalidParameterError, LogFormatError
 from online_backlash.stream import SampleChunk, SampleSource, StreamCounters, rechunk
+
+from .formats import LogFormat
+from .options import BadRows, Pace, SerialFraming, Timing
 
 #: Samples per block of :meth:`SerialCapture.iter_chunks` when no ``max_samples`` is asked for.
 CHUNK_SAMPLES = 65536
@@ -132,3 +136,20 @@ class _Pacer:
         for i, time_s in enumerate(chunk.time_s.tolist()):
             self(time_s)
             yield chunk.slice(i, i + 1)
+
+
+def _open(path: str | os.PathLike[str], **options: Any) -> SampleSource:
+    """A serial capture; ``options`` are the fields of its options
+    (:func:`~online_backlash.codecs.options.gather_options`)."""
+    return SerialCapture(path, **gather_options(options, counts=Counts, frames=FrameRules))
+
+
+#: Raw serial captures (``listen serial --raw-log``).
+SERIAL = LogFormat(
+    "serial",
+    (SERIAL_SUFFIX,),
+    _open,
+    (SerialFraming, Counts, BadRows, Pace, Timing),
+    directories=True,
+    title="a serial capture, with --serial-format",
+)
