@@ -4,13 +4,12 @@ sources take the shared option dataclasses instead of restating their fields as 
 
 from __future__ import annotations
 
-import argparse
 import dataclasses
 import inspect
-from collections.abc import Iterator
 
 import numpy as np
 import pytest
+from test_formats import _options_of
 
 from online_backlash.cli import build_parser, main
 from online_backlash.codecs.dbc import RIG_DBC
@@ -30,16 +29,6 @@ from online_backlash.simulation.rig_logs import write_rig_can_log, write_rig_ser
 #: --port`` a pyserial URL; ``--every`` is the interval of trace rows, of stored or of published estimates; the
 #: alarm levels are stored, published or forecast against; ``--plot`` draws a different figure in each command).
 DIFFERENT_MEANINGS = {"--port", "--every", "--warn-arcmin", "--limit-arcmin", "--plot", "--json", "--gearbox", "--help"}
-
-
-def _options_of(parser: argparse.ArgumentParser, path: str = "") -> Iterator[tuple[str, argparse.Action]]:
-    """Every option of ``parser`` and of its subcommands (``path``: the subcommands' names)."""
-    for action in parser._actions:
-        if isinstance(action, argparse._SubParsersAction):
-            for name, sub in action.choices.items():
-                yield from _options_of(sub, f"{path} {name}".strip())
-        else:
-            yield from ((f"{path} {flag}", action) for flag in action.option_strings)
 
 
 def test_every_option_has_one_type_and_one_set_of_choices_in_every_command():
