@@ -55,9 +55,10 @@ def test_every_option_has_one_type_and_one_set_of_choices_in_every_command():
     ],
     ids=["estimate", "track", "listen-serial", "listen-can"],
 )
-def test_a_bad_period_is_a_usage_error_in_every_command(argv, capsys):
+def test_a_bad_period_is_a_usage_error_in_every_command(argv, capsys, tmp_path, monkeypatch):
     """One declaration, one behaviour: argparse refuses the value before any work (exit 2, as every option's bad
     value), where listen and track took -1 and failed later (exit 1)."""
+    monkeypatch.chdir(tmp_path)  # the old parser took -1, and track went on to make its store
     with pytest.raises(SystemExit) as stop:
         main([*argv, "--period", "-1"])
     assert stop.value.code == 2
