@@ -26,6 +26,7 @@ from online_backlash.stream import Gap, SampleChunk
 from .blockdecode import CORRUPT, OK, SKIPPED, BlockDecoder, DecodedBlock, frame_arrays
 from .dbc import BOTH, MOTOR, DbcDecoder
 from .gaps import CounterClock, GapDetector
+from .options import MAX_SKEW_S
 from .pairing import CanPipeline, FramePipeline
 
 # integer state: pending frame [motor, load] (has, counter, count); unwrapper [motor, load] (has, last, total);
@@ -215,7 +216,7 @@ class BlockPipeline(CanPipeline):
 
     decoder: DbcDecoder  # the block path reads the DBC's scaling (a narrower FrameDecoder)
 
-    def __init__(self, decoder: DbcDecoder, period_s: float | None = None, max_skew_s: float = 1e-3) -> None:
+    def __init__(self, decoder: DbcDecoder, period_s: float | None = None, max_skew_s: float = MAX_SKEW_S) -> None:
         super().__init__(decoder, max_skew_s)
         gaps = GapDetector(decoder.counter_modulus, period_s)  # validates, and holds the rule's settings
         self.blocks = BlockDecoder(decoder)
@@ -283,7 +284,7 @@ class BlockPipeline(CanPipeline):
 def make_pipeline(
     decoder: DbcDecoder,
     period_s: float | None = None,
-    max_skew_s: float = 1e-3,
+    max_skew_s: float = MAX_SKEW_S,
     strict: bool = False,
     per_frame: bool = False,
 ) -> FramePipeline | BlockPipeline:

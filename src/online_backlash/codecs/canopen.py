@@ -59,6 +59,7 @@ from online_backlash.errors import FrameError, InvalidParameterError, LogFormatE
 from online_backlash.stream import Row
 
 from .dbc import LOAD, MOTOR, DecodedFrame
+from .options import MAX_SKEW_S
 from .pairing import CanCounters, FramePipeline, PerFramePipeline
 from .sample_checks import SampleAssembler
 from .unwrap import Unwrapper
@@ -627,7 +628,7 @@ class PdoDecoder:
 
 
 def canopen_pipeline(
-    layout: CanopenLayout, period_s: float | None = None, max_skew_s: float = 1e-3, strict: bool = False
+    layout: CanopenLayout, period_s: float | None = None, max_skew_s: float = MAX_SKEW_S, strict: bool = False
 ) -> PerFramePipeline:
     """The frame rule of ``layout``: :class:`SyncPipeline` for synchronous TPDOs, else the DBC path's
     pairing by time (:class:`~online_backlash.codecs.pairing.FramePipeline` over a :class:`PdoDecoder`;
