@@ -29,7 +29,9 @@ import can
 import numpy as np
 
 from online_backlash.codecs.dbc import RIG_DBC, DbcDecoder
+from online_backlash.codecs.options import CanDecoding, FrameRules
 from online_backlash.drivers.can import CanSource
+from online_backlash.drivers.live import LiveOptions
 from online_backlash.log_fit import fit_recursive
 from online_backlash.simulation.rig import simulate_rig
 from online_backlash.simulation.rig_logs import rig_can_frames
@@ -57,7 +59,9 @@ def main() -> None:
 
     rx = can.Bus(interface="virtual", channel="bench")
     tx = can.Bus(interface="virtual", channel="bench", preserve_timestamps=True)
-    source = CanSource(rx, RIG_DBC, *SIGNALS, raw_log_dir=raw_dir, period_s=1.0 / args.rate)
+    source = CanSource(
+        rx, CanDecoding(RIG_DBC, *SIGNALS), frames=FrameRules(1.0 / args.rate), live=LiveOptions(raw_dir)
+    )
 
     def send() -> None:
         cpu0 = time.thread_time()

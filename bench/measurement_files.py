@@ -88,7 +88,7 @@ FIRST_CHUNK = "with {reader} as _log:\n    next(iter(_log.iter_chunks()))"
 #: the per-block checks of every column reader, on the samples in memory: one compiled pass over each block
 #: (finiteness, angle limit, time order, repeats; the samples copied out where needed) and the gap rule
 CHECKS = (
-    "import numpy as np, pyarrow.parquet as pq\nfrom online_backlash.replay.screen import screen_block\n"
+    "import numpy as np, pyarrow.parquet as pq\nfrom online_backlash.replay.block_checks import screen_block\n"
     "from online_backlash.codecs.gaps import GapDetector\n"
     "table = pq.read_table({path!r})\ncolumns = [table.column(c).to_numpy() for c in ('time', 'motor', 'load')]\n"
     "def check(columns, rows=65536):\n"

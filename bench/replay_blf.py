@@ -25,6 +25,7 @@ import time
 import can
 
 from online_backlash.codecs.dbc import RIG_DBC, DbcDecoder
+from online_backlash.codecs.options import CanDecoding, FrameRules
 from online_backlash.replay.canlog import CanLog
 from online_backlash.simulation.rig_logs import write_rig_can_log
 
@@ -50,13 +51,13 @@ def bare_decode(path: str) -> tuple[int, int]:
 
 
 def chunks(path: str, checksum: str | None) -> tuple[int, int]:
-    log = CanLog(path, RIG_DBC, *SIGNALS, checksum_signal=checksum)
+    log = CanLog(path, CanDecoding(RIG_DBC, *SIGNALS, checksum_signal=checksum))
     n = sum(len(chunk) for chunk in log.iter_chunks())
     return log.counters.frames, n
 
 
 def sample_objects(path: str, strict: bool = False) -> tuple[int, int]:
-    log = CanLog(path, RIG_DBC, *SIGNALS, strict=strict)
+    log = CanLog(path, CanDecoding(RIG_DBC, *SIGNALS), frames=FrameRules(strict=strict))
     n = 0
     for _ in log:
         n += 1

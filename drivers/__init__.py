@@ -1,4 +1,5 @@
-"""Live transports: a CAN bus (python-can) and a serial port (pyserial), each a :class:`~online_backlash.stream.SampleSource`.
+"""Live transports: a CAN bus (python-can) and a serial port (pyserial), each a
+:class:`~online_backlash.stream.SampleSource`.
 
 ::
 

@@ -19,20 +19,18 @@ the block path of replay (:class:`online_backlash.replay.canlog.CanLog`) about 3
 
 from __future__ import annotations
 
-import os
 import queue
 from collections.abc import Iterator
 from typing import Any, Protocol
 
 import can
-from cantools.database.can import Database
 
-from online_backlash.codecs.dbc import DbcDecoder, WrapDeg
+from online_backlash.codecs.options import DEFAULT_COUNTS, DEFAULT_FRAMES, CanDecoding, Counts, FrameRules
 from online_backlash.codecs.pairing import CanCounters, CanPipeline, FramePipeline
 from online_backlash.errors import BacklashError, SourceError
 from online_backlash.stream import Row, SampleChunk, rows_to_chunk
 
-from .live import LiveSource
+from .live import DEFAULT_LIVE, LiveOptions, LiveSource
 from .rawlog import RawCanLog
 
 _POLL_S = 0.05
@@ -63,7 +61,8 @@ class RowPipeline(Protocol):
 
 
 class _RowListener(can.Listener):
-    """Decode in the notifier thread; hand the checked samples as rows (or the error that stopped it) to the consumer."""
+    """Decode in the notifier thread; hand the checked samples as rows (or the error that stopped it) to the
+    consumer."""
 
     def __init__(self, pipeline: RowPipeline, out: queue.SimpleQueue) -> None:
         self.pipeline = pipeline
@@ -102,20 +101,13 @@ class CanSource(LiveSource):
     Parameters
     ----------
     bus : can.BusABC
-        An open bus (see :func:`open_bus`); shut down by :meth:`close` if ``own_bus``.
-    dbc, motor_signal, load_signal, motor_cpr, load_cpr, counter_signal, checksum_signal, units, wrap_deg
-        See :class:`~online_backlash.codecs.dbc.DbcDecoder`.
-    raw_log_dir : path, optional
-        Write every frame received here first (:class:`~online_backlash.drivers.rawlog.RawCanLog`).
-    raw_format : {"blf", "asc", "log"}
-    period_s, max_skew_s, strict
-        See :class:`~online_backlash.codecs.pairing.FramePipeline`.
-    duration_s : float, optional
-        Stop iterating after this many seconds.
-    timeout_s : float, optional
-        Raise :class:`~online_backlash.errors.SourceTimeoutError` when no sample arrives for this long.
-    own_bus : bool
-        Shut the bus down on close.
+        An open bus (see :func:`open_bus`); shut down by :meth:`close` if ``live.own_bus``.
+    decoding, counts, frames
+        How the frames become samples, as a recorded log's (:class:`~online_backlash.replay.canlog.CanLog`):
+        :class:`~online_backlash.codecs.options.CanDecoding`, :class:`~online_backlash.codecs.options.Counts`,
+        :class:`~online_backlash.codecs.options.FrameRules`.
+    live : LiveOptions
+        The raw log (written first), ``duration_s``, ``timeout_s``, ``own_bus``.
 
     Attributes
     ----------
@@ -133,56 +125,38 @@ class CanSource(LiveSource):
     def __init__(
         self,
         bus: can.BusABC,
-        dbc: str | os.PathLike[str] | Database,
-        motor_signal: str,
-        load_signal: str,
+        decoding: CanDecoding,
         *,
-        motor_cpr: int | None = None,
-        load_cpr: int | None = None,
-        counter_signal: str | None = "Counter",
-        checksum_signal: str | None = "Checksum",
-        raw_log_dir: str | os.PathLike[str] | None = None,
-        raw_format: str = "blf",
-        period_s: float | None = None,
-        max_skew_s: float = 1e-3,
-        strict: bool = False,
-        duration_s: float | None = None,
-        timeout_s: float | None = None,
-        own_bus: bool = True,
-        units: str | None = None,
-        wrap_deg: WrapDeg = None,
+        counts: Counts = DEFAULT_COUNTS,
+        frames: FrameRules = DEFAULT_FRAMES,
+        live: LiveOptions = DEFAULT_LIVE,
     ) -> None:
-        decoder = DbcDecoder(
-            dbc, motor_signal, load_signal, motor_cpr, load_cpr, counter_signal, checksum_signal, units, wrap_deg
-        )
-        pipeline = FramePipeline(decoder, period_s, max_skew_s, strict)
-        self.pipeline: CanPipeline = pipeline
-        self._listen(bus, pipeline, raw_log_dir, raw_format, duration_s, timeout_s, own_bus)
+        try:
+            pipeline = self._new_pipeline(decoding, counts, frames)
+        except BaseException:
+            if live.own_bus:
+                bus.shutdown()
+            raise
+        self._listen(bus, pipeline, live)
 
-    def _listen(
-        self,
-        bus: can.BusABC,
-        pipeline: RowPipeline,
-        raw_log_dir: str | os.PathLike[str] | None,
-        raw_format: str,
-        duration_s: float | None,
-        timeout_s: float | None,
-        own_bus: bool,
-    ) -> None:
-        """Start receiving: the raw writer first, then ``pipeline`` in the notifier thread (the bus/notifier
-        split every live CAN source shares; a subclass with other frame rules passes its own pipeline)."""
+    def _new_pipeline(self, decoding: CanDecoding, counts: Counts, frames: FrameRules) -> RowPipeline:
+        """The frame rules: the DBC's signals paired frame by frame (a subclass with other frame rules overrides
+        this)."""
+        pipeline = FramePipeline(decoding.dbc_decoder(counts), frames.period_s, decoding.max_skew_s, frames.strict)
+        self.pipeline: CanPipeline = pipeline
+        return pipeline
+
+    def _listen(self, bus: can.BusABC, pipeline: RowPipeline, live: LiveOptions) -> None:
+        """Start receiving: the raw writer first, then ``pipeline`` in the notifier thread."""
         self._rows = pipeline
         self.counters: CanCounters = pipeline.counters
         self.bus = bus
-        self.own_bus = own_bus
-        self.duration_s = duration_s
-        self.timeout_s = timeout_s
-        self.raw_log = RawCanLog(raw_log_dir, raw_format) if raw_log_dir is not None else None
+        self.own_bus = live.own_bus
+        self._start(live)
+        self.raw_log = RawCanLog(live.raw_log_dir, live.raw_format) if live.raw_log_dir is not None else None
         self._queue: queue.SimpleQueue = queue.SimpleQueue()
         self._receiver = _InOrder(self.raw_log, _RowListener(pipeline, self._queue))
         self._notifier = can.Notifier(bus, [self._receiver], timeout=_POLL_S)
-        self._stop_requested = False
-        self._stopped = False
         self._closed = False
 
     def request_stop(self) -> None:

@@ -1,4 +1,5 @@
-"""Live CANopen servo drives: the bus and notifier of :class:`~online_backlash.drivers.can.CanSource`, the frame rules of
+"""Live CANopen servo drives: the bus and notifier of :class:`~online_backlash.drivers.can.CanSource`, the frame rules
+of
 :func:`~online_backlash.codecs.canopen.canopen_pipeline` (SYNC grouping, or event-driven TPDOs paired in time).
 
 ::
@@ -13,15 +14,11 @@ Nothing here sends on the bus: the SYNC producer (the PLC, a master, or a drive)
 
 from __future__ import annotations
 
-import os
-from typing import Any
-
-import can
-
 from online_backlash.codecs.canopen import CanopenLayout, canopen_pipeline
+from online_backlash.codecs.options import CanDecoding, Counts, FrameRules
 from online_backlash.codecs.pairing import PerFramePipeline
 
-from .can import CanSource
+from .can import CanSource, RowPipeline
 
 
 class CanopenSource(CanSource):
@@ -29,19 +26,12 @@ class CanopenSource(CanSource):
 
     Parameters
     ----------
-    bus : can.BusABC
-        An open bus (:func:`~online_backlash.drivers.can.open_bus`); shut down by :meth:`close` if ``own_bus``.
-    eds, node, **where
-        The motor drive's EDS/DCF and node-ID; ``load_node``, ``load_eds``, ``load_subindex``, ``motor_cpr``,
-        ``load_cpr``: where the load angle is (:meth:`~online_backlash.codecs.canopen.CanopenLayout.from_files`).
-    raw_log_dir, raw_format, duration_s, timeout_s, own_bus
-        See :class:`~online_backlash.drivers.can.CanSource`.
-    period_s : float, optional
-        Nominal SYNC (or event timer) period, seconds, for gap detection (learnt if None).
-    max_skew_s : float
-        Event-driven TPDOs: the largest time between the motor and the load value of one sample, seconds.
-    strict : bool
-        Raise at the first corrupt frame instead of counting it.
+    bus, counts, frames, live
+        See :class:`~online_backlash.drivers.can.CanSource` (``frames.period_s``: the nominal SYNC or event timer
+        period).
+    decoding : CanDecoding
+        Its ``canopen``: the motor drive's EDS/DCF and node-ID, where the load angle is; its ``max_skew_s``:
+        event-driven TPDOs, the largest time between the motor and the load value of one sample, seconds.
 
     Attributes
     ----------
@@ -53,28 +43,11 @@ class CanopenSource(CanSource):
         (:func:`~online_backlash.codecs.canopen.canopen_pipeline`).
     """
 
-    def __init__(
-        self,
-        bus: can.BusABC,
-        eds: str | os.PathLike[str],
-        node: int,
-        *,
-        raw_log_dir: str | os.PathLike[str] | None = None,
-        raw_format: str = "blf",
-        period_s: float | None = None,
-        max_skew_s: float = 1e-3,
-        strict: bool = False,
-        duration_s: float | None = None,
-        timeout_s: float | None = None,
-        own_bus: bool = True,
-        **where: Any,
-    ) -> None:
-        try:
-            self.layout = CanopenLayout.from_files(eds, node, **where)
-        except BaseException:
-            if own_bus:
-                bus.shutdown()
-            raise
-        pipeline = canopen_pipeline(self.layout, period_s, max_skew_s, strict)
+    layout: CanopenLayout
+
+    def _new_pipeline(self, decoding: CanDecoding, counts: Counts, frames: FrameRules) -> RowPipeline:
+        """The drive's TPDOs: grouped by SYNC, or event-driven ones paired in time."""
+        self.layout = decoding.canopen_layout(counts)
+        pipeline = canopen_pipeline(self.layout, frames.period_s, decoding.max_skew_s, frames.strict)
         self.pipeline: PerFramePipeline = pipeline
-        self._listen(bus, pipeline, raw_log_dir, raw_format, duration_s, timeout_s, own_bus)
+        return pipeline

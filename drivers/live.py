@@ -10,22 +10,63 @@ arrays), how to stop and close, and what is still pending after the stop (:meth:
 
 from __future__ import annotations
 
+import os
 import time
 from abc import abstractmethod
 from collections.abc import Iterator
+from dataclasses import dataclass
 
 from online_backlash.errors import SourceTimeoutError
 from online_backlash.stream import SampleChunk, SampleSource, rechunk
 
+#: The formats of a raw CAN log (python-can writers).
+CAN_RAW_FORMATS = ("blf", "asc", "log")
+
+
+@dataclass(frozen=True)
+class LiveOptions:
+    """What a live source is told besides its frame rules (:mod:`online_backlash.codecs.options`).
+
+    Attributes
+    ----------
+    raw_log_dir : path, optional
+        Write every frame or byte received here first (:mod:`~online_backlash.drivers.rawlog`).
+    raw_format : {"blf", "asc", "log"}
+        The format of a raw CAN log (a serial capture is the bytes as received).
+    duration_s : float, optional
+        Stop iterating after this many seconds.
+    timeout_s : float, optional
+        Raise :class:`~online_backlash.errors.SourceTimeoutError` when nothing arrives for this long, seconds.
+    own_bus : bool
+        Shut a CAN bus down on close (a serial port is always closed).
+    """
+
+    raw_log_dir: str | os.PathLike[str] | None = None
+    raw_format: str = "blf"
+    duration_s: float | None = None
+    timeout_s: float | None = None
+    own_bus: bool = True
+
+
+#: No raw log, no duration or timeout, the bus shut down on close.
+DEFAULT_LIVE = LiveOptions()
+
 
 class LiveSource(SampleSource):
-    """Base of the live sources; subclasses set ``duration_s``, ``timeout_s`` (seconds or None),
-    ``_stop_requested = _stopped = False`` and implement ``_receive``, ``_where``, ``stop`` and ``close``."""
+    """Base of the live sources; subclasses call :meth:`_start` with their :class:`LiveOptions` and implement
+    ``_receive``, ``_where``, ``stop`` and ``close``."""
 
     duration_s: float | None
     timeout_s: float | None
     _stop_requested: bool
     _stopped: bool
+
+    def _start(self, live: LiveOptions) -> None:
+        """The receive loop's state: ``duration_s`` and ``timeout_s`` of ``live``, not stopped."""
+        self.duration_s = live.duration_s
+        self.timeout_s = live.timeout_s
+        self._stop_requested = False
+        self._stopped = False
 
     def iter_chunks(self, max_samples: int | None = None) -> Iterator[SampleChunk]:
         """Whatever has arrived, one :class:`~online_backlash.stream.SampleChunk` per receive (None)

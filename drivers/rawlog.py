@@ -21,7 +21,7 @@ import can
 from online_backlash.codecs.rawfiles import SERIAL_SUFFIX, raw_log_files
 from online_backlash.errors import InvalidParameterError, SourceError
 
-CAN_RAW_FORMATS = ("blf", "asc", "log")
+from .live import CAN_RAW_FORMATS
 
 
 def _start_stamp() -> str:

@@ -8,15 +8,14 @@ bytes to the same parser, so it gives the same samples.
 
 from __future__ import annotations
 
-import os
-
 import serial
 
+from online_backlash.codecs.options import DEFAULT_COUNTS, DEFAULT_FRAMES, Counts, FrameRules
 from online_backlash.codecs.serialframes import make_parser
 from online_backlash.errors import SourceError
 from online_backlash.stream import SampleChunk
 
-from .live import LiveSource
+from .live import DEFAULT_LIVE, LiveOptions, LiveSource
 from .rawlog import RawByteLog
 
 _POLL_S = 0.05
@@ -40,16 +39,13 @@ class SerialSource(LiveSource):
     baudrate : int
     serial_format : {"ascii", "binary"}
         See :mod:`~online_backlash.codecs.serialframes`.
-    motor_cpr, load_cpr : float, optional
+    counts : Counts
         Counts per revolution (``binary`` only).
-    raw_log_dir : path, optional
-        Capture every byte received here first (:class:`~online_backlash.drivers.rawlog.RawByteLog`).
-    period_s, strict
-        See :class:`~online_backlash.codecs.serialframes.FrameParser`.
-    duration_s : float, optional
-        Stop after this many seconds.
-    timeout_s : float, optional
-        Raise SourceTimeoutError when no byte arrives for this long.
+    frames : FrameRules
+        The nominal period for the gap rule (learnt if None) and ``strict``; see
+        :class:`~online_backlash.codecs.serialframes.FrameParser`.
+    live : LiveOptions
+        The raw capture (written first), ``duration_s``, ``timeout_s`` (nothing received for so long, seconds).
 
     Attributes
     ----------
@@ -65,23 +61,16 @@ class SerialSource(LiveSource):
         baudrate: int = 115200,
         serial_format: str = "ascii",
         *,
-        motor_cpr: float | None = None,
-        load_cpr: float | None = None,
-        raw_log_dir: str | os.PathLike[str] | None = None,
-        period_s: float | None = None,
-        strict: bool = False,
-        duration_s: float | None = None,
-        timeout_s: float | None = None,
+        counts: Counts = DEFAULT_COUNTS,
+        frames: FrameRules = DEFAULT_FRAMES,
+        live: LiveOptions = DEFAULT_LIVE,
     ) -> None:
-        self.parser = make_parser(serial_format, motor_cpr, load_cpr, period_s, strict)
+        self.parser = make_parser(serial_format, **counts.kwargs(), **frames.kwargs())
         self.counters = self.parser.counters
         self.port = open_port(port, baudrate) if isinstance(port, str) else port
-        self.duration_s = duration_s
-        self.timeout_s = timeout_s
-        self.raw_log = RawByteLog(raw_log_dir) if raw_log_dir is not None else None
+        self._start(live)
+        self.raw_log = RawByteLog(live.raw_log_dir) if live.raw_log_dir is not None else None
         self.bytes_read = 0
-        self._stop_requested = False
-        self._stopped = False
 
     def _receive(self) -> SampleChunk | None:
         return self.poll()

@@ -29,10 +29,9 @@ from itertools import islice
 from pathlib import Path
 
 import can
-from cantools.database.can import Database
 
 from online_backlash.codecs.blockpairing import BlockPipeline, make_pipeline
-from online_backlash.codecs.dbc import DbcDecoder, WrapDeg
+from online_backlash.codecs.options import DEFAULT_COUNTS, DEFAULT_FRAMES, CanDecoding, Counts, FrameRules
 from online_backlash.codecs.pairing import CanCounters, CanPipeline
 from online_backlash.codecs.rawfiles import raw_log_files
 from online_backlash.errors import InvalidParameterError, LogFormatError
@@ -58,10 +57,13 @@ class CanLog(SampleSource):
     path : path
         A ``.asc``, ``.blf``, ``.log`` (candump), ``.trc``, ``.db`` or ``.mf4`` file (``.gz`` too),
         or a directory whose CAN log files are read in name order (a ``--raw-log`` directory).
-    dbc, motor_signal, load_signal, motor_cpr, load_cpr, counter_signal, checksum_signal, units, wrap_deg
-        See :class:`~online_backlash.codecs.dbc.DbcDecoder`.
-    period_s, max_skew_s, strict
-        See :class:`~online_backlash.codecs.pairing.FramePipeline`.
+    decoding : CanDecoding
+        The DBC and its signals (:class:`~online_backlash.codecs.dbc.DbcDecoder`), ``max_skew_s`` for pairing by time
+        (:class:`~online_backlash.codecs.pairing.FramePipeline`).
+    counts : Counts
+        Encoder counts per revolution (None: the DBC's).
+    frames : FrameRules
+        The nominal period for the gap rule (learnt if None) and ``strict`` (raise at a corrupt frame).
     skip_bad : bool
         Count a reader failure as corrupt and end that file instead of raising.
     realtime : bool
@@ -80,34 +82,28 @@ class CanLog(SampleSource):
     def __init__(
         self,
         path: str | os.PathLike[str],
-        dbc: str | os.PathLike[str] | Database | None = None,
-        motor_signal: str | None = None,
-        load_signal: str | None = None,
+        decoding: CanDecoding,
         *,
-        motor_cpr: int | None = None,
-        load_cpr: int | None = None,
-        counter_signal: str | None = "Counter",
-        checksum_signal: str | None = "Checksum",
-        period_s: float | None = None,
-        max_skew_s: float = 1e-3,
-        strict: bool = False,
+        counts: Counts = DEFAULT_COUNTS,
+        frames: FrameRules = DEFAULT_FRAMES,
         skip_bad: bool = False,
         realtime: bool = False,
-        units: str | None = None,
-        wrap_deg: WrapDeg = None,
     ) -> None:
-        if dbc is None or motor_signal is None or load_signal is None:
+        self._decode_with(decoding, counts)
+        self._frame_args = (frames.period_s, decoding.max_skew_s, frames.strict)
+        self._setup(path, skip_bad, realtime)
+
+    def _decode_with(self, decoding: CanDecoding, counts: Counts) -> None:
+        """The frames' decoder: the DBC's signals (a subclass with other frame rules overrides this)."""
+        if decoding.dbc is None or decoding.motor_signal is None or decoding.load_signal is None:
             raise InvalidParameterError(
                 "a CAN log needs dbc, motor_signal and load_signal (--dbc, --motor-signal, --load-signal)"
             )
-        self.decoder = DbcDecoder(
-            dbc, motor_signal, load_signal, motor_cpr, load_cpr, counter_signal, checksum_signal, units, wrap_deg
-        )
-        self._pipeline_args = (period_s, max_skew_s, strict, realtime)
-        self._setup(path, skip_bad, realtime)
+        self.decoder = decoding.dbc_decoder(counts)
 
     def _setup(self, path: str | os.PathLike[str], skip_bad: bool, realtime: bool) -> None:
-        """The reading state every CAN log shares (a subclass with other frame rules calls this and overrides :meth:`_new_pipeline`)."""
+        """The reading state every CAN log shares (a subclass with other frame rules calls this and overrides
+        :meth:`_new_pipeline`)."""
         self.path = os.fspath(path)
         self.skip_bad = skip_bad
         self.realtime = realtime
@@ -118,7 +114,7 @@ class CanLog(SampleSource):
 
     def _new_pipeline(self) -> CanPipeline:
         """A fresh pipeline for one pass over the files: the DBC rules (block path where it applies)."""
-        return make_pipeline(self.decoder, *self._pipeline_args)
+        return make_pipeline(self.decoder, *self._frame_args, self.realtime)
 
     def close(self) -> None:
         """Close the file being read, if any."""

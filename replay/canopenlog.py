@@ -1,4 +1,5 @@
-"""Recorded CAN logs of CANopen servo drives (every format python-can's ``LogReader`` reads), decoded with the drive's EDS/DCF.
+"""Recorded CAN logs of CANopen servo drives (every format python-can's ``LogReader`` reads), decoded with the drive's
+EDS/DCF.
 
 The file handling of :class:`~online_backlash.replay.canlog.CanLog` (directories of raw logs in
 name order, ``.gz``, truncated files, ``skip_bad``, ``realtime``) with the frame rules of
@@ -10,10 +11,8 @@ feeds the same pipeline, so a raw log recorded live replays to the same samples 
 
 from __future__ import annotations
 
-import os
-from typing import Any
-
 from online_backlash.codecs.canopen import CanopenLayout, canopen_pipeline
+from online_backlash.codecs.options import CanDecoding, Counts
 from online_backlash.codecs.pairing import CanPipeline
 
 from .canlog import CanLog
@@ -26,21 +25,12 @@ class CanopenLog(CanLog):
     ----------
     path : path
         A python-can log (``.asc``, ``.blf``, ``.log``, ``.trc``, ``.mf4`` ...; ``.gz`` too) or a directory of them.
-    eds : path
-        EDS or DCF of the motor node.
-    node : int
-        Node-ID of the motor drive (its 0x6064 is the motor angle).
-    **where
-        ``load_node``, ``load_eds``, ``load_subindex``, ``motor_cpr``, ``load_cpr``: where the load angle is and the
-        counts per revolution (:meth:`~online_backlash.codecs.canopen.CanopenLayout.from_files`).
-    period_s : float, optional
-        Nominal SYNC (or event timer) period, seconds, for gap detection (learnt if None).
-    max_skew_s : float
-        Event-driven TPDOs: the largest time between the motor and the load value of one sample, seconds.
-    strict : bool
-        Raise at the first corrupt frame instead of counting it.
-    skip_bad, realtime
-        See :class:`~online_backlash.replay.canlog.CanLog`.
+    decoding : CanDecoding
+        Its ``canopen``: the motor node's EDS/DCF and node-ID, where the load angle is; its ``max_skew_s``: event-driven
+        TPDOs, the largest time between the motor and the load value of one sample, seconds.
+    counts, frames, skip_bad, realtime
+        See :class:`~online_backlash.replay.canlog.CanLog` (``frames.period_s``: the nominal SYNC or event timer
+        period).
 
     Attributes
     ----------
@@ -50,22 +40,11 @@ class CanopenLog(CanLog):
         Reconcile at the end of iteration (see :mod:`~online_backlash.codecs.canopen`).
     """
 
-    def __init__(
-        self,
-        path: str | os.PathLike[str],
-        eds: str | os.PathLike[str],
-        node: int,
-        *,
-        period_s: float | None = None,
-        max_skew_s: float = 1e-3,
-        strict: bool = False,
-        skip_bad: bool = False,
-        realtime: bool = False,
-        **where: Any,
-    ) -> None:
-        self.layout = CanopenLayout.from_files(eds, node, **where)
-        self._frame_args = (period_s, max_skew_s, strict)
-        self._setup(path, skip_bad, realtime)
+    layout: CanopenLayout
+
+    def _decode_with(self, decoding: CanDecoding, counts: Counts) -> None:
+        """The drive's encoder objects and PDOs from its dictionary."""
+        self.layout = decoding.canopen_layout(counts)
 
     def _new_pipeline(self) -> CanPipeline:
         """A fresh pipeline (SYNC grouping or pairing in time) for one pass over the files."""

@@ -52,6 +52,9 @@ from online_backlash.codecs.gaps import GapDetector
 from online_backlash.errors import InvalidParameterError, LogFormatError
 from online_backlash.stream import SampleChunk, StreamCounters, read_all, rechunk
 
+from . import options
+from .formats import TABULAR, LogFormat
+from .options import Timing
 from .summary import FileSummary
 from .tabular import REQUIRED as _REQUIRED
 from .tabular import ChannelInfo, TabularSource, angle_scale, reads_torque, role_names, torque_like
@@ -145,7 +148,8 @@ def check_dialect(delimiter: str | None, decimal: str | None, comment: str | Non
         len(delimiter) != 1 or delimiter in '"\r\n' or delimiter.isalnum() or delimiter in "+-."
     ):
         raise InvalidParameterError(
-            f"delimiter must be one character such as , ; | or a tab, not a quote, sign, point or letter; got {delimiter!r}"
+            "delimiter must be one character such as , ; | or a tab, not a quote, sign, point or letter; got "
+            f"{delimiter!r}"
         )
     if decimal is not None and decimal not in DECIMALS:
         raise InvalidParameterError(f"decimal must be one of {DECIMALS}, got {decimal!r}")
@@ -544,3 +548,19 @@ def _column_type(cells: Sequence[str], decimal: str) -> str:
 def describe(path: str, **dialect: str | None) -> FileSummary:
     """The CSV's columns (``inspect``): :func:`describe_columns` with the ``dialect`` given (else sniffed)."""
     return FileSummary(path, "csv", describe_columns(path, **dialect))
+
+
+def _describe(path: str, dbc: Any = None, **dialect: str | None) -> FileSummary:
+    """:func:`describe` as ``inspect`` calls a format's (a DBC is for CAN logs)."""
+    return describe(path, **dialect)
+
+
+#: CSV and delimited text (also ``.gz``): its format (:data:`~online_backlash.replay.registry.FORMATS`).
+CSV = LogFormat(
+    "csv",
+    CSV_SUFFIXES,
+    CsvLog,
+    (*TABULAR, Timing, options.CsvDialect),
+    _describe,
+    title="CSV or delimited text, also .gz; a torque column is used when mapped",
+)

@@ -22,6 +22,8 @@ import numpy as np
 
 from online_backlash.errors import LogFormatError
 
+from .formats import CHANNELS, TABULAR, LogFormat
+from .summary import FileSummary
 from .tabular import ChannelInfo
 from .variables import Array, Opaque, Struct, Text, VariableLog, VariableTree, describe_tree, sample_index
 
@@ -153,3 +155,13 @@ def describe(path: str | os.PathLike[str]) -> tuple[str, list[ChannelInfo]]:
         return ("mat-v7.3" if tree.kind == "MATLAB" else "hdf5"), describe_tree(tree)
     finally:
         h5.close()
+
+
+def _describe(path: str, **_: Any) -> FileSummary:
+    """An HDF5 file's (or a MATLAB v7.3 file's) variables: ``mat-v7.3`` or ``hdf5``."""
+    kind, variables = describe(path)
+    return FileSummary(path, kind, variables)
+
+
+#: HDF5 files.
+HDF5 = LogFormat("hdf5", (".h5", ".hdf5"), Hdf5Log, TABULAR, _describe, title=f"HDF5, {CHANNELS}")

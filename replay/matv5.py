@@ -17,7 +17,11 @@ from typing import Any
 import numpy as np
 
 from online_backlash.errors import LogFormatError
+from online_backlash.stream import SampleSource
 
+from .formats import CHANNELS, TABULAR, LogFormat
+from .hdf5 import HDF5
+from .summary import FileSummary
 from .tabular import ChannelInfo
 from .variables import Array, Opaque, Struct, Text, VariableLog, VariableTree, describe_tree, sample_index
 
@@ -91,3 +95,19 @@ def describe(path: str | os.PathLike[str]) -> list[ChannelInfo]:
     """Every variable of a MATLAB v4-v7 file (struct fields too) with its shape, type, length and unit (``inspect``)."""
     path = os.fspath(path)
     return describe_tree(_tree(path, _load_mat(path)))
+
+
+def _open(path: str | os.PathLike[str], **options: Any) -> SampleSource:
+    """A MATLAB file: v7.3 (HDF5 inside) or v4-v7, by its header."""
+    if os.path.isfile(path) and is_mat_v73(path):
+        return HDF5.open(path, **options)
+    return MatV5Log(path, **options)
+
+
+def _describe(path: str, **_: Any) -> FileSummary:
+    assert HDF5.describe is not None
+    return HDF5.describe(path) if is_mat_v73(path) else FileSummary(path, "mat", describe(path))
+
+
+#: MATLAB files, v4-v7 (scipy) and v7.3 (HDF5 inside).
+MAT = LogFormat("mat", (".mat",), _open, TABULAR, _describe, title=f"MATLAB v4-v7.3, {CHANNELS}")

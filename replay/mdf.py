@@ -38,6 +38,9 @@ from online_backlash.errors import LogFormatError
 from online_backlash.stream import UNIX_TIME_MIN, SampleChunk, StreamCounters
 
 from . import tabular
+from .formats import CHANNELS, MF4, TABULAR, LogFormat
+from .paths import file_suffix
+from .summary import FileSummary
 from .tabular import ChannelInfo, MeasurementLog, Resampler, channel_scales, missing_channel, open_with
 
 #: One fragment of a channel: time (s), values, unit string.
@@ -98,15 +101,10 @@ class MdfLog(MeasurementLog):
     ----------
     path : str or os.PathLike
         The file (``.mf4``, ``.mdf``).
-    columns : dict, optional
-        Role -> channel name for ``motor``, ``load``, ``torque`` (optional) and ``time``
-        (optional: default the motor group's master channel).
-    units : str, optional
-        Overrides the motor and load channels' units (``deg``, ``rad``, ``rev``, ``counts``, ...).
-    motor_cpr, load_cpr : float, optional
-        Counts per revolution of channels in encoder counts.
-    skip_bad : bool
-        Count and skip non-finite or out-of-order samples instead of raising.
+    *args, **kwargs
+        Those of :class:`~online_backlash.replay.tabular.TabularSource`: ``columns`` (role -> channel name for
+        ``motor``, ``load``, ``torque`` (optional) and ``time`` (optional: default the motor group's master
+        channel)), ``units`` (overrides the channels' units), ``motor_cpr``, ``load_cpr``, ``skip_bad``.
     fragment_bytes : int
         Size hint of the blocks read from the file (memory stays bounded by it). 2 MiB (87,381
         samples of motor, load and time in 24-byte records): fewer blocks than 1 MiB cost less
@@ -121,17 +119,8 @@ class MdfLog(MeasurementLog):
         The median time step of the first block, seconds.
     """
 
-    def __init__(
-        self,
-        path: str | os.PathLike[str],
-        columns: dict[str, str] | None = None,
-        units: str | None = None,
-        motor_cpr: float | None = None,
-        load_cpr: float | None = None,
-        skip_bad: bool = False,
-        fragment_bytes: int = 2 << 20,
-    ) -> None:
-        super().__init__(path, columns, units, motor_cpr, load_cpr, skip_bad)
+    def __init__(self, path: str | os.PathLike[str], *args: Any, fragment_bytes: int = 2 << 20, **kwargs: Any) -> None:
+        super().__init__(path, *args, **kwargs)
         self.fragment_bytes = int(fragment_bytes)
         self._mdf: Any = None
 
@@ -196,10 +185,10 @@ class MdfLog(MeasurementLog):
         motor_group = where["motor"][0]  # type: ignore[index]
         aligned = {r: where[r][1] for r in present if where[r][0] == motor_group}  # type: ignore[index]
         foreign = {
-            r: Resampler(((t, v) for t, v, _ in self._fragments(r, where[r])), self.path, self.columns[r])
+            r: Resampler(((t, v) for t, v, _ in self._fragments(r, where[r])), self.path, self.columns[r])  # type: ignore[arg-type]
             for r in present
             if r not in aligned
-        }  # type: ignore[arg-type]
+        }
         units: dict[str, str | None] = {r: self._unit_of((motor_group, i)) or "" for r, i in aligned.items()}
         units.update({r: self._unit_of(where[r]) for r in foreign})  # type: ignore[arg-type]
         if "time" not in self.mapped:
@@ -233,7 +222,8 @@ class MdfLog(MeasurementLog):
     def _group_records(
         self, group: int, channels: dict[str, int]
     ) -> Iterator[tuple[np.ndarray, dict[str, np.ndarray], np.ndarray | None]]:
-        """(master time, role -> values, valid) per fragment of one channel group, its records read once for all its channels.
+        """(master time, role -> values, valid) per fragment of one channel group, its records read once for all its
+        channels.
 
         ``valid`` is False for the records in which one of the channels is marked invalid (MDF4
         invalidation bits; None when none of them has any).
@@ -422,3 +412,16 @@ def _group_rate(mdf: Any, group: int, records: int) -> float | None:
     steps = np.diff(np.asarray(master, dtype=float))
     steps = steps[steps > 0]
     return float(f"{1.0 / np.median(steps):.6g}") if steps.size else None
+
+
+def _describe(path: str, **_: Any) -> FileSummary:
+    return FileSummary(path, "mdf", describe(path))
+
+
+def _holds_signals(path: str | os.PathLike[str]) -> bool:
+    """An ``.mdf`` is always measured signals; an ``.mf4`` only when it is a file not of CAN bus logging."""
+    return file_suffix(path) != MF4 or (os.path.isfile(path) and not is_bus_logging(path))
+
+
+#: MDF measured signals (an ``.mf4`` of CAN bus logging is :data:`~online_backlash.replay.formats.CAN`'s).
+MDF = LogFormat("mdf", (MF4, ".mdf"), MdfLog, TABULAR, _describe, recognises=_holds_signals, title=f"MDF, {CHANNELS}")

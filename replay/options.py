@@ -3,21 +3,30 @@
 A :class:`~online_backlash.replay.formats.LogFormat` names the option types its reader takes; the CLI builds
 those (and only those) from its arguments, and :meth:`ReaderOption.kwargs` gives each one's keyword arguments
 of the reader. An option left at None is the reader's default (sniffed, learnt or read from the file).
+The options the frame rules take too (CAN decoding, counts per revolution, timing, serial framing) are declared in
+:mod:`online_backlash.codecs.options`, which the live sources share, and named here with the rest.
 """
 
 from __future__ import annotations
 
-import os
 from dataclasses import dataclass
 from typing import Any
 
+from online_backlash.codecs.options import (
+    CanDecoding,
+    Canopen,
+    Counts,
+    FrameRules,
+    ReaderOption,
+    SerialFraming,
+    Timing,
+    WholeCounts,
+)
 
-class ReaderOption:
-    """One group of reader options: :meth:`kwargs` are its keyword arguments of a reader."""
-
-    def kwargs(self) -> dict[str, Any]:
-        """The reader's keyword arguments this option sets."""
-        raise NotImplementedError
+__all__ = [
+    "BadRows", "CanDecoding", "Canopen", "Columns", "Counts", "CsvDialect", "FrameRules", "Pace", "ReaderOption",
+    "SerialFraming", "Timing", "Units", "WholeCounts",
+]  # fmt: skip
 
 
 @dataclass(frozen=True)
@@ -41,25 +50,6 @@ class Units(ReaderOption):
 
 
 @dataclass(frozen=True)
-class Counts(ReaderOption):
-    """Encoder counts per revolution of the motor (on its own shaft) and of the load (with ``counts`` units)."""
-
-    motor_cpr: float | None = None
-    load_cpr: float | None = None
-
-    def kwargs(self) -> dict[str, Any]:
-        return {"motor_cpr": self.motor_cpr, "load_cpr": self.load_cpr}
-
-
-@dataclass(frozen=True)
-class WholeCounts(Counts):
-    """Counts per revolution as whole counts, as a CAN decoder takes them (a fraction is cut off)."""
-
-    def kwargs(self) -> dict[str, Any]:
-        return {k: None if v is None else int(v) for k, v in super().kwargs().items()}
-
-
-@dataclass(frozen=True)
 class BadRows(ReaderOption):
     """Malformed rows, frames or records counted and skipped (True) or the end of the read (False)."""
 
@@ -80,16 +70,6 @@ class Pace(ReaderOption):
 
 
 @dataclass(frozen=True)
-class Timing(ReaderOption):
-    """The nominal sample period, s, for gap detection (None: learnt from the first steps)."""
-
-    period_s: float | None = None
-
-    def kwargs(self) -> dict[str, Any]:
-        return {} if self.period_s is None else {"period_s": self.period_s}
-
-
-@dataclass(frozen=True)
 class CsvDialect(ReaderOption):
     """What the user says of a CSV's text: field separator, decimal mark, comment character, encoding (None: sniffed,
     :func:`~online_backlash.replay.csv.sniff_dialect`)."""
@@ -107,54 +87,3 @@ class CsvDialect(ReaderOption):
             "encoding": self.encoding,
         }
         return {k: v for k, v in given.items() if v is not None}
-
-
-@dataclass(frozen=True)
-class SerialFraming(ReaderOption):
-    """How a serial capture's bytes are framed: ``ascii`` lines or ``binary`` COBS frames (required to read one)."""
-
-    serial_format: str | None = None
-
-    def kwargs(self) -> dict[str, Any]:
-        return {"serial_format": self.serial_format}
-
-
-@dataclass(frozen=True)
-class Canopen:
-    """A CANopen drive's angles: the motor node's EDS/DCF and node-ID, and where the load angle is
-    (:meth:`~online_backlash.codecs.canopen.CanopenLayout.from_files`)."""
-
-    eds: str | os.PathLike[str]
-    node: int
-    load_node: int | None = None
-    load_eds: str | os.PathLike[str] | None = None
-    load_subindex: int | None = None
-
-
-@dataclass(frozen=True)
-class CanDecoding(ReaderOption):
-    """How CAN frames become angles: a DBC's signals (:class:`~online_backlash.codecs.dbc.DbcDecoder`) or, given
-    ``canopen``, a CANopen drive's object dictionary; ``max_skew_s`` pairs the motor and load frames
-    (:class:`~online_backlash.codecs.pairing.FramePipeline`; None: its default)."""
-
-    dbc: Any = None
-    motor_signal: str | None = None
-    load_signal: str | None = None
-    counter_signal: str | None = None
-    checksum_signal: str | None = None
-    units: str | None = None
-    wrap_deg: Any = None
-    max_skew_s: float | None = None
-    canopen: Canopen | None = None
-
-    def kwargs(self) -> dict[str, Any]:
-        skew = {} if self.max_skew_s is None else {"max_skew_s": self.max_skew_s}
-        if self.canopen is not None:
-            c = self.canopen
-            where = {"load_node": c.load_node, "load_eds": c.load_eds, "load_subindex": c.load_subindex}
-            return {"eds": c.eds, "node": c.node, **where} | skew
-        return skew | {
-            "dbc": self.dbc, "motor_signal": self.motor_signal, "load_signal": self.load_signal,
-            "counter_signal": self.counter_signal, "checksum_signal": self.checksum_signal, "units": self.units,
-            "wrap_deg": self.wrap_deg,
-        }  # fmt: skip

@@ -19,7 +19,7 @@ batch is held at a time: memory is bounded by the file's largest batch). A file 
 from __future__ import annotations
 
 import os
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from typing import Any
 
 import numpy as np
@@ -27,7 +27,9 @@ import numpy as np
 from online_backlash.errors import LogFormatError
 from online_backlash.stream import UNIX_TIME_MIN, SampleChunk, StreamCounters
 
+from .formats import CHANNELS, TABULAR, LogFormat
 from .signatures import check_signature, library_failure
+from .summary import FileSummary
 from .tabular import ROLES, ChannelInfo, MeasurementLog, channel_scales, missing_channel, reads_torque, torque_like
 
 #: Suffixes read as Arrow IPC files rather than Parquet.
@@ -261,3 +263,20 @@ def describe(path: str | os.PathLike[str]) -> list[ChannelInfo]:
         return [ChannelInfo(field.name, str(field.type), rows, None, _unit(field)) for field in table.schema]
     finally:
         table.close()
+
+
+def _describer(kind: str) -> Callable[..., FileSummary]:
+    def describe_table(path: str, **_: Any) -> FileSummary:
+        """The columns of a Parquet or Arrow file."""
+        return FileSummary(path, kind, describe(path))
+
+    return describe_table
+
+
+#: Parquet files, and Arrow IPC files (one reader).
+PARQUET = LogFormat(
+    "parquet", (".parquet", ".pq"), ParquetLog, TABULAR, _describer("parquet"), title=f"Parquet, {CHANNELS}"
+)
+ARROW = LogFormat(
+    "arrow", (".arrow", ".feather", ".ipc"), ParquetLog, TABULAR, _describer("arrow"), title=f"Arrow IPC, {CHANNELS}"
+)

@@ -1,8 +1,9 @@
 """Which format reads which recorded log: :data:`FORMATS`, the only table of them, and :func:`open_log`.
 
 Each format is one :class:`~online_backlash.replay.formats.LogFormat` (its suffixes, how it recognises its
-files where a suffix is shared, its reader, what ``inspect`` prints, its typed options). A new format is one
-module with its ``LogFormat`` plus one line :func:`register_format` (or one entry in :data:`FORMATS`).
+files where a suffix is shared, its reader, what ``inspect`` prints, its typed options), exported by its reader's
+module. A new format is one module with its ``LogFormat`` plus one line :func:`register_format` (or one entry in
+:data:`FORMATS`).
 Readers of heavy formats are imported on use (cantools loads only for CAN logs). The readers import nothing
 from here or from the package ``__init__``.
 """
@@ -16,8 +17,15 @@ from typing import Any
 from online_backlash.errors import LogFormatError
 from online_backlash.stream import SampleChunk, SampleSource, read_all
 
-from .formats import ARROW, CAN, CSV, HDF5, MAT, MDF, MF4, PARQUET, SERIAL, TDMS, LogFormat
+from .csv import CSV
+from .formats import CAN, MF4, LogFormat
+from .hdf5 import HDF5
+from .matv5 import MAT
+from .mdf import MDF
+from .parquet import ARROW, PARQUET
 from .paths import file_suffix
+from .serialcapture import SERIAL
+from .tdms import TDMS
 
 #: Every format, in the order a shared suffix is tried: a format that ``recognises`` its files by content comes
 #: before the one that takes the rest (an ``.mf4`` of signals is MDF, any other a CAN log).
@@ -114,5 +122,6 @@ def open_log(path: str | os.PathLike[str], **options: Any) -> SampleSource:
 
 
 def read_log_arrays(path: str | os.PathLike[str], **options: Any) -> SampleChunk:
-    """Read a whole log of any registered format (or a directory, see :func:`open_log`) into one :class:`SampleChunk` (for batch fits)."""
+    """Read a whole log of any registered format (or a directory, see :func:`open_log`) into one :class:`SampleChunk`
+    (for batch fits)."""
     return read_all(open_log(path, **options), path)

@@ -13,11 +13,16 @@ import os
 import time
 from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
+from online_backlash.codecs.options import DEFAULT_COUNTS, DEFAULT_FRAMES, Counts, FrameRules, gather_options
 from online_backlash.codecs.rawfiles import SERIAL_SUFFIX, raw_log_files
 from online_backlash.codecs.serialframes import FrameParser, make_parser
 from online_backlash.errors import InvalidParameterError, LogFormatError
 from online_backlash.stream import SampleChunk, SampleSource, StreamCounters, rechunk
+
+from .formats import LogFormat
+from .options import BadRows, Pace, SerialFraming, Timing
 
 #: Samples per block of :meth:`SerialCapture.iter_chunks` when no ``max_samples`` is asked for.
 CHUNK_SAMPLES = 65536
@@ -32,8 +37,11 @@ class SerialCapture(SampleSource):
         A ``.serial`` file or a directory of them.
     serial_format : {"ascii", "binary"}
         How the bytes are framed (required: a capture is bytes only).
-    motor_cpr, load_cpr, period_s, strict
-        See :func:`~online_backlash.codecs.serialframes.make_parser`.
+    counts : Counts
+        Counts per revolution (``binary`` only).
+    frames : FrameRules
+        The nominal period for the gap rule (learnt if None) and ``strict`` (raise at a corrupt frame); see
+        :func:`~online_backlash.codecs.serialframes.make_parser`.
     skip_bad : bool
         Count a truncated last frame as corrupt instead of raising.
     realtime : bool
@@ -47,10 +55,8 @@ class SerialCapture(SampleSource):
         path: str | os.PathLike[str],
         serial_format: str | None = None,
         *,
-        motor_cpr: float | None = None,
-        load_cpr: float | None = None,
-        period_s: float | None = None,
-        strict: bool = False,
+        counts: Counts = DEFAULT_COUNTS,
+        frames: FrameRules = DEFAULT_FRAMES,
         skip_bad: bool = False,
         realtime: bool = False,
         block_bytes: int = 1 << 16,
@@ -58,12 +64,16 @@ class SerialCapture(SampleSource):
         if serial_format is None:
             raise InvalidParameterError("a serial capture needs serial_format 'ascii' or 'binary' (--serial-format)")
         self.path = os.fspath(path)
-        self._parser_args = (serial_format, motor_cpr, load_cpr, period_s, strict)
-        self.parser: FrameParser = make_parser(*self._parser_args)
+        self._parser_args = (serial_format, counts.kwargs() | frames.kwargs())
+        self.parser: FrameParser = self._new_parser()
         self.counters: StreamCounters = self.parser.counters
         self.skip_bad = skip_bad
         self.realtime = realtime
         self.block_bytes = int(block_bytes)
+
+    def _new_parser(self) -> FrameParser:
+        serial_format, options = self._parser_args
+        return make_parser(serial_format, **options)
 
     def close(self) -> None:
         """Nothing stays open between iterations."""
@@ -83,7 +93,7 @@ class SerialCapture(SampleSource):
 
     def _blocks(self) -> Iterator[SampleChunk]:
         """Per block of bytes read: the samples it completes."""
-        self.parser = parser = make_parser(*self._parser_args)
+        self.parser = parser = self._new_parser()
         self.counters = parser.counters
         pace = _Pacer() if self.realtime else None
         files = self.files()
@@ -126,3 +136,20 @@ class _Pacer:
         for i, time_s in enumerate(chunk.time_s.tolist()):
             self(time_s)
             yield chunk.slice(i, i + 1)
+
+
+def _open(path: str | os.PathLike[str], **options: Any) -> SampleSource:
+    """A serial capture; ``options`` are the fields of its options
+    (:func:`~online_backlash.codecs.options.gather_options`)."""
+    return SerialCapture(path, **gather_options(options, counts=Counts, frames=FrameRules))
+
+
+#: Raw serial captures (``listen serial --raw-log``).
+SERIAL = LogFormat(
+    "serial",
+    (SERIAL_SUFFIX,),
+    _open,
+    (SerialFraming, Counts, BadRows, Pace, Timing),
+    directories=True,
+    title="a serial capture, with --serial-format",
+)

@@ -16,7 +16,8 @@ __all__ = ["CanIdInfo", "ChannelInfo", "FileSummary"]
 
 @dataclass(frozen=True)
 class CanIdInfo:
-    """One CAN ID seen in a log: ``frames`` frames at ``rate_hz`` (None for a single frame), DBC ``message`` name if known."""
+    """One CAN ID seen in a log: ``frames`` frames at ``rate_hz`` (None for a single frame), DBC ``message`` name if
+    known."""
 
     can_id: int
     extended: bool
@@ -43,7 +44,8 @@ class FileSummary:
     truncated: str | None = None
 
     def matching(self, pattern: str | None) -> FileSummary:
-        """The summary restricted to names matching a shell pattern (``*enc*``), case-insensitive; a plain word matches as a substring."""
+        """The summary restricted to names matching a shell pattern (``*enc*``), case-insensitive; a plain word matches
+        as a substring."""
         if not pattern:
             return self
         glob = pattern.lower() if any(ch in pattern for ch in "*?[") else f"*{pattern.lower()}*"

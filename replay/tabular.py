@@ -32,7 +32,7 @@ from online_backlash.codecs.units import ANGLE_UNITS, COUNT_UNITS
 from online_backlash.errors import BacklashWarning, InvalidParameterError, LogFormatError
 from online_backlash.stream import SampleChunk, SampleSource, StreamCounters, rechunk
 
-from .screen import Screened, screen_block
+from .block_checks import Screened, screen_block
 from .signatures import check_signature, library_failure
 from .unit_hints import radian_counts, unit_mismatch
 
@@ -81,13 +81,15 @@ def unit_scale(unit: str, cpr: float | None, which: str, channel: str | None = N
             raise LogFormatError(
                 path or "",
                 None,
-                f"{name} is in encoder counts (unit {unit!r}): needs a positive {which}_cpr (--{which}-cpr), got {cpr!r}",
+                f"{name} is in encoder counts (unit {unit!r}): needs a positive {which}_cpr (--{which}-cpr), got "
+                f"{cpr!r}",
             )
         return 360.0 / cpr
     raise LogFormatError(
         path or "",
         None,
-        f"{name} has unit {unit!r}, not an angle ({', '.join(sorted(ANGLE_UNITS))}) or a count; override with units=/--units",
+        f"{name} has unit {unit!r}, not an angle ({', '.join(sorted(ANGLE_UNITS))}) or a count; override with "
+        "units=/--units",
     )
 
 
@@ -307,7 +309,7 @@ class TabularSource(SampleSource):
         each row's line or row number for messages (an int: the first row's, the others
         following it); ``scales`` the motor and load degrees per unit (default: the attributes
         ``motor_scale``/``load_scale``). Returns the block and the last kept time. The checks
-        are one compiled pass over the block (:func:`~online_backlash.replay.screen.screen_block`);
+        are one compiled pass over the block (:func:`~online_backlash.replay.block_checks.screen_block`);
         a clean block (all finite, in time order) is passed on without copies where its columns
         already are contiguous float64 in degrees, unless ``copy`` (the columns' memory is reused).
         """
@@ -403,8 +405,9 @@ class TabularSource(SampleSource):
                 )
 
     def _reject(self, columns: list[np.ndarray], numbers: np.ndarray | int, found: Screened) -> None:
-        """The bad rows :func:`~online_backlash.replay.screen.screen_block` found: LogFormatError naming the first
-        (by value before by time, as row-by-row checks find them), or with ``skip_bad`` counted in ``counters.corrupt``."""
+        """The bad rows :func:`~online_backlash.replay.block_checks.screen_block` found: LogFormatError naming the first
+        (by value before by time, as row-by-row checks find them), or with ``skip_bad`` counted in
+        ``counters.corrupt``."""
         if self.skip_bad:
             self.counters.corrupt += found.bad
             return
@@ -418,7 +421,8 @@ class TabularSource(SampleSource):
                 reason = f"angle beyond {MAX_ANGLE_DEG:g} deg in {names}: check the units"
         else:
             row = found.first_backwards
-            reason = f"time goes backwards in {self.columns['time']!r} ({columns[0][row]:g} s after {found.backwards_from:g} s)"
+            went = f"({columns[0][row]:g} s after {found.backwards_from:g} s)"
+            reason = f"time goes backwards in {self.columns['time']!r} {went}"
         raise LogFormatError(self.path, int(numbers + row if isinstance(numbers, int) else numbers[row]), reason)
 
     def _end_of_pass(self, last_time: float) -> None:
@@ -432,11 +436,13 @@ class TabularSource(SampleSource):
             raise LogFormatError(
                 self.path,
                 self._last_number,
-                f"time column {name!r} never advances: all {samples} samples at {last_time:g} s; map the real time with --columns time=NAME",
+                f"time column {name!r} never advances: all {samples} samples at {last_time:g} s; map the real time "
+                "with --columns time=NAME",
             )
         if self._repeated_times:
             warnings.warn(
-                f"{self.path}: {self._repeated_times} of {samples} samples repeat the previous sample's time in {name!r} "
+                f"{self.path}: {self._repeated_times} of {samples} samples repeat the previous sample's time in "
+                f"{name!r} "
                 "(duplicated timestamps; kept)",
                 BacklashWarning,
                 stacklevel=2,

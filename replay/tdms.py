@@ -34,6 +34,8 @@ from online_backlash.errors import LogFormatError
 from online_backlash.stream import UNIX_TIME_MIN, SampleChunk, StreamCounters
 
 from . import tabular
+from .formats import CHANNELS, TABULAR, LogFormat
+from .summary import FileSummary
 from .tabular import ROLES, ChannelInfo, MeasurementLog, Resampler, channel_scales, missing_channel, open_with
 
 #: What npTDMS logs when the file ends inside a segment (its only sign of a file cut short).
@@ -152,7 +154,8 @@ class TdmsLog(MeasurementLog):
             raise LogFormatError(
                 self.path,
                 None,
-                f"{role} channel {self.columns[role]!r} has no wf_increment property: map a time channel with columns=/--columns time=GROUP/CHANNEL",
+                f"{role} channel {self.columns[role]!r} has no wf_increment property: map a time channel with "
+                "columns=/--columns time=GROUP/CHANNEL",
             )
         try:
             increment, start = float(props["wf_increment"]), float(props.get("wf_start_offset", 0.0))
@@ -260,3 +263,12 @@ def describe(path: str | os.PathLike[str]) -> tuple[list[ChannelInfo], str | Non
     finally:
         tdms.close()
         stream.close()
+
+
+def _describe(path: str, **_: Any) -> FileSummary:
+    channels, cut = describe(path)
+    return FileSummary(path, "tdms", channels, truncated=cut)
+
+
+#: NI TDMS files.
+TDMS = LogFormat("tdms", (".tdms",), TdmsLog, TABULAR, _describe, title=f"TDMS, {CHANNELS}")

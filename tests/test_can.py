@@ -13,9 +13,11 @@ from live_run import LIMIT_S
 
 from online_backlash import VorosBacklash
 from online_backlash.codecs.dbc import RIG_DBC, DbcDecoder, FrameEncoder, resolve_signal
+from online_backlash.codecs.options import CanDecoding, FrameRules
 from online_backlash.codecs.pairing import FramePipeline
 from online_backlash.codecs.unwrap import Unwrapper
 from online_backlash.drivers.can import CanSource
+from online_backlash.drivers.live import LiveOptions
 from online_backlash.drivers.rawlog import RawCanLog
 from online_backlash.errors import FrameError, InvalidParameterError, SourceError
 from online_backlash.replay import open_log
@@ -196,7 +198,7 @@ def play_live(frames, raw_dir, signals, raw_format, channel):
     """Send ``frames`` on a virtual bus to a CanSource; return its samples and counters."""
     tx = can.Bus(interface="virtual", channel=channel, preserve_timestamps=True)
     rx = can.Bus(interface="virtual", channel=channel)
-    with CanSource(rx, RIG_DBC, *signals, raw_log_dir=raw_dir, raw_format=raw_format) as source:
+    with CanSource(rx, CanDecoding(RIG_DBC, *signals), live=LiveOptions(raw_dir, raw_format)) as source:
         for f in frames:
             tx.send(f)
         tx.shutdown()
@@ -223,7 +225,7 @@ class HeldBus(VirtualBus):
 def test_the_frames_still_waiting_on_the_bus_at_a_stop_are_logged_and_learned(tmp_path, rec):
     frames = list(rig_can_frames(rec, DbcDecoder(RIG_DBC, *SPLIT), T0))
     tx = can.Bus(interface="virtual", channel="held", preserve_timestamps=True)
-    with CanSource(HeldBus("held"), RIG_DBC, *SPLIT, raw_log_dir=tmp_path) as source:
+    with CanSource(HeldBus("held"), CanDecoding(RIG_DBC, *SPLIT), live=LiveOptions(tmp_path)) as source:
         for f in frames:
             tx.send(f)
         tx.shutdown()
@@ -275,7 +277,7 @@ def test_a_failing_bus_ends_the_stream_with_a_source_error(tmp_path):
     def broken(timeout):
         raise can.CanOperationError("controller went bus-off")
 
-    with CanSource(rx, RIG_DBC, *ONE, raw_log_dir=tmp_path) as source:
+    with CanSource(rx, CanDecoding(RIG_DBC, *ONE), live=LiveOptions(tmp_path)) as source:
         rx._recv_internal = broken
         with pytest.raises(SourceError, match="bus-off"):
             next(iter(source))
@@ -287,7 +289,9 @@ def test_strict_decoding_raises_the_frame_error_in_the_consumer(tmp_path):
     frame.data[0] ^= 1
     tx = can.Bus(interface="virtual", channel="strict", preserve_timestamps=True)
     rx = can.Bus(interface="virtual", channel="strict")
-    with CanSource(rx, RIG_DBC, *ONE, raw_log_dir=tmp_path, strict=True) as source:
+    with CanSource(
+        rx, CanDecoding(RIG_DBC, *ONE), frames=FrameRules(strict=True), live=LiveOptions(tmp_path)
+    ) as source:
         tx.send(frame)
         tx.shutdown()
         with pytest.raises(FrameError, match="checksum"):
@@ -298,10 +302,14 @@ def test_strict_decoding_raises_the_frame_error_in_the_consumer(tmp_path):
 def test_a_silent_bus_times_out_and_a_duration_ends_the_stream(tmp_path):
     from online_backlash.errors import SourceTimeoutError
 
-    with CanSource(can.Bus(interface="virtual", channel="silent"), RIG_DBC, *ONE, timeout_s=0.2) as source:
+    with CanSource(
+        can.Bus(interface="virtual", channel="silent"), CanDecoding(RIG_DBC, *ONE), live=LiveOptions(timeout_s=0.2)
+    ) as source:
         with pytest.raises(SourceTimeoutError, match=r"nothing received for 0\.2 s on CAN"):
             next(iter(source))
-    with CanSource(can.Bus(interface="virtual", channel="quiet"), RIG_DBC, *ONE, duration_s=0.2) as source:
+    with CanSource(
+        can.Bus(interface="virtual", channel="quiet"), CanDecoding(RIG_DBC, *ONE), live=LiveOptions(duration_s=0.2)
+    ) as source:
         assert list(source.iter_chunks()) == []
         assert source.counters.frames == 0
 
@@ -320,9 +328,11 @@ def test_ctrl_c_ends_a_quiet_bus_even_when_its_handler_outlives_the_wait():
         import signal, time
         import can
         from online_backlash.codecs.dbc import RIG_DBC
+        from online_backlash.codecs.options import CanDecoding
         from online_backlash.drivers.can import _POLL_S, CanSource
 
-        source = CanSource(can.Bus(interface="virtual", channel="ctrl-c"), RIG_DBC, "RigAngles.Motor", "RigAngles.Load")
+        signals = CanDecoding(RIG_DBC, "RigAngles.Motor", "RigAngles.Load")
+        source = CanSource(can.Bus(interface="virtual", channel="ctrl-c"), signals)
 
         def on_interrupt(*_):
             time.sleep(3 * _POLL_S)  # the handler outlives the wait it interrupted

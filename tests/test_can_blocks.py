@@ -15,8 +15,9 @@ from online_backlash.codecs.blockdecode import crc8, crc8_table, signal_values, 
 from online_backlash.codecs.blockpairing import BlockPipeline, make_pipeline
 from online_backlash.codecs.dbc import RIG_DBC, DbcDecoder
 from online_backlash.codecs.gaps import GapDetector
+from online_backlash.codecs.options import CanDecoding, FrameRules
 from online_backlash.codecs.pairing import FramePipeline
-from online_backlash.replay import canlog
+from online_backlash.replay import canlog, open_log
 from online_backlash.replay.canlog import CanLog
 from online_backlash.simulation.rig import simulate_rig
 from online_backlash.simulation.rig_logs import rig_can_frames
@@ -131,7 +132,7 @@ def test_block_path_equals_the_per_frame_path(tmp_path, monkeypatch, signals, op
     expected = [s for s in map(pipe.feed, can.LogReader(path)) if s is not None]
     pipe.flush()
 
-    log = CanLog(path, RIG_DBC, *signals, **options)
+    log = open_log(path, dbc=RIG_DBC, motor_signal=signals[0], load_signal=signals[1], **options)
     assert log.block_path
     assert list(log) == expected  # time, angles, seq and after_gap, exactly
     c, e = log.counters, pipe.counters
@@ -140,7 +141,11 @@ def test_block_path_equals_the_per_frame_path(tmp_path, monkeypatch, signals, op
     assert c.corrupt > 0 and c.skipped > 0 and c.gaps > 0 and (c.unpaired > 0 or signals == ONE)
 
     want = list(chunked(expected, 100))
-    got = list(CanLog(path, RIG_DBC, *signals, **options).iter_chunks(max_samples=100))
+    got = list(
+        open_log(path, dbc=RIG_DBC, motor_signal=signals[0], load_signal=signals[1], **options).iter_chunks(
+            max_samples=100
+        )
+    )
     assert [len(g) for g in got] == [len(w) for w in want]
     for g, w in zip(got, want):
         for field in ("time_s", "motor_deg", "load_deg", "after_gap"):
@@ -152,10 +157,10 @@ def test_block_path_equals_the_per_frame_path(tmp_path, monkeypatch, signals, op
 
 
 def test_realtime_and_strict_take_the_per_frame_path(tmp_path):
-    log = CanLog(tmp_path / "x.blf", RIG_DBC, *SPLIT)
+    log = CanLog(tmp_path / "x.blf", CanDecoding(RIG_DBC, *SPLIT))
     assert log.block_path
-    assert not CanLog(tmp_path / "x.blf", RIG_DBC, *SPLIT, realtime=True).block_path
-    assert not CanLog(tmp_path / "x.blf", RIG_DBC, *SPLIT, strict=True).block_path
+    assert not CanLog(tmp_path / "x.blf", CanDecoding(RIG_DBC, *SPLIT), realtime=True).block_path
+    assert not CanLog(tmp_path / "x.blf", CanDecoding(RIG_DBC, *SPLIT), frames=FrameRules(strict=True)).block_path
 
 
 # -- every rule, over generated damage ----------------------------------------------------------

@@ -34,7 +34,7 @@ from measurement_cases import rig_mdf
 from rig_can import RIG_CAN
 
 from online_backlash.cli import main
-from online_backlash.cli._common import EXIT_NO_PLAY, run_command
+from online_backlash.cli._output import EXIT_NO_PLAY, run_command
 from online_backlash.errors import BacklashWarning
 from online_backlash.history.store import HistoryStore
 from online_backlash.simulation.rig import simulate_rig

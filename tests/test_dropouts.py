@@ -19,7 +19,7 @@ import pytest
 from rig_can import RIG_CAN
 
 from online_backlash.cli import main
-from online_backlash.cli._common import EXIT_NO_PLAY
+from online_backlash.cli._output import EXIT_NO_PLAY
 from online_backlash.codecs.dbc import RIG_DBC, DbcDecoder
 from online_backlash.codecs.gaps import GapDetector
 from online_backlash.errors import InvalidParameterError

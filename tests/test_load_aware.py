@@ -19,7 +19,7 @@ import pytest
 from davinci_runs import DAVINCI, UNITS, WITH_TORQUE
 
 from online_backlash.cli import main
-from online_backlash.cli._common import EXIT_NO_PLAY
+from online_backlash.cli._output import EXIT_NO_PLAY
 from online_backlash.errors import InvalidParameterError
 from online_backlash.load_aware import (
     DwellTracker,

@@ -18,7 +18,7 @@ import pytest
 from davinci_runs import DAVINCI, UNITS, WITH_TORQUE, WITHOUT_TORQUE
 
 from online_backlash.cli import main
-from online_backlash.cli._common import EXIT_NO_PLAY
+from online_backlash.cli._output import EXIT_NO_PLAY
 from online_backlash.history.store import HistoryStore
 from online_backlash.load_aware import TorqueBacklash
 from online_backlash.log_fit import fit_batch, fit_recursive

@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from online_backlash.codecs.dbc import RIG_DBC, DbcDecoder
+from online_backlash.codecs.options import CanDecoding
 from online_backlash.codecs.pairing import FramePipeline
 from online_backlash.errors import InvalidParameterError, LogFormatError
 from online_backlash.replay import LOG_READERS, open_log, read_log_arrays
@@ -66,14 +67,14 @@ def test_round_trip_gives_the_samples_decoded_from_the_frames(tmp_path, frames, 
 
 def test_realtime_replay_gives_the_same_samples(tmp_path, frames, expected):
     path = write_log(tmp_path / "run.blf", frames[:41])
-    assert angles(CanLog(path, **SPLIT, realtime=True)) == angles(expected[:20])
+    assert angles(CanLog(path, CanDecoding(**SPLIT), realtime=True)) == angles(expected[:20])
 
 
 def test_a_raw_log_directory_is_read_in_name_order(tmp_path, frames, expected):
     write_log(tmp_path / "can-20260101T000000_000000Z-0000.asc", frames[:1001])
     write_log(tmp_path / "can-20260101T000000_000000Z-0001.asc", frames[1001:])
     (tmp_path / "notes.txt").write_text("not a log")
-    assert angles(CanLog(tmp_path, **SPLIT)) == angles(expected)
+    assert angles(CanLog(tmp_path, CanDecoding(**SPLIT))) == angles(expected)
 
 
 def test_open_log_and_read_log_arrays_take_a_raw_log_directory(tmp_path, frames, expected):

@@ -10,7 +10,9 @@ import numpy as np
 import pytest
 
 from online_backlash import VorosBacklash
+from online_backlash.codecs.options import Counts
 from online_backlash.codecs.serialframes import AsciiParser, BinaryParser, encode_ascii, encode_binary
+from online_backlash.drivers.live import LiveOptions
 from online_backlash.drivers.serial import SerialSource
 from online_backlash.errors import FrameError, InvalidParameterError, LogFormatError
 from online_backlash.replay import open_log
@@ -142,12 +144,12 @@ def test_live_estimates_equal_the_replayed_capture_bit_for_bit(tmp_path, rec, fm
     if port == "pty":
         master, slave = os.openpty()
         tty.setraw(slave)
-        source = SerialSource(os.ttyname(slave), 115200, fmt, raw_log_dir=tmp_path, **CPR)
+        source = SerialSource(os.ttyname(slave), 115200, fmt, counts=Counts(**CPR), live=LiveOptions(tmp_path))
         live = run_live(source, payload, lambda b: os.write(master, b))
         os.close(master)
         os.close(slave)
     else:
-        source = SerialSource("loop://", 115200, fmt, raw_log_dir=tmp_path, **CPR)
+        source = SerialSource("loop://", 115200, fmt, counts=Counts(**CPR), live=LiveOptions(tmp_path))
         live = run_live(source, payload, source.port.write)
     c = source.counters
     assert isinstance(source, SampleSource)
@@ -167,7 +169,7 @@ def test_live_estimates_equal_the_replayed_capture_bit_for_bit(tmp_path, rec, fm
 
 
 def test_a_capture_cut_inside_a_frame(tmp_path):
-    source = SerialSource("loop://", 115200, "binary", raw_log_dir=tmp_path, **CPR)
+    source = SerialSource("loop://", 115200, "binary", counts=Counts(**CPR), live=LiveOptions(tmp_path))
     payload = b"".join(encode_binary(i, i * 1000, i, i) for i in range(10))[:-7]
     run_live(source, payload, source.port.write)
     c = source.counters
@@ -175,7 +177,7 @@ def test_a_capture_cut_inside_a_frame(tmp_path):
     capture = source.raw_log.files[0]
     with pytest.raises(LogFormatError, match=rf"{capture.name}:9: capture ends inside a frame"):
         list(open_log(capture, serial_format="binary", **CPR))
-    log = SerialCapture(tmp_path, serial_format="binary", skip_bad=True, **CPR)  # a whole --raw-log directory
+    log = SerialCapture(tmp_path, "binary", counts=Counts(**CPR), skip_bad=True)  # a whole --raw-log directory
     assert len(list(log)) == 9 and log.counters.as_dict() == c.as_dict()
 
 
@@ -196,9 +198,9 @@ def test_capture_rotates_and_the_files_concatenate_to_the_bytes_received(tmp_pat
 def test_a_silent_port_times_out_and_a_duration_ends_the_stream():
     from online_backlash.errors import SourceTimeoutError
 
-    with SerialSource("loop://", 115200, "ascii", timeout_s=0.2) as source:
+    with SerialSource("loop://", 115200, "ascii", live=LiveOptions(timeout_s=0.2)) as source:
         with pytest.raises(SourceTimeoutError, match=r"nothing received for 0\.2 s on serial port"):
             next(iter(source))
-    with SerialSource("loop://", 115200, "ascii", duration_s=0.2) as source:
+    with SerialSource("loop://", 115200, "ascii", live=LiveOptions(duration_s=0.2)) as source:
         assert list(source) == []
         assert source.bytes_read == 0

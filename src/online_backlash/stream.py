@@ -37,6 +37,9 @@ def live_clock_offset(first_time_s: float) -> float:
 
 #: A time step longer than this many nominal sample periods is a gap (every source uses this rule).
 GAP_PERIODS = 3.0
+#: Event-driven frames: the largest time between the motor's and the load's frame of one sample, seconds
+#: (the pairing rule of every frame source, live and replayed).
+MAX_SKEW_S = 1e-3
 
 
 @dataclass(frozen=True, slots=True)

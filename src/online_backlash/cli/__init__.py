@@ -4,7 +4,7 @@ One module per subcommand in this package (cantools style). Each module defines
 ``add_subparser(subparsers)`` which registers its parser and sets ``func`` to a function
 ``func(args) -> int``. The CLI does no math: it parses options, calls the library, prints.
 Errors print as one line ``error: FILE[:LINE]: reason`` with a non-zero exit and never a traceback
-(``--debug``, before or after the subcommand, shows it); see :func:`._common.run_command`.
+(``--debug``, before or after the subcommand, shows it); see :func:`._output.run_command`.
 """
 
 from __future__ import annotations
@@ -16,7 +16,7 @@ import pkgutil
 import sys
 from collections.abc import Sequence
 
-from ._common import run_command
+from ._output import run_command
 
 
 def build_parser() -> argparse.ArgumentParser:

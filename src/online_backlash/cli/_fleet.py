@@ -91,7 +91,8 @@ def run_manifest(
         )
         rate = samples / elapsed if elapsed > 0 else 0.0
         print(
-            f"fleet: {len(outcomes) - failed} of {len(outcomes)} gearboxes tracked, {sum(len(o.results) for o in outcomes)} logs, "
+            f"fleet: {len(outcomes) - failed} of {len(outcomes)} gearboxes tracked, "
+            f"{sum(len(o.results) for o in outcomes)} logs, "
             f"{samples} samples in {elapsed:.1f} s ({rate:,.0f} samples/s) {where}"
         )
     return 1 if failed else 0

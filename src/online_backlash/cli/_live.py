@@ -9,55 +9,52 @@ import sys
 import threading
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
-from typing import TYPE_CHECKING, Any
 
+from ..codecs.options import Counts, FrameRules, WholeCounts
+from ..drivers.live import LiveOptions, LiveSource
 from ..errors import InvalidParameterError
-from ._common import can_decoding_options
-
-if TYPE_CHECKING:
-    from ..drivers.live import LiveSource
+from ._options import can_decoding
 
 
 def open_can_source(args: argparse.Namespace) -> LiveSource:
-    """A :class:`~online_backlash.drivers.can.CanSource` (``--dbc``) or :class:`~online_backlash.drivers.canopen.CanopenSource`
+    """A :class:`~online_backlash.drivers.can.CanSource` (``--dbc``) or
+    :class:`~online_backlash.drivers.canopen.CanopenSource`
     (``--eds``) from the options of ``listen can``."""
     from ..drivers.can import CanSource, open_bus
-    from ..replay.options import WholeCounts
 
-    options = can_decoding_options(args)
+    decoding = can_decoding(args)
     source: type[CanSource] = CanSource
-    if "eds" in options:
+    if decoding.canopen is not None:
         from ..drivers.canopen import CanopenSource
 
         source = CanopenSource
     elif not (args.dbc and args.motor_signal and args.load_signal):
         raise InvalidParameterError(
-            "listen can decodes frames with --dbc FILE --motor-signal S --load-signal S, or with --eds FILE --node N (CANopen)"
+            "listen can decodes frames with --dbc FILE --motor-signal S --load-signal S, or with --eds FILE --node N "
+            "(CANopen)"
         )
-    counts = WholeCounts(args.motor_cpr, args.load_cpr).kwargs()  # a DBC's or dictionary's counts are whole
+    counts = WholeCounts(args.motor_cpr, args.load_cpr)  # a DBC's or dictionary's counts are whole
+    live = _live_options(args, args.raw_format)
     bus = open_bus(args.interface, args.channel, args.bitrate)
-    return source(bus, **options, raw_format=args.raw_format, **counts, **_live_options(args))
+    return source(bus, decoding, counts=counts, frames=FrameRules(args.period), live=live)
 
 
 def open_serial_source(args: argparse.Namespace) -> LiveSource:
     """A :class:`~online_backlash.drivers.serial.SerialSource` from the options of ``listen serial``."""
     from ..drivers.serial import SerialSource
-    from ..replay.options import Counts
 
-    counts = Counts(args.motor_cpr, args.load_cpr).kwargs()
-    return SerialSource(args.port, args.baud, args.serial_format, **counts, **_live_options(args))
+    counts = Counts(args.motor_cpr, args.load_cpr)
+    frames = FrameRules(args.period)
+    return SerialSource(
+        args.port, args.baud, args.serial_format, counts=counts, frames=frames, live=_live_options(args)
+    )
 
 
-def _live_options(args: argparse.Namespace) -> dict[str, Any]:
-    """The options every live source takes: raw capture, period, duration, timeout."""
+def _live_options(args: argparse.Namespace, raw_format: str = "blf") -> LiveOptions:
+    """The options every live source takes: raw capture, duration, timeout."""
     if os.path.exists(args.raw_log) and not os.path.isdir(args.raw_log):
         raise InvalidParameterError(f"--raw-log {args.raw_log}: is a file; the raw captures go into a folder")
-    return {
-        "raw_log_dir": args.raw_log,
-        "period_s": args.period,
-        "duration_s": args.duration,
-        "timeout_s": args.timeout,
-    }
+    return LiveOptions(args.raw_log, raw_format, args.duration, args.timeout)
 
 
 #: The end of the line :func:`ctrl_c_ends_the_run` writes on stderr once Ctrl-C is handled.

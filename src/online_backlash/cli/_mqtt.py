@@ -9,6 +9,7 @@ from contextlib import contextmanager
 from typing import TYPE_CHECKING, Any
 
 from ..errors import InvalidParameterError
+from ._options import add_play_level_options
 
 if TYPE_CHECKING:
     from ..history.store import HistoryStore
@@ -50,11 +51,10 @@ def add_listen_mqtt_options(parser: argparse.ArgumentParser) -> None:
     group.add_argument(
         "--every", type=float, metavar="S", help="seconds of data between published estimates; default: --status-every"
     )
-    group.add_argument(
-        "--warn-arcmin", type=float, metavar="X", help="warning level of the play, for the published state"
-    )
-    group.add_argument(
-        "--limit-arcmin", type=float, metavar="X", help="limit of the play, for the published state (without: unknown)"
+    add_play_level_options(
+        group,
+        "limit of the play, for the published state (without: unknown)",
+        "warning level of the play, for the published state",
     )
 
 
@@ -140,6 +140,7 @@ def mqtt_summary_line(publisher: MqttPublisher) -> str:
     """The summary's MQTT line: published, dropped, connections."""
     c = publisher.counts()
     return (
-        f"mqtt:           {c['mqtt_published']} estimates published, {c['mqtt_dropped']} dropped while the broker was away, "
+        f"mqtt:           {c['mqtt_published']} estimates published, {c['mqtt_dropped']} dropped while the broker was "
+        "away, "
         f"{c['mqtt_connections']} connections to {publisher.target.host}:{publisher.target.port}"
     )

@@ -8,19 +8,16 @@ from .._allocator import keep_freed_memory
 from ..gap_policy import GapTally
 from ..log_fit import plausibility
 from ..output_columns import describe_counts, source_counts
-from ._common import (
-    LOG_FORMATS,
+from ._options import (
     add_can_decoding_options,
     add_log_options,
     add_ratio_option,
-    check_plot_path,
+    add_serial_format_option,
     count_type,
-    files_written,
-    play_exit_code,
+    log_formats,
     positive_float,
-    print_report,
-    warn_if_implausible,
 )
+from ._output import check_plot_path, files_written, play_exit_code, print_report, warn_if_implausible
 from .estimate import read_counted, write_trace
 
 
@@ -35,7 +32,7 @@ def add_subparser(subparsers: argparse._SubParsersAction) -> None:
         ),
         formatter_class=argparse.ArgumentDefaultsHelpFormatter,
     )
-    parser.add_argument("log", help=f"recorded log: {LOG_FORMATS}")
+    parser.add_argument("log", help=f"recorded log: {log_formats()}")
     add_ratio_option(parser)
     parser.add_argument("--json", action="store_true", help="print one JSON object")
     parser.add_argument("--plot", metavar="FILE.png", help="write the residual before/after plot")
@@ -52,8 +49,10 @@ def add_subparser(subparsers: argparse._SubParsersAction) -> None:
         "--screen-cycles",
         type=count_type,
         metavar="N",
-        help="on a record of at least 3N reversal cycles and 300,000 samples, score and refit the candidates on N cycles "
-        "spread over it (more if N hold fewer than 100,000 samples), then configure and fit the terms chosen on every sample "
+        help="on a record of at least 3N reversal cycles and 300,000 samples, score and refit the candidates on N "
+        "cycles "
+        "spread over it (more if N hold fewer than 100,000 samples), then configure and fit the terms chosen on every "
+        "sample "
         "(the loop's default: 10; 0: every cycle, slower on long logs)",
     )
     parser.add_argument(
@@ -67,9 +66,7 @@ def add_subparser(subparsers: argparse._SubParsersAction) -> None:
     )
     add_log_options(parser)
     add_can_decoding_options(parser, required=False)
-    parser.add_argument(
-        "--serial-format", choices=("ascii", "binary"), help="frame format of a serial capture (.serial)"
-    )
+    add_serial_format_option(parser)
     parser.set_defaults(func=run)
 
 

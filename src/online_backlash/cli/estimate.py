@@ -15,21 +15,20 @@ from ..log_fit import BacklashReport, fit_batch, fit_recursive, report_text
 from ..output_columns import TRACE_COLUMNS, EstimateRow
 from ..pipeline import READ_AHEAD
 from ..stream import SampleChunk, SampleSource, read_all
-from ._common import (
-    LOG_FORMATS,
+from ._options import (
     add_can_decoding_options,
+    add_estimator_options,
     add_log_options,
+    add_period_option,
     add_play_method_option,
     add_ratio_option,
-    check_plot_path,
-    files_written,
+    add_serial_format_option,
+    log_formats,
     nonnegative_float,
-    play_exit_code,
     positive_float,
-    print_report,
     reader_options,
-    warn_if_implausible,
 )
+from ._output import check_plot_path, files_written, play_exit_code, print_report, warn_if_implausible
 
 
 def add_subparser(subparsers: argparse._SubParsersAction) -> None:
@@ -43,7 +42,7 @@ def add_subparser(subparsers: argparse._SubParsersAction) -> None:
         ),
         formatter_class=argparse.ArgumentDefaultsHelpFormatter,
     )
-    parser.add_argument("log", help=f"recorded log: {LOG_FORMATS}; or a listen --raw-log folder")
+    parser.add_argument("log", help=f"recorded log: {log_formats()}; or a listen --raw-log folder")
     add_ratio_option(parser)
     parser.add_argument("--method", choices=("recursive", "batch"), default="recursive", help="estimator")
     parser.add_argument("--json", action="store_true", help="print one JSON object")
@@ -52,7 +51,8 @@ def add_subparser(subparsers: argparse._SubParsersAction) -> None:
         "--rated-torque",
         metavar="NM",
         type=positive_float,
-        help="rated torque of the gearbox, N m: with a torque column, lost motion is taken at +-3 %% of it (else at the torque dead band)",
+        help="rated torque of the gearbox, N m: with a torque column, lost motion is taken at +-3 %% of it (else at "
+        "the torque dead band)",
     )
     parser.add_argument(
         "--stiffness-torques",
@@ -72,13 +72,7 @@ def add_subparser(subparsers: argparse._SubParsersAction) -> None:
     group.add_argument(
         "--every", metavar="S", type=positive_float, default=1.0, help="seconds of data between trace rows"
     )
-    group.add_argument(
-        "--memory-reversals", type=positive_float, default=10.0, help="memory of the estimator, in reversals"
-    )
-    group.add_argument(
-        "--memory-s", type=positive_float, help="memory in seconds of motion (instead of / besides reversals)"
-    )
-    group.add_argument("--sample-period", type=positive_float, default=0.001, help="sampling period of the log, s")
+    add_estimator_options(group)
     group.add_argument(
         "--bridge-s",
         type=nonnegative_float,
@@ -91,18 +85,10 @@ def add_subparser(subparsers: argparse._SubParsersAction) -> None:
         default=JUMP_DEG,
         help="a step of either angle (deg, load side) larger than this across a gap is a jump in the data and restarts",
     )
-    parser.add_argument(
-        "--period",
-        type=positive_float,
-        metavar="S",
-        help="nominal sample period for gap detection (CSV, CAN log, serial capture), as given to listen/track; learnt if not given. "
-        "With a frame counter (CAN, serial, CANopen), sample times are then first time + counter periods x S, not the jittery timestamps",
-    )
+    add_period_option(parser)
     add_log_options(parser)
     add_can_decoding_options(parser, required=False)
-    parser.add_argument(
-        "--serial-format", choices=("ascii", "binary"), help="frame format of a serial capture (.serial)"
-    )
+    add_serial_format_option(parser)
     parser.add_argument(
         "--realtime", action="store_true", help="replay a CAN log or serial capture at its recorded pace"
     )

@@ -10,7 +10,8 @@ from typing import TYPE_CHECKING
 
 from ..errors import BacklashError, InvalidParameterError
 from ..output_columns import ARCMIN_PER_DEG, HISTORY_CSV_COLUMNS
-from ._common import check_plot_path, nonempty_text, print_json
+from ._options import add_max_age_option, add_play_level_options, add_store_option, nonempty_text
+from ._output import check_plot_path, print_json
 
 if TYPE_CHECKING:
     from ..history.report import WearReport
@@ -18,9 +19,7 @@ if TYPE_CHECKING:
 
 def add_db_options(parser: argparse.ArgumentParser, gearbox_required: bool = True) -> None:
     """``--db`` and ``--gearbox``, shared with ``track``."""
-    parser.add_argument(
-        "--db", required=True, help="history store: an SQLite file path or postgresql://user@host/dbname"
-    )
+    add_store_option(parser)
     parser.add_argument(
         "--gearbox", type=nonempty_text, required=gearbox_required, metavar="ID", help="the gearbox's id in the store"
     )
@@ -42,26 +41,17 @@ def add_subparser(subparsers: argparse._SubParsersAction) -> None:
     output.add_argument(
         "--check",
         action="store_true",
-        help="print one line per gearbox in the Nagios/Icinga plugin format and exit 0/1/2/3 (OK/WARNING/CRITICAL/UNKNOWN; "
+        help="print one line per gearbox in the Nagios/Icinga plugin format and exit 0/1/2/3 "
+        "(OK/WARNING/CRITICAL/UNKNOWN; "
         "with --all the worst, in the order OK < WARNING < UNKNOWN < CRITICAL)",
     )
     parser.add_argument("--all", action="store_true", help="with --check: every gearbox in the store")
-    parser.add_argument(
-        "--limit-arcmin",
-        type=float,
-        metavar="X",
-        help="backlash limit for the forecast; without it, the gearbox's stored limit",
+    add_play_level_options(
+        parser,
+        "backlash limit for the forecast; without it, the gearbox's stored limit",
+        "warning level of the play; without it, the gearbox's stored one",
     )
-    parser.add_argument(
-        "--warn-arcmin", type=float, metavar="X", help="warning level of the play; without it, the gearbox's stored one"
-    )
-    parser.add_argument(
-        "--max-age-h",
-        type=float,
-        default=168.0,
-        metavar="H",
-        help="the state is UNKNOWN when the latest observable estimate is older than H calendar hours",
-    )
+    add_max_age_option(parser)
     parser.add_argument(
         "--trend",
         choices=("theil-sen", "kalman"),
@@ -165,8 +155,10 @@ def describe(report: WearReport) -> str:
         lines.append(
             f"{row['time'][:19].replace('T', ' '):<20} {_num(row['machine_hours'], '10.2f'):>10} "
             f"{row['operating_hours']:>10.3f} {row['load_revolutions']:>10.1f} "
-            f"{row['reversals']:>9d} {_num(row['backlash_deg'], '12.4f'):>12} {_num(row['backlash_std_deg'], '9.4f'):>9} "
-            f"{_num(row['backlash_arcmin'], '8.2f'):>8} {_num(row['backlash_std_arcmin'], '10.2f'):>10}{'' if seen else ' *'}"
+            f"{row['reversals']:>9d} {_num(row['backlash_deg'], '12.4f'):>12} "
+            f"{_num(row['backlash_std_deg'], '9.4f'):>9} "
+            f"{_num(row['backlash_arcmin'], '8.2f'):>8} "
+            f"{_num(row['backlash_std_arcmin'], '10.2f'):>10}{'' if seen else ' *'}"
         )
     lines.append("")
     lines += describe_trend(report)

@@ -8,7 +8,8 @@ import sys
 from dataclasses import replace
 from typing import TYPE_CHECKING, Any
 
-from ._common import add_csv_dialect_options, csv_dialect_options, node_id_type, print_json
+from ._options import add_csv_dialect_options, csv_dialect_options, log_formats, node_id_type
+from ._output import print_json
 
 if TYPE_CHECKING:
     from ..codecs.canopen import NodeMapping
@@ -25,15 +26,15 @@ def add_subparser(subparsers: argparse._SubParsersAction) -> None:
             "TDMS group/channels (unit, length, rate); MATLAB and HDF5 variables (shape, type, length, unit); "
             "CAN log IDs (frames, rate, DBC message names with --dbc). "
             "With --eds/--node (repeated: one pair per node, or one --eds for every --node), each CANopen node's TPDO "
-            "mapping (COB-ID, transmission type, mapped objects), and a CAN log's COB-IDs named by it; FILE may then be omitted."
+            "mapping (COB-ID, transmission type, mapped objects), and a CAN log's COB-IDs named by it; FILE may then "
+            "be omitted."
         ),
         formatter_class=argparse.ArgumentDefaultsHelpFormatter,
     )
     parser.add_argument(
         "file",
         nargs="?",
-        help="a .csv[.gz] (or delimited .txt .tsv), .parquet, .arrow/.feather, .mf4/.mdf, .tdms, .mat, .h5/.hdf5 file "
-        "or a CAN log (.asc .blf .log .trc .mf4 ...)",
+        help=f"a recorded file: {log_formats(inspected=True)}",
     )
     parser.add_argument(
         "--dbc", metavar="FILE", help="name the CAN IDs of a CAN log by this DBC ('rig' for the shipped rig.dbc)"
@@ -42,7 +43,8 @@ def add_subparser(subparsers: argparse._SubParsersAction) -> None:
         "--eds",
         action="append",
         metavar="FILE",
-        help="a CANopen EDS/DCF: list its TPDO mapping and name a CAN log's COB-IDs by it (with --node; repeat both for several nodes)",
+        help="a CANopen EDS/DCF: list its TPDO mapping and name a CAN log's COB-IDs by it (with --node; repeat both "
+        "for several nodes)",
     )
     parser.add_argument(
         "--node",

@@ -6,7 +6,8 @@ result later. Once Ctrl-C is handled, a line on stderr says so (``SOURCE: listen
 run with its summary``); then a status line shows the estimate with its standard error, the samples it
 has learned, samples/s, corrupt frames and gaps. The summary comes when ``--duration`` is reached or on
 Ctrl-C, after everything read by then is learned (on CAN, also the frames still waiting on the bus);
-with ``--json`` it is one JSON object on stdout, the keys of ``estimate --json`` and the source's counters. With ``--mqtt
+with ``--json`` it is one JSON object on stdout, the keys of ``estimate --json`` and the source's counters. With
+``--mqtt
 mqtt://HOST:PORT/PREFIX --gearbox ID`` every estimate is also published (:mod:`online_backlash.publish`).
 """
 
@@ -20,16 +21,22 @@ from typing import Any
 from ..errors import LogFormatError, SourceError
 from ..log_fit import fit_recursive, report_text
 from ..output_columns import EstimateRow, arcmin
-from ._common import (
-    add_can_decoding_options,
-    add_counts_options,
-    add_ratio_option,
-    play_exit_code,
-    positive_float,
-    print_json,
-)
 from ._live import ctrl_c_ends_the_run, open_can_source, open_serial_source
 from ._mqtt import add_listen_mqtt_options, mqtt_publisher, mqtt_summary_line, mqtt_tls, row_sink
+from ._options import (
+    add_can_bus_options,
+    add_can_decoding_options,
+    add_counts_options,
+    add_estimator_options,
+    add_live_run_options,
+    add_period_option,
+    add_ratio_option,
+    add_serial_format_option,
+    add_serial_port_options,
+    add_units_option,
+    positive_float,
+)
+from ._output import play_exit_code, print_json
 
 
 def add_subparser(subparsers: argparse._SubParsersAction) -> None:
@@ -44,38 +51,26 @@ def add_subparser(subparsers: argparse._SubParsersAction) -> None:
     can_parser = sources.add_parser(
         "can",
         help="a CAN bus (any python-can interface)",
-        description="Listen to a CAN bus; frames are decoded with a DBC (--dbc) or a CANopen drive's EDS/DCF (--eds --node).",
+        description="Listen to a CAN bus; frames are decoded with a DBC (--dbc) or a CANopen drive's EDS/DCF (--eds "
+        "--node).",
         formatter_class=argparse.ArgumentDefaultsHelpFormatter,
     )
-    can_parser.add_argument(
-        "--interface", required=True, help="python-can interface: socketcan, pcan, kvaser, vector, virtual, ..."
-    )
-    can_parser.add_argument("--channel", required=True, help="channel of the interface, e.g. can0")
-    can_parser.add_argument("--bitrate", type=int, help="bit rate, bit/s (where the interface sets it)")
+    add_can_bus_options(can_parser, required=True)
     add_can_decoding_options(can_parser, required=False)  # --dbc with its signals, or --eds --node: checked on opening
     add_counts_options(can_parser)
-    can_parser.add_argument(
-        "--units", help="unit of the motor and load DBC signals (deg, rad, rev, counts...), replacing the DBC's"
-    )
-    can_parser.add_argument(
-        "--raw-format", choices=("blf", "asc", "log"), default="blf", help="format of the raw CAN log"
-    )
+    add_units_option(can_parser)
     _add_common(can_parser)
     can_parser.set_defaults(func=run, open_source=open_can_source)
 
     serial_parser = sources.add_parser(
         "serial",
         help="a serial port (pyserial URL)",
-        description="Listen to a serial port: 'ascii' lines time,motor,load (s, deg, deg) or 'binary' COBS frames with CRC-16.",
+        description="Listen to a serial port: 'ascii' lines time,motor,load (s, deg, deg) or 'binary' COBS frames with "
+        "CRC-16.",
         formatter_class=argparse.ArgumentDefaultsHelpFormatter,
     )
-    serial_parser.add_argument(
-        "--port", required=True, help="pyserial URL: /dev/ttyUSB0, COM3, socket://host:port, loop://"
-    )
-    serial_parser.add_argument("--baud", type=int, default=115200, help="baud rate")
-    serial_parser.add_argument(
-        "--format", dest="serial_format", choices=("ascii", "binary"), required=True, help="frame format"
-    )
+    add_serial_port_options(serial_parser, required=True)
+    add_serial_format_option(serial_parser, "--format", required=True)
     add_counts_options(serial_parser)
     _add_common(serial_parser)
     serial_parser.set_defaults(func=run, open_source=open_serial_source)
@@ -83,25 +78,13 @@ def add_subparser(subparsers: argparse._SubParsersAction) -> None:
 
 def _add_common(parser: argparse.ArgumentParser) -> None:
     add_ratio_option(parser)
-    parser.add_argument(
-        "--raw-log", required=True, metavar="DIR", help="directory for the raw captures (written before decoding)"
-    )
-    parser.add_argument("--duration", type=positive_float, metavar="S", help="stop after S seconds; else at Ctrl-C")
-    parser.add_argument("--timeout", type=positive_float, metavar="S", help="fail when nothing arrives for S seconds")
-    parser.add_argument(
-        "--period",
-        type=float,
-        metavar="S",
-        help="nominal sample period for gap detection; learnt if not given. With a frame counter, sample times are then first time + counter periods x S",
-    )
+    add_live_run_options(parser, raw_log_required=True)
+    add_period_option(parser)
     parser.add_argument("--json", action="store_true", help="print the summary as one JSON object on stdout")
     parser.add_argument(
         "--status-every", type=positive_float, default=0.5, metavar="S", help="seconds of data between status lines"
     )
-    group = parser.add_argument_group("recursive estimator")
-    group.add_argument("--memory-reversals", type=float, default=10.0, help="memory of the estimator, in reversals")
-    group.add_argument("--memory-s", type=float, help="memory in seconds of motion (instead of / besides reversals)")
-    group.add_argument("--sample-period", type=float, default=0.001, help="sampling period, seconds")
+    add_estimator_options(parser.add_argument_group("recursive estimator"))
     add_listen_mqtt_options(parser)
 
 
@@ -173,7 +156,8 @@ def run(args: argparse.Namespace) -> int:
     else:
         print(report_text(report, label))
         print(
-            f"received:       {_counts(source.counters.as_dict())} in {summary['duration_s']:.1f} s; raw log in {args.raw_log}"
+            f"received:       {_counts(source.counters.as_dict())} in {summary['duration_s']:.1f} s; raw log in "
+            f"{args.raw_log}"
         )
         if publisher is not None:
             print(mqtt_summary_line(publisher))

@@ -13,7 +13,7 @@ from typing import TYPE_CHECKING
 from urllib.parse import urlsplit
 
 from ..errors import BacklashWarning, InvalidParameterError
-from ._common import positive_float
+from ._options import add_max_age_option, add_store_option, positive_float
 
 if TYPE_CHECKING:
     from ..history.gauges import GearboxGauges
@@ -35,9 +35,7 @@ def add_subparser(subparsers: argparse._SubParsersAction) -> None:
         "writes, and a state change raises an alarm event. Read-only. Stop with Ctrl-C.",
         formatter_class=argparse.ArgumentDefaultsHelpFormatter,
     )
-    parser.add_argument(
-        "--db", required=True, help="history store: an SQLite file path or postgresql://user@host/dbname"
-    )
+    add_store_option(parser)
     parser.add_argument("--endpoint", default=DEFAULT_ENDPOINT, help="where to listen: opc.tcp://HOST:PORT[/PATH]")
     parser.add_argument(
         "--security", choices=tuple(SECURITY_MODES), default="basic256sha256-sign-encrypt", help="message security"
@@ -61,13 +59,7 @@ def add_subparser(subparsers: argparse._SubParsersAction) -> None:
     )
     parser.add_argument("--allow-anonymous", action="store_true", help="also accept sessions without a login")
     parser.add_argument("--poll", type=positive_float, default=2.0, metavar="S", help="read the store every S seconds")
-    parser.add_argument(
-        "--max-age-h",
-        type=float,
-        default=168.0,
-        metavar="H",
-        help="a gearbox is 'unknown' when its latest estimate is older than H hours",
-    )
+    add_max_age_option(parser)
     parser.set_defaults(func=run)
 
 

@@ -9,7 +9,7 @@ import socket
 from types import FrameType
 
 from ..errors import InvalidParameterError
-from ._common import port_type
+from ._options import add_max_age_option, add_store_option, port_type
 
 
 def add_subparser(subparsers: argparse._SubParsersAction) -> None:
@@ -21,19 +21,11 @@ def add_subparser(subparsers: argparse._SubParsersAction) -> None:
         "backlash loop. The store is opened read-only; the page reloads itself. Stop with Ctrl-C.",
         formatter_class=argparse.ArgumentDefaultsHelpFormatter,
     )
-    parser.add_argument(
-        "--db", required=True, help="history store: an SQLite file path or postgresql://user@host/dbname"
-    )
+    add_store_option(parser)
     parser.add_argument("--host", default="127.0.0.1", help="address to listen on (0.0.0.0: every interface)")
     parser.add_argument("--port", type=port_type, default=8080, help="TCP port 0-65535 (0: any free one, printed)")
     parser.add_argument("--refresh", type=float, default=30.0, metavar="S", help="the page reloads every S seconds")
-    parser.add_argument(
-        "--max-age-h",
-        type=float,
-        default=168.0,
-        metavar="H",
-        help="a gearbox is 'unknown' when its latest estimate is older than H hours",
-    )
+    add_max_age_option(parser)
     parser.set_defaults(func=run)
 
 

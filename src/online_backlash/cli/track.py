@@ -24,17 +24,24 @@ from ..clocks import TIME_UNITS as TIME_UNIT_NAMES
 from ..errors import BacklashError, InvalidParameterError
 from ..fleet import GearboxJob, GearboxOutcome
 from ..output_columns import describe_counts
-from ._common import (
-    LOG_FORMATS,
-    add_can_decoding_options,
-    add_log_options,
-    add_play_method_option,
-    add_ratio_option,
-    positive_float,
-    print_json,
-)
 from ._live import ctrl_c_ends_the_run, open_can_source, open_serial_source
 from ._mqtt import add_mqtt_option, history_figures, mqtt_publisher, mqtt_summary_line, mqtt_tls
+from ._options import (
+    add_can_bus_options,
+    add_can_decoding_options,
+    add_estimator_options,
+    add_live_run_options,
+    add_log_options,
+    add_period_option,
+    add_play_level_options,
+    add_play_method_option,
+    add_ratio_option,
+    add_serial_format_option,
+    add_serial_port_options,
+    log_formats,
+    positive_float,
+)
+from ._output import print_json
 from .estimate import log_options, no_torque_reason
 from .history import add_db_options
 
@@ -81,19 +88,17 @@ def add_subparser(subparsers: argparse._SubParsersAction) -> None:
         nargs="*",
         metavar="LOG",
         help="recorded logs (tracked in the order of their first samples' time), or listen --raw-log folders: "
-        + LOG_FORMATS,
+        + log_formats(),
     )
     add_ratio_option(parser, required=False)
     add_db_options(parser, gearbox_required=False)
     parser.add_argument(
         "--every", type=positive_float, default=60.0, metavar="S", help="seconds of data between estimates"
     )
-    parser.add_argument("--limit-arcmin", type=float, metavar="X", help="store this backlash limit with the gearbox")
-    parser.add_argument(
-        "--warn-arcmin",
-        type=float,
-        metavar="X",
-        help="store this warning level of the play with the gearbox (not above the limit)",
+    add_play_level_options(
+        parser,
+        "store this backlash limit with the gearbox",
+        "store this warning level of the play with the gearbox (not above the limit)",
     )
     clocks = parser.add_argument_group(
         "clocks: where a log lies in time and in the machine's use (see docs/wear-trend.md)"
@@ -137,19 +142,7 @@ def add_subparser(subparsers: argparse._SubParsersAction) -> None:
         metavar="UNIT",
         help="unit of --hours-column: h, min, s, or hours per count (a cycle counter: its cycle time in hours)",
     )
-    parser.add_argument(
-        "--memory-reversals",
-        type=float,
-        metavar="N",
-        help="memory of a new gearbox's estimator, in reversals (shorter follows fast wear with less lag, "
-        "more noise); default: BacklashRLS's",
-    )
-    parser.add_argument(
-        "--sample-period",
-        type=float,
-        metavar="S",
-        help="sampling period of a new gearbox's logs, seconds; default: BacklashRLS's (0.001)",
-    )
+    add_estimator_options(parser, new_gearbox=True)
     add_play_method_option(parser, default=None, new="a new gearbox's ")
     parser.add_argument(
         "--diagnose",
@@ -161,36 +154,17 @@ def add_subparser(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("--json", action="store_true", help="print one JSON object per log")
     add_log_options(parser)
     add_can_decoding_options(parser, required=False)
-    parser.add_argument(
-        "--serial-format",
-        choices=("ascii", "binary"),
-        help="frame format of serial captures (.serial) and serial ports",
-    )
+    add_serial_format_option(parser)
     live = parser.add_argument_group("live, instead of logs (the options of listen)")
     live.add_argument(
         "--listen",
         choices=("can", "serial"),
         help="track live from a CAN bus or a serial port until --duration or Ctrl-C",
     )
-    live.add_argument("--interface", help="python-can interface (CAN): socketcan, pcan, kvaser, vector, virtual, ...")
-    live.add_argument("--channel", help="channel of the interface (CAN), e.g. can0")
-    live.add_argument("--bitrate", type=int, help="bit rate, bit/s (CAN, where the interface sets it)")
-    live.add_argument("--raw-format", choices=("blf", "asc", "log"), default="blf", help="format of the raw CAN log")
-    live.add_argument("--port", help="pyserial URL (serial): /dev/ttyUSB0, COM3, socket://host:port")
-    live.add_argument("--baud", type=int, default=115200, help="baud rate (serial)")
-    live.add_argument(
-        "--raw-log",
-        metavar="DIR",
-        help="directory for the raw captures, written before decoding (required with --listen)",
-    )
-    live.add_argument("--duration", type=positive_float, metavar="S", help="stop after S seconds; else at Ctrl-C")
-    live.add_argument("--timeout", type=positive_float, metavar="S", help="fail when nothing arrives for S seconds")
-    live.add_argument(
-        "--period",
-        type=float,
-        metavar="S",
-        help="nominal sample period for gap detection; learnt if not given. With a frame counter, sample times are then first time + counter periods x S",
-    )
+    add_can_bus_options(live, required=False)
+    add_serial_port_options(live, required=False)
+    add_live_run_options(live, raw_log_required=False)
+    add_period_option(live)
     add_mqtt_option(live)
     fleet = parser.add_argument_group("fleet, instead of one gearbox (see docs/fleet.md)")
     fleet.add_argument(
@@ -202,7 +176,8 @@ def add_subparser(subparsers: argparse._SubParsersAction) -> None:
         "--workers",
         type=int,
         metavar="N",
-        help="with --manifest: Dask worker processes on this machine (default: its cores); 0: gearboxes one by one here",
+        help="with --manifest: Dask worker processes on this machine (default: its cores); 0: gearboxes one by one "
+        "here",
     )
     fleet.add_argument(
         "--scheduler",
@@ -275,7 +250,8 @@ def run(args: argparse.Namespace) -> int:
 
 
 def gearbox_tracker(store: HistoryStore, args: argparse.Namespace, logs: list[str]) -> GearboxTracker:
-    """The tracker of the gearbox ``args`` name, its alarm levels stored (``--diagnose`` reads the first of ``logs``)."""
+    """The tracker of the gearbox ``args`` name, its alarm levels stored (``--diagnose`` reads the first of
+    ``logs``)."""
     from ..tracking import GearboxTracker
 
     given = {"memory_reversals": args.memory_reversals, "sample_period_s": args.sample_period}

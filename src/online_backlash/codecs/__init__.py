@@ -9,7 +9,7 @@ readers (:mod:`online_backlash.replay`) both apply to the bytes and frames they 
     canopen.py       CANopen drives: TPDO mapping from the EDS/DCF (canopen), SyncPipeline: a sample per SYNC
     blockpairing.py  BlockPipeline: the same rules on blocks of frames, compiled (tested equal)
     serialframes.py  the ascii and binary (COBS + CRC-16) serial formats, resynchronising parsers
-    assemble.py      the last checks before a sample leaves any source (finite, time order, gaps)
+    sample_checks.py the last checks before a sample leaves any source (finite, time order, gaps)
     gaps.py          the one gap rule (counter jumps, steps longer than GAP_PERIODS periods)
     unwrap.py        single-turn encoder counts to multi-turn counts
     units.py         angle and count unit strings (DBC signals and measurement channels)

@@ -1,8 +1,9 @@
 """The rules of :class:`~online_backlash.codecs.pairing.FramePipeline` on decoded blocks of frames, compiled.
 
-Frames come in blocks (1,024 frames read from a log) and are decoded into arrays (:mod:`~online_backlash.codecs.blockdecode`); this module
+Frames come in blocks (1,024 frames read from a log) and are decoded into arrays
+(:mod:`~online_backlash.codecs.blockdecode`); this module
 pairs them, unwraps the counts (:class:`~online_backlash.codecs.unwrap.Unwrapper`), applies
-:class:`~online_backlash.codecs.assemble.SampleAssembler`'s checks and
+:class:`~online_backlash.codecs.sample_checks.SampleAssembler`'s checks and
 :class:`~online_backlash.codecs.gaps.GapDetector`'s rule in one numba loop whose state carries
 over from block to block, so the samples, counters, gaps and pair skew are those of the per-frame
 path, bit for bit (``tests/test_can_blocks.py`` compares them over generated damaged inputs).
@@ -20,7 +21,7 @@ import numpy as np
 from numba import njit
 
 from online_backlash.errors import InvalidParameterError
-from online_backlash.stream import Gap, SampleChunk
+from online_backlash.stream import MAX_SKEW_S, Gap, SampleChunk
 
 from .blockdecode import CORRUPT, OK, SKIPPED, BlockDecoder, DecodedBlock, frame_arrays
 from .dbc import BOTH, MOTOR, DbcDecoder
@@ -214,7 +215,7 @@ class BlockPipeline(CanPipeline):
 
     decoder: DbcDecoder  # the block path reads the DBC's scaling (a narrower FrameDecoder)
 
-    def __init__(self, decoder: DbcDecoder, period_s: float | None = None, max_skew_s: float = 1e-3) -> None:
+    def __init__(self, decoder: DbcDecoder, period_s: float | None = None, max_skew_s: float = MAX_SKEW_S) -> None:
         super().__init__(decoder, max_skew_s)
         gaps = GapDetector(decoder.counter_modulus, period_s)  # validates, and holds the rule's settings
         self.blocks = BlockDecoder(decoder)
@@ -260,7 +261,8 @@ class BlockPipeline(CanPipeline):
         n_samples, n_gaps, corrupt, unpaired = _pair_block(
             block.status, block.role, block.counter, block.motor, block.load, time_s,
             dec.paired, self.max_skew_s, dec.motor.modulus or 0, dec.load.modulus or 0,
-            dec.motor.deg_per_raw, dec.load.deg_per_raw, dec.motor.offset_deg, dec.load.offset_deg, self._modulus, self._gap_periods,
+            dec.motor.deg_per_raw, dec.load.deg_per_raw, dec.motor.offset_deg, dec.load.offset_deg,
+            self._modulus, self._gap_periods,
             self._ist, self._fst, self._steps, *out, *gaps,
         )  # fmt: skip
         c.samples += n_samples
@@ -281,7 +283,7 @@ class BlockPipeline(CanPipeline):
 def make_pipeline(
     decoder: DbcDecoder,
     period_s: float | None = None,
-    max_skew_s: float = 1e-3,
+    max_skew_s: float = MAX_SKEW_S,
     strict: bool = False,
     per_frame: bool = False,
 ) -> FramePipeline | BlockPipeline:

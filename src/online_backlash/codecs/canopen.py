@@ -1,4 +1,5 @@
-"""CANopen servo drives: encoder objects found in the TPDO mapping of the object dictionary, samples grouped by SYNC or paired in time.
+"""CANopen servo drives: encoder objects found in the TPDO mapping of the object dictionary, samples grouped by SYNC or
+paired in time.
 
 The drive's EDS or DCF file is read with the ``canopen`` library (:func:`load_dictionary`); the
 transmit PDOs are taken from its communication (0x1800 + n) and mapping (0x1A00 + n) parameters
@@ -55,11 +56,11 @@ from canopen.objectdictionary import ObjectDictionary, ODVariable
 from canopen.objectdictionary.datatypes import INTEGER_TYPES, SIGNED_TYPES
 
 from online_backlash.errors import FrameError, InvalidParameterError, LogFormatError
-from online_backlash.stream import Row
+from online_backlash.stream import MAX_SKEW_S, Row
 
-from .assemble import SampleAssembler
 from .dbc import LOAD, MOTOR, DecodedFrame
 from .pairing import CanCounters, FramePipeline, PerFramePipeline
+from .sample_checks import SampleAssembler
 from .unwrap import Unwrapper
 
 #: Default COB-ID of the SYNC object (CiA 301), used when the dictionary has no 0x1005.
@@ -79,7 +80,8 @@ _N_TPDO = 512
 _PDO_NOT_VALID = 1 << 31
 #: Transmission types 0-240 are synchronous (sent after a SYNC).
 _LAST_SYNCHRONOUS = 240
-#: Transmission types 254 (manufacturer-specific) and 255 (device profile): event-driven, sent on change or on the event timer.
+#: Transmission types 254 (manufacturer-specific) and 255 (device profile): event-driven, sent on change or on the event
+#: timer.
 EVENT_DRIVEN = (254, 255)
 
 
@@ -100,7 +102,8 @@ def load_dictionary(path: str | os.PathLike[str], node_id: int) -> ObjectDiction
 
 
 def _od_value(od: ObjectDictionary, index: int, subindex: int = 0) -> Any:
-    """The value of ``index.subindex`` (a DCF's value, else the EDS default); None where the dictionary has no such entry or value."""
+    """The value of ``index.subindex`` (a DCF's value, else the EDS default); None where the dictionary has no such
+    entry or value."""
     try:
         var = od.get_variable(index, subindex)
     except (KeyError, TypeError):
@@ -136,7 +139,8 @@ class MappedObject:
 
 @dataclass(frozen=True)
 class Tpdo:
-    """One transmit PDO of a node: its number (1-based), COB-ID, transmission type, mapped objects and length in bytes."""
+    """One transmit PDO of a node: its number (1-based), COB-ID, transmission type, mapped objects and length in
+    bytes."""
 
     number: int
     node_id: int
@@ -156,7 +160,8 @@ class Tpdo:
 
     @property
     def trigger(self) -> str:
-        """When the drive sends it (CiA 301 transmission type): ``sync``, ``event``, ``remote request`` or ``reserved``."""
+        """When the drive sends it (CiA 301 transmission type): ``sync``, ``event``, ``remote request`` or
+        ``reserved``."""
         if self.transmission_type <= _LAST_SYNCHRONOUS:
             return "sync"
         if self.transmission_type in EVENT_DRIVEN:
@@ -176,8 +181,9 @@ class Tpdo:
             for o in self.objects
         ]
         return {
-            "tpdo": self.number, "name": self.name, "cob_id": f"0x{self.cob_id:03X}", "transmission_type": self.transmission_type,
-            "trigger": self.trigger, "length": self.length, "objects": objects,
+            "tpdo": self.number, "name": self.name, "cob_id": f"0x{self.cob_id:03X}",
+            "transmission_type": self.transmission_type, "trigger": self.trigger, "length": self.length,
+            "objects": objects,
         }  # fmt: skip
 
 
@@ -309,7 +315,8 @@ def _positive(value: float, option: str) -> float:
 
 @dataclass(frozen=True)
 class Encoder:
-    """An angle carried by a TPDO: ``obj`` in ``pdo`` of node ``pdo.node_id``, ``counts_per_rev`` counts per revolution of its shaft."""
+    """An angle carried by a TPDO: ``obj`` in ``pdo`` of node ``pdo.node_id``, ``counts_per_rev`` counts per revolution
+    of its shaft."""
 
     pdo: Tpdo
     obj: MappedObject
@@ -330,7 +337,8 @@ class Encoder:
 
 
 def _sync_settings(od: ObjectDictionary) -> tuple[int, int | None]:
-    """The SYNC COB-ID (0x1005, else 0x80) and the counter's overflow value (0x1019; 0 or 1: no counter; absent: 240)."""
+    """The SYNC COB-ID (0x1005, else 0x80) and the counter's overflow value (0x1019; 0 or 1: no counter; absent:
+    240)."""
     cob_id = _od_value(od, COB_ID_SYNC, 0)
     overflow = _od_value(od, SYNC_COUNTER_OVERFLOW, 0) if SYNC_COUNTER_OVERFLOW in od else SYNC_COUNTER_MAX
     return (SYNC_COB_ID if cob_id is None else int(cob_id) & 0x7FF), (
@@ -377,7 +385,8 @@ class CanopenLayout:
             pdo, obj = find_encoder(od, node, eds, ADDITIONAL_POSITION_ACTUAL_VALUE, load_subindex)
             if load_cpr is None:
                 raise InvalidParameterError(
-                    f"{os.fspath(eds)}: the load angle is {obj.label} of node {node}: give its counts per load revolution (--load-cpr)"
+                    f"{os.fspath(eds)}: the load angle is {obj.label} of node {node}: give its counts per load "
+                    "revolution (--load-cpr)"
                 )
             load = Encoder(pdo, obj, _positive(load_cpr, "--load-cpr"))
         else:
@@ -397,7 +406,8 @@ class CanopenLayout:
 
     @property
     def event_driven(self) -> bool:
-        """True where either angle's TPDO is event-driven (254, 255): samples are then paired in time, not grouped by SYNC."""
+        """True where either angle's TPDO is event-driven (254, 255): samples are then paired in time, not grouped by
+        SYNC."""
         return self.motor.pdo.transmission_type in EVENT_DRIVEN or self.load.pdo.transmission_type in EVENT_DRIVEN
 
     @property
@@ -429,7 +439,8 @@ class NodeMapping:
 
     @classmethod
     def read(cls, path: str | os.PathLike[str], node_id: int) -> NodeMapping:
-        """The TPDO mapping of node ``node_id`` in the EDS/DCF at ``path`` (errors name the file: :func:`load_dictionary`, :func:`tpdos`)."""
+        """The TPDO mapping of node ``node_id`` in the EDS/DCF at ``path`` (errors name the file:
+        :func:`load_dictionary`, :func:`tpdos`)."""
         od = load_dictionary(path, node_id)
         return cls(os.fspath(path), node_id, _sync_settings(od)[0], tuple(tpdos(od, node_id, path)))
 
@@ -616,7 +627,7 @@ class PdoDecoder:
 
 
 def canopen_pipeline(
-    layout: CanopenLayout, period_s: float | None = None, max_skew_s: float = 1e-3, strict: bool = False
+    layout: CanopenLayout, period_s: float | None = None, max_skew_s: float = MAX_SKEW_S, strict: bool = False
 ) -> PerFramePipeline:
     """The frame rule of ``layout``: :class:`SyncPipeline` for synchronous TPDOs, else the DBC path's
     pairing by time (:class:`~online_backlash.codecs.pairing.FramePipeline` over a :class:`PdoDecoder`;

@@ -222,7 +222,8 @@ class MessageLayout:
 
 @dataclass(slots=True)
 class DecodedFrame:
-    """One frame of ours, checked: raw signal values (unscaled, not unwrapped; 0 for an angle the frame does not carry)."""
+    """One frame of ours, checked: raw signal values (unscaled, not unwrapped; 0 for an angle the frame does not
+    carry)."""
 
     time_s: float
     role: int
@@ -310,7 +311,8 @@ class DbcDecoder:
             )
             if motor_ids is not None and load_ids is not None and not set(motor_ids) & set(load_ids):
                 raise InvalidParameterError(
-                    f"{motor_signal} and {load_signal} are never in the same frame of multiplexed message {self.motor.message.name}"
+                    f"{motor_signal} and {load_signal} are never in the same frame of multiplexed message "
+                    f"{self.motor.message.name}"
                 )
         roles = (
             [(self.motor.message, MOTOR), (self.load.message, LOAD)] if self.paired else [(self.motor.message, BOTH)]

@@ -10,7 +10,8 @@ Bursts are not gaps: a host-timestamped adapter delivers frames in bunches of 1-
 timestamps stall and then leap while the counter runs on. Where the counter is continuous, a time
 step is a gap only when it is longer than :func:`gap_periods` nominal periods: half the counter's
 cycle, and never fewer than ``GAP_PERIODS`` (a loss of a whole cycle of frames, which the counter
-cannot show, still shows in the time). :class:`GapDetector` applies the rule sample by sample (:meth:`GapDetector.check`) or to a
+cannot show, still shows in the time). :class:`GapDetector` applies the rule sample by sample
+(:meth:`GapDetector.check`) or to a
 block of timestamps without counters (:meth:`GapDetector.check_times`, CSV rows; tested equal).
 The compiled pairing loop of CAN replay (:mod:`~online_backlash.codecs.blockpairing`) applies the
 same rule inside numba and is held equal to the per-frame path by ``tests/test_can_blocks.py``.
@@ -212,7 +213,8 @@ class CounterClock:
         self._last_seq = -1
 
     def time(self, time_s: float, seq: int | None) -> float:
-        """The time (s) of the next sample, timestamped ``time_s`` (s) with counter value ``seq`` (None or < 0: none)."""
+        """The time (s) of the next sample, timestamped ``time_s`` (s) with counter value ``seq`` (None or < 0:
+        none)."""
         q = -1 if seq is None else int(seq)
         if self._t0 is None:
             self._t0 = float(time_s)

@@ -34,10 +34,10 @@ from typing import Protocol
 import can
 
 from online_backlash.errors import FrameError, InvalidParameterError
-from online_backlash.stream import Row, Sample, SampleChunk, StreamCounters, rows_to_chunk
+from online_backlash.stream import MAX_SKEW_S, Row, Sample, SampleChunk, StreamCounters, rows_to_chunk
 
-from .assemble import SampleAssembler
 from .dbc import BOTH, MOTOR, DecodedFrame
+from .sample_checks import SampleAssembler
 from .unwrap import Unwrapper
 
 
@@ -198,7 +198,7 @@ class FramePipeline(PerFramePipeline):
     """
 
     def __init__(
-        self, decoder: FrameDecoder, period_s: float | None = None, max_skew_s: float = 1e-3, strict: bool = False
+        self, decoder: FrameDecoder, period_s: float | None = None, max_skew_s: float = MAX_SKEW_S, strict: bool = False
     ) -> None:
         super().__init__(decoder, max_skew_s)
         self.strict = strict

@@ -32,13 +32,13 @@ from crccheck.crc import Crc16CcittFalse
 from online_backlash.errors import FrameError, InvalidParameterError
 from online_backlash.stream import Row, Sample, SampleChunk, StreamCounters, rows_to_chunk
 
-from .assemble import SampleAssembler
+from .options import SERIAL_FORMATS
+from .sample_checks import SampleAssembler
 from .unwrap import Unwrapper
 
 #: What a record parses to: time (s), motor and load angles (deg), sequence number (None: none).
 Reading = tuple[float, float, float, "int | None"]
 
-SERIAL_FORMATS = ("ascii", "binary")
 _BINARY = struct.Struct("<HQii")
 _CRC = struct.Struct("<H")
 BINARY_FRAME_BYTES = _BINARY.size + _CRC.size
@@ -227,7 +227,8 @@ class BinaryParser(FrameParser):
 
 
 def require_cpr(name: str, cpr: float | None) -> float:
-    """``cpr`` (counts per revolution of the binary format's ``name`` encoder) if positive, else InvalidParameterError."""
+    """``cpr`` (counts per revolution of the binary format's ``name`` encoder) if positive, else
+    InvalidParameterError."""
     if cpr is None or not cpr > 0:
         raise InvalidParameterError(f"the binary serial format needs {name} (counts per revolution > 0), got {cpr!r}")
     return cpr

@@ -63,7 +63,8 @@ class SampleAssembler:
         return gap is not None
 
     def row(self, time_s: float, motor_deg: float, load_deg: float, seq: int | None, n_frames: int = 1) -> Row | None:
-        """The checked sample of these readings (degrees, seconds) as a row, or None if it is corrupt (see :meth:`accept`)."""
+        """The checked sample of these readings (degrees, seconds) as a row, or None if it is corrupt (see
+        :meth:`accept`)."""
         after_gap = self.accept(time_s, motor_deg, load_deg, seq, n_frames)
         if after_gap is None:
             return None

@@ -1,91 +1,50 @@
-"""Options and output helpers shared by several subcommands (no math here)."""
+"""The command-line options shared by several subcommands, each declared once with its one type, and the
+reader options built from them (no math here)."""
 
 from __future__ import annotations
 
 import argparse
-import json
 import math
-import os
-import sys
-import warnings
 from collections.abc import Callable, Iterable
 from typing import TYPE_CHECKING, Any
 
-from ..errors import BacklashError, BacklashWarning, InvalidParameterError, NotExcitedError
+from ..errors import InvalidParameterError
 
 if TYPE_CHECKING:
-    from ..replay.options import CanDecoding, ReaderOption
-
-#: The formats a log may be in, as ``estimate``, ``diagnose`` and ``track`` read them (the help of their LOG argument).
-LOG_FORMATS = (
-    ".csv[.gz] or delimited .txt/.tsv (a torque column is used when mapped); a measurement file "
-    "(.mf4 .mdf .tdms .parquet .arrow .feather, channels by --columns); a CAN log (.asc .blf .log .trc .mf4 ..., "
-    "with --dbc or --eds); a serial capture (.serial, with --serial-format)"
-)
-#: Exit code of a command that failed (argparse uses 2 for bad options, an interrupt 130).
-EXIT_ERROR = 1
-#: Exit code of a report without a play figure (the data do not show the play, or the fit gave no number):
-#: the report is printed, the reason goes to stderr, and a script never takes a missing play for a result.
-EXIT_NO_PLAY = 3
+    from ..codecs.options import CanDecoding, ReaderOption
 
 
-def run_command(func: Callable[[argparse.Namespace], int | None], args: argparse.Namespace) -> int:
-    """``func(args)`` with every failure as one line ``error: FILE[:LINE]: reason`` on stderr and a non-zero exit.
+def log_formats(inspected: bool = False) -> str:
+    """The formats a log may be in (the help of a LOG argument), from the one table
+    (:data:`~online_backlash.replay.registry.FORMATS`); ``inspected``: those ``inspect`` describes."""
+    from ..replay.registry import FORMATS
 
-    No traceback reaches the user (``--debug`` shows it): the library's errors name their file or
-    setting; an OSError names its file; anything else is reported as unexpected, with its type.
-    The library's warnings (:class:`~online_backlash.errors.BacklashWarning`) print as one line
-    ``warning: ...`` each.
-    """
-    debug = getattr(args, "debug", False)
-    with warnings.catch_warnings():
-        warnings.simplefilter("always", BacklashWarning)
-        warnings.showwarning = _show_warning
-        try:
-            return int(func(args) or 0)
-        except KeyboardInterrupt:
-            print("error: interrupted", file=sys.stderr)
-            return 130
-        except Exception as exc:
-            if debug:
-                raise
-            print(f"error: {error_line(exc, getattr(args, 'log', None))}", file=sys.stderr)
-            return EXIT_ERROR
+    return "; ".join(f.help_text() for f in FORMATS if f.describe is not None or not inspected)
 
 
-def error_line(exc: BaseException, log: str | None = None) -> str:
-    """The one-line description of an error, without the ``error:`` prefix; data that cannot
-    identify the model (NotExcitedError) are named by the ``log`` they came from."""
-    if isinstance(exc, NotExcitedError) and log is not None:
-        text = f"{log}: {exc}"
-    elif isinstance(exc, (BacklashError, argparse.ArgumentTypeError)):
-        text = str(exc)
-    elif isinstance(exc, OSError) and exc.filename is not None:
-        reason = "no such file or folder" if isinstance(exc, FileNotFoundError) else exc.strerror or str(exc)
-        text = f"{exc.filename}: {reason}"
-    elif isinstance(exc, OSError):
-        text = exc.strerror or str(exc)
-    elif isinstance(exc, ImportError) and exc.name:
-        text = f"module {exc.name!r} is not installed ({exc})"
-    else:
-        text = f"unexpected {type(exc).__name__}: {exc} (run with --debug for the trace, and please report it)"
-    return " ".join(text.split())  # one line
+def add_store_option(parser: argparse._ActionsContainer) -> None:
+    """``--db DB``: the history store (``track``, ``history``, ``serve``, ``opcua``)."""
+    parser.add_argument(
+        "--db", required=True, help="history store: an SQLite file path or postgresql://user@host/dbname"
+    )
 
 
-def _show_warning(
-    message: Warning | str,
-    category: type[Warning],
-    filename: str,
-    lineno: int,
-    file: Any = None,
-    line: str | None = None,
-) -> None:
-    """``warnings.showwarning`` of the CLI: one line ``warning: ...`` on stderr (another library's warning
-    with its category, e.g. ``warning: RuntimeWarning: ...``), never the source line of a traceback."""
-    text = " ".join(str(message).split())
-    if not issubclass(category, BacklashWarning):
-        text = f"{category.__name__}: {text}"
-    print(f"warning: {text}", file=sys.stderr)
+def add_max_age_option(parser: argparse._ActionsContainer) -> None:
+    """``--max-age-h H``: when a gearbox's state becomes unknown (``history``, ``serve``, ``opcua``)."""
+    parser.add_argument(
+        "--max-age-h",
+        type=float,
+        default=168.0,
+        metavar="H",
+        help="a gearbox's state is unknown when its latest observable estimate is older than H calendar hours",
+    )
+
+
+def add_play_level_options(group: argparse._ActionsContainer, limit_help: str, warn_help: str) -> None:
+    """``--limit-arcmin X --warn-arcmin X``: the play's limit and warning level, arcmin (``track`` stores them with the
+    gearbox, ``listen`` publishes the state against them, ``history`` forecasts against them)."""
+    group.add_argument("--limit-arcmin", type=float, metavar="X", help=limit_help)
+    group.add_argument("--warn-arcmin", type=float, metavar="X", help=warn_help)
 
 
 def add_log_options(parser: argparse.ArgumentParser) -> None:
@@ -96,14 +55,109 @@ def add_log_options(parser: argparse.ArgumentParser) -> None:
         metavar="MAP",
         help="map the log's column names, e.g. time=time_s,motor=motor_counts,load=spindle_counts[,torque=T]",
     )
-    group.add_argument(
-        "--units",
-        choices=("deg", "rad", "rev", "arcmin", "counts"),
-        help="unit of the motor and load columns or DBC signals (default: deg for CSV; a measurement file's channel units; the DBC signals' units)",
-    )
+    add_units_option(group)
     add_counts_options(group)
     group.add_argument("--skip-bad-rows", action="store_true", help="count and skip malformed rows instead of stopping")
     add_csv_dialect_options(group)
+
+
+def add_units_option(group: argparse._ActionsContainer) -> None:
+    """``--units U``: the unit of the motor and load angles (:class:`~online_backlash.replay.options.Units`,
+    ``CanDecoding.units``), declared once for the logs and ``listen can``."""
+    group.add_argument(
+        "--units",
+        choices=("deg", "rad", "rev", "arcmin", "counts"),
+        help="unit of the motor and load columns or DBC signals (default: deg for CSV; a measurement file's channel "
+        "units; the DBC signals' units)",
+    )
+
+
+def add_period_option(group: argparse._ActionsContainer) -> None:
+    """``--period S``: the nominal sample period (:class:`~online_backlash.codecs.options.Timing`), declared once for
+    the logs of ``estimate``, ``diagnose`` and ``track`` and the live sources of ``listen`` and ``track --listen``.
+    A value that is not a positive number is argparse's usage error (exit 2), as every option's bad value."""
+    group.add_argument(
+        "--period",
+        type=positive_float,
+        metavar="S",
+        help="nominal sample period, seconds, for gap detection (CSV, CAN log or bus, serial capture or port); learnt "
+        "if not given. With a frame counter (CAN, serial, CANopen), sample times are then first time + counter "
+        "periods x S, not the jittery timestamps",
+    )
+
+
+def add_serial_format_option(
+    group: argparse._ActionsContainer, flag: str = "--serial-format", required: bool = False
+) -> None:
+    """``--serial-format ascii|binary`` (``listen serial``: ``--format``, required): how a serial capture's or port's
+    bytes are framed (:class:`~online_backlash.codecs.options.SerialFraming`)."""
+    from ..codecs.options import SERIAL_FORMATS
+
+    group.add_argument(
+        flag,
+        dest="serial_format",
+        choices=SERIAL_FORMATS,
+        help="frame format of a serial capture (.serial) or port: 'ascii' lines time,motor,load (s, deg, deg) or "
+        "'binary' COBS frames with CRC-16",
+        required=required,
+    )
+
+
+def add_estimator_options(group: argparse._ActionsContainer, new_gearbox: bool = False) -> None:
+    """``--memory-reversals N [--memory-s S] --sample-period S``: the recursive estimator's memory and sampling period,
+    seconds; ``new_gearbox`` (``track``): a new gearbox's, without defaults (a gearbox already tracked keeps its own;
+    no ``--memory-s``)."""
+    if new_gearbox:
+        memory = ("memory of a new gearbox's estimator, in reversals (shorter follows fast wear with less lag, more "
+                  "noise); default: BacklashRLS's")  # fmt: skip
+        period = "sampling period of a new gearbox's logs, seconds; default: BacklashRLS's (0.001)"
+    else:
+        memory, period = "memory of the estimator, in reversals", "sampling period of the log or source, seconds"
+    defaults = (None, None) if new_gearbox else (10.0, 0.001)
+    group.add_argument("--memory-reversals", type=positive_float, default=defaults[0], metavar="N", help=memory)
+    if not new_gearbox:
+        group.add_argument(
+            "--memory-s",
+            type=positive_float,
+            metavar="S",
+            help="memory in seconds of motion (instead of / besides reversals)",
+        )
+    group.add_argument("--sample-period", type=positive_float, default=defaults[1], metavar="S", help=period)
+
+
+def add_can_bus_options(group: argparse._ActionsContainer, required: bool) -> None:
+    """``--interface I --channel C --bitrate B --raw-format F``: a live CAN bus (``listen can``, ``track --listen
+    can``)."""
+    from ..drivers.live import CAN_RAW_FORMATS
+
+    group.add_argument(
+        "--interface", required=required, help="python-can interface: socketcan, pcan, kvaser, vector, virtual, ..."
+    )
+    group.add_argument("--channel", required=required, help="channel of the interface, e.g. can0")
+    group.add_argument("--bitrate", type=int, help="bit rate, bit/s (where the interface sets it)")
+    group.add_argument("--raw-format", choices=CAN_RAW_FORMATS, default="blf", help="format of the raw CAN log")
+
+
+def add_serial_port_options(group: argparse._ActionsContainer, required: bool) -> None:
+    """``--port URL --baud B``: a live serial port (``listen serial``, ``track --listen serial``)."""
+    group.add_argument(
+        "--port", required=required, help="pyserial URL: /dev/ttyUSB0, COM3, socket://host:port, loop://"
+    )
+    group.add_argument("--baud", type=int, default=115200, help="baud rate")
+
+
+def add_live_run_options(group: argparse._ActionsContainer, raw_log_required: bool) -> None:
+    """``--raw-log DIR --duration S --timeout S``: where a live source's raw capture goes and how long it runs
+    (:class:`~online_backlash.drivers.live.LiveOptions`; ``track``: required with ``--listen``)."""
+    group.add_argument(
+        "--raw-log",
+        required=raw_log_required,
+        metavar="DIR",
+        help="directory for the raw captures, written before decoding"
+        + ("" if raw_log_required else " (required with --listen)"),
+    )
+    group.add_argument("--duration", type=positive_float, metavar="S", help="stop after S seconds; else at Ctrl-C")
+    group.add_argument("--timeout", type=positive_float, metavar="S", help="fail when nothing arrives for S seconds")
 
 
 def add_counts_options(group: argparse._ActionsContainer) -> None:
@@ -112,12 +166,14 @@ def add_counts_options(group: argparse._ActionsContainer) -> None:
     group.add_argument(
         "--motor-cpr",
         type=positive_float,
-        help="motor encoder counts per motor revolution (with --units counts; CAN: from the DBC or dictionary if not given)",
+        help="motor encoder counts per motor revolution (with --units counts; CAN: from the DBC or dictionary if not "
+        "given)",
     )
     group.add_argument(
         "--load-cpr",
         type=positive_float,
-        help="load encoder counts per load revolution (with --units counts; CAN: from the DBC or dictionary if not given)",
+        help="load encoder counts per load revolution (with --units counts; CAN: from the DBC or dictionary if not "
+        "given)",
     )
 
 
@@ -186,54 +242,6 @@ def _delimiter(text: str) -> str:
     return value
 
 
-def warn_if_implausible(note: str | None, source: str) -> None:
-    """Print one line ``warning: SOURCE: note`` on stderr when a fit's plausibility check
-    (:func:`~online_backlash.log_fit.plausibility`) found likely wrong units or ratio."""
-    if note is not None:
-        print(f"warning: {source}: {note}", file=sys.stderr)
-
-
-def play_exit_code(play_deg: float, source: str, reason: str | None = None) -> int:
-    """The exit code of a command that printed a play: 0 for a finite ``play_deg``; else one line
-    ``error: SOURCE: no play: reason`` on stderr and :data:`EXIT_NO_PLAY` (never exit 0 with a NaN play)."""
-    if math.isfinite(play_deg):
-        return 0
-    why = reason or "the fit gave no finite play: check the units (--units, --motor-cpr/--load-cpr) and --ratio"
-    print(f"error: {source}: no play: {why}", file=sys.stderr)
-    return EXIT_NO_PLAY
-
-
-def files_written(args: argparse.Namespace) -> dict[str, str]:
-    """What a command wrote besides its report: ``--plot``, ``--trace`` and ``--report`` files, kind -> path
-    (printed after a text report, so a user knows where to look)."""
-    return {kind: getattr(args, kind) for kind in ("plot", "trace", "report") if getattr(args, kind, None)}
-
-
-def print_report(text_or_json: str | dict[str, Any], written: dict[str, str]) -> None:
-    """Print a command's report (a text, or a dict as one JSON object, whose reader gave the paths) and, after
-    a text, one line per file written: ``plot:           FILE``."""
-    if isinstance(text_or_json, dict):
-        print_json(text_or_json)
-        return
-    print(text_or_json)
-    for kind, path in written.items():
-        print(f"{kind + ':':<16}{path}")
-
-
-def check_plot_path(path: str | None) -> None:
-    """Refuse, before any work, a ``--plot`` file whose suffix matplotlib cannot write (no suffix: PNG)."""
-    if path is None:
-        return
-    from matplotlib.backend_bases import FigureCanvasBase
-
-    suffix = os.path.splitext(path)[1].lower().lstrip(".")
-    formats = FigureCanvasBase.get_supported_filetypes()
-    if suffix and suffix not in formats:
-        raise InvalidParameterError(
-            f"{path}: cannot draw a plot as .{suffix}; use one of {', '.join('.' + f for f in sorted(formats))}"
-        )
-
-
 def add_play_method_option(parser: argparse.ArgumentParser, default: str | None = "auto", new: str = "") -> None:
     """``--play-method auto|torque|kinematic``: the path of the play (issue 27; ``auto``: the data decide)."""
     parser.add_argument(
@@ -271,22 +279,6 @@ def parse_column_map(text: str | None) -> dict[str, str] | None:
     return mapping
 
 
-def print_json(obj: dict[str, Any]) -> None:
-    """Print one JSON object on stdout (NaN and infinities become null)."""
-
-    def clean(value: Any) -> Any:
-        if isinstance(value, float) and not math.isfinite(value):
-            return None
-        if isinstance(value, dict):
-            return {k: clean(v) for k, v in value.items()}
-        if isinstance(value, (list, tuple)):
-            return [clean(v) for v in value]
-        return value
-
-    json.dump(clean(obj), sys.stdout, indent=2, sort_keys=False)
-    sys.stdout.write("\n")
-
-
 def add_can_decoding_options(parser: argparse.ArgumentParser, required: bool) -> None:
     """``--dbc F --motor-signal S --load-signal S``: how CAN frames carry the two angles."""
     group = parser.add_argument_group("CAN decoding")
@@ -312,7 +304,8 @@ def add_can_decoding_options(parser: argparse.ArgumentParser, required: bool) ->
         "--wrap-deg",
         type=wrap_deg_type,
         metavar="DEG",
-        help="angle signals (deg, rad...) wrap every DEG degrees, e.g. 360, or per signal: motor=360,load=none; default: multi-turn as given",
+        help="angle signals (deg, rad...) wrap every DEG degrees, e.g. 360, or per signal: motor=360,load=none; "
+        "default: multi-turn as given",
     )
     group.add_argument(
         "--counter-signal",
@@ -354,32 +347,28 @@ def add_canopen_options(parser: argparse.ArgumentParser) -> None:
     group.add_argument("--load-eds", metavar="FILE", help="EDS or DCF of --load-node, if it is not the --eds one")
     group.add_argument(
         "--load-subindex",
-        type=_integer_in(1, 254),
+        type=subindex_type,
         metavar="K",
         help="sub-index of 0x60E4 (additional position actual value); default: the first mapped",
     )
 
 
-def can_decoding_options(args: argparse.Namespace) -> dict[str, Any]:
-    """Keyword arguments of the CAN sources (``CanSource``, ``CanLog``) from :func:`add_can_decoding_options`."""
-    return can_decoding(args).kwargs()
-
-
 def can_decoding(args: argparse.Namespace) -> CanDecoding:
     """How CAN frames become angles, from :func:`add_can_decoding_options` (and :func:`add_canopen_options`)."""
     from ..codecs.dbc import RIG_DBC
-    from ..replay.options import CanDecoding, Canopen
+    from ..codecs.options import CanDecoding, Canopen
 
     def optional(name: str) -> str | None:
         return None if name.lower() == "none" else name
 
+    skew = {} if args.max_skew is None else {"max_skew_s": args.max_skew}  # None: the pairing's own default
     if getattr(args, "eds", None) is not None:
         if args.node is None:
             raise InvalidParameterError(f"--eds {args.eds}: give --node N, the node-ID of the motor drive")
         if getattr(args, "dbc", None) is not None:
             raise InvalidParameterError("--dbc and --eds both given: a CAN log is decoded with one of them")
         where = Canopen(args.eds, args.node, args.load_node, args.load_eds, args.load_subindex)
-        return CanDecoding(max_skew_s=args.max_skew, canopen=where)
+        return CanDecoding(canopen=where, **skew)
     return CanDecoding(
         RIG_DBC if args.dbc == "rig" else args.dbc,
         args.motor_signal,
@@ -388,7 +377,7 @@ def can_decoding(args: argparse.Namespace) -> CanDecoding:
         optional(args.checksum_signal),
         getattr(args, "units", None),
         args.wrap_deg,
-        args.max_skew,
+        **skew,
     )
 
 
@@ -429,12 +418,17 @@ def _integer_in(low: int, high: int) -> Callable[[str], int]:
 
 #: argparse type of a CANopen node-ID (1..127).
 node_id_type = _integer_in(1, 127)
+
+
+#: argparse type of a CANopen object's sub-index (1..254).
+subindex_type = _integer_in(1, 254)
 #: argparse type of a TCP port (0: any free one).
 port_type = _integer_in(0, 65535)
 
 
 def wrap_deg_type(text: str) -> Any:
-    """argparse type of ``--wrap-deg``: ``DEG`` or ``motor=DEG,load=DEG`` (:func:`~online_backlash.codecs.dbc.parse_wrap_deg`)."""
+    """argparse type of ``--wrap-deg``: ``DEG`` or ``motor=DEG,load=DEG``
+    (:func:`~online_backlash.codecs.dbc.parse_wrap_deg`)."""
     from ..codecs.dbc import parse_wrap_deg
 
     return _checked(text, parse_wrap_deg)[0]
