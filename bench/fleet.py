@@ -32,7 +32,7 @@ from pathlib import Path
 
 from dask.distributed import LocalCluster
 
-from online_backlash.cli.track import parse_track_argv, track_defaults, track_gearbox
+from online_backlash.cli.track import parse_track_argv, track_command_line_options, track_defaults, track_gearbox
 from online_backlash.fleet import load_manifest, run_fleet
 from online_backlash.fleet.simulated import write_simulated_fleet
 from online_backlash.history.store import HistoryStore
@@ -49,7 +49,7 @@ def rows(db: Path) -> dict:
 
 def track_fleet(manifest: Path, db: Path, address: str | None) -> list:
     """The fleet into a fresh store ``db``: serially here (``address`` None) or on the scheduler at ``address``."""
-    jobs = load_manifest(manifest, str(db), parse_track_argv, track_defaults())
+    jobs = load_manifest(manifest, str(db), parse_track_argv, track_defaults(), track_command_line_options())
     with HistoryStore(db, create=True):
         pass
     outcomes = run_fleet(jobs, track_gearbox, workers=0 if address is None else None, scheduler=address)

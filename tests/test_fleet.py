@@ -86,6 +86,9 @@ def test_manifest_errors_name_the_file_the_gearbox_and_the_key(tmp_path, capsys)
     assert "bad.toml: [defaults]: unknown key 'evry'; did you mean 'every'?" in err
     assert "bad.toml:3: not valid TOML" in manifest_error(tmp_path, capsys, "[defaults]\nratio = 30\nevery = = 5\n")
     assert "'db' is not a per-gearbox option" in manifest_error(tmp_path, capsys, ok + 'db = "other.db"\n')
+    # every option of the live and fleet groups is the command's, read from track's parser (not a list kept beside it)
+    for key in ("mqtt_ca", "raw_log", "workers"):
+        assert f"'{key}' is not a per-gearbox option" in manifest_error(tmp_path, capsys, ok + f'{key} = "x"\n')
     assert "nothing matches 'gb9/*.csv'" in manifest_error(tmp_path, capsys, ok.replace("gb0", "gb9"))
     assert "the id 'GB-0' is given twice" in manifest_error(tmp_path, capsys, ok + ok)
     assert "no [[gearbox]] tables" in manifest_error(tmp_path, capsys, "[defaults]\nratio = 30\n")
@@ -155,6 +158,7 @@ def test_manifest_keys_are_track_options_with_underscores(tmp_path):
         "w.db",
         parse,
         {"ratio", "skip_bad_rows", "diagnose", "columns", "warn_arcmin", "limit_arcmin", "memory_reversals"},
+        (),
     )
     assert job.id == "GB-0" and job.logs == (str(tmp_path / "gb0" / "day01.csv"), str(tmp_path / "gb0" / "day00.csv"))
     assert seen == [list(job.argv)]
@@ -231,14 +235,14 @@ def test_a_dask_scheduler_and_two_dask_workers_give_the_rows_of_serial_tracking(
 KEPT_AFTER_A_TASK = """
 import os, sys
 import numpy as np
-from online_backlash.cli.track import parse_track_argv, track_defaults, track_gearbox
+from online_backlash.cli.track import parse_track_argv, track_command_line_options, track_defaults, track_gearbox
 from online_backlash.fleet import load_manifest
 from online_backlash.history.store import HistoryStore
 
 def resident_mb():
     return int(open("/proc/self/statm").read().split()[1]) * os.sysconf("SC_PAGE_SIZE") / 2**20
 
-(job,) = load_manifest(sys.argv[1], sys.argv[2], parse_track_argv, track_defaults())
+(job,) = load_manifest(sys.argv[1], sys.argv[2], parse_track_argv, track_defaults(), track_command_line_options())
 with HistoryStore(sys.argv[2], create=True):
     pass
 assert track_gearbox(job).error is None
@@ -269,9 +273,9 @@ def test_a_worker_killed_mid_log_loses_nothing(tmp_path, postgres_db):
     # logs long enough (300 estimates each) that one is still being tracked after its first transactions
     manifest = write_simulated_fleet(tmp_path, gearboxes=2, logs=2, duration_s=600.0, every_s=2.0)
     serial = tmp_path / "serial.db"
-    parse_only = load_manifest(manifest, str(serial), lambda argv: argv, {"ratio", "every", "limit_arcmin"})
+    parse_only = load_manifest(manifest, str(serial), lambda argv: argv, {"ratio", "every", "limit_arcmin"}, ())
     run_fleet(parse_only, track_gearbox, workers=0)
-    jobs = load_manifest(manifest, postgres_db, lambda argv: argv, {"ratio", "every", "limit_arcmin"})
+    jobs = load_manifest(manifest, postgres_db, lambda argv: argv, {"ratio", "every", "limit_arcmin"}, ())
     with HistoryStore(postgres_db, create=True):
         pass
     killed = []

@@ -17,7 +17,6 @@ from typing import TYPE_CHECKING
 
 from ..errors import InvalidParameterError
 from ..fleet import load_manifest, run_fleet
-from ..fleet.manifest import NOT_PER_GEARBOX
 from ..fleet.progress import FleetProgress
 from ..fleet.runner import GearboxTask, default_workers
 
@@ -35,16 +34,18 @@ def run_manifest(
     task: GearboxTask,
     parse_track_argv: Callable[[list[str]], argparse.Namespace],
     defaults: dict[str, object],
+    command_line: frozenset[str],
     report: Callable[[TrackResult, bool], None],
 ) -> int:
     """``track --manifest``: every gearbox of the manifest, then one report per log and a summary line.
 
     ``track`` hands in what is its own (so that this module does not import it): the task that tracks one
-    gearbox, its parser of one gearbox's options and their defaults, and its report of one log.
+    gearbox, its parser of one gearbox's options and their defaults, the options that are the command's (not a
+    gearbox's), and its report of one log.
     """
     from ..history.store import HistoryStore, resolve_url
 
-    given = sorted(k for k, v in defaults.items() if k not in NOT_PER_GEARBOX and getattr(args, k) != v)
+    given = sorted(k for k, v in defaults.items() if k not in command_line and getattr(args, k) != v)
     if given:
         flags = ", ".join("--" + k.replace("_", "-") for k in given)
         raise InvalidParameterError(
@@ -55,7 +56,7 @@ def run_manifest(
     if args.workers is not None and args.workers < 0:
         raise InvalidParameterError(f"--workers must be 0 (serial) or more, got {args.workers}")
     db = _absolute_db(args.db)
-    jobs = load_manifest(args.manifest, db, parse_track_argv, defaults)
+    jobs = load_manifest(args.manifest, db, parse_track_argv, defaults, command_line)
     with HistoryStore(db, create=True):
         pass  # created once here, not by several workers at once
     parallel = args.scheduler is not None or args.workers != 0

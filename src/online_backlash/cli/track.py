@@ -51,6 +51,12 @@ if TYPE_CHECKING:
     from ..hour_meter import MachineUsage
     from ..tracking import GearboxTracker, ProgressCallback, RowCallback, TrackResult
 
+#: The groups of ``track``'s options that are the command's, not one gearbox's (:func:`track_command_line_options`).
+LIVE_GROUP = "live, instead of logs (the options of listen)"
+FLEET_GROUP = "fleet, instead of one gearbox (see docs/fleet.md)"
+#: The command's other options: the store and the output (``func``: argparse's handler).
+COMMAND_OPTIONS = frozenset({"db", "json", "quiet", "debug", "func"})
+
 
 def _hours(text: str) -> float:
     """argparse type of an hour-meter reading: finite, >= 0 hours."""
@@ -155,7 +161,7 @@ def add_subparser(subparsers: argparse._SubParsersAction) -> None:
     add_log_options(parser)
     add_can_decoding_options(parser, required=False)
     add_serial_format_option(parser)
-    live = parser.add_argument_group("live, instead of logs (the options of listen)")
+    live = parser.add_argument_group(LIVE_GROUP)
     live.add_argument(
         "--listen",
         choices=("can", "serial"),
@@ -166,7 +172,7 @@ def add_subparser(subparsers: argparse._SubParsersAction) -> None:
     add_live_run_options(live, raw_log_required=False)
     add_period_option(live)
     add_mqtt_option(live)
-    fleet = parser.add_argument_group("fleet, instead of one gearbox (see docs/fleet.md)")
+    fleet = parser.add_argument_group(FLEET_GROUP)
     fleet.add_argument(
         "--manifest",
         metavar="TOML",
@@ -218,7 +224,9 @@ def run(args: argparse.Namespace) -> int:
     if args.manifest is not None:
         from ._fleet import run_manifest
 
-        return run_manifest(args, track_gearbox, parse_track_argv, track_defaults(), report)
+        return run_manifest(
+            args, track_gearbox, parse_track_argv, track_defaults(), track_command_line_options(), report
+        )
     if args.workers is not None or args.scheduler is not None:
         raise InvalidParameterError("--workers and --scheduler run a fleet: give them with --manifest")
     check_track_args(args)
@@ -421,6 +429,18 @@ def parse_track_argv(argv: list[str]) -> argparse.Namespace:
     args = _track_parser().parse_args(argv)
     check_track_args(args)
     return args
+
+
+def track_command_line_options() -> frozenset[str]:
+    """The options of ``track`` (dest names) that are the command's, not one gearbox's: a fleet manifest may not
+    set them and ``--manifest`` does not hand them to a gearbox. They are the store and the output
+    (:data:`COMMAND_OPTIONS`) and the options of the groups :data:`LIVE_GROUP` and :data:`FLEET_GROUP`, read
+    from the parser, so an option added to those groups is the command's without being listed again."""
+    parser = _track_parser()
+    grouped = (
+        g for g in parser._action_groups if g.title in (LIVE_GROUP, FLEET_GROUP)
+    )  # argparse keeps no public list
+    return COMMAND_OPTIONS | {action.dest for group in grouped for action in group._group_actions}
 
 
 def track_defaults() -> dict[str, object]:

@@ -65,25 +65,6 @@ if sys.version_info >= (3, 11):
 else:  # pragma: no cover - Python 3.10
     import tomli as tomllib
 
-#: Keys that are not per-gearbox options: the store and the fleet's run come from the command line,
-#: live tracking is not for a manifest's logs.
-NOT_PER_GEARBOX = frozenset(
-    {"db", "manifest", "workers", "scheduler", "json", "quiet", "debug", "func"}
-    | {
-        "listen",
-        "interface",
-        "channel",
-        "bitrate",
-        "raw_format",
-        "port",
-        "baud",
-        "raw_log",
-        "duration",
-        "timeout",
-        "period",
-        "mqtt",
-    }
-)
 #: Top-level tables of a manifest.
 TABLES = ("defaults", "gearbox")
 #: Keys of a log given as a table: its path, and what ``track --start``/``--operating-hours`` say of one log.
@@ -114,7 +95,7 @@ class GearboxJob:
 
 
 def load_manifest(
-    path: str | os.PathLike[str], db: str, parse: ParseOptions, known: Collection[str]
+    path: str | os.PathLike[str], db: str, parse: ParseOptions, known: Collection[str], command_line: Collection[str]
 ) -> list[GearboxJob]:
     """Read a fleet manifest and check every gearbox's options with ``track``'s parser.
 
@@ -128,6 +109,9 @@ def load_manifest(
         ``parse(argv) -> Namespace``: track's option parser, raising BacklashError on bad options.
     known : collection of str
         track's option names with dashes as underscores (the parser's ``dest`` names).
+    command_line : collection of str
+        Those of ``known`` that are the command's, not a gearbox's (the store, the output, live tracking, the
+        fleet's run: ``track``'s parser says which); a manifest that sets one is refused with that reason.
 
     Returns
     -------
@@ -148,8 +132,8 @@ def load_manifest(
         raise ManifestError(f"{name}: [defaults] must be a table")
     if not isinstance(gearboxes, list) or not gearboxes or not all(isinstance(g, dict) for g in gearboxes):
         raise ManifestError(f"{name}: no [[gearbox]] tables: give one per gearbox, each with an id and its logs")
-    options = set(known) - NOT_PER_GEARBOX - {"gearbox"}
-    _check_keys(defaults, options, f"{name}: [defaults]")
+    options = set(known) - set(command_line) - {"gearbox"}
+    _check_keys(defaults, options, command_line, f"{name}: [defaults]")
     jobs: list[GearboxJob] = []
     seen: set[str] = set()
     folder = Path(name).resolve().parent
@@ -161,7 +145,7 @@ def load_manifest(
         if gearbox_id in seen:
             raise ManifestError(f"{where}: the id {gearbox_id!r} is given twice")
         seen.add(gearbox_id)
-        _check_keys(table, options, where)
+        _check_keys(table, options, command_line, where)
         merged = {**defaults, **{k: v for k, v in table.items() if k != "id"}}
         logs, per_log = _logs(merged.pop("logs", None), folder, where)
         argv = ["--db", db, f"--gearbox={gearbox_id}", *_option_argv(merged, where), "--", *logs]
@@ -185,14 +169,14 @@ def _read_toml(name: str) -> dict[str, Any]:
         raise ManifestError(f"{where}: not valid TOML: {reason}") from exc
 
 
-def _check_keys(table: Mapping[str, Any], options: Collection[str], where: str) -> None:
+def _check_keys(table: Mapping[str, Any], options: Collection[str], command_line: Collection[str], where: str) -> None:
     for key in table:
         if key in ("id", "logs"):
             continue
-        if key in NOT_PER_GEARBOX:
+        if key in command_line:
             raise ManifestError(
-                f"{where}: {key!r} is not a per-gearbox option (the store and the fleet's run are given on the "
-                "command line)"
+                f"{where}: {key!r} is not a per-gearbox option (the store, the output, live tracking and the fleet's "
+                "run are given on the command line)"
             )
         if key not in options:
             hint = _closest(key, [*options, "id", "logs"])
