@@ -10,7 +10,7 @@ from online_backlash.diagnostics._folds import cycle_folds
 from online_backlash.diagnostics._harmonics import harmonic_columns, harmonic_stack, held_per_flank, shaft_harmonic
 from online_backlash.diagnostics._normal_equations import nonzero_rows
 from online_backlash.diagnostics._record_cache import RecordCache
-from online_backlash.diagnostics._scoring import DetectionData
+from online_backlash.diagnostics._scoring import DetectionData, _score_grams, _sorted_union
 from online_backlash.diagnostics._speed import (
     cardinal_splines,
     held_spline_columns,
@@ -258,3 +258,43 @@ def test_velocity_function_columns_are_the_cardinal_splines_without_the_zero_kno
         knots = speed_knots(v, inner)
         plain = np.delete(cardinal_splines(knots, v), zero_knot(knots), axis=1)
         np.testing.assert_array_equal(VelocityFunction(knots, 10).terms(u, t, q), plain)
+
+
+@pytest.mark.parametrize("screened", [False, True])
+def test_the_nuisance_baseline_formed_once_gives_every_score_bit_for_bit(screened: bool) -> None:
+    """What the nuisance columns alone leave (in sample and per held-out fold) is formed once per set of
+    cross-products (:meth:`_Grams.baseline`) and shared by every candidate's score: the scores are those formed
+    with it afresh from the candidate's own Gram matrices, every figure bit for bit."""
+    u, t, q, _ = _record(n=40000)
+    rng = np.random.default_rng(5)
+    r = 0.01 * np.sin(np.radians(5 * u)) + rng.normal(0, 1e-3, u.size)
+    folds = cycle_folds(u)
+    folds = folds.screen(cycles=10, factor=1, min_samples=0) if screened else folds
+    data = DetectionData.stacked(
+        [np.ones_like(u), u / 40.0], r, u_deg=u, time_s=t, torque_Nm=q, ratio=30.0, sample_period_s=1e-3, folds=folds
+    )
+    grams, p = data.grams, data.nuisance.shape[1]
+    for x in (harmonic_columns(u, [5, 2]), rng.normal(0, 1, (u.size, 1))):
+        x = data.scored(x)
+        per_fold, total = grams.extended(x)
+        terms = data._own_share_basis(p)
+        lag = lambda e, x=x: grams.lag_product(x, e)  # noqa: E731
+        fresh = _score_grams(per_fold, total, lag, folds.rows, p, terms)
+        shared = _score_grams(per_fold, total, lag, folds.rows, p, terms, grams.baseline())
+        assert fresh.heldout_folds >= 2 and np.isfinite(fresh.heldout_gain)
+        for name in ("rss_before", "rss_after", "n_eff", "delta_bic", "own_share", "heldout_gain"):
+            assert getattr(shared, name) == getattr(fresh, name), name
+        np.testing.assert_array_equal(shared.coef, fresh.coef)
+        assert data.score(False, x).delta_bic == fresh.delta_bic  # what the detectors call uses it
+    assert grams.baseline() is grams.baseline()  # formed once
+
+
+def test_the_rows_a_screen_reads_are_the_union_of_its_rows_and_where_they_are_held_from() -> None:
+    rng = np.random.default_rng(6)
+    for n in (1, 50, 5000):
+        rows = np.sort(rng.choice(n, max(n // 3, 1), replace=False))
+        index = rng.integers(0, n, n)
+        expected = np.union1d(rows, index[rows])
+        got = _sorted_union(rows, index[rows], n)
+        assert got.dtype == expected.dtype
+        np.testing.assert_array_equal(got, expected)
