@@ -158,7 +158,8 @@ class DeadBandMotion(EffectBase):
         self.rest_time_constants_s = tuple(float(v) for v in rest_time_constants_s)
         if any(not v > 0 for v in self.exit_time_constants_s + self.rest_time_constants_s):
             raise InvalidParameterError(
-                f"exit_time_constants_s and rest_time_constants_s must be > 0, got {exit_time_constants_s!r}, {rest_time_constants_s!r}"
+                "exit_time_constants_s and rest_time_constants_s must be > 0, "
+                f"got {exit_time_constants_s!r}, {rest_time_constants_s!r}"
             )
         if self.entry_knots_s and (self.entry_knots_s[0] != 0.0 or np.any(np.diff(self.entry_knots_s) <= 0)):
             raise InvalidParameterError(f"entry_knots_s must start at 0 and increase, got {entry_knots_s!r}")
@@ -307,9 +308,11 @@ class DeadBandMotion(EffectBase):
         n_exit = len(self.exit_time_constants_s)
         coast = c[:n_exit]
         out: dict[str, Any] = {
-            "model": "where the model's output rests: the load coasts on from where the flank stopped pushing it (turned back "
+            "model": "where the model's output rests: the load coasts on from where the flank stopped pushing it "
+            "(turned back "
             "or stopped); after a flank engages: a transient scaled by the speed of the impact",
-            "active_on": "the coast wherever eq. (7) holds the model's output (the dead band, a flank while the motor stands still); "
+            "active_on": "the coast wherever eq. (7) holds the model's output "
+            "(the dead band, a flank while the motor stands still); "
             "the first entry_knots_s[-1] s after a flank engages, by the model's switching functions (eq. 5-6)",
             "dead_band_deg": self.c_left_deg + self.c_right_deg,
             "coast": [

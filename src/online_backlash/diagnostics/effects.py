@@ -83,8 +83,8 @@ def select_orders(
     neighbours closer than the resolution ``360 / span_deg`` are dropped: over a short span
     they are nearly collinear and would fit huge amplitudes that cancel. Orders are screened
     in sample; the one kept must also hold on the held-out cycles. Only the
-    ``2 max_orders`` orders strongest on their own take part. At each step every remaining order is scored given the orders
-    already chosen; the best is kept if it passes the information criterion and explains at
+    ``2 max_orders`` orders strongest on their own take part. At each step every remaining order is scored given
+    the orders already chosen; the best is kept if it passes the information criterion and explains at
     least :data:`MIN_ORDER_GAIN` of what is left (so the leakage of a strong order into its
     neighbours is not kept). ``columns(n)`` gives the columns of order ``n``; with ``held`` they
     are already held through the dead band (else they are held here).
@@ -273,7 +273,8 @@ class Delay(EffectBase):
         }
 
     def _prepared(self, data: DetectionData) -> tuple[bool, np.ndarray]:
-        """``(held, column)``: on the model's output when the data carry it, else on ``u`` held through the dead band."""
+        """``(held, column)``: on the model's output when the data carry it, else on ``u`` held through the
+        dead band."""
         if data.model_output_deg is not None:
             return False, self.output_columns(data.model_output_deg)
         return True, self.clone().terms(data.u_deg, data.time_s, data.torque_Nm)
@@ -296,7 +297,8 @@ class Delay(EffectBase):
         return Detection(
             effect,
             s,
-            f"residual follows the motor-angle change over {k_grid} samples (lag {p['lag_samples']:.2f} samples, {p['lag_s'] * 1e3:.3f} ms)",
+            f"residual follows the motor-angle change over {k_grid} samples "
+            f"(lag {p['lag_samples']:.2f} samples, {p['lag_s'] * 1e3:.3f} ms)",
         )
 
 
@@ -419,7 +421,8 @@ class Compliance(EffectBase):
         out: dict[str, Any] = {
             "proxy": "load-side acceleration"
             + (" and velocity (inertial and viscous torque)" if self.proxy == "motion" else " (inertial torque)"),
-            "active_on": "engaged samples, by the model's switching functions (eq. 5-6); held through the dead band (eq. 7)",
+            "active_on": "engaged samples, by the model's switching functions (eq. 5-6); "
+            "held through the dead band (eq. 7)",
             "deflection_per_acceleration_s2": c[0],
             "differentiator_window_samples": self.window_samples,
         }
@@ -508,7 +511,8 @@ class Drift(EffectBase):
         return self.powers(t, self._t0)
 
     def powers(self, time_s: np.ndarray, t0: float) -> np.ndarray:
-        """The columns at the times ``time_s`` of a stream that started at ``t0`` (s): ``((t - t0) / time_scale_s) ** j``."""
+        """The columns at the times ``time_s`` of a stream that started at ``t0`` (s):
+        ``((t - t0) / time_scale_s) ** j``."""
         s = (np.asarray(time_s, dtype=float) - t0) / self.time_scale_s
         return np.column_stack([s**j for j in range(1, self.degree + 1)])
 
@@ -565,7 +569,8 @@ class Drift(EffectBase):
                 Detection(
                     effect,
                     s,
-                    f"residual drifts in time (degree {degree} over {span:.0f} s), beyond the net rotation and the speed",
+                    f"residual drifts in time (degree {degree} over {span:.0f} s), "
+                    "beyond the net rotation and the speed",
                 )
             )
             alone.append(Detection(effect, in_time, "in time alone"))
@@ -584,7 +589,8 @@ class Drift(EffectBase):
         return Detection(
             confounded.effect,
             confounded.score,
-            f"residual drifts in time (degree {getattr(confounded.effect, 'degree', 0)}), but time is collinear with {' and '.join(named or tuple(rivals))}",
+            f"residual drifts in time (degree {getattr(confounded.effect, 'degree', 0)}), "
+            f"but time is collinear with {' and '.join(named or tuple(rivals))}",
             rivals=named or tuple(rivals),
         )
 

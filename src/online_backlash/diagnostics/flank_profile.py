@@ -121,7 +121,8 @@ class FlankProfile(PerFlankTerms):
         up, down = (np.concatenate(([0.0], part, [0.0])) for part in (c[:k], c[k:]))
         diff = up - down
         return {
-            "model": "piecewise-linear deviation of the flank line that drives (eq. 1) at the knots of the load angle u, "
+            "model": "piecewise-linear deviation of the flank line that drives (eq. 1) "
+            "at the knots of the load angle u, "
             "one set while u increases and one while it decreases; constant beyond the outer knots",
             "knots_deg": list(self.knots_deg),
             "knot_spacing_deg": float(np.median(np.diff(self.knots_deg))),
@@ -158,8 +159,9 @@ class FlankProfile(PerFlankTerms):
             if not (beyond.delta_bic < BIC_THRESHOLD and beyond.gain >= MIN_GAIN and beyond.heldout_gain >= MIN_GAIN):
                 continue
             evidence = (
-                f"residual against the load angle differs between the flanks ({k} inner knots {spacing:.3g} deg apart over "
-                f"{knots[0]:.1f} to {knots[-1]:.1f} deg; the flank difference alone removes {beyond.gain:.1%} in sample, "
+                "residual against the load angle differs between the flanks "
+                f"({k} inner knots {spacing:.3g} deg apart over {knots[0]:.1f} to {knots[-1]:.1f} deg; "
+                f"the flank difference alone removes {beyond.gain:.1%} in sample, "
                 f"{beyond.heldout_gain:.1%} held out)"
             )
             found.append((Detection(effect, score, evidence), score.heldout_gain))

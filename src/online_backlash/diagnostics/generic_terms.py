@@ -168,7 +168,8 @@ class VelocityFunction(EffectBase):
         return {
             "knots_deg_s": list(self.knots_deg_s),
             "values_deg": [float(v) for v in values],
-            "model": "cubic spline through (knots_deg_s, values_deg), not-a-knot ends, constant beyond the outer knots, added to the load angle",
+            "model": "cubic spline through (knots_deg_s, values_deg), not-a-knot ends, "
+            "constant beyond the outer knots, added to the load angle",
         }
 
     def location(self) -> str:

@@ -577,7 +577,8 @@ def fit_guarded(
     rows: np.ndarray | None = None,
     planned: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> JointFit:
-    """:func:`fit_joint` with the play free; if the play is not :func:`separable` from the columns, hold it at ``start.play``.
+    """:func:`fit_joint` with the play free; if the play is not :func:`separable` from the columns, hold it at
+    ``start.play``.
 
     The held fit keeps the variance inflation and standard error measured with the play free.
     With ``rows`` (sample indices: a screen of the record's cycles, :meth:`._folds.Folds.screen`)
