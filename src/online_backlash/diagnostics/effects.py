@@ -182,30 +182,27 @@ class TransmissionError(EffectBase):
     ) -> Detection | None:
         """Significant harmonics of the residual against the load and motor angles."""
         u = data.u_deg
-        load = select_orders(
-            data,
-            lambda n: held_harmonic(data, "load", u, n, max_load_order),
-            max_load_order,
-            float(np.ptp(u)),
-            max_orders,
-            PERIODIC_MIN_PERIODS,
-            held=True,
-        )
+
+        def orders_of(scored_on: DetectionData, shaft: str, angle_deg: np.ndarray, top: int) -> list[int]:
+            """The orders of the shaft's angle ``angle_deg`` chosen on ``scored_on`` (held through the dead band)."""
+            return select_orders(
+                scored_on,
+                lambda n: held_harmonic(data, shaft, angle_deg, n, top),
+                top,
+                float(np.ptp(angle_deg)),
+                max_orders,
+                PERIODIC_MIN_PERIODS,
+                held=True,
+            )
+
+        load = orders_of(data, "load", u, max_load_order)
         motor: list[int] = []
         if abs(data.ratio) > 1:
             motor_deg = u * data.ratio
             # given the load orders chosen: their structure would leak into a motor order fitted on
             # a few held-out cycles
             given = data.with_nuisance(data.hold(harmonic_columns(u, load))) if load else data
-            motor = select_orders(
-                given,
-                lambda n: held_harmonic(data, "motor", motor_deg, n, max_motor_order),
-                max_motor_order,
-                float(np.ptp(motor_deg)),
-                max_orders,
-                PERIODIC_MIN_PERIODS,
-                held=True,
-            )
+            motor = orders_of(given, "motor", motor_deg, max_motor_order)
         if not load and not motor:
             return None
         effect = cls(tuple(sorted(int(n) for n in load)), tuple(sorted(int(n) for n in motor)), float(data.ratio))

@@ -34,6 +34,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import InvalidParameterError
+from ._effect_base import knots_and_window
 from ._folds import DEADZONE_DEG, DIRECTION_WINDOW
 from ._per_flank import PerFlankTerms, record_direction
 from ._scoring import BIC_THRESHOLD, MIN_GAIN, Detection, DetectionData
@@ -79,10 +80,8 @@ class FlankProfile(PerFlankTerms):
     knots_deg : tuple of float
         Strictly increasing angles of ``u`` (the load angle of eq. 1, in the frame the effect is
         given), deg; at least two.
-    window_samples : int
-        Span of the difference that gives the direction of motion, samples.
-    deadzone_deg : float
-        A change of ``u`` smaller than this over the window keeps the last direction, deg.
+    window_samples, deadzone_deg : int, float
+        The direction of motion (:class:`._per_flank.PerFlankTerms`), samples and deg.
     """
 
     name = "flank_profile"
@@ -93,20 +92,11 @@ class FlankProfile(PerFlankTerms):
         window_samples: int = DIRECTION_WINDOW,
         deadzone_deg: float = DEADZONE_DEG,
     ) -> None:
-        knots = np.asarray(knots_deg, dtype=float)
-        if knots.ndim != 1 or knots.size < 3 or not np.all(np.isfinite(knots)) or np.any(np.diff(knots) <= 0):
-            raise InvalidParameterError(
-                f"knots_deg must be at least three finite, strictly increasing angles, got {knots_deg!r}"
-            )
-        if int(window_samples) < 1:
-            raise InvalidParameterError(f"window_samples must be >= 1, got {window_samples!r}")
+        knots = knots_and_window(knots_deg, 3, "angles", "knots_deg", window_samples)
         if not (np.isfinite(deadzone_deg) and deadzone_deg >= 0):
             raise InvalidParameterError(f"deadzone_deg must be finite and >= 0, got {deadzone_deg!r}")
         self.knots_deg = tuple(float(k) for k in knots)
-        self.window_samples = int(window_samples)
-        self.deadzone_deg = float(deadzone_deg)
-        self.history = self.window_samples
-        super().__init__()
+        super().__init__(int(window_samples), float(deadzone_deg))
 
     @property
     def n_terms(self) -> int:
