@@ -34,7 +34,10 @@ def two_steps():
     return diagnose_arrays(t, m, y, 30.0, torque_Nm=q)
 
 
-def test_term_columns_are_built_once_per_effect_and_equal_a_fresh_build() -> None:
+def test_term_columns_are_built_once_per_effects_settings_and_equal_a_fresh_build() -> None:
+    """Built once per effect's parameters: the walk of a setting and the next round make new objects of
+    settings already built (on the 10-minute bench log six of the compliance's and the velocity function's
+    columns were built again), and they get the same array."""
     rng = np.random.default_rng(3)
     t = np.arange(4000) * 1e-3
     u = np.cumsum(rng.normal(0, 0.01, t.size))
@@ -44,8 +47,12 @@ def test_term_columns_are_built_once_per_effect_and_equal_a_fresh_build() -> Non
     first = built.get(effect)
     np.testing.assert_array_equal(first, effect.clone().terms(u, t, q))
     assert built.get(effect) is first and not first.flags.writeable
-    twin = DeadBandMotion()  # the same settings, another object: built for itself
-    assert built.get(twin) is not first
+    twin = DeadBandMotion()  # the same settings, another object: the same columns, not built again
+    assert built.get(twin) is first
+    assert built.get(DeadBandMotion(c_left_deg=0.3)) is not first  # another setting: its own
+    walked = Compliance("torque", smooth_samples=4)
+    assert built.get(Compliance("torque", smooth_samples=4)) is built.get(walked)
+    assert built.get(Compliance("torque", smooth_samples=5)) is not built.get(walked)
     np.testing.assert_array_equal(built.get(Drift(2, 4.0)), Drift(2, 4.0).terms(u, t, q))
 
 
