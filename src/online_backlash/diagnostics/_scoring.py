@@ -40,7 +40,7 @@ from numba import njit
 
 from ..model import BacklashParams
 from ._folds import Folds, cycle_folds
-from ._normal_equations import fit_rss, solve
+from ._normal_equations import EigenSolve, fit_rss
 from ._record_cache import RecordCache
 
 #: delta_bic must fall below this for a term to count as detected
@@ -282,6 +282,15 @@ class Baseline:
         self.total, self.per_fold = total, per_fold
         self.rss = fit_rss(total, np.arange(total.shape[0] - 1))[1]
         self._heldout_sse: float | None = None
+        self._solvers: dict[bytes, EigenSolve] = {}
+
+    def solver(self, cols: np.ndarray) -> EigenSolve:
+        """The normal equations of the nuisance columns at ``cols`` (positions below the residual's), decomposed
+        once: a candidate's Gram holds them value for value (its ``own_share`` basis)."""
+        key = np.asarray(cols, dtype=np.intp).tobytes()
+        if key not in self._solvers:
+            self._solvers[key] = EigenSolve(self.total[np.ix_(cols, cols)])
+        return self._solvers[key]
 
     @property
     def heldout_sse(self) -> float:
@@ -330,8 +339,8 @@ def _score_grams(
     if q:
         xx = total[np.ix_(xs, xs)]
         xt = total[np.ix_(xs, terms)]
-        tt = total[np.ix_(terms, terms)]
-        left = np.diag(xx) - np.einsum("ij,ij->i", xt, _solve_many(tt, xt.T).T)
+        basis = EigenSolve(total[np.ix_(terms, terms)]) if baseline is None else baseline.solver(terms)
+        left = np.diag(xx) - np.einsum("ij,ij->i", xt, _solve_many(basis, xt.T).T)
         mean = total[xs, 0] / n
         centred = np.diag(xx) - n * mean**2
         own = float(np.min(left / np.maximum(centred, 1e-300)))
@@ -347,8 +356,8 @@ def _score_grams(
     return Score(q, rss0, rss1, n_eff, float(delta), c[p:], own, held, k)
 
 
-def _solve_many(gram: np.ndarray, rhs: np.ndarray) -> np.ndarray:
-    return np.column_stack([solve(gram, rhs[:, j]) for j in range(rhs.shape[1])]) if rhs.shape[1] else rhs
+def _solve_many(equations: EigenSolve, rhs: np.ndarray) -> np.ndarray:
+    return np.column_stack([equations(rhs[:, j]) for j in range(rhs.shape[1])]) if rhs.shape[1] else rhs
 
 
 def score_columns(residual: np.ndarray, columns: np.ndarray, nuisance: np.ndarray | None = None) -> Score:
