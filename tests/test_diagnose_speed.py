@@ -24,6 +24,7 @@ from online_backlash.diagnostics.dead_band import ENTRY_KNOTS, EXIT_TIME_CONSTAN
 from online_backlash.diagnostics.effects import Drift
 from online_backlash.diagnostics.generic_terms import VelocityFunction
 from online_backlash.diagnostics.joint import Support
+from online_backlash.model import BacklashParams
 
 
 def _record(n: int = 4000, seed: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -298,3 +299,28 @@ def test_the_rows_a_screen_reads_are_the_union_of_its_rows_and_where_they_are_he
         got = _sorted_union(rows, index[rows], n)
         assert got.dtype == expected.dtype
         np.testing.assert_array_equal(got, expected)
+
+
+def test_the_records_typical_rest_is_formed_once_per_fit_and_is_the_effects_own() -> None:
+    """The dead band's detector reads how long the output rests from the record's cache: a round's detection
+    on its screen and its confirmation on every sample share one pass; the value is the effect's own."""
+    u, t, q, _ = _record(n=20000)
+    params = BacklashParams(1.0, 0.4, 1.0, 0.3)
+    data = DetectionData(u, t, q, np.zeros(u.size), 30.0, 1e-3, backlash_params=params)
+    expected = DeadBandMotion(1.0, 0.4, 1.0, 0.3).typical_rest_s(u, t)
+    assert expected > 0
+    calls = []
+    original = DeadBandMotion.typical_rest_s
+
+    def counted(self, u_deg, time_s):
+        calls.append(1)
+        return original(self, u_deg, time_s)
+
+    DeadBandMotion.typical_rest_s = counted
+    try:
+        assert DeadBandMotion.record_rest_s(data, params) == expected
+        assert DeadBandMotion.record_rest_s(data, params) == expected and len(calls) == 1
+        other = BacklashParams(1.0, 0.1, 1.0, 0.1)
+        assert DeadBandMotion.record_rest_s(data, other) == DeadBandMotion(1.0, 0.1, 1.0, 0.1).typical_rest_s(u, t)
+    finally:
+        DeadBandMotion.typical_rest_s = original

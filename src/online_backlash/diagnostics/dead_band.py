@@ -355,6 +355,15 @@ class DeadBandMotion(EffectBase):
         lengths = (t[ends] - t[moved])[samples > 0]
         return float(np.median(np.repeat(lengths, samples[samples > 0]))) if lengths.size else 0.0
 
+    @classmethod
+    def record_rest_s(cls, data: DetectionData, params: Any) -> float:
+        """:meth:`typical_rest_s` of the record ``data`` under the backlash fit ``params`` (eq. 1), s: formed once
+        per record and fit (a round's detection on its screen and its confirmation on every sample share it)."""
+        p = params
+        key = ("typical rest", float(p.m_left), float(p.c_left), float(p.m_right), float(p.c_right))
+        rest = cls(p.m_left, p.c_left, p.m_right, p.c_right)
+        return float(data.memo(key, lambda: np.array([rest.typical_rest_s(data.u_deg, data.time_s)]))[0])
+
     def creep_is_physical(self, rest_coef: np.ndarray, horizon_s: float, period_s: float, tolerance_deg: float) -> bool:
         """True when the creep of every direction with columns, ``rest_coef`` (deg, the effect's last
         :attr:`n_rest`), stays in the direction the output last moved and inside the dead band, up to
@@ -404,7 +413,7 @@ class DeadBandMotion(EffectBase):
             return None
         dt = data.sample_period_s
         torque = bool(np.mean(np.isfinite(data.torque_Nm)) > 0.5)
-        horizon = cls(p.m_left, p.c_left, p.m_right, p.c_right).typical_rest_s(data.u_deg, data.time_s)
+        horizon = cls.record_rest_s(data, p)
         taus, knots = _at_period(EXIT_TIME_CONSTANTS, dt), _at_period(ENTRY_KNOTS, dt)
         rests = tuple(tau for tau in _at_period(REST_TIME_CONSTANTS, dt) if tau <= horizon)
         every_one = cls(p.m_left, p.c_left, p.m_right, p.c_right, taus, knots, torque, rests, creep_step=True)
