@@ -37,6 +37,15 @@ def _record(n: int = 4000, seed: int = 0) -> tuple[np.ndarray, np.ndarray, np.nd
     return u, t, q, index
 
 
+def _stacked_data(u: np.ndarray, t: np.ndarray, q: np.ndarray, r: np.ndarray, screened: bool) -> DetectionData:
+    """The residual ``r`` beyond a constant and ``u`` on the record's cycles, or on a screen of 10 of them."""
+    folds = cycle_folds(u)
+    folds = folds.screen(cycles=10, factor=1, min_samples=0) if screened else folds
+    return DetectionData.stacked(
+        [np.ones_like(u), u / 40.0], r, u_deg=u, time_s=t, torque_Nm=q, ratio=30.0, sample_period_s=1e-3, folds=folds
+    )
+
+
 def _data(index: np.ndarray | None = None, cache: RecordCache | None = None) -> DetectionData:
     u, t, q, _ = _record()
     return DetectionData(u, t, q, np.sin(0.01 * np.arange(u.size)), 30.0, 1e-3, engaged_index=index, cache=cache)
@@ -175,11 +184,8 @@ def test_columns_zero_on_most_rows_score_on_their_support_as_on_every_row(screen
     u, t, q, _ = _record(n=40000)
     rng = np.random.default_rng(4)
     r = 0.01 * np.sin(np.radians(5 * u)) + rng.normal(0, 1e-3, u.size)
-    folds = cycle_folds(u)
-    folds = folds.screen(cycles=10, factor=1, min_samples=0) if screened else folds
-    data = DetectionData.stacked(
-        [np.ones_like(u), u / 40.0], r, u_deg=u, time_s=t, torque_Nm=q, ratio=30.0, sample_period_s=1e-3, folds=folds
-    )
+    data = _stacked_data(u, t, q, r, screened)
+    folds = data.folds
     m = folds.rows
     x = np.zeros((m, 3))
     rows = np.sort(rng.choice(m, m // 30, replace=False))
@@ -269,11 +275,8 @@ def test_the_nuisance_baseline_formed_once_gives_every_score_bit_for_bit(screene
     u, t, q, _ = _record(n=40000)
     rng = np.random.default_rng(5)
     r = 0.01 * np.sin(np.radians(5 * u)) + rng.normal(0, 1e-3, u.size)
-    folds = cycle_folds(u)
-    folds = folds.screen(cycles=10, factor=1, min_samples=0) if screened else folds
-    data = DetectionData.stacked(
-        [np.ones_like(u), u / 40.0], r, u_deg=u, time_s=t, torque_Nm=q, ratio=30.0, sample_period_s=1e-3, folds=folds
-    )
+    data = _stacked_data(u, t, q, r, screened)
+    folds = data.folds
     grams, p = data.grams, data.nuisance.shape[1]
     for x in (harmonic_columns(u, [5, 2]), rng.normal(0, 1, (u.size, 1))):
         x = data.scored(x)
