@@ -23,6 +23,10 @@ import numpy as np
 
 from .joint import Support
 
+#: most memory the columns of terms not taken keep from one round to the next (bytes): the 10-minute bench log's
+#: candidates and walked settings (about 60 MB) all fit; a 60-minute log keeps some of them
+SPARE_BYTES = 128 * 2**20
+
 
 class TermColumns:
     """``get(effect)``: ``effect.clone().terms(u_deg, time_s, torque_Nm)``, built once per effect's parameters
@@ -70,11 +74,17 @@ class TermColumns:
         self.put(effect, cols)
         return cols
 
-    def keep_only(self, effects: Sequence[Any]) -> None:
-        """Forget the columns (and supports) of every effect but ``effects`` (the terms taken: the
-        candidates' and the walked settings' columns are not needed again, and on a long record they
-        add up to gigabytes)."""
+    def keep_only(self, effects: Sequence[Any], spare_bytes: int = SPARE_BYTES) -> None:
+        """Forget the columns (and supports) of every effect but ``effects`` (the terms taken), and of the others
+        (the candidates and the walked settings) all but the last built that fit in ``spare_bytes``: the next round
+        refits the candidates it finds again and walks the settings near the taken ones, often the same, but on a
+        long record they add up to gigabytes."""
         kept = {columns_key(e) for e in effects}
+        spare = spare_bytes
+        for key, columns in reversed(self._built.items()):  # the last built first
+            if key not in kept and columns.nbytes <= spare:
+                kept.add(key)
+                spare -= columns.nbytes
         self._built = {k: v for k, v in self._built.items() if k in kept}
         self._supports = {k: v for k, v in self._supports.items() if k in self._built}
 
