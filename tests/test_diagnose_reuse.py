@@ -18,6 +18,7 @@ from online_backlash import VorosBacklash
 from online_backlash.diagnostics._causal import motion_direction
 from online_backlash.diagnostics._fit_view import detection_data, held_mask, stacked_columns
 from online_backlash.diagnostics._folds import cycle_folds
+from online_backlash.diagnostics._scoring import DetectionData
 from online_backlash.diagnostics._term_columns import TermColumns
 from online_backlash.diagnostics.dead_band import DeadBandMotion
 from online_backlash.diagnostics.effects import Compliance, Drift
@@ -188,3 +189,27 @@ def test_term_columns_taken_from_a_detector_must_have_the_effects_shape() -> Non
     mine = effect.clone().terms(u, t, q)
     built.put(effect, mine)
     assert built.get(effect) is mine and not mine.flags.writeable
+
+
+def test_the_compliances_detection_reads_its_columns_from_the_loops_store() -> None:
+    """A detector that scores its effect's columns over the whole record takes them from the loop's store of
+    term columns when the data carry it (``DetectionData.record_columns``): the joint refit then finds them
+    built, and the score is the one on a fresh build, bit for bit."""
+    rng = np.random.default_rng(8)
+    t = np.arange(6000) * 1e-3
+    u = 20.0 * np.sin(2 * np.pi * 0.9 * t)
+    q = np.cos(2 * np.pi * 0.9 * t) + rng.normal(0, 0.01, t.size)
+    r = 0.01 * q + rng.normal(0, 1e-3, t.size)
+    built = TermColumns(u, t, q)
+    stored = DetectionData(u, t, q, r, 30.0, 1e-3, term_columns=built)
+    alone = DetectionData(u, t, q, r, 30.0, 1e-3)
+    effect = Compliance("torque", smooth_samples=3)
+    got, fresh = effect.detection(stored), effect.detection(alone)
+    assert built.get(Compliance("torque", smooth_samples=3)) is stored.record_columns(effect)  # built once, kept
+    assert (got.score.delta_bic, got.score.rss_after, got.score.heldout_gain) == (
+        fresh.score.delta_bic,
+        fresh.score.rss_after,
+        fresh.score.heldout_gain,
+    )
+    other = TermColumns(u.copy(), t, q)  # another record's store: not read
+    assert DetectionData(u, t, q, r, 30.0, 1e-3, term_columns=other).record_columns(effect) is not other.get(effect)

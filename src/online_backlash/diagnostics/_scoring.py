@@ -419,6 +419,9 @@ class DetectionData:
     #: columns built once per record and shared by the detectors (see :meth:`memo`; the loop
     #: passes one cache to every round)
     cache: RecordCache | None = field(default=None, repr=False, compare=False)
+    #: the loop's store of the terms' columns over this record (:class:`._term_columns.TermColumns`), if any:
+    #: see :meth:`record_columns`
+    term_columns: Any = field(default=None, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         n = self.residual_deg.size
@@ -472,6 +475,15 @@ class DetectionData:
         assert self.cache is not None
         sources: tuple[object, ...] = (self.u_deg, self.time_s, self.torque_Nm)
         return self.cache.get(key, (*sources, self.engaged_index, self.folds) if held else sources, build)
+
+    def record_columns(self, effect: Any) -> np.ndarray:
+        """``effect.clone().terms(u_deg, time_s, torque_Nm)``, the effect's columns over the whole record (read-only):
+        from :attr:`term_columns` when it holds this very record (the loop's fits then find them built)."""
+        built = self.term_columns
+        same = built is not None and built.u_deg is self.u_deg and built.time_s is self.time_s
+        if same and built.torque_Nm is self.torque_Nm:
+            return built.get(effect)
+        return effect.clone().terms(self.u_deg, self.time_s, self.torque_Nm)
 
     @property
     def _cross(self) -> _Grams:

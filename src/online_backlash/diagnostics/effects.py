@@ -448,7 +448,7 @@ class Compliance(EffectBase):
             what = "the load side's acceleration on engaged samples"
         else:
             what = "the load side's acceleration and velocity on engaged samples"
-        s = data.score(self.input_side, self.clone().terms(data.u_deg, data.time_s, data.torque_Nm))
+        s = data.score(self.input_side, data.record_columns(self))
         return Detection(self, s, f"residual is proportional to {what} (correlation {np.sqrt(max(s.gain, 0.0)):.2f})")
 
     def neighbours(self) -> list[Compliance]:
