@@ -10,9 +10,13 @@ the log, timed: wall clock and CPU time of that process. The first timed run mee
 process has not used at this size yet (what a fresh process pays, imports aside), the second meets
 it warm; both commands are treated alike, and neither sees memory the other touched.
 
-Prints a markdown table with the ratio diagnose / batch for the first and for the second runs (the
-issue's figure: within 4x), and the 1-minute load average after each row (on a shared machine CPU
-seconds are the steadier figure).
+Prints a markdown table with the ratio diagnose / batch for the first and for the second runs (issue
+31's figures: within 2x on the 10-minute log, 3x on the 2-minute one), and the 1-minute load average
+after each row (on a shared machine CPU seconds are the steadier figure).
+
+``--reference DIR`` times another tree beside this one in the same run: ``DIR`` holds a staged
+package (``DIR/online_backlash``, first on the children's ``PYTHONPATH``), and every length is timed
+``--rounds`` times, the two trees alternating (this tree first), each in processes of its own.
 
 Run: ``python bench/diagnose_speed.py`` (about 2 minutes on 2 cores); ``--minutes 2,10`` shrinks
 it. The CSVs are cached in ``--dir``.
@@ -72,14 +76,18 @@ def one(command: str, path: Path, warm: Path) -> None:
     print(json.dumps({"wall": walls, "cpu": cpus, "stdout": text}))
 
 
-def timed(command: str, path: Path, warm: Path) -> dict:
-    """:func:`one` in a child process (the same interpreter and environment)."""
+def timed(command: str, path: Path, warm: Path, package: str | None = None) -> dict:
+    """:func:`one` in a child process (the same interpreter and environment; ``package``: a folder put first
+    on its ``PYTHONPATH``, the tree it times)."""
+    env = os.environ.copy()
+    if package:
+        env["PYTHONPATH"] = os.pathsep.join(p for p in (package, env.get("PYTHONPATH")) if p)
     done = subprocess.run(
         [sys.executable, __file__, "--one", command, str(path), str(warm)],
         check=True,
         capture_output=True,
         text=True,
-        env=os.environ.copy(),
+        env=env,
     )
     return json.loads(done.stdout.strip().splitlines()[-1])
 
@@ -88,6 +96,8 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--minutes", default="2,10,60", help="comma-separated log lengths, minutes")
     parser.add_argument("--dir", default="/tmp/online_backlash_bench", help="where the CSV logs are cached")
+    parser.add_argument("--reference", metavar="DIR", help="a staged package folder timed beside this tree")
+    parser.add_argument("--rounds", type=int, default=1, help="times every length is timed (trees alternating)")
     parser.add_argument("--one", nargs=3, metavar=("COMMAND", "LOG", "WARM_LOG"), help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.one:
@@ -98,32 +108,47 @@ def main() -> None:
     warm = write_log(WARM_MINUTES, directory)
     load = ", ".join(f"{v:.2f}" for v in os.getloadavg())
     print(
-        f"machine: {platform.processor() or platform.machine()}, {os.cpu_count()} CPUs, Python "
-        f"{platform.python_version()}, "
-        f"OPENBLAS_NUM_THREADS={os.environ.get('OPENBLAS_NUM_THREADS', 'unset')}, load average {load}\n"
+        f"machine: {platform.processor() or platform.machine()}, {os.cpu_count()} CPUs, "
+        f"Python {platform.python_version()}, OPENBLAS_NUM_THREADS={os.environ.get('OPENBLAS_NUM_THREADS', 'unset')}, "
+        f"load average {load}\n"
     )
+    trees = [("this tree", None)] + ([("reference", args.reference)] if args.reference else [])
     print(
-        "| log | samples | batch wall, s (1st, 2nd) | diagnose wall, s (1st, 2nd) | ratio wall (1st, 2nd) | ratio "
-        "CPU (1st, 2nd) "
-        "| terms found | load after |"
+        "| round | tree | log | samples | batch wall, s (1st, 2nd) | batch CPU, s | diagnose wall, s (1st, 2nd) "
+        "| diagnose CPU, s | ratio wall (1st, 2nd) | ratio CPU (1st, 2nd) | terms found | load after |"
     )
-    print("|---|---|---|---|---|---|---|---|")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|")
     for minutes in (float(m) for m in args.minutes.split(",")):
         path = write_log(minutes, directory)
-        batch, diag = timed("estimate", path, warm), timed("diagnose", path, warm)
-        d = json.loads(diag["stdout"])
-        found = [e["name"] for e in d["effects"]] + [f"({e['name']})" for e in d["unexplained"]]
+        for round_ in range(1, args.rounds + 1):
+            for tree, package in trees:
+                print(
+                    row(
+                        round_,
+                        tree,
+                        minutes,
+                        timed("estimate", path, warm, package),
+                        timed("diagnose", path, warm, package),
+                    ),
+                    flush=True,
+                )
 
-        def pair(values: list[float]) -> str:
-            return ", ".join(f"{v:.2f}" for v in values)
 
-        print(
-            f"| {minutes:g} min | {d['samples']} | {pair(batch['wall'])} | {pair(diag['wall'])} "
-            f"| {pair([a / b for a, b in zip(diag['wall'], batch['wall'])])} | "
-            f"{pair([a / b for a, b in zip(diag['cpu'], batch['cpu'])])} "
-            f"| {', '.join(found) or '-'} | {os.getloadavg()[0]:.1f} |",
-            flush=True,
-        )
+def row(round_: int, tree: str, minutes: float, batch: dict, diag: dict) -> str:
+    """One line of the table: the two commands' times (:func:`one`) and their ratios."""
+    d = json.loads(diag["stdout"])
+    found = [e["name"] for e in d["effects"]] + [f"({e['name']})" for e in d["unexplained"]]
+
+    def pair(values: list[float]) -> str:
+        return ", ".join(f"{v:.2f}" for v in values)
+
+    return (
+        f"| {round_} | {tree} | {minutes:g} min | {d['samples']} | {pair(batch['wall'])} | {pair(batch['cpu'])} "
+        f"| {pair(diag['wall'])} | {pair(diag['cpu'])} "
+        f"| {pair([a / b for a, b in zip(diag['wall'], batch['wall'])])} "
+        f"| {pair([a / b for a, b in zip(diag['cpu'], batch['cpu'])])} "
+        f"| {', '.join(found) or '-'} | {os.getloadavg()[0]:.1f} |"
+    )
 
 
 if __name__ == "__main__":

@@ -18,6 +18,7 @@ from online_backlash import VorosBacklash
 from online_backlash.diagnostics._causal import motion_direction
 from online_backlash.diagnostics._fit_view import detection_data, held_mask, stacked_columns
 from online_backlash.diagnostics._folds import cycle_folds
+from online_backlash.diagnostics._scoring import DetectionData
 from online_backlash.diagnostics._term_columns import TermColumns
 from online_backlash.diagnostics.dead_band import DeadBandMotion
 from online_backlash.diagnostics.effects import Compliance, Drift
@@ -34,7 +35,10 @@ def two_steps():
     return diagnose_arrays(t, m, y, 30.0, torque_Nm=q)
 
 
-def test_term_columns_are_built_once_per_effect_and_equal_a_fresh_build() -> None:
+def test_term_columns_are_built_once_per_effects_settings_and_equal_a_fresh_build() -> None:
+    """Built once per effect's parameters: the walk of a setting and the next round make new objects of
+    settings already built (on the 10-minute bench log six of the compliance's and the velocity function's
+    columns were built again), and they get the same array."""
     rng = np.random.default_rng(3)
     t = np.arange(4000) * 1e-3
     u = np.cumsum(rng.normal(0, 0.01, t.size))
@@ -44,14 +48,20 @@ def test_term_columns_are_built_once_per_effect_and_equal_a_fresh_build() -> Non
     first = built.get(effect)
     np.testing.assert_array_equal(first, effect.clone().terms(u, t, q))
     assert built.get(effect) is first and not first.flags.writeable
-    twin = DeadBandMotion()  # the same settings, another object: built for itself
-    assert built.get(twin) is not first
+    twin = DeadBandMotion()  # the same settings, another object: the same columns, not built again
+    assert built.get(twin) is first
+    assert built.get(DeadBandMotion(c_left_deg=0.3)) is not first  # another setting: its own
+    walked = Compliance("torque", smooth_samples=4)
+    assert built.get(Compliance("torque", smooth_samples=4)) is built.get(walked)
+    assert built.get(Compliance("torque", smooth_samples=5)) is not built.get(walked)
     np.testing.assert_array_equal(built.get(Drift(2, 4.0)), Drift(2, 4.0).terms(u, t, q))
 
 
-def test_term_columns_forget_every_effect_but_the_terms_kept() -> None:
-    """After a round the loop keeps the columns of the terms taken only (on a 60-minute log the
-    candidates' and the walked settings' columns came to over a gigabyte)."""
+def test_term_columns_forget_every_effect_but_the_terms_kept_and_the_last_within_the_spare_bytes() -> None:
+    """After a round the loop keeps the columns of the terms taken, and of the others only the last built
+    within ``spare_bytes`` (on a 60-minute log the candidates' and the walked settings' columns came to over a
+    gigabyte; the next round refits the same candidates and walks the same settings, on the 10-minute bench
+    log 4 of 13 builds)."""
     rng = np.random.default_rng(6)
     t = np.arange(3000) * 1e-3
     u, q = np.cumsum(rng.normal(0, 0.01, t.size)), rng.normal(0, 1, t.size)
@@ -59,11 +69,18 @@ def test_term_columns_forget_every_effect_but_the_terms_kept() -> None:
     taken, tried = Compliance("torque", smooth_samples=4), Compliance("torque", smooth_samples=8)
     kept, dropped = built.get(taken), built.get(tried)
     built.support(taken)
-    built.keep_only([taken])
+    built.keep_only([taken], spare_bytes=0)
     assert built.get(taken) is kept  # not built again
     again = built.get(tried)
     assert again is not dropped  # built afresh: the same numbers
     np.testing.assert_array_equal(again, dropped)
+    older, newer = Compliance("torque", smooth_samples=2), Compliance("torque", smooth_samples=3)
+    first, last = built.get(older), built.get(newer)
+    built.keep_only([taken], spare_bytes=first.nbytes + last.nbytes - 1)  # room for one: the last built
+    assert built.get(taken) is kept and built.get(newer) is last
+    assert built.get(older) is not first and built.get(tried) is not again
+    built.keep_only([taken])  # the default keeps every one of this size
+    assert built.get(newer) is last and built.get(tried) is built.get(Compliance("torque", smooth_samples=8))
 
 
 def test_the_dead_band_motions_columns_are_fitted_on_their_support(two_steps) -> None:
@@ -172,3 +189,27 @@ def test_term_columns_taken_from_a_detector_must_have_the_effects_shape() -> Non
     mine = effect.clone().terms(u, t, q)
     built.put(effect, mine)
     assert built.get(effect) is mine and not mine.flags.writeable
+
+
+def test_the_compliances_detection_reads_its_columns_from_the_loops_store() -> None:
+    """A detector that scores its effect's columns over the whole record takes them from the loop's store of
+    term columns when the data carry it (``DetectionData.record_columns``): the joint refit then finds them
+    built, and the score is the one on a fresh build, bit for bit."""
+    rng = np.random.default_rng(8)
+    t = np.arange(6000) * 1e-3
+    u = 20.0 * np.sin(2 * np.pi * 0.9 * t)
+    q = np.cos(2 * np.pi * 0.9 * t) + rng.normal(0, 0.01, t.size)
+    r = 0.01 * q + rng.normal(0, 1e-3, t.size)
+    built = TermColumns(u, t, q)
+    stored = DetectionData(u, t, q, r, 30.0, 1e-3, term_columns=built)
+    alone = DetectionData(u, t, q, r, 30.0, 1e-3)
+    effect = Compliance("torque", smooth_samples=3)
+    got, fresh = effect.detection(stored), effect.detection(alone)
+    assert built.get(Compliance("torque", smooth_samples=3)) is stored.record_columns(effect)  # built once, kept
+    assert (got.score.delta_bic, got.score.rss_after, got.score.heldout_gain) == (
+        fresh.score.delta_bic,
+        fresh.score.rss_after,
+        fresh.score.heldout_gain,
+    )
+    other = TermColumns(u.copy(), t, q)  # another record's store: not read
+    assert DetectionData(u, t, q, r, 30.0, 1e-3, term_columns=other).record_columns(effect) is not other.get(effect)

@@ -10,7 +10,7 @@ from online_backlash.diagnostics._folds import cycle_folds
 from online_backlash.diagnostics._harmonics import harmonic_columns, harmonic_stack, held_per_flank, shaft_harmonic
 from online_backlash.diagnostics._normal_equations import nonzero_rows
 from online_backlash.diagnostics._record_cache import RecordCache
-from online_backlash.diagnostics._scoring import DetectionData
+from online_backlash.diagnostics._scoring import DetectionData, _score_grams, _sorted_union
 from online_backlash.diagnostics._speed import (
     cardinal_splines,
     held_spline_columns,
@@ -24,6 +24,7 @@ from online_backlash.diagnostics.dead_band import ENTRY_KNOTS, EXIT_TIME_CONSTAN
 from online_backlash.diagnostics.effects import Drift
 from online_backlash.diagnostics.generic_terms import VelocityFunction
 from online_backlash.diagnostics.joint import Support
+from online_backlash.model import BacklashParams
 
 
 def _record(n: int = 4000, seed: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -34,6 +35,15 @@ def _record(n: int = 4000, seed: int = 0) -> tuple[np.ndarray, np.ndarray, np.nd
     q = np.cos(2 * np.pi * 0.7 * t) + rng.normal(0, 0.01, n)
     index = np.maximum.accumulate(np.where(rng.random(n) < 0.7, np.arange(n), 0))
     return u, t, q, index
+
+
+def _stacked_data(u: np.ndarray, t: np.ndarray, q: np.ndarray, r: np.ndarray, screened: bool) -> DetectionData:
+    """The residual ``r`` beyond a constant and ``u`` on the record's cycles, or on a screen of 10 of them."""
+    folds = cycle_folds(u)
+    folds = folds.screen(cycles=10, factor=1, min_samples=0) if screened else folds
+    return DetectionData.stacked(
+        [np.ones_like(u), u / 40.0], r, u_deg=u, time_s=t, torque_Nm=q, ratio=30.0, sample_period_s=1e-3, folds=folds
+    )
 
 
 def _data(index: np.ndarray | None = None, cache: RecordCache | None = None) -> DetectionData:
@@ -174,11 +184,8 @@ def test_columns_zero_on_most_rows_score_on_their_support_as_on_every_row(screen
     u, t, q, _ = _record(n=40000)
     rng = np.random.default_rng(4)
     r = 0.01 * np.sin(np.radians(5 * u)) + rng.normal(0, 1e-3, u.size)
-    folds = cycle_folds(u)
-    folds = folds.screen(cycles=10, factor=1, min_samples=0) if screened else folds
-    data = DetectionData.stacked(
-        [np.ones_like(u), u / 40.0], r, u_deg=u, time_s=t, torque_Nm=q, ratio=30.0, sample_period_s=1e-3, folds=folds
-    )
+    data = _stacked_data(u, t, q, r, screened)
+    folds = data.folds
     m = folds.rows
     x = np.zeros((m, 3))
     rows = np.sort(rng.choice(m, m // 30, replace=False))
@@ -258,3 +265,65 @@ def test_velocity_function_columns_are_the_cardinal_splines_without_the_zero_kno
         knots = speed_knots(v, inner)
         plain = np.delete(cardinal_splines(knots, v), zero_knot(knots), axis=1)
         np.testing.assert_array_equal(VelocityFunction(knots, 10).terms(u, t, q), plain)
+
+
+@pytest.mark.parametrize("screened", [False, True])
+def test_the_nuisance_baseline_formed_once_gives_every_score_bit_for_bit(screened: bool) -> None:
+    """What the nuisance columns alone leave (in sample and per held-out fold) is formed once per set of
+    cross-products (:meth:`_Grams.baseline`) and shared by every candidate's score: the scores are those formed
+    with it afresh from the candidate's own Gram matrices, every figure bit for bit."""
+    u, t, q, _ = _record(n=40000)
+    rng = np.random.default_rng(5)
+    r = 0.01 * np.sin(np.radians(5 * u)) + rng.normal(0, 1e-3, u.size)
+    data = _stacked_data(u, t, q, r, screened)
+    folds = data.folds
+    grams, p = data.grams, data.nuisance.shape[1]
+    for x in (harmonic_columns(u, [5, 2]), rng.normal(0, 1, (u.size, 1))):
+        x = data.scored(x)
+        per_fold, total = grams.extended(x)
+        terms = data._own_share_basis(p)
+        lag = lambda e, x=x: grams.lag_product(x, e)  # noqa: E731
+        fresh = _score_grams(per_fold, total, lag, folds.rows, p, terms)
+        shared = _score_grams(per_fold, total, lag, folds.rows, p, terms, grams.baseline())
+        assert fresh.heldout_folds >= 2 and np.isfinite(fresh.heldout_gain)
+        for name in ("rss_before", "rss_after", "n_eff", "delta_bic", "own_share", "heldout_gain"):
+            assert getattr(shared, name) == getattr(fresh, name), name
+        np.testing.assert_array_equal(shared.coef, fresh.coef)
+        assert data.score(False, x).delta_bic == fresh.delta_bic  # what the detectors call uses it
+    assert grams.baseline() is grams.baseline()  # formed once
+
+
+def test_the_rows_a_screen_reads_are_the_union_of_its_rows_and_where_they_are_held_from() -> None:
+    rng = np.random.default_rng(6)
+    for n in (1, 50, 5000):
+        rows = np.sort(rng.choice(n, max(n // 3, 1), replace=False))
+        index = rng.integers(0, n, n)
+        expected = np.union1d(rows, index[rows])
+        got = _sorted_union(rows, index[rows], n)
+        assert got.dtype == expected.dtype
+        np.testing.assert_array_equal(got, expected)
+
+
+def test_the_records_typical_rest_is_formed_once_per_fit_and_is_the_effects_own() -> None:
+    """The dead band's detector reads how long the output rests from the record's cache: a round's detection
+    on its screen and its confirmation on every sample share one pass; the value is the effect's own."""
+    u, t, q, _ = _record(n=20000)
+    params = BacklashParams(1.0, 0.4, 1.0, 0.3)
+    data = DetectionData(u, t, q, np.zeros(u.size), 30.0, 1e-3, backlash_params=params)
+    expected = DeadBandMotion(1.0, 0.4, 1.0, 0.3).typical_rest_s(u, t)
+    assert expected > 0
+    calls = []
+    original = DeadBandMotion.typical_rest_s
+
+    def counted(self, u_deg, time_s):
+        calls.append(1)
+        return original(self, u_deg, time_s)
+
+    DeadBandMotion.typical_rest_s = counted
+    try:
+        assert DeadBandMotion.record_rest_s(data, params) == expected
+        assert DeadBandMotion.record_rest_s(data, params) == expected and len(calls) == 1
+        other = BacklashParams(1.0, 0.1, 1.0, 0.1)
+        assert DeadBandMotion.record_rest_s(data, other) == DeadBandMotion(1.0, 0.1, 1.0, 0.1).typical_rest_s(u, t)
+    finally:
+        DeadBandMotion.typical_rest_s = original

@@ -111,7 +111,8 @@ START_SAMPLES = 6
 
 @lru_cache(maxsize=1024)
 def _savgol_weights(window: int, order: int, deriv: int) -> np.ndarray:
-    """The Savitzky-Golay weights of the ``deriv``-th derivative at the newest of ``window`` samples, per sample period^deriv."""
+    """The Savitzky-Golay weights of the ``deriv``-th derivative at the newest of ``window`` samples, per
+    sample period^deriv."""
     from scipy.signal import (
         savgol_coeffs,
     )  # 0.3 s to import scipy.signal: paid by a record without a torque column only

@@ -11,7 +11,23 @@ from typing import Any
 
 import numpy as np
 
+from ..errors import InvalidParameterError
 from ._causal import CausalWindow
+
+_COUNTS = {2: "two", 3: "three"}
+
+
+def knots_and_window(knots: Any, least: int, what: str, name: str, window_samples: Any) -> np.ndarray:
+    """``knots`` as a float array once they are at least ``least`` finite, strictly increasing ``what`` (the
+    parameter ``name``) and ``window_samples`` at least 1; else :class:`InvalidParameterError` naming them."""
+    values = np.asarray(knots, dtype=float)
+    if values.ndim != 1 or values.size < least or not np.all(np.isfinite(values)) or np.any(np.diff(values) <= 0):
+        raise InvalidParameterError(
+            f"{name} must be at least {_COUNTS[least]} finite, strictly increasing {what}, got {knots!r}"
+        )
+    if int(window_samples) < 1:
+        raise InvalidParameterError(f"window_samples must be >= 1, got {window_samples!r}")
+    return values
 
 
 class EffectBase:

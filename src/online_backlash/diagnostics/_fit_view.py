@@ -145,4 +145,5 @@ def detection_data(
         backlash_params=current.params,
         cache=cache,
         noise_floor_deg=0.0 if noise is None else noise.floor_deg,
+        term_columns=built,
     )

@@ -109,7 +109,8 @@ class Folds:
 
     @cached_property
     def compact_segments(self) -> list[tuple[int, int, int]]:
-        """:attr:`segments` as positions in :attr:`row_index` (the screen's samples side by side), ``(fold, start, stop)``."""
+        """:attr:`segments` as positions in :attr:`row_index` (the screen's samples side by side),
+        ``(fold, start, stop)``."""
         out, at = [], 0
         for k, a, b in self.segments:
             m = len(range(a, b, self.stride))
@@ -119,7 +120,8 @@ class Folds:
 
     @cached_property
     def row_index(self) -> np.ndarray:
-        """The indices of the samples the scores read: in :attr:`segments`, in order, every :attr:`stride`-th from each one's start."""
+        """The indices of the samples the scores read: in :attr:`segments`, in order, every :attr:`stride`-th
+        from each one's start."""
         return (
             np.concatenate([np.arange(a, b, self.stride) for _, a, b in self.segments])
             if self.segments

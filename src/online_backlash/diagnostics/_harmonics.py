@@ -7,8 +7,9 @@ angle-addition rule (one ``sin``/``cos`` pair per sample instead of one per orde
 The values differ from ``numpy.sin(n * a)`` by the rounding of the argument ``n * a`` (about
 1e-16 of it) and of the recurrence (about ``n`` units in the last place): 2e-13 on 2800 deg of
 load rotation up to order 24, 1e-12 on 85 000 deg of motor rotation (the 10-minute bench log);
-they only rank candidate orders, the chosen terms are fitted with ``numpy.sin``. The stack is kept in the record's cache (:meth:`._scoring.DetectionData.memo`);
-a record too long for the cache's budget gets each order from ``numpy.sin``/``cos`` instead.
+they only rank candidate orders, the chosen terms are fitted with ``numpy.sin``. The stack is kept in
+the record's cache (:meth:`._scoring.DetectionData.memo`); a record too long for the cache's budget
+gets each order from ``numpy.sin``/``cos`` instead.
 
 A screened record (:meth:`._folds.Folds.screen`) gets the stack at the rows its scores read only
 (:func:`harmonic_at_sources`, :attr:`._scoring.DetectionData.needed_rows`), once a round.
@@ -39,7 +40,8 @@ def harmonic_columns(angle_deg: np.ndarray, orders: Sequence[float]) -> np.ndarr
 
 
 def harmonic_stack(angle_deg: np.ndarray, top: int) -> np.ndarray:
-    """``(top, n, 2)``: ``[sin(k a), cos(k a)]`` for ``k = 1 .. top`` (entry ``k - 1``), ``a`` = ``angle_deg`` in radians."""
+    """``(top, n, 2)``: ``[sin(k a), cos(k a)]`` for ``k = 1 .. top`` (entry ``k - 1``), ``a`` = ``angle_deg``
+    in radians."""
     a = np.ascontiguousarray(angle_deg, dtype=float) * _RAD
     out = np.empty((max(int(top), 0), a.size, 2))
     _stack(a, out)
@@ -48,7 +50,8 @@ def harmonic_stack(angle_deg: np.ndarray, top: int) -> np.ndarray:
 
 @njit(cache=True)
 def _stack(a, out):  # pragma: no cover - compiled
-    """Angle addition: ``sin((k+1) a) = sin(k a) cos a + cos(k a) sin a``, ``cos((k+1) a) = cos(k a) cos a - sin(k a) sin a``."""
+    """Angle addition: ``sin((k+1) a) = sin(k a) cos a + cos(k a) sin a``,
+    ``cos((k+1) a) = cos(k a) cos a - sin(k a) sin a``."""
     for t in range(a.size):
         s1 = math.sin(a[t])
         c1 = math.cos(a[t])

@@ -192,7 +192,8 @@ class InitialState:
             "rms_at_rest_deg": self.rms_at_rest_deg,
             "rms_deg": self.rms_deg,
             "delta_bic": self.delta_bic if self.estimated else None,
-            "model": "until a flank first engages, the load rests at offset_deg until starts_moving_after_s (0: moving at "
+            "model": "until a flank first engages, the load rests at offset_deg until starts_moving_after_s "
+            "(0: moving at "
             "the first sample), then coasts from there at velocity_deg_s, braked by viscous "
             "friction (time_constant_s) and deceleration_deg_s2, and stays where it stops; eq. (1)-(3) from then on. "
             "The model's initial condition, estimated as a nuisance of the base fit and applied to the residual "

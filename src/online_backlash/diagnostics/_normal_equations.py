@@ -31,14 +31,27 @@ def pinv_factor(gram: np.ndarray) -> np.ndarray:
     return (v[:, keep] / np.sqrt(w[keep])) / d[:, None]
 
 
+class EigenSolve:
+    """The normal equations ``gram c = rhs`` of one Gram matrix, scaled to unit diagonal and decomposed once
+    (truncated eigen-decomposition: degenerate directions get no weight); ``self(rhs)`` solves them for one
+    right-hand side, as :func:`solve` does, number for number."""
+
+    def __init__(self, gram: np.ndarray) -> None:
+        self.scale = np.sqrt(np.maximum(np.diag(gram), 1e-300))
+        d = self.scale
+        w, v = np.linalg.eigh(gram / d[:, None] / d[None, :])
+        keep = w > RCOND * max(float(w[-1]), 1e-300)
+        self.vectors, self.values = v[:, keep], w[keep]
+
+    def __call__(self, rhs: np.ndarray) -> np.ndarray:
+        c = self.vectors @ ((self.vectors.T @ (rhs / self.scale)) / self.values)
+        return c / self.scale
+
+
 def solve(gram: np.ndarray, rhs: np.ndarray) -> np.ndarray:
     """Least-squares coefficients ``c`` from the normal equations ``gram c = rhs``, scaled to unit
     diagonal and solved by a truncated eigen-decomposition (degenerate directions get no weight)."""
-    d = np.sqrt(np.maximum(np.diag(gram), 1e-300))
-    w, v = np.linalg.eigh(gram / d[:, None] / d[None, :])
-    keep = w > RCOND * max(float(w[-1]), 1e-300)
-    c = v[:, keep] @ ((v[:, keep].T @ (rhs / d)) / w[keep])
-    return c / d
+    return EigenSolve(gram)(rhs)
 
 
 def fit_rss(gram: np.ndarray, cols: np.ndarray) -> tuple[np.ndarray, float]:

@@ -27,12 +27,25 @@ def record_direction(data: DetectionData) -> np.ndarray:
 class PerFlankTerms(EffectBase):
     """An effect whose columns are ``shape(u) * [moving up]`` then ``shape(u) * [moving down]``.
 
-    Subclasses set ``window_samples`` (samples) and ``deadzone_deg`` (deg) before calling
-    ``super().__init__()`` and define :meth:`_shape`.
+    Subclasses set their own parameters, call ``super().__init__(window_samples, deadzone_deg)`` and define
+    :meth:`_shape`.
+
+    Parameters
+    ----------
+    window_samples : int
+        Span of the difference that gives the direction of motion, samples.
+    deadzone_deg : float
+        A change of ``u`` smaller than this over the window keeps the last direction, deg.
     """
 
     window_samples: int
     deadzone_deg: float
+
+    def __init__(self, window_samples: int, deadzone_deg: float) -> None:
+        self.window_samples = window_samples
+        self.deadzone_deg = deadzone_deg
+        self.history = self.window_samples
+        super().__init__()
 
     def reset(self) -> None:
         super().reset()

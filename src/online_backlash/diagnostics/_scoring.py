@@ -40,7 +40,7 @@ from numba import njit
 
 from ..model import BacklashParams
 from ._folds import Folds, cycle_folds
-from ._normal_equations import fit_rss, solve
+from ._normal_equations import EigenSolve, fit_rss
 from ._record_cache import RecordCache
 
 #: delta_bic must fall below this for a term to count as detected
@@ -132,6 +132,14 @@ class _Grams:
         self._bounds: np.ndarray | None = None  # the segments' row bounds, for the compiled lag product
         self.per_fold = self._per_fold(z, z) if per_fold is None else per_fold
         self.total = self.per_fold.sum(axis=0)
+        self._baseline: Baseline | None = None
+
+    def baseline(self) -> Baseline:
+        """What the nuisance columns alone leave of the residual, in sample and on every held-out fold: the
+        same for every candidate scored beyond them (formed once, on the first score that needs it)."""
+        if self._baseline is None:
+            self._baseline = Baseline(self.total, self.per_fold)
+        return self._baseline
 
     def rows(self, a: np.ndarray) -> np.ndarray:
         """The rows of the full-length columns ``a`` that ``z`` holds (``a`` itself unless screened, or
@@ -237,6 +245,14 @@ def _lag_product_within(z, ez, x, ex, bounds, rows=None):  # pragma: no cover - 
     return total
 
 
+def _sorted_union(a: np.ndarray, b: np.ndarray, n: int) -> np.ndarray:
+    """``np.union1d(a, b)`` of row numbers below ``n``, by marking them (one pass, no sort of the two)."""
+    marked = np.zeros(n, dtype=bool)
+    marked[a] = True
+    marked[b] = True
+    return np.flatnonzero(marked).astype(np.result_type(a, b), copy=False)
+
+
 def _assemble(zz: np.ndarray, zx: np.ndarray, xx: np.ndarray) -> np.ndarray:
     """The Gram of ``[N, X, r]`` from the blocks of ``Z = [N, r]`` and ``X``."""
     p = zz.shape[0] - 1
@@ -255,19 +271,63 @@ def _test_sse(gram: np.ndarray, cols: np.ndarray, c: np.ndarray) -> float:
     return float(gram[-1, -1] - 2.0 * c @ gram[cols, -1] + c @ gram[np.ix_(cols, cols)] @ c)
 
 
+class Baseline:
+    """What the nuisance columns of ``Z = [nuisance, residual]`` leave of the residual (deg^2), from the Grams of
+    ``Z`` (``total``, and ``per_fold``): in sample (:attr:`rss`) and summed over the held-out folds, each fitted on
+    the others (:attr:`heldout_sse`). A candidate's Gram holds ``Z``'s as its nuisance and residual rows and columns,
+    value for value, so these are its ``rss_before`` and held-out reference as :func:`_score_grams` would form
+    them."""
+
+    def __init__(self, total: np.ndarray, per_fold: np.ndarray) -> None:
+        self.total, self.per_fold = total, per_fold
+        self.rss = fit_rss(total, np.arange(total.shape[0] - 1))[1]
+        self._heldout_sse: float | None = None
+        self._solvers: dict[bytes, EigenSolve] = {}
+
+    def solver(self, cols: np.ndarray) -> EigenSolve:
+        """The normal equations of the nuisance columns at ``cols`` (positions below the residual's), decomposed
+        once: a candidate's Gram holds them value for value (its ``own_share`` basis)."""
+        key = np.asarray(cols, dtype=np.intp).tobytes()
+        if key not in self._solvers:
+            self._solvers[key] = EigenSolve(self.total[np.ix_(cols, cols)])
+        return self._solvers[key]
+
+    @property
+    def heldout_sse(self) -> float:
+        if self._heldout_sse is None:
+            self._heldout_sse = _heldout_sse(self.total, self.per_fold, np.arange(self.total.shape[0] - 1))
+        return self._heldout_sse
+
+
+def _heldout_sse(total: np.ndarray, per_fold: np.ndarray, cols: np.ndarray) -> float:
+    """The squared error on every fold of the residual (last column) fitted on the columns ``cols`` of the
+    other folds, summed over the folds."""
+    sse = 0.0
+    for g in per_fold:
+        sse += _test_sse(g, cols, fit_rss(total - g, cols)[0])
+    return sse
+
+
 def _score_grams(
-    per_fold: np.ndarray, total: np.ndarray, lag: Callable[[np.ndarray], float], n: int, p: int, terms: np.ndarray
+    per_fold: np.ndarray,
+    total: np.ndarray,
+    lag: Callable[[np.ndarray], float],
+    n: int,
+    p: int,
+    terms: np.ndarray,
+    baseline: Baseline | None = None,
 ) -> Score:
     """The :class:`Score` of the columns ``p .. end-1`` of W beyond its first ``p`` (nuisance) columns.
 
     ``lag(e)``: ``sum_t w(t+1) w(t)`` for ``w = W e`` (see :meth:`_Grams.lag_product`).
     ``terms``: positions of the nuisance columns that are a constant or terms already added (the
-    basis of ``own_share``); column 0 must be a constant.
+    basis of ``own_share``); column 0 must be a constant. ``baseline``: what the nuisance columns alone
+    leave, when known (:meth:`_Grams.baseline`; formed here otherwise).
     """
     m = total.shape[0] - 1
     q = m - p
     base, full = np.arange(p), np.arange(m)
-    _, rss0 = fit_rss(total, base)
+    rss0 = fit_rss(total, base)[1] if baseline is None else baseline.rss
     c, rss1 = fit_rss(total, full)
     rss0, rss1 = max(rss0, 0.0), max(rss1, 0.0)
     # lag-1 autocorrelation of what is left, e = r - W c (zero mean: the constant is a column)
@@ -279,18 +339,15 @@ def _score_grams(
     if q:
         xx = total[np.ix_(xs, xs)]
         xt = total[np.ix_(xs, terms)]
-        tt = total[np.ix_(terms, terms)]
-        left = np.diag(xx) - np.einsum("ij,ij->i", xt, _solve_many(tt, xt.T).T)
+        basis = EigenSolve(total[np.ix_(terms, terms)]) if baseline is None else baseline.solver(terms)
+        left = np.diag(xx) - np.einsum("ij,ij->i", xt, _solve_many(basis, xt.T).T)
         mean = total[xs, 0] / n
         centred = np.diag(xx) - n * mean**2
         own = float(np.min(left / np.maximum(centred, 1e-300)))
     held = float("nan")
     if per_fold.shape[0] >= 2 and q:
-        sse0 = sse1 = 0.0
-        for g in per_fold:
-            train = total - g
-            sse0 += _test_sse(g, base, fit_rss(train, base)[0])
-            sse1 += _test_sse(g, full, fit_rss(train, full)[0])
+        sse0 = _heldout_sse(total, per_fold, base) if baseline is None else baseline.heldout_sse
+        sse1 = _heldout_sse(total, per_fold, full)
         held = 1.0 - sse1 / sse0 if sse0 > 0 else 0.0
     k = per_fold.shape[0]
     if rss0 <= 0:
@@ -299,8 +356,8 @@ def _score_grams(
     return Score(q, rss0, rss1, n_eff, float(delta), c[p:], own, held, k)
 
 
-def _solve_many(gram: np.ndarray, rhs: np.ndarray) -> np.ndarray:
-    return np.column_stack([solve(gram, rhs[:, j]) for j in range(rhs.shape[1])]) if rhs.shape[1] else rhs
+def _solve_many(equations: EigenSolve, rhs: np.ndarray) -> np.ndarray:
+    return np.column_stack([equations(rhs[:, j]) for j in range(rhs.shape[1])]) if rhs.shape[1] else rhs
 
 
 def score_columns(residual: np.ndarray, columns: np.ndarray, nuisance: np.ndarray | None = None) -> Score:
@@ -362,6 +419,9 @@ class DetectionData:
     #: columns built once per record and shared by the detectors (see :meth:`memo`; the loop
     #: passes one cache to every round)
     cache: RecordCache | None = field(default=None, repr=False, compare=False)
+    #: the loop's store of the terms' columns over this record (:class:`._term_columns.TermColumns`), if any:
+    #: see :meth:`record_columns`
+    term_columns: Any = field(default=None, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         n = self.residual_deg.size
@@ -416,6 +476,15 @@ class DetectionData:
         sources: tuple[object, ...] = (self.u_deg, self.time_s, self.torque_Nm)
         return self.cache.get(key, (*sources, self.engaged_index, self.folds) if held else sources, build)
 
+    def record_columns(self, effect: Any) -> np.ndarray:
+        """``effect.clone().terms(u_deg, time_s, torque_Nm)``, the effect's columns over the whole record (read-only):
+        from :attr:`term_columns` when it holds this very record (the loop's fits then find them built)."""
+        built = self.term_columns
+        same = built is not None and built.u_deg is self.u_deg and built.time_s is self.time_s
+        if same and built.torque_Nm is self.torque_Nm:
+            return built.get(effect)
+        return effect.clone().terms(self.u_deg, self.time_s, self.torque_Nm)
+
     @property
     def _cross(self) -> _Grams:
         assert self.grams is not None
@@ -440,7 +509,9 @@ class DetectionData:
         rows, index = self.scored_rows, self.engaged_index
         if rows is None or index is None:
             return rows
-        return self.memo(("rows scored and held from",), lambda: np.union1d(rows, index[rows]), held=True)
+        return self.memo(
+            ("rows scored and held from",), lambda: _sorted_union(rows, index[rows], index.size), held=True
+        )
 
     def scored(self, columns: np.ndarray) -> np.ndarray:
         """The rows of full-length ``columns`` that the scores use (``columns`` itself unless screened):
@@ -473,7 +544,10 @@ class DetectionData:
         p = self.nuisance.shape[1]
         terms = self._own_share_basis(p)
         assert self.folds is not None
-        return _score_grams(per_fold, total, lambda e: self._cross.lag_product(x, e), self.folds.rows, p, terms)
+        baseline = self._cross.baseline()
+        return _score_grams(
+            per_fold, total, lambda e: self._cross.lag_product(x, e), self.folds.rows, p, terms, baseline
+        )
 
     def score_subsets(
         self,
@@ -507,7 +581,15 @@ class DetectionData:
                 return self._cross.lag_product(x, whole, support)
 
             out.append(
-                _score_grams(per_fold[:, keep][:, :, keep], total[np.ix_(keep, keep)], lag, self.folds.rows, p, terms)
+                _score_grams(
+                    per_fold[:, keep][:, :, keep],
+                    total[np.ix_(keep, keep)],
+                    lag,
+                    self.folds.rows,
+                    p,
+                    terms,
+                    self._cross.baseline(),
+                )
             )
         return out
 

@@ -158,7 +158,8 @@ class DeadBandMotion(EffectBase):
         self.rest_time_constants_s = tuple(float(v) for v in rest_time_constants_s)
         if any(not v > 0 for v in self.exit_time_constants_s + self.rest_time_constants_s):
             raise InvalidParameterError(
-                f"exit_time_constants_s and rest_time_constants_s must be > 0, got {exit_time_constants_s!r}, {rest_time_constants_s!r}"
+                "exit_time_constants_s and rest_time_constants_s must be > 0, "
+                f"got {exit_time_constants_s!r}, {rest_time_constants_s!r}"
             )
         if self.entry_knots_s and (self.entry_knots_s[0] != 0.0 or np.any(np.diff(self.entry_knots_s) <= 0)):
             raise InvalidParameterError(f"entry_knots_s must start at 0 and increase, got {entry_knots_s!r}")
@@ -307,9 +308,11 @@ class DeadBandMotion(EffectBase):
         n_exit = len(self.exit_time_constants_s)
         coast = c[:n_exit]
         out: dict[str, Any] = {
-            "model": "where the model's output rests: the load coasts on from where the flank stopped pushing it (turned back "
+            "model": "where the model's output rests: the load coasts on from where the flank stopped pushing it "
+            "(turned back "
             "or stopped); after a flank engages: a transient scaled by the speed of the impact",
-            "active_on": "the coast wherever eq. (7) holds the model's output (the dead band, a flank while the motor stands still); "
+            "active_on": "the coast wherever eq. (7) holds the model's output "
+            "(the dead band, a flank while the motor stands still); "
             "the first entry_knots_s[-1] s after a flank engages, by the model's switching functions (eq. 5-6)",
             "dead_band_deg": self.c_left_deg + self.c_right_deg,
             "coast": [
@@ -351,6 +354,15 @@ class DeadBandMotion(EffectBase):
         samples = ends - moved
         lengths = (t[ends] - t[moved])[samples > 0]
         return float(np.median(np.repeat(lengths, samples[samples > 0]))) if lengths.size else 0.0
+
+    @classmethod
+    def record_rest_s(cls, data: DetectionData, params: Any) -> float:
+        """:meth:`typical_rest_s` of the record ``data`` under the backlash fit ``params`` (eq. 1), s: formed once
+        per record and fit (a round's detection on its screen and its confirmation on every sample share it)."""
+        p = params
+        key = ("typical rest", float(p.m_left), float(p.c_left), float(p.m_right), float(p.c_right))
+        rest = cls(p.m_left, p.c_left, p.m_right, p.c_right)
+        return float(data.memo(key, lambda: np.array([rest.typical_rest_s(data.u_deg, data.time_s)]))[0])
 
     def creep_is_physical(self, rest_coef: np.ndarray, horizon_s: float, period_s: float, tolerance_deg: float) -> bool:
         """True when the creep of every direction with columns, ``rest_coef`` (deg, the effect's last
@@ -401,7 +413,7 @@ class DeadBandMotion(EffectBase):
             return None
         dt = data.sample_period_s
         torque = bool(np.mean(np.isfinite(data.torque_Nm)) > 0.5)
-        horizon = cls(p.m_left, p.c_left, p.m_right, p.c_right).typical_rest_s(data.u_deg, data.time_s)
+        horizon = cls.record_rest_s(data, p)
         taus, knots = _at_period(EXIT_TIME_CONSTANTS, dt), _at_period(ENTRY_KNOTS, dt)
         rests = tuple(tau for tau in _at_period(REST_TIME_CONSTANTS, dt) if tau <= horizon)
         every_one = cls(p.m_left, p.c_left, p.m_right, p.c_right, taus, knots, torque, rests, creep_step=True)

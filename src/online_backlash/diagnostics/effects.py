@@ -83,8 +83,8 @@ def select_orders(
     neighbours closer than the resolution ``360 / span_deg`` are dropped: over a short span
     they are nearly collinear and would fit huge amplitudes that cancel. Orders are screened
     in sample; the one kept must also hold on the held-out cycles. Only the
-    ``2 max_orders`` orders strongest on their own take part. At each step every remaining order is scored given the orders
-    already chosen; the best is kept if it passes the information criterion and explains at
+    ``2 max_orders`` orders strongest on their own take part. At each step every remaining order is scored given
+    the orders already chosen; the best is kept if it passes the information criterion and explains at
     least :data:`MIN_ORDER_GAIN` of what is left (so the leakage of a strong order into its
     neighbours is not kept). ``columns(n)`` gives the columns of order ``n``; with ``held`` they
     are already held through the dead band (else they are held here).
@@ -182,30 +182,27 @@ class TransmissionError(EffectBase):
     ) -> Detection | None:
         """Significant harmonics of the residual against the load and motor angles."""
         u = data.u_deg
-        load = select_orders(
-            data,
-            lambda n: held_harmonic(data, "load", u, n, max_load_order),
-            max_load_order,
-            float(np.ptp(u)),
-            max_orders,
-            PERIODIC_MIN_PERIODS,
-            held=True,
-        )
+
+        def orders_of(scored_on: DetectionData, shaft: str, angle_deg: np.ndarray, top: int) -> list[int]:
+            """The orders of the shaft's angle ``angle_deg`` chosen on ``scored_on`` (held through the dead band)."""
+            return select_orders(
+                scored_on,
+                lambda n: held_harmonic(data, shaft, angle_deg, n, top),
+                top,
+                float(np.ptp(angle_deg)),
+                max_orders,
+                PERIODIC_MIN_PERIODS,
+                held=True,
+            )
+
+        load = orders_of(data, "load", u, max_load_order)
         motor: list[int] = []
         if abs(data.ratio) > 1:
             motor_deg = u * data.ratio
             # given the load orders chosen: their structure would leak into a motor order fitted on
             # a few held-out cycles
             given = data.with_nuisance(data.hold(harmonic_columns(u, load))) if load else data
-            motor = select_orders(
-                given,
-                lambda n: held_harmonic(data, "motor", motor_deg, n, max_motor_order),
-                max_motor_order,
-                float(np.ptp(motor_deg)),
-                max_orders,
-                PERIODIC_MIN_PERIODS,
-                held=True,
-            )
+            motor = orders_of(given, "motor", motor_deg, max_motor_order)
         if not load and not motor:
             return None
         effect = cls(tuple(sorted(int(n) for n in load)), tuple(sorted(int(n) for n in motor)), float(data.ratio))
@@ -273,7 +270,8 @@ class Delay(EffectBase):
         }
 
     def _prepared(self, data: DetectionData) -> tuple[bool, np.ndarray]:
-        """``(held, column)``: on the model's output when the data carry it, else on ``u`` held through the dead band."""
+        """``(held, column)``: on the model's output when the data carry it, else on ``u`` held through the
+        dead band."""
         if data.model_output_deg is not None:
             return False, self.output_columns(data.model_output_deg)
         return True, self.clone().terms(data.u_deg, data.time_s, data.torque_Nm)
@@ -296,7 +294,8 @@ class Delay(EffectBase):
         return Detection(
             effect,
             s,
-            f"residual follows the motor-angle change over {k_grid} samples (lag {p['lag_samples']:.2f} samples, {p['lag_s'] * 1e3:.3f} ms)",
+            f"residual follows the motor-angle change over {k_grid} samples "
+            f"(lag {p['lag_samples']:.2f} samples, {p['lag_s'] * 1e3:.3f} ms)",
         )
 
 
@@ -419,7 +418,8 @@ class Compliance(EffectBase):
         out: dict[str, Any] = {
             "proxy": "load-side acceleration"
             + (" and velocity (inertial and viscous torque)" if self.proxy == "motion" else " (inertial torque)"),
-            "active_on": "engaged samples, by the model's switching functions (eq. 5-6); held through the dead band (eq. 7)",
+            "active_on": "engaged samples, by the model's switching functions (eq. 5-6); "
+            "held through the dead band (eq. 7)",
             "deflection_per_acceleration_s2": c[0],
             "differentiator_window_samples": self.window_samples,
         }
@@ -448,7 +448,7 @@ class Compliance(EffectBase):
             what = "the load side's acceleration on engaged samples"
         else:
             what = "the load side's acceleration and velocity on engaged samples"
-        s = data.score(self.input_side, self.clone().terms(data.u_deg, data.time_s, data.torque_Nm))
+        s = data.score(self.input_side, data.record_columns(self))
         return Detection(self, s, f"residual is proportional to {what} (correlation {np.sqrt(max(s.gain, 0.0)):.2f})")
 
     def neighbours(self) -> list[Compliance]:
@@ -508,7 +508,8 @@ class Drift(EffectBase):
         return self.powers(t, self._t0)
 
     def powers(self, time_s: np.ndarray, t0: float) -> np.ndarray:
-        """The columns at the times ``time_s`` of a stream that started at ``t0`` (s): ``((t - t0) / time_scale_s) ** j``."""
+        """The columns at the times ``time_s`` of a stream that started at ``t0`` (s):
+        ``((t - t0) / time_scale_s) ** j``."""
         s = (np.asarray(time_s, dtype=float) - t0) / self.time_scale_s
         return np.column_stack([s**j for j in range(1, self.degree + 1)])
 
@@ -565,7 +566,8 @@ class Drift(EffectBase):
                 Detection(
                     effect,
                     s,
-                    f"residual drifts in time (degree {degree} over {span:.0f} s), beyond the net rotation and the speed",
+                    f"residual drifts in time (degree {degree} over {span:.0f} s), "
+                    "beyond the net rotation and the speed",
                 )
             )
             alone.append(Detection(effect, in_time, "in time alone"))
@@ -584,7 +586,8 @@ class Drift(EffectBase):
         return Detection(
             confounded.effect,
             confounded.score,
-            f"residual drifts in time (degree {getattr(confounded.effect, 'degree', 0)}), but time is collinear with {' and '.join(named or tuple(rivals))}",
+            f"residual drifts in time (degree {getattr(confounded.effect, 'degree', 0)}), "
+            f"but time is collinear with {' and '.join(named or tuple(rivals))}",
             rivals=named or tuple(rivals),
         )
 

@@ -34,6 +34,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import InvalidParameterError
+from ._effect_base import knots_and_window
 from ._folds import DEADZONE_DEG, DIRECTION_WINDOW
 from ._per_flank import PerFlankTerms, record_direction
 from ._scoring import BIC_THRESHOLD, MIN_GAIN, Detection, DetectionData
@@ -79,10 +80,8 @@ class FlankProfile(PerFlankTerms):
     knots_deg : tuple of float
         Strictly increasing angles of ``u`` (the load angle of eq. 1, in the frame the effect is
         given), deg; at least two.
-    window_samples : int
-        Span of the difference that gives the direction of motion, samples.
-    deadzone_deg : float
-        A change of ``u`` smaller than this over the window keeps the last direction, deg.
+    window_samples, deadzone_deg : int, float
+        The direction of motion (:class:`._per_flank.PerFlankTerms`), samples and deg.
     """
 
     name = "flank_profile"
@@ -93,20 +92,11 @@ class FlankProfile(PerFlankTerms):
         window_samples: int = DIRECTION_WINDOW,
         deadzone_deg: float = DEADZONE_DEG,
     ) -> None:
-        knots = np.asarray(knots_deg, dtype=float)
-        if knots.ndim != 1 or knots.size < 3 or not np.all(np.isfinite(knots)) or np.any(np.diff(knots) <= 0):
-            raise InvalidParameterError(
-                f"knots_deg must be at least three finite, strictly increasing angles, got {knots_deg!r}"
-            )
-        if int(window_samples) < 1:
-            raise InvalidParameterError(f"window_samples must be >= 1, got {window_samples!r}")
+        knots = knots_and_window(knots_deg, 3, "angles", "knots_deg", window_samples)
         if not (np.isfinite(deadzone_deg) and deadzone_deg >= 0):
             raise InvalidParameterError(f"deadzone_deg must be finite and >= 0, got {deadzone_deg!r}")
         self.knots_deg = tuple(float(k) for k in knots)
-        self.window_samples = int(window_samples)
-        self.deadzone_deg = float(deadzone_deg)
-        self.history = self.window_samples
-        super().__init__()
+        super().__init__(int(window_samples), float(deadzone_deg))
 
     @property
     def n_terms(self) -> int:
@@ -121,7 +111,8 @@ class FlankProfile(PerFlankTerms):
         up, down = (np.concatenate(([0.0], part, [0.0])) for part in (c[:k], c[k:]))
         diff = up - down
         return {
-            "model": "piecewise-linear deviation of the flank line that drives (eq. 1) at the knots of the load angle u, "
+            "model": "piecewise-linear deviation of the flank line that drives (eq. 1) "
+            "at the knots of the load angle u, "
             "one set while u increases and one while it decreases; constant beyond the outer knots",
             "knots_deg": list(self.knots_deg),
             "knot_spacing_deg": float(np.median(np.diff(self.knots_deg))),
@@ -158,8 +149,9 @@ class FlankProfile(PerFlankTerms):
             if not (beyond.delta_bic < BIC_THRESHOLD and beyond.gain >= MIN_GAIN and beyond.heldout_gain >= MIN_GAIN):
                 continue
             evidence = (
-                f"residual against the load angle differs between the flanks ({k} inner knots {spacing:.3g} deg apart over "
-                f"{knots[0]:.1f} to {knots[-1]:.1f} deg; the flank difference alone removes {beyond.gain:.1%} in sample, "
+                "residual against the load angle differs between the flanks "
+                f"({k} inner knots {spacing:.3g} deg apart over {knots[0]:.1f} to {knots[-1]:.1f} deg; "
+                f"the flank difference alone removes {beyond.gain:.1%} in sample, "
                 f"{beyond.heldout_gain:.1%} held out)"
             )
             found.append((Detection(effect, score, evidence), score.heldout_gain))

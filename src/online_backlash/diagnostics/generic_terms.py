@@ -21,9 +21,8 @@ from typing import Any
 
 import numpy as np
 
-from ..errors import InvalidParameterError
 from ._causal import velocity_deg_s
-from ._effect_base import EffectBase
+from ._effect_base import EffectBase, knots_and_window
 from ._folds import DEADZONE_DEG, DIRECTION_WINDOW
 from ._harmonics import harmonic_at_sources, harmonic_columns, held_per_flank
 from ._per_flank import PerFlankTerms, record_direction
@@ -48,10 +47,8 @@ class AngleHarmonicsPerFlank(PerFlankTerms):
     ----------
     orders : tuple of int
         Cycles per load revolution.
-    window_samples : int
-        Span of the difference that gives the direction of motion, samples.
-    deadzone_deg : float
-        A change of ``u`` smaller than this over the window keeps the last direction, deg.
+    window_samples, deadzone_deg : int, float
+        The direction of motion (:class:`._per_flank.PerFlankTerms`), samples and deg.
     """
 
     name = "angle_harmonics_per_flank"
@@ -60,10 +57,7 @@ class AngleHarmonicsPerFlank(PerFlankTerms):
         self, orders: tuple[int, ...] = (1,), window_samples: int = DIRECTION_WINDOW, deadzone_deg: float = DEADZONE_DEG
     ) -> None:
         self.orders = tuple(orders)
-        self.window_samples = int(window_samples)
-        self.deadzone_deg = deadzone_deg
-        self.history = self.window_samples
-        super().__init__()
+        super().__init__(int(window_samples), deadzone_deg)
 
     @property
     def n_terms(self) -> int:
@@ -139,13 +133,7 @@ class VelocityFunction(EffectBase):
     name = "velocity_function"
 
     def __init__(self, knots_deg_s: tuple[float, ...] = (-30.0, 0.0, 30.0), window_samples: int = 10) -> None:
-        knots = np.asarray(knots_deg_s, dtype=float)
-        if knots.ndim != 1 or knots.size < 2 or not np.all(np.isfinite(knots)) or np.any(np.diff(knots) <= 0):
-            raise InvalidParameterError(
-                f"knots_deg_s must be at least two finite, strictly increasing velocities, got {knots_deg_s!r}"
-            )
-        if int(window_samples) < 1:
-            raise InvalidParameterError(f"window_samples must be >= 1, got {window_samples!r}")
+        knots = knots_and_window(knots_deg_s, 2, "velocities", "knots_deg_s", window_samples)
         self.knots_deg_s = tuple(float(k) for k in knots)
         self.window_samples = int(window_samples)
         self.history = self.window_samples
@@ -168,7 +156,8 @@ class VelocityFunction(EffectBase):
         return {
             "knots_deg_s": list(self.knots_deg_s),
             "values_deg": [float(v) for v in values],
-            "model": "cubic spline through (knots_deg_s, values_deg), not-a-knot ends, constant beyond the outer knots, added to the load angle",
+            "model": "cubic spline through (knots_deg_s, values_deg), not-a-knot ends, "
+            "constant beyond the outer knots, added to the load angle",
         }
 
     def location(self) -> str:

@@ -472,72 +472,24 @@ def _fit_fixed_columns(
         fitted, times = columns, columns.dot  # the parts as they are: no block of all of them
 
     yc_fitted = yc if rows is None else yc[rows]
-    proj = Projector(fitted)
-    n, q = yc_fitted.size, fitted.shape[1]
     u = np.ascontiguousarray(uc, dtype=float)
     if rows is None:  # one span: the whole record from rest at the origin
         spans = (np.zeros(1, np.int64), np.zeros(1, np.int64), np.full(1, u.size, np.int64), np.zeros(1))
     else:
         spans = _spans(rows, _switched(uc, start) if switched is None else switched)
-    # p = dp_dv @ v (+ the held play on cR)
-    dp_dv = np.array([[1.0, 0, 0], [0, 1, 0], [0, 0, 1], [0, -1, 0]]) if hold_play is not None else np.eye(4)
-    k = dp_dv.shape[1]
-    to_search = np.zeros((6, k + 1))  # [1, dx/dp, yc - x] -> [dx/dv, yc - x]
-    to_search[1:5, :k], to_search[5, k] = dp_dv, 1.0
-
-    def unpack(v: np.ndarray) -> np.ndarray:
-        return dp_dv @ v + (np.array([0, 0, 0, hold_play]) if hold_play is not None else 0.0)
-
-    def valid(p: np.ndarray) -> bool:
-        return p[0] * p[2] > 0 and p[1] + p[3] >= 0
-
-    a = np.empty((n, 5))  # [dx/dp, yc - x] at the rows fitted, rewritten at every point (not allocated anew)
-
-    def point(p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """The Gram matrix of ``[1, dx/dp, yc - x]`` at ``p`` and the columns' products ``C^T [dx/dp, yc - x]``
-        (``a`` rewritten)."""
-        starts, firsts, stops, x0s = spans
-        gram = _sensitivity_gram(
-            u, yc_fitted, float(p[0]), float(p[1]), float(p[2]), float(p[3]), starts, firsts, stops, x0s, a
-        )
-        return gram, proj.columns.t_dot(a) if q else np.empty((0, 5))
-
-    # the last point asked for: its key, (r, J), and its point (None where invalid); ``a`` holds the
-    # last valid point simulated, so a hit with a point is what ``a`` holds
-    last: dict[bytes, tuple[np.ndarray, np.ndarray, tuple[np.ndarray, np.ndarray] | None]] = {}
-
-    def factor(v: np.ndarray) -> tuple[np.ndarray, np.ndarray, tuple[np.ndarray, np.ndarray] | None]:
-        """``(r, J)`` of ``k + 1`` rows with the ``J^T J``, ``J^T r`` and ``|r|^2`` of the full problem,
-        and :func:`point` of ``v`` (None where invalid)."""
-        key = v.tobytes()
-        if key not in last:
-            last.clear()
-            p = unpack(v)
-            if not valid(p):
-                # the same cost as n rows of 1e6
-                last[key] = (np.full(k + 1, 1e6 * np.sqrt(n / (k + 1))), np.zeros((k + 1, k)), None)
-            else:
-                gram, cross = point(p)
-                w, vec = np.linalg.eigh(proj.left_of(to_search.T @ gram @ to_search, cross @ to_search[1:]))
-                r = np.sqrt(np.maximum(w, 0.0))[:, None] * vec.T  # r^T r = the Gram of P [dx/dv, yc - x]
-                last[key] = (r[:, k], -r[:, :k], (gram, cross))
-        return last[key]
-
-    def residual(v: np.ndarray) -> np.ndarray:
-        return factor(v)[0]
-
-    def jacobian(v: np.ndarray) -> np.ndarray:
-        return factor(v)[1]
+    search = _ProjectedSearch(u, yc_fitted, spans, Projector(fitted), hold_play)
+    proj, q, a = search.proj, search.q, search.a
 
     p0 = np.array([start.m_left, start.c_left, start.m_right, start.c_right])
     v0 = p0[:3] if hold_play is not None else p0
-    cost0 = float(np.sum(residual(v0) ** 2))
-    result = least_squares(residual, v0, jac=jacobian, x_scale="jac")
+    cost0 = float(np.sum(search.residual(v0) ** 2))
+    result = least_squares(search.residual, v0, jac=search.jacobian, x_scale="jac")
     v = result.x if np.sum(result.fun**2) < cost0 else v0
-    p = unpack(v)
+    p = search.unpack(v)
     params = BacklashParams(*p)
-    ended = last.get(v.tobytes())
-    gram, cross = ended[2] if ended is not None and ended[2] is not None else point(p)  # a: [dx/dp, yc - x] at the fit
+    ended = search.last.get(v.tobytes())
+    # a: [dx/dp, yc - x] at the fit
+    gram, cross = ended[2] if ended is not None and ended[2] is not None else search.point(p)
     coef = proj.coef_of(cross[:, 4]) if q else np.empty(0)
     if rows is None:
         left = a[:, 4] - times(coef) if q else a[:, 4].copy()
@@ -545,7 +497,81 @@ def _fit_fixed_columns(
         left = yc - simulate_backlash(uc, params, 0.0)
         left = left - times(coef) if q else left
     left_fitted = left if rows is None else left[rows]
-    # the play guard: the play's direction beyond the other backlash directions, and beyond the columns too
+    inflation, play_std = _play_guard(gram, cross, proj, left_fitted)
+    return JointFit(params, coef, left, inflation, play_std, hold_play is not None)
+
+
+class _ProjectedSearch:
+    """What :func:`_fit_fixed_columns` hands scipy's least squares at every point ``v`` of the searched
+    parameters (``k`` of them: the four of eq. 1, or three with the play held at ``hold_play``, deg): a factor
+    ``(r, J)`` of ``k + 1`` rows with the ``J^T J``, ``J^T r`` and ``|r|^2`` of the variable-projection problem
+    on every fitted row. ``u``: the referred motor angle, centred (deg); ``yc_fitted``: the load angle at the
+    rows fitted (deg); ``spans``: the runs the model is simulated on (:func:`_spans`); ``proj``: the
+    projection off the columns."""
+
+    def __init__(
+        self,
+        u: np.ndarray,
+        yc_fitted: np.ndarray,
+        spans: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray],
+        proj: Projector,
+        hold_play: float | None,
+    ) -> None:
+        self.u, self.yc_fitted, self.spans, self.proj, self.hold_play = u, yc_fitted, spans, proj, hold_play
+        self.n, self.q = yc_fitted.size, proj.columns.shape[1]
+        # p = dp_dv @ v (+ the held play on cR)
+        self.dp_dv = np.array([[1.0, 0, 0], [0, 1, 0], [0, 0, 1], [0, -1, 0]]) if hold_play is not None else np.eye(4)
+        self.k = k = self.dp_dv.shape[1]
+        self.to_search = np.zeros((6, k + 1))  # [1, dx/dp, yc - x] -> [dx/dv, yc - x]
+        self.to_search[1:5, :k], self.to_search[5, k] = self.dp_dv, 1.0
+        # [dx/dp, yc - x] at the rows fitted, rewritten at every point (not allocated anew)
+        self.a = np.empty((self.n, 5))
+        # the last point asked for: its key, (r, J), and its point (None where invalid); ``a`` holds the
+        # last valid point simulated, so a hit with a point is what ``a`` holds
+        self.last: dict[bytes, tuple[np.ndarray, np.ndarray, tuple[np.ndarray, np.ndarray] | None]] = {}
+
+    def unpack(self, v: np.ndarray) -> np.ndarray:
+        """The four parameters of eq. (1) at the searched ``v``."""
+        return self.dp_dv @ v + (np.array([0, 0, 0, self.hold_play]) if self.hold_play is not None else 0.0)
+
+    def point(self, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The Gram matrix of ``[1, dx/dp, yc - x]`` at ``p`` and the columns' products ``C^T [dx/dp, yc - x]``
+        (``a`` rewritten)."""
+        starts, firsts, stops, x0s = self.spans
+        p0, p1, p2, p3 = float(p[0]), float(p[1]), float(p[2]), float(p[3])
+        gram = _sensitivity_gram(self.u, self.yc_fitted, p0, p1, p2, p3, starts, firsts, stops, x0s, self.a)
+        return gram, self.proj.columns.t_dot(self.a) if self.q else np.empty((0, 5))
+
+    def factor(self, v: np.ndarray) -> tuple[np.ndarray, np.ndarray, tuple[np.ndarray, np.ndarray] | None]:
+        """``(r, J)`` of ``k + 1`` rows with the ``J^T J``, ``J^T r`` and ``|r|^2`` of the full problem,
+        and :meth:`point` of ``v`` (None where invalid)."""
+        key, k, last = v.tobytes(), self.k, self.last
+        if key not in last:
+            last.clear()
+            p = self.unpack(v)
+            if not (p[0] * p[2] > 0 and p[1] + p[3] >= 0):
+                # the same cost as n rows of 1e6
+                last[key] = (np.full(k + 1, 1e6 * np.sqrt(self.n / (k + 1))), np.zeros((k + 1, k)), None)
+            else:
+                gram, cross = self.point(p)
+                to_search = self.to_search
+                w, vec = np.linalg.eigh(self.proj.left_of(to_search.T @ gram @ to_search, cross @ to_search[1:]))
+                r = np.sqrt(np.maximum(w, 0.0))[:, None] * vec.T  # r^T r = the Gram of P [dx/dv, yc - x]
+                last[key] = (r[:, k], -r[:, :k], (gram, cross))
+        return last[key]
+
+    def residual(self, v: np.ndarray) -> np.ndarray:
+        return self.factor(v)[0]
+
+    def jacobian(self, v: np.ndarray) -> np.ndarray:
+        return self.factor(v)[1]
+
+
+def _play_guard(gram: np.ndarray, cross: np.ndarray, proj: Projector, left_fitted: np.ndarray) -> tuple[float, float]:
+    """The play's variance inflation and standard error (deg) at the fit: its direction beyond the other backlash
+    directions, and beyond the columns too (``gram``: the Gram matrix of ``[1, dx/dp, yc - x]`` at the fit;
+    ``cross``: the columns' products with ``[dx/dp, yc - x]``; ``left_fitted``: the residual at the rows fitted)."""
+    n, q = left_fitted.size, proj.columns.shape[1]
     basis_gram = BACKLASH_DIRECTIONS.T @ gram @ BACKLASH_DIRECTIONS
     g2 = float(basis_gram[3, 3])
     g_left_base = left_sum_of_squares(basis_gram)
@@ -557,7 +583,7 @@ def _fit_fixed_columns(
     inflation = (g_left_base / g2) / max(g_left_joint / g2, 1e-12)
     sigma2 = float(np.dot(left_fitted, left_fitted)) / effective_samples(left_fitted)
     play_std = float(np.sqrt(sigma2 / max(g_left_joint, 1e-300)))
-    return JointFit(params, coef, left, float(inflation), play_std, hold_play is not None)
+    return float(inflation), play_std
 
 
 def separable(fit: JointFit, start: BacklashParams) -> bool:
@@ -577,7 +603,8 @@ def fit_guarded(
     rows: np.ndarray | None = None,
     planned: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> JointFit:
-    """:func:`fit_joint` with the play free; if the play is not :func:`separable` from the columns, hold it at ``start.play``.
+    """:func:`fit_joint` with the play free; if the play is not :func:`separable` from the columns, hold it at
+    ``start.play``.
 
     The held fit keeps the variance inflation and standard error measured with the play free.
     With ``rows`` (sample indices: a screen of the record's cycles, :meth:`._folds.Folds.screen`)

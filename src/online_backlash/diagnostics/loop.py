@@ -147,7 +147,11 @@ def diagnose(
         steps.append(step)
         record.built.keep_only([s.effect for s in steps])  # the candidates' columns are not needed again
     finish_terms(steps, current, record)
-    r = record
+    return _diagnosis(record, current, steps)
+
+
+def _diagnosis(r: LoopRecord, current: JointFit, steps: list[AddedTerm]) -> Diagnosis:
+    """The loop's answer on the record ``r``: its final fit ``current`` and the terms added, ``steps``."""
     after = r.start.coasting(r.residual_before_deg, current.residual_deg)  # until a flank first catches the load
     screened = len(r.screen.segments) if r.screen.screened else None
     return Diagnosis(

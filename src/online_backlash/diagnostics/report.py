@@ -50,9 +50,11 @@ def markdown_report(diagnosis: Diagnosis, source: str | os.PathLike[str] | None 
     if start["estimated"]:
         lines += [
             f"Record start: the load was moving in the dead band ({start['velocity_deg_s']:.3g} deg/s, offset "
-            f"{start['offset_deg']:.2g} deg, from {start['starts_moving_after_s']:.3g} s) for {start['samples']} samples "
+            f"{start['offset_deg']:.2g} deg, from {start['starts_moving_after_s']:.3g} s) "
+            f"for {start['samples']} samples "
             "before a flank caught it. Estimated as the "
-            f"model's initial state (residual there {start['rms_at_rest_deg']:.4f} -> {start['rms_deg']:.4f} deg RMS) and "
+            f"model's initial state (residual there {start['rms_at_rest_deg']:.4f} -> "
+            f"{start['rms_deg']:.4f} deg RMS) and "
             "taken out of the residual before and after alike; not an effect.",
             "",
         ]
@@ -82,30 +84,36 @@ def markdown_report(diagnosis: Diagnosis, source: str | os.PathLike[str] | None 
     )
     along = {s.number: _along(diagnosis, s, before, after) for s, before, after in diagnosis.step_residuals()}
     for kind, e in steps:
-        ev = e["evidence"]
-        title = (
-            "effect"
-            if kind == "effect"
-            else "not separable"
-            if e["name"] == "not_separable"
-            else "unexplained structure"
-        )
-        split = ev["heldout_split"]
-        lines += [
-            f"## Step {e['step']}: {title} `{e['name']}`",
-            "",
-            f"- evidence: {ev['summary']}; criterion delta_bic_eff = {ev['delta_bic_eff']:.0f} "
-            f"(threshold {ev['threshold']:.0f}), {ev['share_of_residual_explained']:.1%} of the residual explained",
-            f"- held out: {ev['heldout_gain']:.1%} of the squared error removed on {split.get('split', 'blocks')} it was not fitted on "
-            f"({split.get('folds', '?')} folds, {split.get('cycles', '?')} cycles); {ev['heldout_gain_in_final_model']:.1%} "
-            "given all the other terms of the final model",
-            f"- residual against its own axis, {along[e['step']]}",
-            f"- residual RMS {e['rms_before_deg']:.5f} -> {e['rms_after_deg']:.5f} deg; "
-            f"play {e['backlash_before_deg']:.4f} -> {e['backlash_after_deg']:.4f} deg",
-            f"- play variance inflation {ev['play_variance_inflation']:.1f}, play standard error {ev['play_std_deg']:.2g} deg: "
-            + ("separable from the play" if ev["play_separable"] else ev["note"]),
-        ]
-        if "where" in e:
-            lines.append(f"- where: {e['where']}; no effect of the library explains it, a generic term closes it")
-        lines += [f"- parameters: `{_fmt(e['parameters'])}`", ""]
+        lines += _step_section(kind, e, along[e["step"]])
     return "\n".join(lines)
+
+
+def _step_section(kind: str, e: dict[str, Any], along: str) -> list[str]:
+    """The Markdown lines of one step: ``kind`` (``"effect"`` or ``"unexplained"``), ``e`` the step's JSON
+    object, ``along`` the residual against the term's own axis (:func:`_along`)."""
+    ev = e["evidence"]
+    title = (
+        "effect" if kind == "effect" else "not separable" if e["name"] == "not_separable" else "unexplained structure"
+    )
+    split = ev["heldout_split"]
+    lines = [
+        f"## Step {e['step']}: {title} `{e['name']}`",
+        "",
+        f"- evidence: {ev['summary']}; criterion delta_bic_eff = {ev['delta_bic_eff']:.0f} "
+        f"(threshold {ev['threshold']:.0f}), {ev['share_of_residual_explained']:.1%} of the residual explained",
+        f"- held out: {ev['heldout_gain']:.1%} of the squared error removed on "
+        f"{split.get('split', 'blocks')} it was not fitted on "
+        f"({split.get('folds', '?')} folds, {split.get('cycles', '?')} cycles); "
+        f"{ev['heldout_gain_in_final_model']:.1%} "
+        "given all the other terms of the final model",
+        f"- residual against its own axis, {along}",
+        f"- residual RMS {e['rms_before_deg']:.5f} -> {e['rms_after_deg']:.5f} deg; "
+        f"play {e['backlash_before_deg']:.4f} -> {e['backlash_after_deg']:.4f} deg",
+        f"- play variance inflation {ev['play_variance_inflation']:.1f}, "
+        f"play standard error {ev['play_std_deg']:.2g} deg: "
+        + ("separable from the play" if ev["play_separable"] else ev["note"]),
+    ]
+    if "where" in e:
+        lines.append(f"- where: {e['where']}; no effect of the library explains it, a generic term closes it")
+    lines += [f"- parameters: `{_fmt(e['parameters'])}`", ""]
+    return lines
