@@ -23,6 +23,7 @@ from ..effect_terms import EffectTerms
 from ..errors import InvalidParameterError, NotFittedError
 from ..model import BacklashParams
 from . import _rls_kernels as kernels
+from ._judge_ahead import learn_judged
 from ._rls_kernels import BACKLASH_CONSTS, BACKLASH_STATE, FLANK
 from .base import EstimateAt, RecursiveEstimator, StateField, WarmStartParams, finite, memory_factors
 from .batch import VorosBacklash, _levenberg_marquardt
@@ -374,12 +375,10 @@ class BacklashRLS(RecursiveEstimator):
     def _learn_arrays(
         self, u: np.ndarray, y: np.ndarray, gap: np.ndarray, t: np.ndarray | None, q: np.ndarray | None
     ) -> None:
-        seen = self._seen(u, y, gap)
         if t is None or q is None:  # no effects: compiled
-            st = np.asarray(self._st, dtype=float)
-            kernels.backlash_run(st, self._c_arr, u, y, gap, seen, *kernels.NO_MARKS)
-            self._st = st.tolist()
+            self._run(u, y, gap, *kernels.NO_MARKS)
             return
+        seen = self._seen(u, y, gap)
         # segment by gap: effects keep a history that a gap must reset
         starts = [0, *np.flatnonzero(gap[1:]) + 1, u.size]
         for lo, hi in itertools.pairwise(starts):
@@ -400,13 +399,31 @@ class BacklashRLS(RecursiveEstimator):
     ) -> list[EstimateAt]:
         if t is not None or q is not None:  # effects: the interpreted path, cut at the marks
             return super()._learn_arrays_marked(u, y, gap, t, q, marks)
-        st = np.asarray(self._st, dtype=float)
         out = np.empty((marks.size, 4))
-        kernels.backlash_run(
-            st, self._c_arr, u, y, gap, self._seen(u, y, gap), marks, out
-        )  # (play, mL, mR, level) at each
-        self._st = st.tolist()
+        self._run(u, y, gap, marks, out)  # (play, mL, mR, level) at each
         return [EstimateAt(True, *row) for row in out.tolist()]
+
+    def _run(self, u: np.ndarray, y: np.ndarray, gap: np.ndarray, marks: np.ndarray, out: np.ndarray) -> None:
+        """The compiled loop over a block (:func:`~._rls_kernels.backlash_run`, the estimate after the first
+        ``marks[k]`` samples into ``out[k]``). With ``full_engagement`` judging a stream
+        (:attr:`FullEngagement.settled_ <.full_engagement.FullEngagement.settled_>`), the block is learned in
+        pieces, the next piece judged in a worker thread meanwhile (:func:`~._judge_ahead.learn_judged`: the
+        same judgement and the same loop, bit for bit)."""
+        st = np.asarray(self._st, dtype=float)
+        fe = self._fe
+        if fe is None or self._replayed is not None or not fe.settled_:
+            kernels.backlash_run(st, self._c_arr, u, y, gap, self._seen(u, y, gap), marks, out)
+        else:
+
+            def learn(lo: int, hi: int, seen: np.ndarray) -> None:
+                first, last = np.searchsorted(marks, (lo, hi), side="right")  # the marks in (lo, hi]
+                part = slice(lo, hi)
+                kernels.backlash_run(
+                    st, self._c_arr, u[part], y[part], gap[part], seen, marks[first:last] - lo, out[first:last]
+                )
+
+            learn_judged(lambda lo, hi: fe.update(u[lo:hi], y[lo:hi], gap[lo:hi]), learn, u.size)
+        self._st = st.tolist()
 
     def _step_effects(self, u: float, y: float, terms: np.ndarray, seen: int) -> None:
         """:func:`_rls_kernels.backlash_step` with the effect columns in the regressor (numpy).

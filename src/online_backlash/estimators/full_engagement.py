@@ -182,34 +182,34 @@ def _end_stroke(st, width, shortfall, judged):  # pragma: no cover - compiled
     st[_SHORTFALL], st[_JUDGED_NOW] = 0.0, 0.0
 
 
-@njit(cache=True, nogil=True)
-def _move(st, ui, yi, gap, h_u, h_y):  # pragma: no cover - compiled
+@njit(cache=True, nogil=True, inline="always")
+def _move(d, ext, frm, follow, k, have, ui, yi, gap, h_u, h_y):  # pragma: no cover - compiled
     """Step 1 of the module docstring for one sample: the input's direction and turning points, the stroke
-    index, whether the load follows. Returns True where the stroke that was running ended here (at a
-    reversal, or at a gap); the state is then already that of the next one."""
+    index, whether the load follows. The motion's state (direction, input extreme, output the following is
+    measured from, following, stroke index, have a sample: the first six fields of the state vector) is
+    passed and returned as values, so that the loops keep it in registers. Returns ``ended`` (True where the
+    stroke that was running ended here: at a reversal, or at a gap; the state is then already that of the next
+    one) and the new state."""
+    if gap or have == 0.0:  # (re)start: no direction until the input moves beyond its band
+        return d != 0.0, 0.0, ui, yi, 0.0, k, 1.0
     ended = False
-    if gap or st[_HAVE] == 0.0:  # (re)start: no direction until the input moves beyond its band
-        ended = st[_D] != 0.0
-        st[_D], st[_EXT], st[_FROM], st[_FOLLOW], st[_HAVE] = 0.0, ui, yi, 0.0, 1.0
-        return ended
-    d = st[_D]
     if d == 0.0:
-        if abs(ui - st[_EXT]) <= h_u:
-            return False
-        d = 1.0 if ui > st[_EXT] else -1.0
-        st[_D], st[_EXT], st[_FOLLOW], st[_K] = d, ui, 1.0, st[_K] + 1.0
-    elif (ui - st[_EXT]) * d >= 0.0:
-        st[_EXT] = ui
-    elif abs(ui - st[_EXT]) > h_u:  # turned back beyond the band: a new stroke, the load dwells first
+        if abs(ui - ext) <= h_u:
+            return False, d, ext, frm, follow, k, have
+        d = 1.0 if ui > ext else -1.0
+        ext, follow, k = ui, 1.0, k + 1.0
+    elif (ui - ext) * d >= 0.0:
+        ext = ui
+    elif abs(ui - ext) > h_u:  # turned back beyond the band: a new stroke, the load dwells first
         ended = True
         d = -d
-        st[_D], st[_EXT], st[_FROM], st[_FOLLOW], st[_K] = d, ui, yi, 0.0, st[_K] + 1.0
-    if st[_FOLLOW] == 0.0:
-        if (yi - st[_FROM]) * d < -h_y:  # coasting the old way: the dwell goes on from here
-            st[_FROM] = yi
-        elif (yi - st[_FROM]) * d > h_y:
-            st[_FOLLOW] = 1.0
-    return ended
+        ext, frm, follow, k = ui, yi, 0.0, k + 1.0
+    if follow == 0.0:
+        if (yi - frm) * d < -h_y:  # coasting the old way: the dwell goes on from here
+            frm = yi
+        elif (yi - frm) * d > h_y:
+            follow = 1.0
+    return ended, d, ext, frm, follow, k, have
 
 
 @njit(cache=True, nogil=True)
@@ -217,22 +217,26 @@ def _classify(st, rec, u, y, gap, h_u, h_y, tol, out):  # pragma: no cover - com
     """The module docstring's rule over a block of a stream (the state ``st`` and the records ``rec``
     carried), each sample judged against the strokes completed before it: ``out[i]`` is :data:`RESTING`,
     :data:`FOLLOWING` or :data:`NO_FLANK`. The least full width changes only where a stroke ends: it is computed
-    there (two medians of the ring), not for every sample judged."""
+    there (two medians of the ring), not for every sample judged. The state is held in locals over the block
+    (written back at its end and where a stroke ends), not read and written in ``st`` for every sample."""
     least = _least_full(_ring(st))
+    d, ext, frm, follow, k, have = st[_D], st[_EXT], st[_FROM], st[_FOLLOW], st[_K], st[_HAVE]
+    shortfall, judged_now = st[_SHORTFALL], st[_JUDGED_NOW]
     for i in range(u.shape[0]):
         ui, yi = u[i], y[i]
         out[i] = RESTING
-        k_was, d_was = st[_K], st[_D]
-        if _move(st, ui, yi, gap[i], h_u, h_y):
-            _end_stroke(st, _stroke_width(rec, k_was, d_was), st[_SHORTFALL], st[_JUDGED_NOW])
+        k_was, d_was = k, d
+        ended, d, ext, frm, follow, k, have = _move(d, ext, frm, follow, k, have, ui, yi, gap[i], h_u, h_y)
+        if ended:
+            _end_stroke(st, _stroke_width(rec, k_was, d_was), shortfall, judged_now)
+            shortfall, judged_now = 0.0, 0.0
             least = _least_full(_ring(st))
-        d, k = st[_D], st[_K]
         if d == 0.0:  # the input has not moved yet: nothing to judge
             continue
         side = 1 if d > 0.0 else 0
         other = 1 - side
         b = math.floor(yi / BIN_DEG) % N_BINS
-        if st[_FOLLOW] == 0.0:  # dwelling where the old flank left the load
+        if follow == 0.0:  # dwelling where the old flank left the load
             out[i] = NO_FLANK if _unplaced(rec, side, b, k) or _unplaced(rec, other, b, k) else RESTING
             rec[side, _VISIT, b] = k
             continue
@@ -253,21 +257,25 @@ def _classify(st, rec, u, y, gap, h_u, h_y, tol, out):  # pragma: no cover - com
         short = width < least - tol
         rec[side, _JUDGED, b] += 1.0
         rec[side, _SHORT, b] += 1.0 if short else 0.0
-        st[_JUDGED_NOW] += 1.0
-        st[_SHORTFALL] += least - width if short else 0.0
+        judged_now += 1.0
+        shortfall += least - width if short else 0.0
         out[i] = NO_FLANK if short or _short(rec, other, b) else FOLLOWING
+    st[_D], st[_EXT], st[_FROM], st[_FOLLOW], st[_K], st[_HAVE] = d, ext, frm, follow, k, have
+    st[_SHORTFALL], st[_JUDGED_NOW] = shortfall, judged_now
 
 
 @njit(cache=True, nogil=True)
 def _segment(st, u, y, gap, h_u, h_y, stroke, direction, follow):  # pragma: no cover - compiled
     """Step 1 over a whole record: per sample its stroke (-1 before the input moved), direction and
     whether the load follows; the state is left at the record's end."""
+    d, ext, frm, fol, k, have = st[_D], st[_EXT], st[_FROM], st[_FOLLOW], st[_K], st[_HAVE]
     for i in range(u.shape[0]):
-        _move(st, u[i], y[i], gap[i], h_u, h_y)
-        moving = st[_D] != 0.0
-        stroke[i] = int(st[_K]) if moving else -1
-        direction[i] = st[_D]
-        follow[i] = moving and st[_FOLLOW] != 0.0
+        _, d, ext, frm, fol, k, have = _move(d, ext, frm, fol, k, have, u[i], y[i], gap[i], h_u, h_y)
+        moving = d != 0.0
+        stroke[i] = int(k) if moving else -1
+        direction[i] = d
+        follow[i] = moving and fol != 0.0
+    st[_D], st[_EXT], st[_FROM], st[_FOLLOW], st[_K], st[_HAVE] = d, ext, frm, fol, k, have
 
 
 def _record_marks(
