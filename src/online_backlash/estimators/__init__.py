@@ -5,5 +5,14 @@ from .backlash_rls import BacklashRLS
 from .base import EstimateAt, RecursiveEstimator
 from .batch import VorosBacklash, VorosCascade
 from .cascade_rls import CascadeRLS
+from .regressor_rls import RegressorRLS
 
-__all__ = ["BacklashRLS", "CascadeRLS", "EstimateAt", "RecursiveEstimator", "VorosBacklash", "VorosCascade"]
+__all__ = [
+    "BacklashRLS",
+    "CascadeRLS",
+    "EstimateAt",
+    "RecursiveEstimator",
+    "RegressorRLS",
+    "VorosBacklash",
+    "VorosCascade",
+]

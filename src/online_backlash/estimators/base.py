@@ -8,7 +8,8 @@ the tally ``gaps_``), ``snapshot_at``, the saved state, ``clone`` and the fitted
 paper's parameter vector. All state is created in :meth:`RecursiveEstimator.reset` (called by ``__init__``);
 the parameters are validated on the first ``learn_one`` / ``learn_many`` (scikit-learn style).
 
-**What a new estimator writes** (``docs/estimators.md`` shows one in about 60 lines; the definition of done is
+**What a new estimator writes** (:class:`~.regressor_rls.RegressorRLS` writes them once for a recursive least
+squares on a regressor of its own, ``docs/estimators.md``; the definition of done is
 :func:`online_backlash.estimators.conformance.check_estimator`):
 
 * ``_layout``: its state vector's fields (a :mod:`.layout` of offsets), with at least ``N_SEEN`` (samples

@@ -126,8 +126,8 @@ class TorqueBacklashRLS(FlankPairFigures, RecursiveEstimator):
     References
     ----------
     J. Vörös, Automatica 46 (2010) 369-374 (eq. 1, 5-9, 11); J. Vörös, "Recursive identification
-    of systems with noninvertible output nonlinearities", ASME J. Dyn. Sys. Meas. Control 135(1)
-    014504 (2013) (the recursive form).
+    of nonlinear cascade systems with time-varying general input backlash", ASME J. Dyn. Sys. Meas.
+    Control 135(1) 014504 (2013) (the recursive form).
 
     Examples
     --------
