@@ -299,7 +299,9 @@ class CsvLog(TabularSource):
     skip_bad : bool
         Count and skip bad rows instead of raising.
     block_rows : int
-        Rows parsed at once (memory stays bounded by it; the natural block of :meth:`iter_chunks`).
+        Rows parsed at once (memory stays bounded by it; the natural block of :meth:`iter_chunks`). 32,768:
+        a block is parsed from one Python string per line, so 65,536 rows took the peak RSS of ``estimate`` on
+        10 M samples to 307 MB (issue 31's bound is 300; 32,768: 284 MB, 3 % more CPU; ``docs/benchmarks.md``).
     period_s : float, optional
         Nominal sample period, seconds, for gap detection (None: learnt from the first steps).
     delimiter : str, optional
@@ -329,7 +331,7 @@ class CsvLog(TabularSource):
         motor_cpr: float | None = None,
         load_cpr: float | None = None,
         skip_bad: bool = False,
-        block_rows: int = 65536,
+        block_rows: int = 32768,
         period_s: float | None = None,
         delimiter: str | None = None,
         decimal: str | None = None,
@@ -463,12 +465,16 @@ class CsvLog(TabularSource):
 def _read_block(text: str, usecols: list[int], dialect: CsvDialect) -> np.ndarray:
     """Parse a block of CSV rows (no header) to floats with pandas' C parser, columns in ``usecols`` order.
 
-    Raises ValueError on anything that is not a number.
+    The rows are handed over as UTF-8 bytes, which the C parser reads as they are: a ``StringIO`` holds
+    its text as 4-byte characters and is encoded to UTF-8 by pandas again (13.6 against 5.8 MB at the
+    parse's peak for a block of 65,536 rows of the bench's CSV, and a third less CPU). Raises ValueError
+    on anything that is not a number.
     """
     import pandas as pd  # imported here: only reading a log needs it
 
     frame = pd.read_csv(
-        io.StringIO(text),
+        io.BytesIO(text.encode("utf-8")),
+        encoding="utf-8",
         header=None,
         usecols=usecols,
         dtype=float,
