@@ -5,8 +5,6 @@ from __future__ import annotations
 import json
 import os
 import re
-import subprocess
-import sys
 
 import numpy as np
 import pyarrow as pa
@@ -15,7 +13,15 @@ import pyarrow.parquet as pq
 import pytest
 from hypothesis import given
 from hypothesis import strategies as st
-from measurement_cases import FUZZ, assert_same_estimate_as_csv, check_damaged_file, damaged, read_all, rig_recording
+from measurement_cases import (
+    FUZZ,
+    assert_same_estimate_as_csv,
+    check_damaged_file,
+    damaged,
+    fresh_python,
+    read_all,
+    rig_recording,
+)
 
 from online_backlash.cli import main
 from online_backlash.errors import LogFormatError
@@ -313,6 +319,4 @@ def test_an_arrow_ipc_file_is_read_without_importing_pyarrow_parquet(tmp_path):
         "with open_log(sys.argv[1], columns={'time': 't', 'motor': 'm', 'load': 'l'}) as log:\n"
         "    print(sum(len(chunk) for chunk in log.iter_chunks()), 'pyarrow.parquet' in sys.modules)"
     )
-    done = subprocess.run([sys.executable, "-c", script, str(path)], capture_output=True, text=True, timeout=120)
-    assert done.returncode == 0, done.stderr
-    assert done.stdout.split() == ["200", "False"]
+    assert fresh_python(script, str(path)) == ["200", "False"]
