@@ -15,7 +15,16 @@ same order every round (one process at a time, so the compared things meet the s
   judges every sample's engagement in a second compiled pass);
 * the library's own decode of the snappy Parquet file alone (``ParquetFile.iter_batches`` of the three
   columns, as the reader calls it, the values taken without a copy), in a fresh process, timed after
-  the import.
+  the import;
+* the reader's side alone, in a fresh process: what ``estimate``'s reader thread does (``open_log(BIG)``'s
+  blocks, each referred to the load side and checked, ``Pipeline._refer``), timed after the imports and a
+  pass over the small file (numba's cache loads), for each format: its CPU beside the decode's and
+  ``estimate``'s splits the CPU beyond into the reader's part and the estimator's.
+
+Memory, per phase: the resident size once the CLI's modules are imported (``build_parser``, before the
+command runs), the peak of the small file (beyond that: the reader's libraries, numba's compiled-code
+machinery, the estimator's kernels loaded from the cache) and the peak of the big one (beyond that: the
+blocks in flight and what grows with the samples).
 
 ``estimate``'s rate is ``(samples BIG - samples SMALL) / (time BIG - time SMALL)``: the start-up
 (interpreter, imports, numba's cache loads, the file's opening) is paid by both and cancels. The table
@@ -30,6 +39,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import platform
 import statistics
@@ -55,7 +65,14 @@ PEAK = (
     "open('/proc/self/status') if line.startswith('VmHWM:')][0] + '\\n').encode()))\n"
 )
 
-ESTIMATE = "import sys\nfrom online_backlash.cli import main\nsys.exit(main(sys.argv[1:]))"
+ESTIMATE = """
+import sys
+from online_backlash.cli import build_parser, main
+build_parser()  # every subcommand's module imported, as main does: the resident size before the command runs
+os.write(2, ('\\nVmRSS-imports ' + [line.split()[1] for line in open('/proc/self/status')
+             if line.startswith('VmRSS:')][0] + '\\n').encode())
+sys.exit(main(sys.argv[1:]))
+"""
 REFERENCE = """
 import json, sys, time
 import numpy as np, pyarrow.parquet as pq
@@ -83,6 +100,24 @@ for batch in pq.ParquetFile(source, pre_buffer=False, buffer_size=1 << 20).iter_
     rows += values[0].size
 print(json.dumps({"wall": time.perf_counter() - wall, "cpu": time.process_time() - cpu, "rows": rows}))
 """
+
+READ = """
+import json, sys, time
+from online_backlash import BacklashRLS
+from online_backlash.pipeline import Pipeline
+from online_backlash.replay import open_log
+options = json.loads(sys.argv[3])
+def read(path):
+    refer = Pipeline(BacklashRLS(), 30.0, 1.0, rows=False)._refer  # as the reader thread of estimate: checked, referred
+    with open_log(path, **options) as log:
+        return sum(len(referred[0]) for referred in map(refer, log.iter_chunks()) if referred is not None)
+read(sys.argv[2])  # imports and numba's cache loads, outside the timing
+wall, cpu = time.perf_counter(), time.process_time()
+rows = read(sys.argv[1])
+print(json.dumps({"wall": time.perf_counter() - wall, "cpu": time.process_time() - cpu, "rows": rows}))
+"""
+#: ``open_log`` options of each format's files (as ``FORMATS``' ``estimate`` options say)
+READ_OPTIONS = {"mf4": {"columns": {"motor": "Motor", "load": "Load"}}}
 
 
 def write_files(folder: Path, samples: int) -> dict[str, tuple[Path, Path]]:
@@ -116,7 +151,14 @@ def run(code: str, *argv: str) -> dict:
     if proc.returncode:
         raise SystemExit(f"failed ({proc.returncode}): {argv}\n{err.decode()[-2000:]}")
     peak_kb = int(err.decode().rsplit("VmHWM ", 1)[1])
-    return {"wall": wall, "cpu": usage.ru_utime + usage.ru_stime, "rss_mb": peak_kb / 1024, "out": out.decode()}
+    imports = err.decode().rsplit("VmRSS-imports ", 1)[1:]
+    return {
+        "wall": wall,
+        "cpu": usage.ru_utime + usage.ru_stime,
+        "rss_mb": peak_kb / 1024,
+        "imports_mb": int(imports[0].split()[0]) / 1024 if imports else math.nan,
+        "out": out.decode(),
+    }
 
 
 def spread(values: list[float], fmt: str = "{:.2f}") -> str:
@@ -140,6 +182,8 @@ def main() -> None:
             runs.setdefault(f"reference {setup}", []).append(run(REFERENCE, str(paths["parquet-none"][0]), setup))
         runs.setdefault("decode", []).append(run(DECODE, str(paths["parquet-snappy"][0])))
         for kind in kinds:
+            options = json.dumps(READ_OPTIONS.get(kind, {}))
+            runs.setdefault(f"read {kind}", []).append(run(READ, str(paths[kind][0]), str(paths[kind][1]), options))
             options = ["--ratio", "30", *FORMATS[kind][1], "--json"]
             for size, path in zip(("big", "small"), paths[kind]):
                 runs.setdefault(f"{kind} {size}", []).append(run(ESTIMATE, "estimate", str(path), *options))
@@ -164,9 +208,10 @@ def main() -> None:
     )
     print(
         "| file | estimate BIG: wall s | SMALL: wall s | BIG - SMALL: wall s | M samples/s | vs learn_many "
-        "| vs learn_many as estimate sets it up | CPU s over SMALL's | vs learn_many's CPU | peak RSS BIG / SMALL, MB |"
+        "| vs learn_many as estimate sets it up | CPU s over SMALL's | vs learn_many's CPU | reader alone: CPU s "
+        "| RSS after imports / peak SMALL / peak BIG (its lowest round), MB |"
     )
-    print("|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|")
+    print("|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|")
     for kind in kinds:
         big, small = runs[f"{kind} big"], runs[f"{kind} small"]
         wall = [b["wall"] - s["wall"] for b, s in zip(big, small)]
@@ -177,12 +222,20 @@ def main() -> None:
             f"| {spread([extra / w / 1e6 for w in wall], '{:.1f}')} | {spread([100 * s for s in share], '{:.0f}')} % "
             f"| {spread([100 * extra / w / r for w, r in zip(wall, setup_rate)], '{:.0f}')} % "
             f"| {spread(cpu)} | {spread([100 * c / r for c, r in zip(cpu, ref_cpu)], '{:.0f}')} % "
-            f"| {max(b['rss_mb'] for b in big):.0f} / {max(s['rss_mb'] for s in small):.0f} |"
+            f"| {spread([r['cpu'] for r in inner[f'read {kind}']], '{:.3f}')} "
+            f"| {max(b['imports_mb'] for b in big):.0f} / {max(s['rss_mb'] for s in small):.0f} "
+            f"/ {max(b['rss_mb'] for b in big):.0f} ({min(b['rss_mb'] for b in big):.0f}) |"
         )
     if "parquet-snappy" in kinds:
         cpu = [b["cpu"] - s["cpu"] for b, s in zip(runs["parquet-snappy big"], runs["parquet-snappy small"])]
         beyond = [100 * (c / (d + r) - 1) for c, d, r in zip(cpu, decode_cpu, ref_cpu)]
-        print(f"\nsnappy Parquet: CPU beyond (decode alone + learn_many): {spread(beyond, '{:+.0f}')} %")
+        reader = [r["cpu"] - d for r, d in zip(inner["read parquet-snappy"], decode_cpu)]
+        rest = [c - r["cpu"] - f for c, r, f in zip(cpu, inner["read parquet-snappy"], ref_cpu)]
+        print(
+            f"\nsnappy Parquet: CPU beyond (decode alone + learn_many): {spread(beyond, '{:+.0f}')} %; of it the "
+            f"reader's side beyond the decode {spread(reader, '{:.3f}')} CPU-s, the estimator's side beyond "
+            f"learn_many (estimate - reader alone - learn_many) {spread(rest, '{:.3f}')} CPU-s"
+        )
 
 
 if __name__ == "__main__":

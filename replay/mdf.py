@@ -106,10 +106,12 @@ class MdfLog(MeasurementLog):
         ``motor``, ``load``, ``torque`` (optional) and ``time`` (optional: default the motor group's master
         channel)), ``units`` (overrides the channels' units), ``motor_cpr``, ``load_cpr``, ``skip_bad``.
     fragment_bytes : int
-        Size hint of the blocks read from the file (memory stays bounded by it). 2 MiB (87,381
-        samples of motor, load and time in 24-byte records): fewer blocks than 1 MiB cost less
-        per-block work on the reader's, the estimator's and the bookkeeping's threads; 4 MiB gains
-        a little more but takes the peak RSS of ``estimate`` near 300 MB.
+        Size hint of the blocks read from the file (memory stays bounded by it). 512 KiB (21,845
+        samples of motor, load and time in 24-byte records): about six blocks are in flight at once
+        (read ahead, learned, waiting for the bookkeeping), and the MDF reader's imports (asammdf with
+        pandas, pyarrow and python-can: 90 MB) leave little room, so 2 MiB took the peak RSS of
+        ``estimate`` on 10 M samples to 310 MB and 1 MiB to 300 (issue 31's bound), 512 KiB to 295, for no
+        CPU measurably lost (``bench/end_to_end.py``, ``docs/benchmarks.md``).
 
     Attributes
     ----------
@@ -119,7 +121,7 @@ class MdfLog(MeasurementLog):
         The median time step of the first block, seconds.
     """
 
-    def __init__(self, path: str | os.PathLike[str], *args: Any, fragment_bytes: int = 2 << 20, **kwargs: Any) -> None:
+    def __init__(self, path: str | os.PathLike[str], *args: Any, fragment_bytes: int = 1 << 19, **kwargs: Any) -> None:
         super().__init__(path, *args, **kwargs)
         self.fragment_bytes = int(fragment_bytes)
         self._mdf: Any = None

@@ -41,7 +41,6 @@ class _Table:
 
     def __init__(self, path: str) -> None:
         import pyarrow as pa
-        import pyarrow.parquet as pq
 
         self.path = path
         self.arrow = os.path.splitext(path.lower())[1] in ARROW_SUFFIXES  # an Arrow IPC file, not Parquet
@@ -53,6 +52,8 @@ class _Table:
                 self._source = pa.OSFile(path, "rb")
                 self._reader: Any = pa.ipc.open_file(self._source)
             else:
+                import pyarrow.parquet as pq  # not for Arrow IPC: it loads pyarrow's file systems (S3, GCS, ...)
+
                 # pyarrow's own file, read without the GIL (a Python file object takes it for every read);
                 # buffered column reads, no pre-buffering: memory stays one batch, not one row group
                 # (bench/parquet_read.py: whole row groups or pre-buffering cost 50-180 MB more, memory maps

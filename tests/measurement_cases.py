@@ -9,6 +9,8 @@ the counters reconcile).
 from __future__ import annotations
 
 import json
+import subprocess
+import sys
 import warnings
 from pathlib import Path
 
@@ -43,6 +45,13 @@ def rig_mdf(path: Path, rec, *more, names=("Motor", "Load"), units=("deg", "deg"
     mdf.save(path, overwrite=True)
     mdf.close()
     return path
+
+
+def fresh_python(script: str, *argv: str) -> list[str]:
+    """The words ``script`` prints, run with ``argv`` in a fresh interpreter (which modules a path imports)."""
+    done = subprocess.run([sys.executable, "-c", script, *argv], capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr
+    return done.stdout.split()
 
 
 def estimate_json(capsys, path: Path, *argv: str) -> dict:

@@ -13,7 +13,15 @@ import pyarrow.parquet as pq
 import pytest
 from hypothesis import given
 from hypothesis import strategies as st
-from measurement_cases import FUZZ, assert_same_estimate_as_csv, check_damaged_file, damaged, read_all, rig_recording
+from measurement_cases import (
+    FUZZ,
+    assert_same_estimate_as_csv,
+    check_damaged_file,
+    damaged,
+    fresh_python,
+    read_all,
+    rig_recording,
+)
 
 from online_backlash.cli import main
 from online_backlash.errors import LogFormatError
@@ -299,3 +307,16 @@ def test_an_arrow_files_blocks_do_not_hold_its_record_batches(tmp_path):
         np.concatenate([block.motor_deg for block in blocks]), table.column("motor").to_numpy()
     )
     assert held < 1 << 20, f"the blocks hold {held / 2**20:.1f} MB of pyarrow's record batches"
+
+
+def test_an_arrow_ipc_file_is_read_without_importing_pyarrow_parquet(tmp_path):
+    """``pyarrow.parquet`` loads pyarrow's file systems (S3, GCS, Azure, HDFS): 4 MB of a replay's peak memory
+    that an Arrow IPC file never uses (issue 31). In a fresh process, as ``estimate`` reads it."""
+    path = tmp_path / "small.arrow"
+    feather.write_feather(small_table(), path, compression="uncompressed")
+    script = (
+        "import sys\nfrom online_backlash.replay import open_log\n"
+        "with open_log(sys.argv[1], columns={'time': 't', 'motor': 'm', 'load': 'l'}) as log:\n"
+        "    print(sum(len(chunk) for chunk in log.iter_chunks()), 'pyarrow.parquet' in sys.modules)"
+    )
+    assert fresh_python(script, str(path)) == ["200", "False"]
