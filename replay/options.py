@@ -35,18 +35,12 @@ class Columns(ReaderOption):
 
     columns: dict[str, str] | None = None
 
-    def kwargs(self) -> dict[str, Any]:
-        return {"columns": self.columns}
-
 
 @dataclass(frozen=True)
 class Units(ReaderOption):
     """The motor and load angles' unit (``deg``, ``rad``, ``rev``, ``arcmin``, ``counts``; None: the file's own)."""
 
     units: str | None = None
-
-    def kwargs(self) -> dict[str, Any]:
-        return {"units": self.units}
 
 
 @dataclass(frozen=True)
@@ -55,18 +49,12 @@ class BadRows(ReaderOption):
 
     skip_bad: bool = False
 
-    def kwargs(self) -> dict[str, Any]:
-        return {"skip_bad": self.skip_bad}
-
 
 @dataclass(frozen=True)
 class Pace(ReaderOption):
     """A CAN log or serial capture replayed at its recorded pace (True) or as fast as it is read."""
 
     realtime: bool = False
-
-    def kwargs(self) -> dict[str, Any]:
-        return {"realtime": self.realtime}
 
 
 @dataclass(frozen=True)

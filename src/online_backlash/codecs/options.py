@@ -30,8 +30,9 @@ class ReaderOption:
     (:meth:`~online_backlash.replay.formats.LogFormat.reader_kwargs`)."""
 
     def kwargs(self) -> dict[str, Any]:
-        """The reader's keyword arguments this option sets."""
-        raise NotImplementedError
+        """The reader's keyword arguments this option sets: by default each of its fields by its own name (an
+        option whose reader takes them otherwise says how)."""
+        return {f.name: getattr(self, f.name) for f in fields(self)}  # type: ignore[arg-type]
 
     @classmethod
     def take_from(cls, flat: dict[str, Any]) -> Any:
@@ -47,9 +48,6 @@ class Counts(ReaderOption):
 
     motor_cpr: float | None = None
     load_cpr: float | None = None
-
-    def kwargs(self) -> dict[str, Any]:
-        return {"motor_cpr": self.motor_cpr, "load_cpr": self.load_cpr}
 
 
 @dataclass(frozen=True)
@@ -94,9 +92,6 @@ class SerialFraming(ReaderOption):
 
     serial_format: str | None = None
 
-    def kwargs(self) -> dict[str, Any]:
-        return {"serial_format": self.serial_format}
-
 
 @dataclass(frozen=True)
 class Canopen(ReaderOption):
@@ -108,9 +103,6 @@ class Canopen(ReaderOption):
     load_node: int | None = None
     load_eds: str | os.PathLike[str] | None = None
     load_subindex: int | None = None
-
-    def kwargs(self) -> dict[str, Any]:
-        return {f.name: getattr(self, f.name) for f in fields(self)}
 
 
 @dataclass(frozen=True)
