@@ -102,9 +102,11 @@ class RegressorRLS(RecursiveEstimator):
         u, x = u - st[at.U0], y - st[at.Y0]
         moved, x_prev = st[at.HAVE_PREV] and u != st[at.U_PREV], st[at.X_PREV]
         st[at.HAVE_PREV], st[at.U_PREV], st[at.X_PREV] = 1.0, u, x
+        if not moved:  # after a gap, or the input still: no information
+            return
         theta_at, cov_at = self._slices()
         theta = np.array(st[theta_at])
-        reading = self._regressor(u, x_prev, theta) if moved else None
+        reading = self._regressor(u, x_prev, theta)
         if reading is None:
             return
         phi, side = reading
